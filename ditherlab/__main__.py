@@ -1,0 +1,3 @@
+from ditherlab.cli import main
+
+main()

@@ -1,0 +1,99 @@
+"""The ``ditherlab`` command line: a thin typer layer over the library.
+
+Each command parses its options and calls one library function. User mistakes raise
+:class:`~ditherlab.errors.DitherlabError`; :func:`main` turns them into one line on stderr and
+exit status 2, never a traceback. Long work reports progress through a callback that the library
+calls as ``progress(done, total)``; here it drives a progress bar on stderr.
+
+Shared pieces for every command live at the top of this file; commands follow, one function
+each. Add a command as a new function below; keep it ~10 lines.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ditherlab.errors import DitherlabError, DitherlabWarning
+
+app = typer.Typer(
+    name="ditherlab",
+    help="Sensorless force estimation with dithering: identify, replay, report, diagnose, "
+    "simulate, view, info, convert.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+# ---------------------------------------------------------------- shared option aliases
+OutPath = Annotated[Path, typer.Option("-o", "--out", help="Output file (written atomically).")]
+Seed = Annotated[int, typer.Option("--seed", help="Random seed; the same seed gives the same output.")]
+RobotOpt = Annotated[
+    str | None,
+    typer.Option("--robot", help="Robot for files without metadata: a built-in name or a URDF path."),
+]
+JsonFlag = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON on stdout.")]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")]
+
+
+@contextlib.contextmanager
+def progress_bar(desc: str, quiet: bool = False) -> Iterator[Callable[[int, int], None]]:
+    """A ``progress(done, total)`` callback drawing a bar on stderr (nothing when quiet)."""
+    if quiet:
+        yield lambda done, total: None
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(desc=desc, total=1, unit="", file=sys.stderr, leave=False, dynamic_ncols=True,
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}")
+    try:
+        def update(done: int, total: int) -> None:
+            bar.total = max(int(total), 1)
+            bar.n = min(int(done), bar.total)
+            bar.refresh()
+
+        yield update
+    finally:
+        bar.close()
+
+
+def echo(msg: str = "") -> None:
+    """Human-readable output on stdout."""
+    typer.echo(msg)
+
+
+def _format_warning(message, category, filename, lineno, line=None) -> str:  # noqa: ANN001
+    return f"warning: {message}\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point: run the app; a DitherlabError becomes one line on stderr and exit 2."""
+    warnings.formatwarning = _format_warning
+    warnings.simplefilter("default", DitherlabWarning)
+    try:
+        app(args=argv, standalone_mode=False)
+    except DitherlabError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    except (typer.Abort, KeyboardInterrupt):
+        typer.echo("aborted", err=True)
+        sys.exit(130)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except Exception as exc:  # click usage errors
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            sys.exit(2)
+        raise
+    sys.exit(0)
+
+
+# ================================================================ commands

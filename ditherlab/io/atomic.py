@@ -1,0 +1,63 @@
+"""Atomic output: write to a temporary file beside the target, then rename over it.
+
+A crash never leaves half a file, and no command may write over one of its inputs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from ditherlab.errors import DitherlabError
+
+
+def check_not_input(out: str | Path, inputs: Iterable[str | Path]) -> None:
+    """Raise DitherlabError when ``out`` is one of ``inputs`` (same file on disk)."""
+    o = Path(out)
+    for i in inputs:
+        p = Path(i)
+        same = o.resolve() == p.resolve()
+        if not same and o.exists() and p.exists():
+            with contextlib.suppress(OSError):
+                same = os.path.samefile(o, p)
+        if same:
+            raise DitherlabError(f"{o}: refusing to write over the input file {p}")
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path in the target's folder; on success rename it to ``path``.
+
+    The temporary file keeps the target's suffix (writers dispatch on it). On an exception the
+    temporary file is removed and ``path`` is untouched.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{target.name}.", suffix=suffix if suffix is not None else target.suffix,
+        dir=target.parent,
+    )
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp_path.unlink()
+        raise
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically; returns the path."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write UTF-8 ``text`` to ``path`` atomically; returns the path."""
+    return atomic_write_bytes(path, text.encode("utf-8"))

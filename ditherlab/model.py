@@ -1,0 +1,296 @@
+"""The torque model: the base model of the paper plus a list of named effects, as a TOML file.
+
+``tau = tau_grav(q) + J(q)^T F + tau_f + e + sum(effects)``, per joint, with ``tau_f`` a uniform
+band ``[tau_min, tau_max]`` and ``e ~ N(0, sigma^2)`` identified per regime (``still``, ``dither``,
+``moving``), and a Gaussian prior ``F ~ N(prior_mean, diag(prior_sigma^2))`` on the wrench.
+
+The file is meant to be read and edited by a person::
+
+    schema = "ditherlab.model/1"
+    robot = "irb140"
+    version = 1
+    [prior]
+    mean = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]      # [N, N, N, N·m, N·m, N·m]
+    sigma = [20.0, 20.0, 20.0, 0.3, 0.3, 0.3]
+    [regimes.still]
+    tau_min = [...]   # [N·m], one per joint
+    tau_max = [...]
+    sigma = [...]     # [N·m]
+    [[effects]]
+    name = "viscous"
+    joints = [2, 3]
+    params = { coef = [1.2, 0.8] }
+
+Effects are stored as plain specs here; their physics lives in :mod:`ditherlab.effects`.
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from ditherlab.errors import ModelError
+
+SCHEMA = "ditherlab.model/1"
+REGIMES = ("still", "dither", "moving")
+#: The paper's prior (§V): F_bar = 0, R_F = diag(20, 20, 20, 0.3, 0.3, 0.3)^2.
+PAPER_PRIOR_SIGMA = (20.0, 20.0, 20.0, 0.3, 0.3, 0.3)
+
+
+@dataclass
+class Band:
+    """The disturbance model of one regime: a uniform band plus Gaussian noise, per joint.
+
+    Attributes
+    ----------
+    tau_min, tau_max : (n,) [N·m]
+        Edges of the uniform friction band (``tau_min <= tau_max``).
+    sigma : (n,) [N·m]
+        Standard deviation of the Gaussian noise (> 0).
+    coulomb, viscous : (n,) [N·m], [N·m·s/rad], optional
+        Sliding friction ``coulomb·sign(dq) + viscous·dq`` (used in the ``moving`` regime,
+        where the band is centred on it).
+    stderr : dict of name -> (n,), optional
+        Standard errors of the fitted parameters (e.g. from a bootstrap over pushes).
+    """
+
+    tau_min: np.ndarray
+    tau_max: np.ndarray
+    sigma: np.ndarray
+    coulomb: np.ndarray | None = None
+    viscous: np.ndarray | None = None
+    stderr: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for k in ("tau_min", "tau_max", "sigma", "coulomb", "viscous"):
+            v = getattr(self, k)
+            if v is not None:
+                setattr(self, k, np.asarray(v, dtype=float).reshape(-1))
+        self.stderr = {k: np.asarray(v, dtype=float).reshape(-1) for k, v in self.stderr.items()}
+
+    @property
+    def n(self) -> int:
+        return len(self.sigma)
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "tau_min": self.tau_min.tolist(),
+            "tau_max": self.tau_max.tolist(),
+            "sigma": self.sigma.tolist(),
+        }
+        if self.coulomb is not None:
+            d["coulomb"] = self.coulomb.tolist()
+        if self.viscous is not None:
+            d["viscous"] = self.viscous.tolist()
+        if self.stderr:
+            d["stderr"] = {k: v.tolist() for k, v in self.stderr.items()}
+        return d
+
+
+@dataclass
+class EffectSpec:
+    """One named effect of the model: which joints it acts on and its fitted parameters.
+
+    ``params`` maps a parameter name to a number or a list with one value per listed joint.
+    """
+
+    name: str
+    joints: list[int]
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "joints": list(self.joints), "params": _plain(self.params)}
+
+
+@dataclass
+class TorqueModel:
+    """A fitted torque model (see the module docstring for the file layout).
+
+    Attributes
+    ----------
+    robot : built-in name or ``{"urdf": ..., "tool_frame": ...}`` (as in a recording's metadata)
+    n : number of joints
+    regimes : regime name -> :class:`Band`
+    prior_mean : (6,) [N, N·m]
+    prior_sigma : (6,) [N, N·m]; ``inf`` leaves a component free, ``0`` holds it at the mean
+    effects : the effects added to the base model, in order
+    history : one dict per diagnose run (version, effects, RMS figures)
+    version : incremented each time an effect is added and the model re-fitted
+    """
+
+    robot: str | dict
+    n: int
+    regimes: dict[str, Band] = field(default_factory=dict)
+    prior_mean: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    prior_sigma: np.ndarray = field(default_factory=lambda: np.array(PAPER_PRIOR_SIGMA))
+    effects: list[EffectSpec] = field(default_factory=list)
+    history: list[dict[str, Any]] = field(default_factory=list)
+    version: int = 1
+    tool_offset: list[float] | None = None
+    payload: dict[str, Any] | None = None
+    notes: str = ""
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        self.prior_mean = np.asarray(self.prior_mean, dtype=float).reshape(6)
+        self.prior_sigma = np.asarray(self.prior_sigma, dtype=float).reshape(6)
+        self.validate()
+
+    # -------------------------------------------------------------- checks
+    def validate(self) -> None:
+        """Raise ModelError for inverted bands, non-positive noise or wrong lengths."""
+        where = f"{self.source}: " if self.source else ""
+        if np.any(self.prior_sigma < 0) or np.any(np.isnan(self.prior_sigma)):
+            raise ModelError(f"{where}prior.sigma is {self.prior_sigma.tolist()}, expected >= 0")
+        for name, b in self.regimes.items():
+            if name not in REGIMES:
+                raise ModelError(f"{where}unknown regime [regimes.{name}], expected one of {REGIMES}")
+            for k in ("tau_min", "tau_max", "sigma", "coulomb", "viscous"):
+                v = getattr(b, k)
+                if v is not None and len(v) != self.n:
+                    raise ModelError(
+                        f"{where}regimes.{name}.{k} has {len(v)} values, expected {self.n} (one per joint)"
+                    )
+                if v is not None and not np.all(np.isfinite(v)):
+                    raise ModelError(f"{where}regimes.{name}.{k} is {v.tolist()}, expected finite numbers")
+            inv = np.flatnonzero(b.tau_min > b.tau_max)
+            if inv.size:
+                j = int(inv[0])
+                raise ModelError(
+                    f"{where}regimes.{name} band of joint {j + 1} is inverted: "
+                    f"tau_min={b.tau_min[j]:g} > tau_max={b.tau_max[j]:g} N·m"
+                )
+            bad = np.flatnonzero(~(b.sigma > 0))
+            if bad.size:
+                j = int(bad[0])
+                raise ModelError(
+                    f"{where}regimes.{name}.sigma of joint {j + 1} is {b.sigma[j]:g} N·m, "
+                    "expected a positive noise level"
+                )
+        for e in self.effects:
+            badj = [j for j in e.joints if not 1 <= int(j) <= self.n]
+            if badj:
+                raise ModelError(
+                    f"{where}effect {e.name!r} names joint {badj[0]}, expected 1..{self.n}"
+                )
+
+    def band(self, regime: str) -> Band:
+        """The :class:`Band` of a regime; ModelError when the model has none for it."""
+        if regime not in self.regimes:
+            where = f"{self.source}: " if self.source else ""
+            raise ModelError(
+                f"{where}the model has no [regimes.{regime}] (it has "
+                f"{', '.join(self.regimes) or 'none'}); identify it from a recording with that regime"
+            )
+        return self.regimes[regime]
+
+    def effect_names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    def copy(self) -> TorqueModel:
+        return copy.deepcopy(self)
+
+    # -------------------------------------------------------------- file I/O
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"schema": SCHEMA, "robot": self.robot, "n_joints": self.n,
+                             "version": self.version}
+        if self.notes:
+            d["notes"] = self.notes
+        if self.tool_offset is not None:
+            d["tool_offset"] = list(map(float, self.tool_offset))
+        if self.payload is not None:
+            d["payload"] = _plain(self.payload)
+        d["prior"] = {"mean": self.prior_mean.tolist(), "sigma": _inf_safe(self.prior_sigma)}
+        d["regimes"] = {k: b.to_dict() for k, b in self.regimes.items()}
+        d["effects"] = [e.to_dict() for e in self.effects]
+        if self.history:
+            d["history"] = _plain(self.history)
+        return d
+
+    def dumps(self) -> str:
+        """The model as TOML text."""
+        return tomli_w.dumps(self.to_dict())
+
+    def save(self, path: str | Path) -> Path:
+        """Write the model as TOML, atomically (temporary file + rename)."""
+        from ditherlab.io.atomic import atomic_write_text
+
+        return atomic_write_text(Path(path), self.dumps())
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str | None = None) -> TorqueModel:
+        where = f"{source}: " if source else ""
+        if d.get("schema") != SCHEMA:
+            raise ModelError(f"{where}key 'schema' is {d.get('schema')!r}, expected {SCHEMA!r}")
+        for key in ("robot", "n_joints"):
+            if key not in d:
+                raise ModelError(f"{where}key {key!r} is missing")
+        regimes = {}
+        for name, b in (d.get("regimes") or {}).items():
+            try:
+                regimes[name] = Band(
+                    tau_min=b["tau_min"],
+                    tau_max=b["tau_max"],
+                    sigma=b["sigma"],
+                    coulomb=b.get("coulomb"),
+                    viscous=b.get("viscous"),
+                    stderr=b.get("stderr", {}),
+                )
+            except KeyError as exc:
+                raise ModelError(f"{where}regimes.{name}.{exc.args[0]} is missing") from None
+        prior = d.get("prior", {})
+        effects = []
+        for i, e in enumerate(d.get("effects", [])):
+            if "name" not in e:
+                raise ModelError(f"{where}effects[{i}].name is missing")
+            effects.append(EffectSpec(e["name"], [int(j) for j in e.get("joints", [])], e.get("params", {})))
+        return cls(
+            robot=d["robot"],
+            n=int(d["n_joints"]),
+            regimes=regimes,
+            prior_mean=prior.get("mean", [0.0] * 6),
+            prior_sigma=[float(s) for s in prior.get("sigma", PAPER_PRIOR_SIGMA)],
+            effects=effects,
+            history=list(d.get("history", [])),
+            version=int(d.get("version", 1)),
+            tool_offset=d.get("tool_offset"),
+            payload=d.get("payload"),
+            notes=d.get("notes", ""),
+            source=source,
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> TorqueModel:
+        """Read a model file; ModelError names the file and the key for any problem."""
+        p = Path(path)
+        if not p.is_file():
+            raise ModelError(f"{p}: no such model file")
+        try:
+            d = tomllib.loads(p.read_text(encoding="utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ModelError(f"{p}: not a valid TOML file ({exc})") from None
+        return cls.from_dict(d, source=str(p))
+
+
+def _plain(x: Any) -> Any:
+    """numpy values -> plain Python (for TOML/JSON)."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def _inf_safe(v: np.ndarray) -> list[float]:
+    # TOML has inf natively; tomli_w writes it as `inf`.
+    return [float(x) for x in v]

@@ -1,0 +1,506 @@
+"""The Recording: one time-indexed table plus metadata (contract: RECORDING.md, version 1).
+
+Every reader and the simulator produce a :class:`Recording`; everything downstream consumes one.
+Arrays returned by its accessors have time as the first axis and SI units (arm side of the
+gearbox): ``q: (N, n) [rad]``, ``tau: (N, n) [N·m]``, ``wrench: (N, 6) [N, N·m]``.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from ditherlab.errors import RecordingError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ditherlab.robot import RobotModel
+
+SCHEMA = "ditherlab.recording/1"
+WRENCH_COLUMNS = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
+FORCE_AXES = ("x", "y", "z")
+#: Per-joint column families: prefix -> (required, unit).
+JOINT_FAMILIES: dict[str, tuple[bool, str]] = {
+    "q": (True, "rad"),
+    "dq": (False, "rad/s"),
+    "tau": (True, "N·m"),
+    "tau_ffw": (False, "N·m"),
+    "temp": (False, "°C"),
+}
+_JOINT_COL = re.compile(r"^(q|dq|tau|tau_ffw|temp)_(\d+)$")
+
+#: Regime codes returned by :func:`regimes`.
+STILL, DITHER, MOVING = 0, 1, 2
+REGIME_NAMES = ("still", "dither", "moving")
+
+
+def _where(name: str | None) -> str:
+    return f"{name}: " if name else ""
+
+
+def _time_span(t: np.ndarray, bad: np.ndarray) -> str:
+    idx = np.flatnonzero(bad)
+    return f"between t={t[idx[0]]:.2f} s and t={t[idx[-1]]:.2f} s"
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """A validated joint log.
+
+    Parameters
+    ----------
+    data : pandas.DataFrame
+        One row per sample, columns per RECORDING.md (``t``, ``q_1..q_n``, ``tau_1..tau_n`` and
+        optional families). Numeric columns are converted to float64, ``dither`` to bool.
+    meta : dict
+        Metadata; ``schema`` and ``robot`` are required.
+    name : str, optional
+        Where the recording came from (a file path), used in error messages.
+
+    Raises
+    ------
+    RecordingError
+        If the table or metadata break the contract; the message names the file, the column
+        and what was expected.
+    """
+
+    data: pd.DataFrame
+    meta: dict[str, Any]
+    name: str | None = None
+    n: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        data, meta, n = _validate(self.data, self.meta, self.name)
+        object.__setattr__(self, "data", data)
+        object.__setattr__(self, "meta", meta)
+        object.__setattr__(self, "n", n)
+
+    # ------------------------------------------------------------------ construction helpers
+    @classmethod
+    def from_arrays(
+        cls,
+        t: np.ndarray,
+        q: np.ndarray,
+        tau: np.ndarray,
+        meta: Mapping[str, Any],
+        *,
+        dq: np.ndarray | None = None,
+        tau_ffw: np.ndarray | None = None,
+        wrench: np.ndarray | None = None,
+        temp: np.ndarray | None = None,
+        dither: np.ndarray | None = None,
+        extra: Mapping[str, np.ndarray] | None = None,
+        name: str | None = None,
+    ) -> Recording:
+        """Build a recording from arrays.
+
+        Parameters
+        ----------
+        t : (N,) [s]
+        q : (N, n) [rad]
+        tau : (N, n) [N·m]
+        meta : metadata (``robot`` required; ``schema`` is filled in)
+        dq : (N, n) [rad/s], optional
+        tau_ffw : (N, n) [N·m], optional
+        wrench : (N, 6) [N, N·m], optional, ``f_x .. m_z``
+        temp : (N, n) [°C], optional
+        dither : (N,) bool, optional
+        extra : further columns, passed through untouched
+        """
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        cols: dict[str, np.ndarray] = {"t": np.asarray(t, dtype=float)}
+        for prefix, arr in (("q", q), ("dq", dq), ("tau", tau), ("tau_ffw", tau_ffw), ("temp", temp)):
+            if arr is None:
+                continue
+            arr = np.asarray(arr, dtype=float).reshape(len(cols["t"]), -1)
+            for j in range(arr.shape[1]):
+                cols[f"{prefix}_{j + 1}"] = arr[:, j]
+        if wrench is not None:
+            w = np.asarray(wrench, dtype=float).reshape(len(cols["t"]), 6)
+            for k, c in enumerate(WRENCH_COLUMNS):
+                cols[c] = w[:, k]
+        if dither is not None:
+            cols["dither"] = np.asarray(dither, dtype=bool)
+        if extra:
+            cols.update({k: np.asarray(v) for k, v in extra.items()})
+        m = {"schema": SCHEMA, **dict(meta)}
+        return cls(pd.DataFrame(cols), m, name=name)
+
+    # ------------------------------------------------------------------ accessors
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def _family(self, prefix: str) -> np.ndarray | None:
+        cols = [f"{prefix}_{j + 1}" for j in range(self.n)]
+        if cols[0] not in self.data.columns:
+            return None
+        return self.data[cols].to_numpy(dtype=float)
+
+    @property
+    def t(self) -> np.ndarray:
+        """Sample times, (N,) [s]."""
+        return self.data["t"].to_numpy(dtype=float)
+
+    @property
+    def q(self) -> np.ndarray:
+        """Joint positions, (N, n) [rad]."""
+        return self._family("q")  # type: ignore[return-value]
+
+    @property
+    def tau(self) -> np.ndarray:
+        """Logged motor torque (torque reference, arm side), (N, n) [N·m]."""
+        return self._family("tau")  # type: ignore[return-value]
+
+    @property
+    def has_dq(self) -> bool:
+        """True when ``dq_*`` columns were logged (not differentiated)."""
+        return "dq_1" in self.data.columns
+
+    @cached_property
+    def dq(self) -> np.ndarray:
+        """Joint velocities, (N, n) [rad/s].
+
+        The logged ``dq_*`` columns when present; otherwise :func:`differentiate` of ``q``.
+        """
+        logged = self._family("dq")
+        return logged if logged is not None else differentiate(self.t, self.q)
+
+    @cached_property
+    def ddq(self) -> np.ndarray:
+        """Joint accelerations, (N, n) [rad/s²]: :func:`differentiate` of :attr:`dq`."""
+        return differentiate(self.t, self.dq)
+
+    @property
+    def tau_ffw(self) -> np.ndarray | None:
+        """Torque feedforward sent (dither + static centre), (N, n) [N·m], or None."""
+        return self._family("tau_ffw")
+
+    @property
+    def temp(self) -> np.ndarray | None:
+        """Joint temperatures, (N, n) [°C], or None."""
+        return self._family("temp")
+
+    @property
+    def has_wrench(self) -> bool:
+        """True when the F/T sensor columns ``f_x .. m_z`` are present."""
+        return "f_x" in self.data.columns
+
+    @property
+    def wrench(self) -> np.ndarray | None:
+        """F/T sensor wrench at the tool point in base axes, (N, 6) [N, N·m], or None.
+
+        Sign: the wrench the robot exerts on its environment (RECORDING.md).
+        """
+        if not self.has_wrench:
+            return None
+        return self.data[list(WRENCH_COLUMNS)].to_numpy(dtype=float)
+
+    @property
+    def dither(self) -> np.ndarray | None:
+        """Dither flag, (N,) bool, or None when not logged."""
+        if "dither" not in self.data.columns:
+            return None
+        return self.data["dither"].to_numpy(dtype=bool)
+
+    @property
+    def sample_rate(self) -> float:
+        """Nominal sample rate [Hz]: metadata ``sample_rate_hz`` or 1 / median(diff(t))."""
+        if "sample_rate_hz" in self.meta:
+            return float(self.meta["sample_rate_hz"])
+        if len(self) < 2:
+            return float("nan")
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    @property
+    def duration(self) -> float:
+        """t[-1] - t[0] [s]."""
+        t = self.t
+        return float(t[-1] - t[0]) if len(t) else 0.0
+
+    @property
+    def robot_spec(self) -> str | dict:
+        """The ``robot`` metadata entry: a built-in name or ``{"urdf": ..., "tool_frame": ...}``."""
+        return self.meta["robot"]
+
+    @property
+    def robot_label(self) -> str:
+        """A short human-readable robot name."""
+        spec = self.robot_spec
+        if isinstance(spec, str):
+            return spec
+        return str(spec.get("name") or _urdf_name(spec.get("urdf", "")) or "urdf")
+
+    def robot(self) -> RobotModel:
+        """The :class:`~ditherlab.robot.RobotModel` described by the metadata (cached).
+
+        Raises RobotError for an unknown name, a URDF that does not parse, or a joint count
+        that differs from the recording's.
+        """
+        cached = self.__dict__.get("_robot")
+        if cached is None:
+            from ditherlab.robot import RobotModel
+
+            cached = RobotModel.from_recording_meta(self.meta, n_expected=self.n, where=self.name)
+            object.__setattr__(self, "_robot", cached)
+        return cached
+
+    # ------------------------------------------------------------------ transformations
+    def slice(self, t0: float | None = None, t1: float | None = None) -> Recording:
+        """The samples with ``t0 <= t < t1`` (either bound may be None), as a new Recording."""
+        t = self.t
+        mask = np.ones(len(t), dtype=bool)
+        if t0 is not None:
+            mask &= t >= t0
+        if t1 is not None:
+            mask &= t < t1
+        if not mask.any():
+            raise RecordingError(
+                f"{_where(self.name)}no samples with {t0} <= t < {t1} s "
+                f"(the recording spans t={t[0]:.3f}..{t[-1]:.3f} s)"
+            )
+        return self.with_data(self.data.loc[mask].reset_index(drop=True))
+
+    def with_data(self, data: pd.DataFrame, **meta_updates: Any) -> Recording:
+        """A new Recording with another table (and optionally updated metadata)."""
+        meta = copy.deepcopy(self.meta)
+        meta.update(meta_updates)
+        return Recording(data, meta, name=self.name)
+
+    def with_columns(self, **cols: np.ndarray) -> Recording:
+        """A new Recording with columns added or replaced."""
+        data = self.data.copy()
+        for k, v in cols.items():
+            data[k] = v
+        return self.with_data(data)
+
+    def meta_json(self) -> str:
+        """The metadata as one JSON string (as stored in Parquet and MCAP)."""
+        return json.dumps(self.meta, sort_keys=True)
+
+    def __repr__(self) -> str:
+        return (
+            f"Recording({self.name or '<memory>'}: {len(self)} samples, {self.duration:.2f} s, "
+            f"{self.n} joints, robot={self.robot_label})"
+        )
+
+    def equals(self, other: Recording) -> bool:
+        """True when both tables (values, column order) and metadata are identical."""
+        return (
+            list(self.data.columns) == list(other.data.columns)
+            and self.data.equals(other.data)
+            and self.meta == other.meta
+        )
+
+
+# ---------------------------------------------------------------------- module functions
+def differentiate(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Time derivative of sampled signals.
+
+    Second-order finite differences on the actual (possibly jittered) time stamps: central in the
+    interior, one-sided second order at both ends (``numpy.gradient(x, t, edge_order=2)``). It
+    has no phase lag and no smoothing: noise on ``x`` is amplified by about 1/dt.
+
+    Parameters
+    ----------
+    t : (N,) [s], strictly increasing
+    x : (N, ...) any unit u
+
+    Returns
+    -------
+    (N, ...) [u/s]
+    """
+    x = np.asarray(x, dtype=float)
+    if len(t) < 3:
+        return np.zeros_like(x)
+    return np.gradient(x, np.asarray(t, dtype=float), axis=0, edge_order=2)
+
+
+def moving_mask(rec: Recording, threshold: float = 5e-3, window: float = 0.1) -> np.ndarray:
+    """Which joints are moving at each sample.
+
+    A joint moves when the magnitude of its velocity, averaged over a centred window, exceeds
+    ``threshold``. The average keeps the dither's vibration (zero mean over its period) from
+    counting as motion.
+
+    Parameters
+    ----------
+    rec : Recording
+    threshold : [rad/s]
+    window : [s]
+
+    Returns
+    -------
+    (N, n) bool
+    """
+    dq = rec.dq
+    if len(rec) < 2:
+        return np.zeros(dq.shape, dtype=bool)
+    dt = float(np.median(np.diff(rec.t)))
+    w = max(1, int(round(window / dt)))
+    kernel = np.ones(w) / w
+    smooth = np.empty_like(dq)
+    for j in range(dq.shape[1]):
+        smooth[:, j] = np.convolve(dq[:, j], kernel, mode="same")
+    return np.abs(smooth) > threshold
+
+
+def regimes(rec: Recording, threshold: float = 5e-3, window: float = 0.1) -> np.ndarray:
+    """Regime of every joint at every sample: ``STILL`` (0), ``DITHER`` (1) or ``MOVING`` (2).
+
+    A moving joint (:func:`moving_mask`) is MOVING; a joint that stands still while the
+    ``dither`` column is true is DITHER; otherwise STILL.
+
+    Returns
+    -------
+    (N, n) int8
+    """
+    moving = moving_mask(rec, threshold, window)
+    out = np.full(moving.shape, STILL, dtype=np.int8)
+    d = rec.dither
+    if d is not None:
+        out[d, :] = DITHER
+    out[moving] = MOVING
+    return out
+
+
+# ---------------------------------------------------------------------- validation
+def _urdf_name(urdf: str) -> str | None:
+    m = re.search(r"<robot[^>]*\bname\s*=\s*[\"']([^\"']+)", urdf or "")
+    return m.group(1) if m else None
+
+
+def _validate(
+    data: pd.DataFrame, meta: Mapping[str, Any], name: str | None
+) -> tuple[pd.DataFrame, dict[str, Any], int]:
+    where = _where(name)
+    if not isinstance(data, pd.DataFrame):
+        raise RecordingError(f"{where}expected a pandas DataFrame, got {type(data).__name__}")
+    if not isinstance(meta, Mapping):
+        raise RecordingError(f"{where}metadata must be a JSON object, got {type(meta).__name__}")
+    meta = copy.deepcopy(dict(meta))
+    schema = meta.get("schema")
+    if schema is None:
+        raise RecordingError(f"{where}metadata key 'schema' is missing (expected {SCHEMA!r})")
+    if schema != SCHEMA:
+        raise RecordingError(f"{where}metadata key 'schema' is {schema!r}, expected {SCHEMA!r}")
+    robot = meta.get("robot")
+    if robot is None:
+        raise RecordingError(
+            f"{where}metadata key 'robot' is missing (expected a built-in name such as 'irb140' "
+            "or {'urdf': ..., 'tool_frame': ...})"
+        )
+    if isinstance(robot, Mapping):
+        for key in ("urdf", "tool_frame"):
+            if not isinstance(robot.get(key), str) or not robot.get(key):
+                raise RecordingError(f"{where}metadata key 'robot.{key}' is missing or not text")
+    elif not isinstance(robot, str):
+        raise RecordingError(
+            f"{where}metadata key 'robot' is {robot!r}, expected a name or an object with 'urdf'"
+        )
+    if "tool_offset" in meta:
+        off = meta["tool_offset"]
+        if not (isinstance(off, list | tuple) and len(off) == 3):
+            raise RecordingError(f"{where}metadata key 'tool_offset' is {off!r}, expected [x, y, z]")
+    if "payload" in meta:
+        p = meta["payload"]
+        if not (isinstance(p, Mapping) and "mass" in p):
+            raise RecordingError(
+                f"{where}metadata key 'payload' is {p!r}, expected {{'mass': kg, 'com': [x, y, z]}}"
+            )
+        if float(p["mass"]) < 0:
+            raise RecordingError(f"{where}metadata key 'payload.mass' is {p['mass']}, expected >= 0")
+
+    cols = list(data.columns)
+    if len(set(cols)) != len(cols):
+        dup = sorted({c for c in cols if cols.count(c) > 1})
+        raise RecordingError(f"{where}column {dup[0]} appears more than once")
+    if "t" not in cols:
+        raise RecordingError(f"{where}required column t is missing")
+
+    families: dict[str, set[int]] = {p: set() for p in JOINT_FAMILIES}
+    for c in cols:
+        m = _JOINT_COL.match(str(c))
+        if m:
+            families[m.group(1)].add(int(m.group(2)))
+    if not families["q"]:
+        raise RecordingError(f"{where}required column q_1 is missing (joint positions, rad)")
+    n = max(families["q"])
+    for prefix, (required, unit) in JOINT_FAMILIES.items():
+        idx = families[prefix]
+        if not idx and not required:
+            continue
+        expected = set(range(1, n + 1))
+        missing = sorted(expected - idx)
+        if missing:
+            raise RecordingError(
+                f"{where}required column {prefix}_{missing[0]} is missing "
+                f"(found q_1..q_{n}, so {prefix}_1..{prefix}_{n} [{unit}] are expected)"
+            )
+        extra = sorted(idx - expected)
+        if extra:
+            raise RecordingError(
+                f"{where}column {prefix}_{extra[0]} has no matching q_{extra[0]} "
+                f"(the recording has {n} joints)"
+            )
+    present_wrench = [c for c in WRENCH_COLUMNS if c in cols]
+    if present_wrench and len(present_wrench) != 6:
+        missing_w = [c for c in WRENCH_COLUMNS if c not in cols]
+        raise RecordingError(
+            f"{where}column {missing_w[0]} is missing: the F/T sensor needs all of "
+            f"{', '.join(WRENCH_COLUMNS)}"
+        )
+
+    numeric = ["t"] + [f"{p}_{j}" for p in JOINT_FAMILIES for j in sorted(families[p])]
+    numeric += present_wrench
+    out = data.copy() if not data.index.equals(pd.RangeIndex(len(data))) else data.copy(deep=False)
+    out = out.reset_index(drop=True)
+    for c in numeric:
+        col = out[c]
+        if col.dtype != np.float64:
+            conv = pd.to_numeric(col, errors="coerce")
+            bad = conv.isna() & col.notna()
+            if bad.any():
+                i = int(np.flatnonzero(bad.to_numpy())[0])
+                raise RecordingError(
+                    f"{where}column {c} has a non-numeric value {col.iloc[i]!r} in row {i + 1} "
+                    "(expected a number)"
+                )
+            out[c] = conv.astype(np.float64)
+    if len(out) == 0:
+        raise RecordingError(f"{where}the table has no rows")
+    t = out["t"].to_numpy()
+    for c in numeric:
+        v = out[c].to_numpy()
+        bad = ~np.isfinite(v)
+        if bad.any():
+            kind = "NaN" if np.isnan(v[bad]).all() else "NaN or infinite"
+            tt = t if c != "t" else np.arange(len(t), dtype=float)
+            span = _time_span(tt, bad) if c != "t" else f"in rows {np.flatnonzero(bad)[0] + 1}.."
+            raise RecordingError(f"{where}{c} has {int(bad.sum())} {kind} values {span}")
+    dt = np.diff(t)
+    if (dt <= 0).any():
+        i = int(np.flatnonzero(dt <= 0)[0])
+        raise RecordingError(
+            f"{where}t is not strictly increasing: t={t[i + 1]!r} s in row {i + 2} follows "
+            f"t={t[i]!r} s (expected increasing sample times)"
+        )
+    if "dither" in out.columns:
+        d = out["dither"]
+        if d.dtype != bool:
+            vals = pd.to_numeric(d, errors="coerce")
+            ok = vals.isin([0, 1]) & vals.notna()
+            if not ok.all():
+                i = int(np.flatnonzero(~ok.to_numpy())[0])
+                raise RecordingError(
+                    f"{where}column dither has value {d.iloc[i]!r} in row {i + 1} "
+                    "(expected true/false or 1/0)"
+                )
+            out["dither"] = vals.astype(bool)
+    return out, meta, n
