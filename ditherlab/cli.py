@@ -73,27 +73,18 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:  # n
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Entry point: run the app; a DitherlabError becomes one line on stderr and exit 2."""
+    """Entry point: run the app; a DitherlabError becomes one line on stderr and exit 2.
+
+    Usage errors (unknown option, missing argument) are typer's own: a short usage message and
+    exit status 2.
+    """
     warnings.formatwarning = _format_warning
     warnings.simplefilter("default", DitherlabWarning)
     try:
-        app(args=argv, standalone_mode=False)
+        app(args=argv, prog_name="ditherlab")
     except DitherlabError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
-    except (typer.Abort, KeyboardInterrupt):
-        typer.echo("aborted", err=True)
-        sys.exit(130)
-    except typer.Exit as exc:
-        sys.exit(exc.exit_code)
-    except Exception as exc:  # click usage errors
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            sys.exit(2)
-        raise
-    sys.exit(0)
 
 
 # ================================================================ commands

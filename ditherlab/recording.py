@@ -47,6 +47,8 @@ def _where(name: str | None) -> str:
 
 def _time_span(t: np.ndarray, bad: np.ndarray) -> str:
     idx = np.flatnonzero(bad)
+    if t[idx[0]] == t[idx[-1]]:
+        return f"at t={t[idx[0]]:.2f} s"
     return f"between t={t[idx[0]]:.2f} s and t={t[idx[-1]]:.2f} s"
 
 
