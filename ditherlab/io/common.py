@@ -1,0 +1,154 @@
+"""Helpers shared by the format modules: metadata from options, robot specs, unit checks."""
+
+from __future__ import annotations
+
+import copy
+import json
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from ditherlab.errors import ConfigError, FormatError, RobotError
+from ditherlab.recording import SCHEMA, Recording
+
+#: Options every reader accepts: they fill in or override the recording's metadata.
+META_OPTIONS = ("robot", "tool_frame", "tool_offset", "payload", "source", "notes")
+
+
+def robot_spec(
+    value: Any, *, base_dir: Path | None = None, tool_frame: str | None = None, where: str = "robot"
+) -> str | dict[str, str]:
+    """The metadata ``robot`` entry for a ``robot=`` option.
+
+    Parameters
+    ----------
+    value : str | Path | dict
+        A built-in robot name (``"irb140"``), a path to a URDF file (relative paths are taken
+        from ``base_dir`` when given), or an already formed ``{"urdf": ..., "tool_frame": ...}``.
+    base_dir : folder that relative URDF paths are relative to (e.g. the mapping file's).
+    tool_frame : frame of the tool for a URDF; default: the end of the longest joint chain.
+    where : the file or option named in error messages.
+
+    Returns
+    -------
+    str (built-in name) or dict with ``urdf`` (text), ``tool_frame`` and ``name``.
+    """
+    if isinstance(value, Mapping):
+        return dict(value)
+    text = str(value)
+    looks_like_path = isinstance(value, Path) or text.endswith(".urdf") or "/" in text
+    if not looks_like_path:
+        return text
+    p = Path(text).expanduser()
+    if not p.is_absolute() and base_dir is not None:
+        p = base_dir / p
+    if not p.is_file():
+        raise RobotError(
+            f"{where}: URDF file {p} does not exist (expected a built-in robot name "
+            "or the path of a URDF file)"
+        )
+    urdf = p.read_text(encoding="utf-8")
+    name, leaf = urdf_name_and_tip(urdf, where=str(p))
+    return {"urdf": urdf, "tool_frame": tool_frame or leaf, "name": name}
+
+
+def urdf_name_and_tip(urdf: str, where: str = "URDF") -> tuple[str, str]:
+    """The robot name and the link at the end of the longest joint chain of a URDF text."""
+    try:
+        root = ET.fromstring(urdf)
+    except ET.ParseError as exc:
+        raise RobotError(f"{where}: the URDF does not parse ({exc})") from None
+    parent_of: dict[str, str] = {}
+    for j in root.iter("joint"):
+        p, c = j.find("parent"), j.find("child")
+        if p is not None and c is not None:
+            parent_of[c.get("link", "")] = p.get("link", "")
+    links = [lk.get("name", "") for lk in root.iter("link")]
+    if not links:
+        raise RobotError(f"{where}: the URDF has no links")
+
+    def depth(link: str) -> int:
+        d = 0
+        while link in parent_of and d <= len(links):
+            link, d = parent_of[link], d + 1
+        return d
+
+    tip = max(links, key=depth)  # first of the deepest: stable
+    return root.get("name", "urdf"), tip
+
+
+def meta_from_options(
+    meta: Mapping[str, Any] | None,
+    options: Mapping[str, Any],
+    *,
+    base_dir: Path | None = None,
+    where: str = "",
+) -> dict[str, Any]:
+    """Metadata from a file's own metadata (may be None) updated by reader options.
+
+    ``robot``, ``tool_offset``, ``payload``, ``source``, ``notes`` override the file's values;
+    ``schema`` is filled in when absent.
+    """
+    out = copy.deepcopy(dict(meta)) if meta else {}
+    out.setdefault("schema", SCHEMA)
+    if options.get("robot") is not None:
+        out["robot"] = robot_spec(
+            options["robot"],
+            base_dir=base_dir,
+            tool_frame=options.get("tool_frame"),
+            where=where or "robot",
+        )
+    elif options.get("tool_frame") and isinstance(out.get("robot"), dict):
+        out["robot"]["tool_frame"] = options["tool_frame"]
+    if options.get("tool_offset") is not None:
+        out["tool_offset"] = [float(x) for x in options["tool_offset"]]
+    for key in ("payload", "source", "notes"):
+        if options.get(key) is not None:
+            out[key] = options[key]
+    if "robot" not in out:
+        raise FormatError(
+            f"{where}: no robot given (the file has no metadata 'robot'); pass robot='irb140' "
+            "or the path of a URDF file (CLI: --robot)"
+        )
+    return out
+
+
+def check_options(
+    options: Mapping[str, Any], allowed: tuple[str, ...], fmt: str, where: str
+) -> None:
+    """Raise ConfigError for an option the reader of ``fmt`` does not know."""
+    for key in options:
+        if key not in allowed:
+            raise ConfigError(
+                f"{where}: unknown option {key!r} for {fmt} files (expected one of "
+                f"{', '.join(sorted(allowed))})"
+            )
+
+
+def check_units(rec: Recording) -> None:
+    """Warn (DitherlabWarning) when joint positions lie far beyond the robot's limits, as if
+    logged in degrees (:meth:`ditherlab.robot.RobotModel.check_units`).
+
+    Raises RobotError for an unknown robot, a URDF that does not parse, or a joint count that
+    does not match the recording's.
+    """
+    rec.robot().check_units(rec.q, rec.name)
+
+
+def dumps_meta(meta: Mapping[str, Any]) -> str:
+    """The metadata as one JSON string (sorted keys; exact floats)."""
+    return json.dumps(meta, sort_keys=True)
+
+
+def loads_meta(text: str | bytes, where: str) -> dict[str, Any]:
+    """Parse a metadata JSON string; FormatError naming ``where`` when it is not a JSON object."""
+    try:
+        meta = json.loads(text)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{where}: the ditherlab metadata is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise FormatError(
+            f"{where}: the ditherlab metadata is {type(meta).__name__}, expected a JSON object"
+        )
+    return meta

@@ -1,0 +1,104 @@
+"""CSV: one header line with the recording's column names, one line per sample; the metadata in a
+sidecar JSON file beside it (``run.csv`` → ``run.json``) or from reader options.
+
+Floats are written with the shortest representation that reads back to the same float64
+(Python's ``repr``), so the round trip of float64 columns is exact. ``dither`` is written as
+``True``/``False``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ditherlab.errors import FormatError
+from ditherlab.io.atomic import atomic_path
+from ditherlab.io.common import (
+    META_OPTIONS,
+    check_options,
+    dumps_meta,
+    loads_meta,
+    meta_from_options,
+)
+from ditherlab.recording import WRENCH_COLUMNS, Recording
+
+OPTIONS = (*META_OPTIONS, "meta")
+_NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
+
+
+def sidecar_path(path: Path) -> Path:
+    """The metadata sidecar of a CSV file: same folder and stem, suffix ``.json``."""
+    return Path(path).with_suffix(".json")
+
+
+def read(path: Path, **options: Any) -> Recording:
+    """Read a ditherlab CSV file.
+
+    Metadata comes from the sidecar ``<stem>.json`` when it exists, then reader options
+    (``robot="irb140"`` or a URDF path, ``tool_offset``, ``meta={...}``) fill in or override it.
+    Raises FormatError for a non-numeric cell (naming column, row, line and value) or a missing
+    robot.
+    """
+    path = Path(path)
+    check_options(options, OPTIONS, "CSV", str(path))
+    stored: dict[str, Any] | None = None
+    side = sidecar_path(path)
+    if side.is_file():
+        stored = loads_meta(side.read_bytes(), str(side))
+    if options.get("meta"):
+        stored = {**(stored or {}), **options["meta"]}
+    meta = meta_from_options(stored, options, base_dir=path.parent, where=str(path))
+    try:
+        data = pd.read_csv(path, float_precision="round_trip", skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{path}: not a readable CSV file ({str(exc).strip()})") from None
+    check_numeric(data, path, header_lines=1)
+    if "dither" in data.columns and data["dither"].dtype == object:
+        low = data["dither"].astype(str).str.strip().str.lower()
+        if low.isin(["true", "false"]).all():
+            data["dither"] = low == "true"
+    return Recording(data, meta, name=str(path))
+
+
+def check_numeric(data: pd.DataFrame, path: Path | str, header_lines: int = 1) -> None:
+    """FormatError for the first non-numeric cell of a numeric recording column.
+
+    The message names the file, the column, the data row (1-based), the file line and the value.
+    """
+    for c in data.columns:
+        if not (_NUMERIC.match(str(c)) or c in WRENCH_COLUMNS):
+            continue
+        col = data[c]
+        if col.dtype.kind in "fiub":
+            continue
+        conv = pd.to_numeric(col, errors="coerce")
+        bad = conv.isna().to_numpy() & col.notna().to_numpy()
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise FormatError(
+                f"{path}: column {c} has a non-numeric value {col.iloc[i]!r} in row {i + 1} "
+                f"(line {i + 1 + header_lines}), expected a number"
+            )
+
+
+def write(rec: Recording, path: Path) -> Path:
+    """Write ``rec`` atomically to ``path`` and its metadata to the sidecar ``<stem>.json``."""
+    path = Path(path)
+    text = rec.data.to_csv(index=False, lineterminator="\n", float_format=_repr_float)
+    side = sidecar_path(path)
+    with atomic_path(side) as tmp_side, atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+        tmp_side.write_text(
+            json.dumps(json.loads(dumps_meta(rec.meta)), indent=1) + "\n", encoding="utf-8"
+        )
+    return path
+
+
+def _repr_float(x: float) -> str:
+    """Shortest text that reads back to the same float64."""
+    return repr(float(x))

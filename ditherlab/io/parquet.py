@@ -1,0 +1,56 @@
+"""Parquet: the table as written by pyarrow, the metadata as a JSON string under the key-value
+metadata key ``ditherlab``. The round trip is exact (column order, dtypes, extra columns,
+metadata)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from ditherlab.errors import FormatError
+from ditherlab.io.atomic import atomic_path
+from ditherlab.io.common import (
+    META_OPTIONS,
+    check_options,
+    dumps_meta,
+    loads_meta,
+    meta_from_options,
+)
+from ditherlab.recording import Recording
+
+META_KEY = b"ditherlab"
+MAGIC = b"PAR1"
+
+
+def read(path: Path, **options: Any) -> Recording:
+    """Read a ditherlab Parquet file.
+
+    Options ``robot``, ``tool_offset``, ... (see :data:`~ditherlab.io.common.META_OPTIONS`)
+    override the stored metadata; a file without ``ditherlab`` metadata needs ``robot=``.
+    Raises FormatError for a truncated or corrupt file.
+    """
+    check_options(options, META_OPTIONS, "Parquet", str(path))
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise FormatError(
+            f"{path}: not a readable Parquet file, truncated or corrupt ({exc})"
+        ) from None
+    kv = table.schema.metadata or {}
+    stored = loads_meta(kv[META_KEY], str(path)) if META_KEY in kv else None
+    meta = meta_from_options(stored, options, where=str(path))
+    return Recording(table.to_pandas(), meta, name=str(path))
+
+
+def write(rec: Recording, path: Path) -> Path:
+    """Write ``rec`` atomically to ``path`` (zstd-compressed Parquet)."""
+    table = pa.Table.from_pandas(rec.data, preserve_index=False)
+    kv = dict(table.schema.metadata or {})
+    kv[META_KEY] = dumps_meta(rec.meta).encode("utf-8")
+    table = table.replace_schema_metadata(kv)
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
+    return Path(path)
