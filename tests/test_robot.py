@@ -1,0 +1,285 @@
+"""Tests of ditherlab.robot: the IRB140 model, batched kinematics/dynamics, dedup, errors."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from ditherlab.errors import DitherlabWarning, RobotError
+from ditherlab.robot import (
+    PAPER_POSE,
+    RobotModel,
+    builtin_robots,
+    builtin_urdf,
+    unique_configurations,
+)
+
+G = 9.81  # [m/s²], pinocchio's default gravity
+
+# IRB140 link lengths [m] (public kinematics)
+D1, A1, A2, D4, D6 = 0.352, 0.070, 0.360, 0.380, 0.065
+
+
+@pytest.fixture(scope="module")
+def irb() -> RobotModel:
+    return RobotModel.from_spec("irb140")
+
+
+def random_q(robot: RobotModel, N: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.uniform(robot.q_lower, robot.q_upper, size=(N, robot.n))
+
+
+# ---------------------------------------------------------------------- the built-in IRB140
+def test_builtin_list_and_attributes(irb):
+    """The IRB140 is built in with six revolute joints named joint_1..6 and the ABB limits."""
+    assert builtin_robots() == ["irb140"]
+    assert irb.n == 6 and irb.joint_names == [f"joint_{i}" for i in range(1, 7)]
+    lo = np.radians([-180, -90, -230, -200, -115, -400])
+    hi = np.radians([180, 110, 50, 200, 115, 400])
+    np.testing.assert_allclose(irb.q_lower, lo, atol=1e-9)
+    np.testing.assert_allclose(irb.q_upper, hi, atol=1e-9)
+    assert irb.tool_frame == "tool0" and "estimate" in irb.urdf.lower()
+    total = sum(irb.model.inertias[j].mass for j in range(1, 7))
+    assert 60 < total < 98  # moving links of a ~98 kg arm (base excluded)
+
+
+def test_paper_pose_tool_point_by_hand(irb):
+    """In the paper pose the flange centre is at (a1 + d4, 0, d1 + a2 - d6) with tool z down."""
+    T = irb.tool_pose(PAPER_POSE)[0]
+    np.testing.assert_allclose(T[:3, 3], [A1 + D4, 0.0, D1 + A2 - D6], atol=1e-12)
+    np.testing.assert_allclose(T[:3, 2], [0, 0, -1], atol=1e-9)
+
+
+def test_paper_pose_lever_arms_by_hand(irb):
+    """The Jacobian's linear rows give the hand-computed lever arms of SIMULATOR-NOTES."""
+    J = irb.jacobian(PAPER_POSE)[0]
+    lever = np.abs(J[:3])  # |d tau_j / d F_axis| [m]
+    expected = np.zeros((3, 6))
+    expected[0, [1, 2, 4]] = [D1 + A2 - D6 - D1, D6, D6]  # Fx: J2 0.295, J3 0.065, J5 0.065
+    expected[1, [0, 3]] = [A1 + D4, D6]  # Fy: J1 0.450, J4 0.065
+    expected[2, [1, 2]] = [D4, D4]  # Fz: J2 0.380, J3 0.380
+    np.testing.assert_allclose(lever, expected, atol=1e-9)
+    np.testing.assert_allclose(expected[0, 1], 0.295, atol=1e-12)
+
+
+# ---------------------------------------------------------------------- against finite differences
+def _tool_point_fd(robot: RobotModel, q: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """(6, n) central differences of the tool point position and orientation (log map)."""
+    J = np.zeros((6, robot.n))
+    for k in range(robot.n):
+        e = np.zeros(robot.n)
+        e[k] = h
+        Tp, Tm = robot.tool_pose(q + e)[0], robot.tool_pose(q - e)[0]
+        J[:3, k] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * h)
+        # angular velocity in base axes: log(R+ R-^T) / 2h
+        J[3:, k] = pin.log3(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * h)
+    return J
+
+
+def test_jacobian_matches_finite_differences(irb):
+    """Every Jacobian column equals finite differences of the tool point's position/orientation."""
+    robot = RobotModel.from_spec("irb140", tool_offset=[0.02, -0.03, 0.15])
+    for q in random_q(robot, 5, seed=1):
+        np.testing.assert_allclose(robot.jacobian(q)[0], _tool_point_fd(robot, q), atol=1e-8)
+
+
+def test_gravity_matches_potential_energy_gradient():
+    """g(q) equals the gradient of pinocchio's potential energy by central differences."""
+    robot = RobotModel.from_spec("irb140", payload={"mass": 3.0, "com": [0.01, 0.02, 0.1]})
+    m, d = robot.model, robot.model.createData()
+    h = 1e-6
+    for q in random_q(robot, 5, seed=2):
+        fd = np.empty(robot.n)
+        for k in range(robot.n):
+            e = np.zeros(robot.n)
+            e[k] = h
+            fd[k] = (
+                pin.computePotentialEnergy(m, d, q + e) - pin.computePotentialEnergy(m, d, q - e)
+            ) / (2 * h)
+        np.testing.assert_allclose(robot.gravity(q)[0], fd, atol=1e-6)
+
+
+def test_mass_matrix_symmetric_and_matches_rnea():
+    """M(q) is symmetric and M(q) e_k equals rnea(q, 0, e_k) - g(q)."""
+    robot = RobotModel.from_spec("irb140")
+    m, d = robot.model, robot.model.createData()
+    qs = random_q(robot, 3, seed=3)
+    M = robot.mass_matrix(qs)
+    np.testing.assert_array_equal(M, np.swapaxes(M, 1, 2))
+    for q, Mi in zip(qs, M, strict=True):
+        g = pin.rnea(m, d, q, np.zeros(6), np.zeros(6))
+        for k in range(6):
+            a = np.zeros(6)
+            a[k] = 1.0
+            np.testing.assert_allclose(Mi[:, k], pin.rnea(m, d, q, np.zeros(6), a) - g, atol=1e-10)
+
+
+# ---------------------------------------------------------------------- payload
+def test_payload_changes_gravity_by_m_g_lever(irb):
+    """A payload 0.1 m below the flange in the paper pose adds m·g·0.380 on J2 and J3 only."""
+    mass = 2.5
+    loaded = RobotModel.from_spec("irb140", payload={"mass": mass, "com": [0, 0, 0.1]})
+    dg = loaded.gravity(PAPER_POSE)[0] - irb.gravity(PAPER_POSE)[0]
+    expected = np.array([0.0, -mass * G * D4, -mass * G * D4, 0.0, 0.0, 0.0])
+    np.testing.assert_allclose(dg, expected, atol=1e-9)
+
+
+def test_gravity_regressor_reproduces_payload():
+    """gravity_regressor(q) @ (m, m c, 0) equals the gravity change of that payload."""
+    mass, com = 1.7, np.array([0.03, -0.02, 0.12])
+    plain = RobotModel.from_spec("irb140", tool_offset=[0, 0, 0.1])
+    loaded = RobotModel.from_spec(
+        "irb140", tool_offset=[0, 0, 0.1], payload={"mass": mass, "com": com}
+    )
+    qs = random_q(plain, 20, seed=4)
+    theta = np.concatenate([[mass], mass * com, np.zeros(6)])
+    Y = plain.gravity_regressor(qs)
+    assert Y.shape == (20, 6, 10)
+    np.testing.assert_allclose(Y @ theta, loaded.gravity(qs) - plain.gravity(qs), atol=1e-10)
+
+
+# ---------------------------------------------------------------------- dedup
+#: max over q of max_i sum_j |dg_i/dq_j| for the IRB140 without payload (20 000 random q: 266.5)
+IRB140_GRAVITY_LIPSCHITZ = 270.0  # [N·m/rad]
+COUNT = 2 * np.pi / 2**20  # [rad] one count of a 20-bit encoder
+
+
+def _still_log(robot: RobotModel, N: int, seed: int) -> np.ndarray:
+    """A mostly-still log: four poses held, each joint flickering by one count 5 % of the time."""
+    rng = np.random.default_rng(seed)
+    poses = random_q(robot, 4, seed)
+    idx = np.repeat(np.arange(4), N // 4)
+    flicker = (rng.random((len(idx), robot.n)) < 0.05) * rng.choice([-1, 1], (len(idx), robot.n))
+    return poses[idx] + COUNT * flicker
+
+
+def test_dedup_exact_equals_loop(irb):
+    """With exact repeats, the deduplicated results are bit-identical to the per-sample loop."""
+    q = _still_log(irb, 400, seed=5)
+    u = unique_configurations(q)
+    assert len(u.q) < 400 / 2
+    np.testing.assert_array_equal(u.q[u.inverse], q)
+    for method in ("gravity", "jacobian", "tool_pose", "mass_matrix", "gravity_regressor"):
+        fast = getattr(irb, method)(q)
+        slow = getattr(irb, method)(q, dedup=False)
+        np.testing.assert_array_equal(fast, slow, err_msg=method)
+    poses = irb.link_poses(q)
+    slow_poses = irb.link_poses(q, dedup=False)
+    for name in irb.link_names:
+        np.testing.assert_array_equal(poses[name], slow_poses[name])
+
+
+def test_dedup_with_tolerance_within_bound(irb):
+    """With tol, each sample is evaluated within tol/2 per joint, gravity within the Lipschitz bound."""
+    tol = 4 * COUNT
+    q = _still_log(irb, 400, seed=6)
+    u = unique_configurations(q, tol)
+    assert np.max(np.abs(u.q[u.inverse] - q)) <= tol / 2 * (1 + 1e-9)
+    assert len(u.q) < len(unique_configurations(q).q)
+    m, d = irb.model, irb.model.createData()
+    # bound: (tol / 2) * sum_j |dg/dq_j| at each sample (first order; second order is ~1e-10)
+    dgdq = np.stack([pin.computeGeneralizedGravityDerivatives(m, d, qi) for qi in q])
+    bound = tol / 2 * np.abs(dgdq).sum(axis=2) + 1e-9
+    err = np.abs(irb.gravity(q, tol=tol) - irb.gravity(q, dedup=False))
+    assert np.all(err <= bound)
+    assert err.max() <= tol / 2 * IRB140_GRAVITY_LIPSCHITZ  # the documented worst case
+
+
+# ---------------------------------------------------------------------- errors
+def test_unknown_robot_name_lists_builtins():
+    """An unknown name names the recording and lists the built-in robots."""
+    with pytest.raises(RobotError) as e:
+        RobotModel.from_spec("irb120", where="log.parquet")
+    assert str(e.value).startswith("log.parquet: robot 'irb120' is not a built-in robot")
+    assert "irb140" in str(e.value)
+
+
+def test_bad_urdf_errors():
+    """A URDF that is not XML, and one urdfdom rejects, give one sentence with the reason."""
+    with pytest.raises(RobotError, match=r"^x.mcap: robot URDF does not parse as XML"):
+        RobotModel.from_spec({"urdf": "<robot name='r'", "tool_frame": "a"}, where="x.mcap")
+    bad = (
+        '<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="revolute">'
+        '<parent link="a"/><child link="b"/></joint></robot>'
+    )
+    with pytest.raises(RobotError) as e:
+        RobotModel.from_spec({"urdf": bad, "tool_frame": "b"}, where="x.mcap")
+    assert str(e.value) == (
+        "x.mcap: robot URDF does not parse: Joint [j] is of type REVOLUTE but it does not "
+        "specify limits"
+    )
+
+
+def test_missing_tool_frame():
+    """A tool frame that is not in the URDF is named together with the links that exist."""
+    with pytest.raises(RobotError) as e:
+        RobotModel.from_spec({"urdf": builtin_urdf("irb140"), "tool_frame": "flange"}, where="r")
+    assert str(e.value).startswith("r: tool frame 'flange' is not in the robot's URDF")
+    assert "tool0" in str(e.value)
+
+
+def test_wrong_joint_count():
+    """A recording with another joint count than the robot is rejected naming both counts."""
+    with pytest.raises(RobotError) as e:
+        RobotModel.from_recording_meta({"robot": "irb140"}, n_expected=5, where="d.csv")
+    assert str(e.value) == (
+        "d.csv: robot 'irb140' has 6 joints but the recording has 5 (expected columns q_1..q_6)"
+    )
+    with pytest.raises(RobotError, match=r"q has shape \(3, 5\), expected \(N, 6\)"):
+        RobotModel.from_spec("irb140").gravity(np.zeros((3, 5)))
+
+
+def test_check_units_warns_for_degrees(irb):
+    """Angles in degrees trigger a DitherlabWarning; the same angles in radians do not."""
+    q = np.tile(PAPER_POSE, (10, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert irb.check_units(q, "ok.csv") is False
+    with pytest.warns(DitherlabWarning, match=r"deg.csv: q_5 reaches 90.*as if in degrees"):
+        assert irb.check_units(np.degrees(q), "deg.csv") is True
+
+
+# ---------------------------------------------------------------------- embedded URDF
+PLANAR = """<?xml version="1.0"?>
+<robot name="planar2">
+  <link name="base"/>
+  <link name="l1">
+    <inertial><origin xyz="0.25 0 0"/><mass value="3.0"/>
+      <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.02"/></inertial>
+  </link>
+  <link name="l2">
+    <inertial><origin xyz="0.2 0 0"/><mass value="2.0"/>
+      <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial>
+  </link>
+  <link name="tip"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>
+    <origin xyz="0 0 0"/><axis xyz="0 -1 0"/>
+    <limit lower="-3" upper="3" effort="100" velocity="2"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0.5 0 0"/><axis xyz="0 -1 0"/>
+    <limit lower="-3" upper="3" effort="100" velocity="2"/></joint>
+  <joint name="tipj" type="fixed"><parent link="l2"/><child link="tip"/>
+    <origin xyz="0.4 0 0"/></joint>
+</robot>
+"""
+
+
+def test_embedded_planar_urdf_gravity_analytic():
+    """A 2-link planar arm in the x-z plane has g = (m1 c1 + m2 l1) g cos q1 + m2 c2 g cos q12."""
+    meta = {"robot": {"urdf": PLANAR, "tool_frame": "tip"}}
+    robot = RobotModel.from_recording_meta(meta, n_expected=2, where="planar.parquet")
+    assert robot.name == "planar2" and robot.n == 2
+    q = np.random.default_rng(7).uniform(-3, 3, size=(50, 2))
+    c1, c12 = np.cos(q[:, 0]), np.cos(q[:, 0] + q[:, 1])
+    g2 = 2.0 * 0.2 * G * c12
+    g1 = (3.0 * 0.25 + 2.0 * 0.5) * G * c1 + g2
+    np.testing.assert_allclose(robot.gravity(q), np.stack([g1, g2], axis=1), atol=1e-10)
+    # tool point: tip at (l1 c1 + l2 c12, 0, l1 s1 + l2 s12)
+    s1, s12 = np.sin(q[:, 0]), np.sin(q[:, 0] + q[:, 1])
+    p = robot.tool_pose(q)[:, :3, 3]
+    np.testing.assert_allclose(p[:, 0], 0.5 * c1 + 0.4 * c12, atol=1e-12)
+    np.testing.assert_allclose(p[:, 2], 0.5 * s1 + 0.4 * s12, atol=1e-12)
