@@ -1,0 +1,297 @@
+"""Foreign logs: a TOML mapping file turns a vendor's CSV into a Recording without code.
+
+``read(path, mapping="file.toml")`` (or a built-in mapping name such as ``"ur10e"``, see
+:func:`builtin_mappings`). The mapping file has these tables (``ditherlab/io/mappings/ur10e.toml``
+is a complete example)::
+
+    [input]                 # how to parse the file
+    format = "csv"          # the only input format so far
+    header = false          # true: the first line names the columns
+    delimiter = ","         # any single character, or "whitespace"
+    comment = "#"           # optional: lines starting with it are skipped
+    skip_rows = 0           # optional: lines to skip before the header / data
+
+    [time]
+    column = 1              # 1-based index (as in a spreadsheet) or a header name
+    unit = "s"              # s | ms | us | ns
+
+    [robot]                 # a built-in name, or a URDF path relative to the mapping file
+    name = "irb140"         #   (the URDF text is embedded into the recording's metadata)
+    # urdf = "robots/my_arm.urdf"; tool_frame = "tool0"; tool_offset = [0, 0, 0.1]
+    # payload = { mass = 1.5, com = [0, 0, 0.05] }
+
+    [meta]                  # optional: copied into the metadata (source, notes, sample_rate_hz...)
+
+    [columns.q]             # q, dq, tau, tau_ffw, temp: one source column per joint
+    columns = [2, 3, 4, 5, 6, 7]
+    unit = "rad"            # q: rad | deg;  dq: rad/s | deg/s;  tau, tau_ffw: N·m;  temp: °C
+    scale = 1.0             # optional: a number or one per joint
+    factors = [...]         # optional: more factors (numbers or per-joint lists), multiplied
+    offset = 0.0            # optional: a number or one per joint, added after scaling
+
+    [columns.wrench]        # optional: six columns f_x, f_y, f_z [N], m_x, m_y, m_z [N·m]
+    [columns.dither]        # optional: `column = k`; nonzero means dither on
+
+    [extra]                 # optional: more columns passed through: name = { column, scale, offset }
+
+The value of each recording column is ``raw × scale × Π factors × unit factor + offset``
+(e.g. motor current [A] × torque constant [N·m/A] × gear ratio → tau [N·m]). Every key is
+checked: an unknown table, key or unit, a list of the wrong length, a column out of range or not
+in the header raises ConfigError naming the mapping file and the key.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ditherlab.errors import ConfigError, FormatError
+from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options
+from ditherlab.recording import SCHEMA, WRENCH_COLUMNS, Recording
+
+MAPPINGS_DIR = Path(__file__).parent / "mappings"
+FAMILY_UNITS: dict[str, dict[str, float]] = {
+    "q": {"rad": 1.0, "deg": math.pi / 180},
+    "dq": {"rad/s": 1.0, "deg/s": math.pi / 180},
+    "tau": {"N·m": 1.0, "Nm": 1.0, "N*m": 1.0},
+    "tau_ffw": {"N·m": 1.0, "Nm": 1.0, "N*m": 1.0},
+    "temp": {"°C": 1.0, "degC": 1.0, "C": 1.0},
+}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+_TABLES = {"input", "time", "robot", "meta", "columns", "extra"}
+_INPUT_KEYS = {"format", "header", "delimiter", "comment", "skip_rows", "encoding"}
+_COLUMN_KEYS = {"columns", "unit", "scale", "factors", "offset"}
+_EXTRA_KEYS = {"column", "scale", "offset", "unit"}
+_ROBOT_KEYS = {"name", "urdf", "tool_frame", "tool_offset", "payload"}
+
+
+def builtin_mappings() -> list[str]:
+    """Names of the mapping files shipped with ditherlab (``ditherlab/io/mappings/*.toml``)."""
+    return sorted(p.stem for p in MAPPINGS_DIR.glob("*.toml"))
+
+
+def mapping_path(mapping: str | Path) -> Path:
+    """The mapping file for a path or a built-in mapping name; ConfigError when there is none."""
+    p = Path(mapping).expanduser()
+    if p.is_file():
+        return p
+    if str(mapping) in builtin_mappings():
+        return MAPPINGS_DIR / f"{mapping}.toml"
+    raise ConfigError(
+        f"mapping {str(mapping)!r} is neither a file nor a built-in mapping (expected a TOML "
+        f"file or one of: {', '.join(builtin_mappings())})"
+    )
+
+
+def load_mapping(mapping: str | Path) -> tuple[dict[str, Any], Path]:
+    """Parse and check a mapping file; returns (mapping dict, its path)."""
+    p = mapping_path(mapping)
+    try:
+        spec = tomllib.loads(p.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not a valid TOML file ({exc})") from None
+    _check_keys(spec, _TABLES, p, "")
+    for key in ("time", "robot", "columns"):
+        if key not in spec:
+            raise ConfigError(f"{p}: table [{key}] is missing")
+    _check_keys(spec.get("input", {}), _INPUT_KEYS, p, "input.")
+    _check_keys(spec["robot"], _ROBOT_KEYS, p, "robot.")
+    _check_keys(spec["time"], {"column", "unit", "offset"}, p, "time.")
+    allowed = {*FAMILY_UNITS, "wrench", "dither"}
+    _check_keys(spec["columns"], allowed, p, "columns.")
+    for fam in ("q", "tau"):
+        if fam not in spec["columns"]:
+            raise ConfigError(f"{p}: table [columns.{fam}] is missing (q and tau are required)")
+    for fam, sub in spec["columns"].items():
+        _check_keys(sub, {"column"} if fam == "dither" else _COLUMN_KEYS, p, f"columns.{fam}.")
+    for name, sub in spec.get("extra", {}).items():
+        if not isinstance(sub, dict):
+            raise ConfigError(f"{p}: extra.{name} is {sub!r}, expected {{ column = ... }}")
+        _check_keys(sub, _EXTRA_KEYS, p, f"extra.{name}.")
+    fmt = spec.get("input", {}).get("format", "csv")
+    if fmt != "csv":
+        raise ConfigError(f"{p}: input.format is {fmt!r}, expected 'csv'")
+    return spec, p
+
+
+def _check_keys(table: Any, allowed: set[str], p: Path, prefix: str) -> None:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{p}: {prefix.rstrip('.') or 'the file'} must be a table")
+    for key in table:
+        if key not in allowed:
+            raise ConfigError(
+                f"{p}: unknown key {prefix}{key} (expected one of {', '.join(sorted(allowed))})"
+            )
+
+
+def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
+    """Read the foreign log ``path`` as described by ``mapping`` (file or built-in name).
+
+    Options ``robot``, ``tool_offset``, ... override the mapping's robot and metadata.
+    Raises ConfigError for a bad mapping and FormatError for a cell that is not a number.
+    """
+    path = Path(path)
+    check_options(options, META_OPTIONS, "mapped", str(path))
+    spec, mp = load_mapping(mapping)
+    inp = spec.get("input", {})
+    header = bool(inp.get("header", True))
+    delim = inp.get("delimiter", ",")
+    skip = int(inp.get("skip_rows", 0))
+    try:
+        raw = pd.read_csv(
+            path,
+            header=0 if header else None,
+            sep=r"\s+" if delim == "whitespace" else delim,
+            comment=inp.get("comment"),
+            skiprows=skip,
+            dtype=str,
+            keep_default_na=False,
+            encoding=inp.get("encoding", "utf-8"),
+            skipinitialspace=True,
+        )
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{path}: cannot be parsed as described by {mp} ({exc})") from None
+    reader = _Columns(raw, path, mp, header)
+
+    cols: dict[str, np.ndarray] = {}
+    tspec = spec["time"]
+    tunit = tspec.get("unit", "s")
+    if tunit not in TIME_UNITS:
+        raise ConfigError(f"{mp}: time.unit is {tunit!r}, expected one of {', '.join(TIME_UNITS)}")
+    cols["t"] = reader.get(tspec.get("column"), "t", "time.column") * TIME_UNITS[tunit] + float(
+        tspec.get("offset", 0.0)
+    )
+    n = len(spec["columns"]["q"].get("columns", []))
+    for fam in FAMILY_UNITS:
+        sub = spec["columns"].get(fam)
+        if sub is not None:
+            cols.update(_family(reader, sub, fam, n, mp))
+    if "wrench" in spec["columns"]:
+        cols.update(_family(reader, spec["columns"]["wrench"], "wrench", 6, mp))
+    if "dither" in spec["columns"]:
+        d = reader.get(spec["columns"]["dither"].get("column"), "dither", "columns.dither.column")
+        cols["dither"] = d != 0
+    for name, sub in spec.get("extra", {}).items():
+        v = reader.get(sub.get("column"), name, f"extra.{name}.column")
+        cols[name] = v * _number(sub.get("scale", 1.0), mp, f"extra.{name}.scale") + _number(
+            sub.get("offset", 0.0), mp, f"extra.{name}.offset"
+        )
+
+    meta = {"schema": SCHEMA, **spec.get("meta", {})}
+    rob = spec["robot"]
+    if options.get("robot") is None:
+        if "urdf" in rob:
+            options = {**options, "robot": str(rob["urdf"])}
+            options.setdefault("tool_frame", rob.get("tool_frame"))
+            base = mp.parent
+            if not str(rob["urdf"]).endswith(".urdf") and "/" not in str(rob["urdf"]):
+                options["robot"] = f"./{rob['urdf']}"
+        elif "name" in rob:
+            options = {**options, "robot": rob["name"]}
+            base = None
+        else:
+            raise ConfigError(f"{mp}: table [robot] needs 'name' (built-in) or 'urdf' (a path)")
+    else:
+        base = None
+    for key in ("tool_offset", "payload"):
+        if key in rob:
+            meta[key] = rob[key]
+    meta = meta_from_options(meta, options, base_dir=base, where=str(path))
+    meta.setdefault("mapping", mp.name)
+    return Recording(pd.DataFrame(cols), meta, name=str(path))
+
+
+def _number(v: Any, mp: Path, key: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ConfigError(f"{mp}: {key} is {v!r}, expected a number")
+    return float(v)
+
+
+def _per_joint(v: Any, n: int, mp: Path, key: str) -> np.ndarray:
+    """A number or a list of n numbers → (n,)."""
+    if isinstance(v, list):
+        if len(v) != n:
+            raise ConfigError(f"{mp}: {key} has {len(v)} values, expected {n} (one per column)")
+        return np.array([_number(x, mp, key) for x in v])
+    return np.full(n, _number(v, mp, key))
+
+
+def _family(
+    reader: _Columns, sub: dict[str, Any], fam: str, n: int, mp: Path
+) -> dict[str, np.ndarray]:
+    key = f"columns.{fam}"
+    src = sub.get("columns")
+    if not isinstance(src, list) or len(src) != n:
+        raise ConfigError(
+            f"{mp}: {key}.columns is {src!r}, expected a list of {n} columns (one per "
+            f"{'wrench component' if fam == 'wrench' else 'joint'})"
+        )
+    if fam == "wrench":
+        unit_factor = 1.0
+        names = list(WRENCH_COLUMNS)
+    else:
+        units = FAMILY_UNITS[fam]
+        unit = sub.get("unit", next(iter(units)))
+        if unit not in units:
+            raise ConfigError(f"{mp}: {key}.unit is {unit!r}, expected one of {', '.join(units)}")
+        unit_factor = units[unit]
+        names = [f"{fam}_{j + 1}" for j in range(n)]
+    scale = _per_joint(sub.get("scale", 1.0), n, mp, f"{key}.scale")
+    factors = sub.get("factors", [])
+    if not isinstance(factors, list):
+        raise ConfigError(f"{mp}: {key}.factors is {factors!r}, expected a list")
+    for k, f in enumerate(factors):
+        scale = scale * _per_joint(f, n, mp, f"{key}.factors[{k + 1}]")
+    offset = _per_joint(sub.get("offset", 0.0), n, mp, f"{key}.offset")
+    return {
+        name: reader.get(c, name, f"{key}.columns[{j + 1}]") * scale[j] * unit_factor + offset[j]
+        for j, (name, c) in enumerate(zip(names, src, strict=True))
+    }
+
+
+class _Columns:
+    """Resolve mapping column references (1-based index or header name) to float arrays."""
+
+    def __init__(self, raw: pd.DataFrame, path: Path, mp: Path, header: bool):
+        self.raw, self.path, self.mp, self.header = raw, path, mp, header
+
+    def get(self, ref: Any, target: str, key: str) -> np.ndarray:
+        ncol = self.raw.shape[1]
+        if isinstance(ref, bool) or ref is None:
+            raise ConfigError(f"{self.mp}: {key} is {ref!r}, expected a column number or name")
+        if isinstance(ref, int):
+            if not 1 <= ref <= ncol:
+                raise ConfigError(
+                    f"{self.mp}: {key} is {ref}, but {self.path} has {ncol} columns "
+                    f"(expected 1..{ncol})"
+                )
+            col = self.raw.iloc[:, ref - 1]
+            label = f"column {ref}"
+        else:
+            if not self.header:
+                raise ConfigError(
+                    f"{self.mp}: {key} is {ref!r}, but input.header is false (expected a column "
+                    "number)"
+                )
+            if ref not in self.raw.columns:
+                raise ConfigError(
+                    f"{self.mp}: {key} is {ref!r}, which is not in the header of {self.path} "
+                    f"(columns: {', '.join(map(str, self.raw.columns))})"
+                )
+            col = self.raw[ref]
+            label = f"column {ref!r}"
+        text = col.astype(str).str.strip()
+        values = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
+        bad = np.isnan(values) & ~text.str.lower().isin(["nan"]).to_numpy()
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise FormatError(
+                f"{self.path}: {label} ({target}) has a non-numeric value {col.iloc[i]!r} in "
+                f"data row {i + 1}, expected a number"
+            )
+        return values
