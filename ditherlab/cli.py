@@ -88,3 +88,44 @@ def main(argv: list[str] | None = None) -> None:
 
 
 # ================================================================ commands
+
+
+# ---------------------------------------------------------------- info, convert (helper "io")
+MappingOpt = Annotated[
+    str | None,
+    typer.Option("--mapping", help="TOML mapping file (or built-in name) for a foreign log."),
+]
+
+
+def _read_options(mapping: str | None, robot: str | None) -> dict:
+    return {k: v for k, v in (("mapping", mapping), ("robot", robot)) if v is not None}
+
+
+@app.command()
+def info(
+    file: Annotated[Path, typer.Argument(help="Recording (.parquet, .csv, .mcap, ROS 2 bag).")],
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    json_out: JsonFlag = False,
+) -> None:
+    """Duration, sample rate and jitter, joints, optional columns, still/dither/moving time."""
+    import json
+
+    from ditherlab.io import read
+    from ditherlab.io.info import describe, format_info
+
+    summary = describe(read(file, **_read_options(mapping, robot)))
+    echo(json.dumps(summary, indent=1) if json_out else format_info(summary))
+
+
+@app.command()
+def convert(
+    src: Annotated[Path, typer.Argument(help="Input recording (any readable format).")],
+    dst: Annotated[Path, typer.Argument(help="Output: .parquet, .csv, .mcap, or a bag folder.")],
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+) -> None:
+    """Convert a recording to another format (atomic; never over the input)."""
+    from ditherlab.io import convert as _convert
+
+    echo(f"wrote {_convert(src, dst, **_read_options(mapping, robot))}")

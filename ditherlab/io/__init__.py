@@ -32,7 +32,7 @@ from ditherlab.errors import ConfigError, FormatError
 from ditherlab.io.common import check_units
 from ditherlab.recording import Recording
 
-__all__ = ["read", "write", "detect_format", "FORMATS"]
+__all__ = ["read", "write", "convert", "detect_format", "FORMATS"]
 
 #: Formats ``write`` can produce, by name.
 FORMATS = ("parquet", "csv", "mcap", "rosbag")
@@ -148,6 +148,30 @@ def write(rec: Recording, path: str | Path, *, format: str | None = None, **opti
     if options and format != "rosbag":
         raise ConfigError(f"{p}: unknown option {next(iter(options))!r} for {format} output")
     return _module(format).write(rec, p, **options)
+
+
+def convert(src: str | Path, dst: str | Path, **options: Any) -> Path:
+    """Read ``src`` (with reader ``options``, e.g. ``mapping=``, ``robot=``) and write ``dst``.
+
+    Refuses to write over the input (or over a CSV input's sidecar); the output is written
+    atomically, so a failure leaves no partial file. Returns the path written.
+    """
+    from ditherlab.io.atomic import check_not_input
+    from ditherlab.io.csv import sidecar_path
+
+    src, dst = Path(src), Path(dst)
+    inputs = [src]
+    if src.suffix.lower() == ".csv":
+        inputs.append(sidecar_path(src))
+    if options.get("mapping") is not None:
+        from ditherlab.io.mapping import mapping_path
+
+        inputs.append(mapping_path(options["mapping"]))
+    check_not_input(dst, inputs)
+    if dst.suffix.lower() == ".csv":
+        check_not_input(sidecar_path(dst), inputs)
+    rec = read(src, **options)
+    return write(rec, dst)
 
 
 def _module(kind: str) -> Any:

@@ -1,0 +1,121 @@
+"""A summary of a recording, for ``ditherlab info``: duration, rate and jitter, joints, optional
+columns, and how the time divides into standing still, dithering and moving."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ditherlab.recording import (
+    DITHER,
+    JOINT_FAMILIES,
+    MOVING,
+    STILL,
+    WRENCH_COLUMNS,
+    Recording,
+    regimes,
+)
+
+
+def regime_fractions(rec: Recording) -> dict[str, float]:
+    """Fractions of the recording's time spent still, dithering and moving.
+
+    A sample counts as ``moving`` when any joint moves (:func:`ditherlab.recording.regimes`),
+    as ``dither`` when no joint moves and some joint dithers, else ``still``. Each sample
+    weighs its time interval (``numpy.gradient(t)`` [s]), so jitter does not bias the fractions.
+
+    Returns
+    -------
+    {"still": f, "dither": f, "moving": f}, summing to 1
+    """
+    r = regimes(rec)
+    per_sample = np.where(
+        (r == MOVING).any(axis=1), MOVING, np.where((r == DITHER).any(axis=1), DITHER, STILL)
+    )
+    t = rec.t
+    w = np.gradient(t) if len(t) > 1 else np.ones(1)
+    total = float(w.sum())
+    return {
+        name: float(w[per_sample == code].sum() / total)
+        for name, code in (("still", STILL), ("dither", DITHER), ("moving", MOVING))
+    }
+
+
+def describe(rec: Recording) -> dict[str, Any]:
+    """A JSON-ready summary of ``rec``.
+
+    Keys: ``file``, ``samples``, ``duration_s``, ``t_start_s``, ``sample_rate_hz`` (1 / median
+    interval), ``dt_median_ms``, ``dt_jitter_ms`` (standard deviation of the interval),
+    ``dt_min_ms``, ``dt_max_ms``, ``robot``, ``joints`` (count), ``joint_names``, ``columns``
+    (which optional families exist), ``extra_columns``, ``regimes`` (:func:`regime_fractions`),
+    ``q_range_rad`` and ``tau_range_nm`` (per joint ``[min, max]``), and the metadata keys
+    ``source``, ``notes``, ``tool_offset``, ``payload`` when present.
+    """
+    t = rec.t
+    dt = np.diff(t) * 1e3 if len(t) > 1 else np.array([np.nan])  # [ms]
+    robot = rec.robot()
+    cols = set(rec.data.columns)
+    optional = {
+        "dq": "dq_1" in cols,
+        "tau_ffw": "tau_ffw_1" in cols,
+        "temp": "temp_1" in cols,
+        "wrench": rec.has_wrench,
+        "dither": "dither" in cols,
+    }
+    known = {"t", "dither", *WRENCH_COLUMNS}
+    known |= {f"{p}_{j + 1}" for p in JOINT_FAMILIES for j in range(rec.n)}
+    q, tau = rec.q, rec.tau
+    out: dict[str, Any] = {
+        "file": rec.name,
+        "samples": len(rec),
+        "duration_s": rec.duration,
+        "t_start_s": float(t[0]),
+        "sample_rate_hz": float(1e3 / np.median(dt)),
+        "dt_median_ms": float(np.median(dt)),
+        "dt_jitter_ms": float(np.std(dt)),
+        "dt_min_ms": float(np.min(dt)),
+        "dt_max_ms": float(np.max(dt)),
+        "robot": rec.robot_label,
+        "joints": rec.n,
+        "joint_names": list(robot.joint_names),
+        "columns": optional,
+        "extra_columns": [str(c) for c in rec.data.columns if c not in known],
+        "regimes": regime_fractions(rec),
+        "q_range_rad": np.stack([q.min(axis=0), q.max(axis=0)], axis=1).tolist(),
+        "tau_range_nm": np.stack([tau.min(axis=0), tau.max(axis=0)], axis=1).tolist(),
+    }
+    for key in ("source", "notes", "tool_offset", "payload"):
+        if key in rec.meta:
+            out[key] = rec.meta[key]
+    return out
+
+
+def format_info(d: dict[str, Any]) -> str:
+    """The summary of :func:`describe` as a few lines of text."""
+    present = [k for k, v in d["columns"].items() if v]
+    absent = [k for k, v in d["columns"].items() if not v]
+    reg = d["regimes"]
+    lines = [
+        f"file       {d['file']}",
+        f"robot      {d['robot']} ({d['joints']} joints: {', '.join(d['joint_names'])})",
+        f"samples    {d['samples']} over {d['duration_s']:.3f} s (t = {d['t_start_s']:.3f} s "
+        "onwards)",
+        f"rate       {d['sample_rate_hz']:.2f} Hz (interval {d['dt_median_ms']:.3f} ms, jitter "
+        f"{d['dt_jitter_ms']:.3f} ms std, {d['dt_min_ms']:.3f}..{d['dt_max_ms']:.3f} ms)",
+        f"columns    t, q, tau{''.join(', ' + k for k in present)}"
+        + (f"; absent: {', '.join(absent)}" if absent else ""),
+    ]
+    if d["extra_columns"]:
+        lines.append(f"extra      {', '.join(d['extra_columns'])}")
+    lines.append(
+        f"regimes    still {100 * reg['still']:.1f} %, dither {100 * reg['dither']:.1f} %, "
+        f"moving {100 * reg['moving']:.1f} %"
+    )
+    lines.append("joint      q min..max [rad]       tau min..max [N·m]")
+    for j, (qr, tr) in enumerate(zip(d["q_range_rad"], d["tau_range_nm"], strict=True)):
+        lines.append(f"  {j + 1:<8} {qr[0]:9.4f}..{qr[1]:<9.4f}  {tr[0]:9.3f}..{tr[1]:<9.3f}")
+    for key in ("source", "notes", "tool_offset", "payload"):
+        if key in d:
+            lines.append(f"{key:<10} {d[key]}")
+    return "\n".join(line.rstrip() for line in lines)
