@@ -27,6 +27,13 @@ def check_not_input(out: str | Path, inputs: Iterable[str | Path]) -> None:
             raise DitherlabError(f"{o}: refusing to write over the input file {p}")
 
 
+def current_umask() -> int:
+    """The process umask (read without changing it)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; on success rename it to ``path``.
@@ -41,6 +48,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
         dir=target.parent,
     )
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~current_umask())  # mkstemp makes 0600; give the file the usual mode
     tmp_path = Path(tmp)
     try:
         yield tmp_path

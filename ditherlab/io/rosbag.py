@@ -47,6 +47,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from ditherlab.errors import ConfigError, DitherlabWarning, FormatError
+from ditherlab.io.atomic import current_umask
 from ditherlab.io.common import (
     META_OPTIONS,
     check_options,
@@ -392,6 +393,9 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
                         ),
                     )
                     w.write(c_w, int(log[i]), ts.serialize_cdr(m, WRENCH_STAMPED))
+        os.chmod(
+            bag, 0o777 & ~current_umask()
+        )  # mkdtemp's parent is 0700; the bag gets the usual mode
         old = tmpdir / ".old"
         if path.exists():
             os.replace(path, old)
