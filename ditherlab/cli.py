@@ -129,3 +129,28 @@ def convert(
     from ditherlab.io import convert as _convert
 
     echo(f"wrote {_convert(src, dst, **_read_options(mapping, robot))}")
+
+
+@app.command()
+def view(
+    recording: Annotated[Path, typer.Argument(help="Recording (.parquet, .csv, .mcap, bag).")],
+    estimates: Annotated[Path | None, typer.Option("--estimates", help="Estimates of this recording (replay).")] = None,
+    model: Annotated[Path | None, typer.Option("--model", help="Torque model (bands, residuals).")] = None,
+    save: Annotated[Path | None, typer.Option("--save", help="Write a Rerun file (.rrd).")] = None,
+    spawn: Annotated[bool, typer.Option("--spawn", help="Open the Rerun viewer.")] = False,
+    serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
+    quiet: Quiet = False,
+) -> None:
+    """Review a recording, its estimates and model in Rerun (3D robot, torques, forces, events)."""
+    from ditherlab.viz.rerun_log import load_view_request, run_view
+
+    if spawn and serve:
+        raise DitherlabError("view: choose one of --spawn and --serve")
+    mode = "spawn" if spawn else "serve" if serve else None
+    req = load_view_request(recording, estimates=estimates, model=model, save=save, mode=mode)
+    with progress_bar("view", quiet) as progress:
+        res = run_view(req, progress=progress)
+    if res.path is not None:
+        echo(f"wrote {res.path} ({sum(res.summary.rows.values())} rows); open it with: rerun {res.path}")
+    elif res.url:
+        echo(f"serving {res.url}")

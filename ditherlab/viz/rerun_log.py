@@ -1,0 +1,1073 @@
+"""Log a recording, its estimates, the torque model and a diagnosis to Rerun (``.rrd``).
+
+Everything is sent as whole columns (``send_columns`` + one ``TimeColumn`` named ``time``, the
+recording's ``t`` in seconds); styling is logged once as static data; the layout comes from
+:func:`ditherlab.viz.blueprint.make_blueprint`.
+
+Entity layout (``j`` = 1..n, ``a`` = x, y, z, ``V`` = estimator variant)::
+
+    robot/links/<link>          Transform3D of each URDF link in the base frame   (rate_3d)
+    robot/skeleton              line strip through the link origins               (rate_3d)
+    robot/force/sensor          arrow of the F/T sensor force at the tool point   (rate_3d)
+    robot/force/V               arrow of the estimated force                      (rate_3d)
+    robot/force/V/interval      box spanned by the interval [lo, hi] per axis     (rate_3d)
+    joints/j/tau                logged motor torque [N·m]
+    joints/j/tau_bar            tau - gravity(q) (- the model's effects) [N·m]
+    joints/j/band/<regime>      friction band edges [min, max] of the model [N·m]
+    joints/j/dither/ffw         torque feedforward sent (dither square wave + centre) [N·m]
+    joints/j/dither/<name>      recording columns ``dither_<name>_j`` (references, loop outputs)
+    joints/j/dither/amplitude   (upper - lower) / 2 of the extraction [N·m]
+    joints/j/extract/<s>        extraction ``upper``, ``lower``, ``signal`` from the estimates
+    joints/j/residual/v<k>      friction residual of model version k [N·m]
+    force/a/sensor              sensor force [N]
+    force/a/V                   [estimate, lo, hi] of variant V [N]
+    events/dither, events/pushes, events/detections/V, diagnosis    text logs
+    info/recording, info/model  text documents (static)
+
+Series that stay constant over runs of samples (dither extraction, loop outputs, estimates held
+at the prior) are thinned losslessly: a sample is dropped only when it equals both neighbours, so
+the plotted line (linear or step) is exactly the full-rate one and every logged value is a value
+of the input, bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from ditherlab.errors import DitherlabError, FormatError, ModelError, RecordingError
+from ditherlab.recording import FORCE_AXES, Recording
+
+if TYPE_CHECKING:  # pragma: no cover
+    import rerun as rr
+
+    from ditherlab.model import TorqueModel
+
+TIMELINE = "time"
+ESTIMATES_SCHEMA = "ditherlab.estimates/1"
+VARIANTS = ("nodither_band", "nodither_noband", "dither_band", "dither_noband")
+EXTRACT_SIGNALS = ("upper", "lower", "signal")
+
+#: Colours (RGB) per variant, sensor and joint-series role; chosen to stay apart in a legend.
+VARIANT_COLORS: dict[str, tuple[int, int, int]] = {
+    "nodither_band": (230, 120, 30),
+    "nodither_noband": (240, 190, 60),
+    "dither_band": (40, 110, 230),
+    "dither_noband": (120, 190, 250),
+}
+SENSOR_COLOR = (30, 30, 30)
+AXIS_COLORS = {"x": (220, 50, 50), "y": (40, 170, 60), "z": (50, 90, 230)}
+REGIME_COLORS = {"still": (200, 60, 60), "dither": (60, 60, 200), "moving": (150, 150, 150)}
+_DITHER_COL = re.compile(r"^dither_(?P<name>[A-Za-z0-9_]+?)_(?P<j>\d+)$")
+
+
+# ---------------------------------------------------------------------- estimates file
+@dataclass
+class EstimatesTable:
+    """An estimates file as read for viewing: the table and its ``ditherlab`` metadata.
+
+    Attributes
+    ----------
+    data : DataFrame with ``t`` [s] and the columns of the estimates format (see DESIGN/brief)
+    meta : dict, the JSON object stored under the Parquet key-value metadata key ``ditherlab``
+    name : file name for messages
+    """
+
+    data: pd.DataFrame
+    meta: dict[str, Any]
+    name: str | None = None
+
+    @property
+    def variants(self) -> list[str]:
+        """Variants present in the table, in the canonical order."""
+        return [v for v in VARIANTS if f"{v}/f_x" in self.data.columns]
+
+
+def load_estimates(path: str | Path) -> EstimatesTable:
+    """Read an estimates Parquet file (``ditherlab.estimates/1``).
+
+    Parameters
+    ----------
+    path : file written by ``ditherlab replay``
+
+    Raises
+    ------
+    FormatError
+        When the file is missing, not Parquet, or lacks the ``ditherlab`` metadata, ``t``, or
+        any variant column.
+    """
+    import pyarrow.lib
+    import pyarrow.parquet as pq
+
+    p = Path(path)
+    if not p.is_file():
+        raise FormatError(f"{p}: no such estimates file")
+    try:
+        table = pq.read_table(p)
+    except (pyarrow.lib.ArrowInvalid, OSError) as exc:
+        raise FormatError(f"{p}: not a Parquet estimates file ({exc})") from None
+    kv = table.schema.metadata or {}
+    raw = kv.get(b"ditherlab")
+    if raw is None:
+        raise FormatError(
+            f"{p}: Parquet metadata key 'ditherlab' is missing (expected an estimates file "
+            f"written by ditherlab replay, schema {ESTIMATES_SCHEMA!r})"
+        )
+    try:
+        meta = json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise FormatError(f"{p}: Parquet metadata key 'ditherlab' is not JSON ({exc})") from None
+    if meta.get("schema") != ESTIMATES_SCHEMA:
+        raise FormatError(
+            f"{p}: metadata key 'schema' is {meta.get('schema')!r}, expected {ESTIMATES_SCHEMA!r}"
+        )
+    data = table.to_pandas()
+    if "t" not in data.columns:
+        raise FormatError(f"{p}: required column t is missing")
+    est = EstimatesTable(data, meta, str(p))
+    if not est.variants:
+        raise FormatError(
+            f"{p}: no estimate columns found (expected e.g. dither_band/f_x; "
+            f"variants are {', '.join(VARIANTS)})"
+        )
+    return est
+
+
+def _plain_json(x: Any) -> Any:
+    """Normalise a metadata object the way a JSON round trip does (tuples -> lists, numpy -> py)."""
+    return json.loads(json.dumps(x, sort_keys=True, default=_json_default))
+
+
+def _json_default(x: Any) -> Any:
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return str(x)
+
+
+def check_estimates_match(rec: Recording, est: EstimatesTable) -> None:
+    """Raise RecordingError unless ``est`` was computed from ``rec``.
+
+    The time stamps must be identical (same count, same values) and the recording metadata stored
+    in the estimates file must equal ``rec.meta``.
+
+    Raises
+    ------
+    RecordingError
+        One sentence naming both files and the first difference.
+    """
+    ename = est.name or "estimates"
+    rname = rec.name or "the recording"
+    t_rec, t_est = rec.t, est.data["t"].to_numpy(dtype=float)
+    if len(t_rec) != len(t_est):
+        raise RecordingError(
+            f"{ename}: the estimates come from another recording: column t has {len(t_est)} "
+            f"samples, {rname} has {len(t_rec)}"
+        )
+    diff = np.flatnonzero(t_rec != t_est)
+    if diff.size:
+        i = int(diff[0])
+        raise RecordingError(
+            f"{ename}: the estimates come from another recording: t in row {i + 1} is "
+            f"{t_est[i]!r} s, {rname} has {t_rec[i]!r} s"
+        )
+    stored = est.meta.get("recording")
+    if stored is None:
+        raise RecordingError(f"{ename}: metadata key 'recording' is missing")
+    a, b = _plain_json(stored), _plain_json(rec.meta)
+    if a != b:
+        key = next(k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
+        raise RecordingError(
+            f"{ename}: the estimates come from another recording: metadata key {key!r} is "
+            f"{_short(a.get(key))}, {rname} has {_short(b.get(key))}"
+        )
+
+
+def _short(v: Any, width: int = 60) -> str:
+    s = repr(v)
+    return s if len(s) <= width else s[: width - 3] + "..."
+
+
+# ---------------------------------------------------------------------- small helpers
+def thin_mask(values: np.ndarray) -> np.ndarray:
+    """Samples to keep so that a line through the kept samples equals the full-rate line.
+
+    A sample is dropped when it equals both of its neighbours (bitwise, NaN equal to NaN) in every
+    column; the first and last samples are always kept.
+
+    Parameters
+    ----------
+    values : (N,) or (N, k)
+
+    Returns
+    -------
+    (N,) bool
+    """
+    v = np.asarray(values)
+    if v.ndim == 1:
+        v = v[:, None]
+    N = len(v)
+    keep = np.ones(N, dtype=bool)
+    if N <= 2:
+        return keep
+    if v.dtype.kind == "f":
+        same = (v[1:] == v[:-1]) | (np.isnan(v[1:]) & np.isnan(v[:-1]))
+    else:
+        same = v[1:] == v[:-1]
+    same = same.all(axis=1)  # (N-1,): sample i+1 equals sample i
+    keep[1:-1] = ~(same[:-1] & same[1:])
+    return keep
+
+
+def decimate_index(t: np.ndarray, rate: float | None) -> np.ndarray:
+    """Indices of samples at most ``rate`` per second (first sample always kept).
+
+    Parameters
+    ----------
+    t : (N,) [s], increasing
+    rate : [Hz]; None or <= 0 keeps every sample
+
+    Returns
+    -------
+    (M,) int
+    """
+    if rate is None or rate <= 0 or len(t) < 2:
+        return np.arange(len(t))
+    bins = np.floor((t - t[0]) * rate).astype(np.int64)
+    first = np.ones(len(t), dtype=bool)
+    first[1:] = bins[1:] != bins[:-1]
+    return np.flatnonzero(first)
+
+
+def _edges(flag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rising and falling edges of a boolean series: (indices of first True, first False)."""
+    f = np.asarray(flag, dtype=bool).astype(np.int8)
+    d = np.diff(f, prepend=0)
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+# ---------------------------------------------------------------------- the logger
+@dataclass
+class ViewSummary:
+    """What was logged: entity path -> number of time-indexed rows (static rows not counted)."""
+
+    rows: dict[str, int] = field(default_factory=dict)
+    variants: list[str] = field(default_factory=list)
+    n_joints: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+class _Logger:
+    """Sends columns to one RecordingStream and keeps the row counts."""
+
+    def __init__(self, stream: rr.RecordingStream, t: np.ndarray) -> None:
+        self.stream = stream
+        self.t = t
+        self.summary = ViewSummary()
+
+    def series(
+        self,
+        path: str,
+        values: np.ndarray,
+        *,
+        names: str | Sequence[str],
+        colors: Any = None,
+        widths: float | Sequence[float] | None = None,
+        idx: np.ndarray | None = None,
+        thin: bool = True,
+        step: bool = False,
+    ) -> None:
+        """Log one scalar series (N,) or k series (N, k) at ``self.t`` (or ``self.t[idx]``)."""
+        import rerun as rr
+
+        v = np.asarray(values, dtype=np.float64)
+        t = self.t if idx is None else self.t[idx]
+        if idx is not None and len(v) == len(self.t):
+            v = v[idx]  # otherwise the values are already given at t[idx]
+        if thin:
+            keep = thin_mask(v)
+            v, t = v[keep], t[keep]
+        names_l = [names] if isinstance(names, str) else list(names)
+        style: dict[str, Any] = {"names": names_l}
+        if colors is not None:
+            style["colors"] = colors
+        if widths is not None:
+            style["widths"] = widths
+        if step:
+            style["interpolation_mode"] = rr.components.InterpolationMode.StepAfter
+        self.stream.log(path, rr.SeriesLines(**style), static=True)
+        self.stream.send_columns(
+            path,
+            indexes=[rr.TimeColumn(TIMELINE, duration=t)],
+            columns=rr.Scalars.columns(scalars=v),
+        )
+        self.summary.rows[path] = len(t)
+
+    def send(self, path: str, t: np.ndarray, columns: Any) -> None:
+        import rerun as rr
+
+        self.stream.send_columns(
+            path, indexes=[rr.TimeColumn(TIMELINE, duration=t)], columns=columns
+        )
+        self.summary.rows[path] = len(t)
+
+    def text_log(self, path: str, t: np.ndarray, text: Sequence[str], level: Sequence[str]) -> None:
+        import rerun as rr
+
+        if len(t) == 0:
+            return
+        self.send(
+            path, np.asarray(t, dtype=float), rr.TextLog.columns(text=list(text), level=list(level))
+        )
+
+
+def log_view(
+    rec: Recording,
+    stream: rr.RecordingStream,
+    *,
+    estimates: EstimatesTable | None = None,
+    model: TorqueModel | None = None,
+    diagnosis: Any = None,
+    rate_3d: float | None = 25.0,
+    force_scale: float = 0.005,
+    progress: Callable[[int, int], None] | None = None,
+) -> ViewSummary:
+    """Log a recording (and optionally estimates, model and diagnosis) to a Rerun stream.
+
+    Parameters
+    ----------
+    rec : the recording (``t (N,)`` [s], ``q (N, n)`` [rad], ``tau (N, n)`` [N·m], ...)
+    stream : an open ``rerun.RecordingStream`` (file sink, memory sink, viewer)
+    estimates : estimates of this recording (checked with :func:`check_estimates_match`)
+    model : torque model; gives the band edges, the effects in ``tau_bar`` and the residuals
+    diagnosis : result of ``ditherlab.diagnose`` (candidates at worst windows), optional
+    rate_3d : [Hz] rate of the 3D entities (robot pose, arrows, boxes); None = every sample.
+        Time series are always logged at full rate.
+    force_scale : [m/N] length of a force arrow per newton in the 3D view
+    progress : callable(done, total), optional
+
+    Returns
+    -------
+    ViewSummary
+        Row counts per entity as sent (read the file back to verify them).
+    """
+    import rerun as rr
+
+    if estimates is not None:
+        check_estimates_match(rec, estimates)
+    steps = 7
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, steps)
+
+    if progress is not None:
+        progress(0, steps)
+    t = rec.t
+    log = _Logger(stream, t)
+    log.summary.n_joints = rec.n
+    log.summary.variants = estimates.variants if estimates is not None else []
+    stream.log(
+        "info/recording",
+        rr.TextDocument(_recording_markdown(rec, estimates), media_type="text/markdown"),
+        static=True,
+    )
+    if model is not None:
+        stream.log(
+            "info/model", rr.TextDocument(model.dumps(), media_type="text/plain"), static=True
+        )
+
+    robot = rec.robot()
+    _log_robot(log, rec, robot, estimates, rate_3d, force_scale)
+    tick()
+    _log_joints(log, rec, robot, model)
+    tick()
+    _log_dither(log, rec, estimates)
+    tick()
+    _log_forces(log, rec, estimates)
+    tick()
+    _log_residuals(log, rec, robot, model)
+    tick()
+    _log_events(log, rec, estimates)
+    tick()
+    _log_diagnosis(log, rec, diagnosis)
+    tick()
+    return log.summary
+
+
+# ---------------------------------------------------------------------- 3D
+def _log_robot(
+    log: _Logger,
+    rec: Recording,
+    robot: Any,
+    estimates: EstimatesTable | None,
+    rate_3d: float | None,
+    force_scale: float,
+) -> None:
+    import rerun as rr
+
+    s = log.stream
+    s.log("robot", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    idx = decimate_index(rec.t, rate_3d)
+    t3 = rec.t[idx]
+    q3 = rec.q[idx]
+    poses = robot.link_poses(q3)
+    for name, T in poses.items():
+        path = f"robot/links/{name}"
+        s.log(path, rr.TransformAxes3D(0.06), static=True)
+        log.send(
+            path,
+            t3,
+            rr.Transform3D.columns(translation=T[:, :3, 3], mat3x3=T[:, :3, :3]),
+        )
+    # Skeleton through the link origins in kinematic order; coincident origins (wrist) collapse.
+    origins = np.stack([T[:, :3, 3] for T in poses.values()], axis=1)  # (M, L, 3) [m]
+    s.log("robot/skeleton", rr.LineStrips3D([], radii=0.02, colors=[160, 160, 170]), static=True)
+    log.send(
+        "robot/skeleton",
+        t3,
+        rr.LineStrips3D.columns(strips=list(origins)).partition(np.ones(len(t3), dtype=np.int32)),
+    )
+    tool = robot.tool_pose(q3)[:, :3, 3]  # (M, 3) [m]
+    s.log("robot/tool", rr.Points3D(np.zeros((1, 3))), static=True)
+    if rec.has_wrench:
+        f = rec.wrench[idx, :3]
+        _arrows(log, "robot/force/sensor", t3, tool, f * force_scale, SENSOR_COLOR, "sensor F")
+    if estimates is not None:
+        d = estimates.data
+        for v in estimates.variants:
+            fe = d[[f"{v}/f_{a}" for a in FORCE_AXES]].to_numpy(dtype=float)[idx]
+            _arrows(log, f"robot/force/{v}", t3, tool, fe * force_scale, VARIANT_COLORS[v], v)
+            lo_c = [f"{v}/f_{a}_lo" for a in FORCE_AXES]
+            hi_c = [f"{v}/f_{a}_hi" for a in FORCE_AXES]
+            if all(c in d.columns for c in lo_c + hi_c):
+                lo = d[lo_c].to_numpy(dtype=float)[idx]
+                hi = d[hi_c].to_numpy(dtype=float)[idx]
+                # An unbounded side (a free component) is drawn at 4x the largest finite one.
+                cap = 4 * max(float(np.nanmax(np.abs(np.where(np.isfinite(lo), lo, 0)))), 1.0)
+                lo, hi = np.clip(lo, -cap, cap), np.clip(hi, -cap, cap)
+                s.log(
+                    f"robot/force/{v}/interval",
+                    rr.Boxes3D(half_sizes=[[0, 0, 0]], colors=[VARIANT_COLORS[v]], radii=0.002),
+                    static=True,
+                )
+                log.send(
+                    f"robot/force/{v}/interval",
+                    t3,
+                    rr.Boxes3D.columns(
+                        centers=tool + force_scale * (lo + hi) / 2,
+                        half_sizes=force_scale * (hi - lo) / 2,
+                    ),
+                )
+
+
+def _arrows(
+    log: _Logger,
+    path: str,
+    t: np.ndarray,
+    origins: np.ndarray,
+    vectors: np.ndarray,
+    color: Any,
+    label: str,
+) -> None:
+    import rerun as rr
+
+    vec = np.where(np.isfinite(vectors), vectors, 0.0)
+    log.stream.log(
+        path,
+        rr.Arrows3D(
+            vectors=[[0, 0, 0]], colors=[color], radii=0.006, labels=[label], show_labels=False
+        ),
+        static=True,
+    )
+    log.send(path, t, rr.Arrows3D.columns(vectors=vec, origins=origins))
+
+
+# ---------------------------------------------------------------------- per joint
+def _model_effects_torque(model: TorqueModel | None, rec: Recording) -> np.ndarray | None:
+    if model is None or not model.effects:
+        return None
+    from ditherlab.effects import effects_torque
+
+    return effects_torque(model, rec)
+
+
+def tau_bar(rec: Recording, robot: Any, model: TorqueModel | None = None) -> np.ndarray:
+    """Gravity-compensated torque ``tau - gravity(q) - effects_torque`` as replay uses it.
+
+    Parameters
+    ----------
+    rec : recording with ``q (N, n)`` [rad], ``tau (N, n)`` [N·m]
+    robot : its RobotModel
+    model : optional; its effects are subtracted when it has any
+
+    Returns
+    -------
+    (N, n) [N·m]
+    """
+    out = rec.tau - robot.gravity(rec.q)
+    eff = _model_effects_torque(model, rec)
+    return out if eff is None else out - eff
+
+
+def _log_joints(log: _Logger, rec: Recording, robot: Any, model: TorqueModel | None) -> None:
+    tau = rec.tau
+    tb = tau_bar(rec, robot, model)
+    label = "tau - gravity" if model is None or not model.effects else "tau - gravity - effects"
+    t = rec.t
+    span = np.array([0, len(t) - 1]) if len(t) > 1 else np.array([0])
+    for j in range(rec.n):
+        base = f"joints/{j + 1}"
+        log.series(
+            f"{base}/tau", tau[:, j], names="tau", colors=[[120, 120, 120]], widths=1.0, thin=False
+        )
+        log.series(
+            f"{base}/tau_bar", tb[:, j], names=label, colors=[[0, 0, 0]], widths=1.5, thin=False
+        )
+        if model is None:
+            continue
+        for regime in ("still", "dither"):
+            if regime not in model.regimes:
+                continue
+            b = model.regimes[regime]
+            edges = np.tile([b.tau_min[j], b.tau_max[j]], (len(span), 1))
+            log.series(
+                f"{base}/band/{regime}",
+                edges,
+                names=[f"{regime} band min", f"{regime} band max"],
+                colors=[REGIME_COLORS[regime]] * 2,
+                widths=1.0,
+                idx=span,
+                thin=False,
+            )
+
+
+def _log_dither(log: _Logger, rec: Recording, estimates: EstimatesTable | None) -> None:
+    ffw = rec.tau_ffw
+    if ffw is not None:
+        for j in range(rec.n):
+            log.series(
+                f"joints/{j + 1}/dither/ffw",
+                ffw[:, j],
+                names="tau_ffw",
+                colors=[[150, 90, 200]],
+                widths=1.0,
+            )
+    for col in rec.data.columns:
+        m = _DITHER_COL.match(str(col))
+        if m is None or not (1 <= int(m["j"]) <= rec.n):
+            continue
+        vals = pd.to_numeric(rec.data[col], errors="coerce").to_numpy(dtype=float)
+        log.series(
+            f"joints/{int(m['j'])}/dither/{m['name']}", vals, names=m["name"], widths=1.5, step=True
+        )
+    if estimates is None:
+        return
+    d = estimates.data
+    colors = {"upper": (220, 50, 50), "lower": (40, 170, 60), "signal": (0, 0, 0)}
+    for j in range(1, rec.n + 1):
+        cols = {s: f"extract/{s}_{j}" for s in EXTRACT_SIGNALS}
+        for s, c in cols.items():
+            if c in d.columns:
+                log.series(
+                    f"joints/{j}/extract/{s}",
+                    d[c].to_numpy(dtype=float),
+                    names=s,
+                    colors=[colors[s]],
+                    widths=1.5,
+                    step=True,
+                )
+        if cols["upper"] in d.columns and cols["lower"] in d.columns:
+            amp = (
+                d[cols["upper"]].to_numpy(dtype=float) - d[cols["lower"]].to_numpy(dtype=float)
+            ) / 2
+            log.series(
+                f"joints/{j}/dither/amplitude",
+                amp,
+                names="amplitude (measured)",
+                widths=1.5,
+                step=True,
+            )
+
+
+# ---------------------------------------------------------------------- per force axis
+def _log_forces(log: _Logger, rec: Recording, estimates: EstimatesTable | None) -> None:
+    if rec.has_wrench:
+        w = rec.wrench
+        for k, a in enumerate(FORCE_AXES):
+            log.series(
+                f"force/{a}/sensor",
+                w[:, k],
+                names="sensor",
+                colors=[SENSOR_COLOR],
+                widths=1.5,
+                thin=False,
+            )
+    if estimates is None:
+        return
+    d = estimates.data
+    for v in estimates.variants:
+        c = VARIANT_COLORS[v]
+        light = tuple(int(x + (255 - x) * 0.55) for x in c)
+        for a in FORCE_AXES:
+            cols = [f"{v}/f_{a}", f"{v}/f_{a}_lo", f"{v}/f_{a}_hi"]
+            have = [x for x in cols if x in d.columns]
+            names = [v, f"{v} lo", f"{v} hi"][: len(have)]
+            log.series(
+                f"force/{a}/{v}",
+                d[have].to_numpy(dtype=float),
+                names=names,
+                colors=[c, light, light][: len(have)],
+                widths=[2.0, 1.0, 1.0][: len(have)],
+            )
+
+
+# ---------------------------------------------------------------------- residuals
+def _log_residuals(log: _Logger, rec: Recording, robot: Any, model: TorqueModel | None) -> None:
+    """Friction residual per joint for every model version in the model's history.
+
+    ``rho = tau - gravity - effects_torque(model_k) - external_torque(model_k, sensor_wrench)``:
+    needs the F/T sensor and :mod:`ditherlab.effects`. A history entry is replayed when it lists
+    the effects of its version (``effects``: list of ``{name, joints, params}``); the current model
+    is always shown.
+    """
+    if model is None or not rec.has_wrench:
+        return
+    from ditherlab.effects import effects_torque, external_torque, sensor_wrench
+    from ditherlab.model import EffectSpec
+
+    versions: dict[int, Any] = {}
+    for h in model.history:
+        effs = h.get("effects") if isinstance(h, Mapping) else None
+        if not isinstance(effs, list) or "version" not in h:
+            continue
+        m = model.copy()
+        m.effects = [
+            EffectSpec(e["name"], [int(x) for x in e.get("joints", [])], e.get("params", {}))
+            for e in effs
+            if isinstance(e, Mapping) and "name" in e
+        ]
+        m.version = int(h["version"])
+        versions[m.version] = m
+    versions[model.version] = model
+    g = robot.gravity(rec.q)
+    palette = [(200, 60, 60), (230, 150, 40), (60, 160, 60), (40, 110, 230), (140, 60, 200)]
+    for k, (ver, m) in enumerate(sorted(versions.items())):
+        rho = rec.tau - g - effects_torque(m, rec) - external_torque(m, rec, sensor_wrench(m, rec))
+        label = f"v{ver}: " + (" + ".join(m.effect_names()) or "base model")
+        for j in range(rec.n):
+            log.series(
+                f"joints/{j + 1}/residual/v{ver}",
+                rho[:, j],
+                names=label,
+                colors=[palette[k % len(palette)]],
+                widths=1.0,
+                thin=False,
+            )
+
+
+# ---------------------------------------------------------------------- events
+def _log_events(log: _Logger, rec: Recording, estimates: EstimatesTable | None) -> None:
+    t = rec.t
+    d = rec.dither
+    if d is not None:
+        on, off = _edges(d)
+        times = np.concatenate([t[on], t[np.minimum(off, len(t) - 1)]])
+        texts = ["dither on"] * len(on) + ["dither off"] * len(off)
+        order = np.argsort(times, kind="stable")
+        log.text_log(
+            "events/dither", times[order], [texts[i] for i in order], ["INFO"] * len(order)
+        )
+        log.series(
+            "events/dither_flag",
+            d.astype(float),
+            names="dither on",
+            colors=[[150, 90, 200]],
+            step=True,
+        )
+    if rec.has_wrench:
+        pushes = find_pushes(t, rec.wrench[:, :3])
+        if pushes:
+            times, texts = [], []
+            for p in pushes:
+                times += [p.t_start, p.t_peak, p.t_end]
+                vec = ", ".join(f"{x:+.1f}" for x in p.peak)
+                texts += [
+                    f"push {p.index} start ({p.axis})",
+                    f"push {p.index} peak |F|={p.magnitude:.1f} N ({vec}) N",
+                    f"push {p.index} end",
+                ]
+            log.text_log("events/pushes", np.array(times), texts, ["INFO"] * len(times))
+    if estimates is None:
+        return
+    for v in estimates.variants:
+        col = f"{v}/active"
+        if col not in estimates.data.columns:
+            continue
+        active = estimates.data[col].to_numpy() != 0
+        on, _ = _edges(active)
+        texts = []
+        for i in on:
+            f = estimates.data.loc[i, [f"{v}/f_{a}" for a in FORCE_AXES]].to_numpy(dtype=float)
+            joints = [str(j + 1) for j in range(rec.n) if int(estimates.data[col].iat[i]) >> j & 1]
+            texts.append(
+                f"{v}: detection, joints {','.join(joints)} outside band; F="
+                + ", ".join(f"{x:+.1f}" for x in f)
+            )
+        log.text_log(f"events/detections/{v}", t[on], texts, ["WARN"] * len(on))
+
+
+@dataclass(frozen=True)
+class Push:
+    """One push seen by the F/T sensor (times [s], force [N])."""
+
+    index: int
+    t_start: float
+    t_peak: float
+    t_end: float
+    peak: tuple[float, float, float]
+    magnitude: float
+    axis: str
+
+
+def find_pushes(
+    t: np.ndarray, force: np.ndarray, threshold: float = 3.0, min_gap: float = 0.2
+) -> list[Push]:
+    """Pushes in the sensor force: spans where ``|f|`` exceeds ``threshold``.
+
+    Uses :func:`ditherlab.thresholds.find_pushes` when that module provides it; this function's
+    own rule is a hysteresis-free threshold on ``|f|`` with spans closer than ``min_gap`` merged.
+
+    Parameters
+    ----------
+    t : (N,) [s]
+    force : (N, 3) [N]
+    threshold : [N]
+    min_gap : [s]
+
+    Returns
+    -------
+    list of Push, in time order
+    """
+    mag = np.linalg.norm(force, axis=1)
+    on, off = _edges(mag > threshold)
+    if len(off) < len(on):
+        off = np.append(off, len(t))
+    spans: list[list[int]] = []
+    for a, b in zip(on, off, strict=True):
+        if spans and t[a] - t[spans[-1][1] - 1] < min_gap:
+            spans[-1][1] = b
+        else:
+            spans.append([a, b])
+    out = []
+    for k, (a, b) in enumerate(spans):
+        i = a + int(np.argmax(mag[a:b]))
+        pk = force[i]
+        out.append(
+            Push(
+                k + 1,
+                float(t[a]),
+                float(t[i]),
+                float(t[b - 1]),
+                tuple(map(float, pk)),
+                float(mag[i]),
+                "xyz"[int(np.argmax(np.abs(pk)))],
+            )
+        )
+    return out
+
+
+# ---------------------------------------------------------------------- diagnosis
+def _log_diagnosis(log: _Logger, rec: Recording, diagnosis: Any) -> None:
+    """Candidates of a diagnosis as text entries at their worst windows."""
+    if diagnosis is None:
+        return
+    cands = getattr(diagnosis, "candidates", None)
+    if cands is None and isinstance(diagnosis, Mapping):
+        cands = diagnosis.get("candidates")
+    if not cands:
+        return
+    times, texts, levels = [], [], []
+    for rank, c in enumerate(cands, 1):
+        get = (
+            c.get if isinstance(c, Mapping) else lambda k, default=None, c=c: getattr(c, k, default)
+        )
+        win = get("worst_window") or get("window")
+        t0 = float(win[0]) if win is not None else float(rec.t[0])
+        text = get("summary") or get("text") or f"{get('name')} on joints {get('joints')}"
+        times.append(t0)
+        texts.append(f"#{rank} {text}")
+        levels.append("WARN" if rank == 1 else "INFO")
+    order = np.argsort(times, kind="stable")
+    log.text_log(
+        "diagnosis", np.array(times)[order], [texts[i] for i in order], [levels[i] for i in order]
+    )
+
+
+# ---------------------------------------------------------------------- text
+def _recording_markdown(rec: Recording, est: EstimatesTable | None) -> str:
+    lines = [
+        f"# {rec.name or 'recording'}",
+        "",
+        f"- robot: {rec.robot_label}, {rec.n} joints",
+        f"- {len(rec)} samples, {rec.duration:.2f} s, {rec.sample_rate:.1f} Hz",
+        f"- F/T sensor: {'yes' if rec.has_wrench else 'no'}; dither flag: "
+        f"{'yes' if rec.dither is not None else 'no'}",
+    ]
+    if est is not None:
+        iv = est.meta.get("interval", {})
+        lines += [
+            f"- estimates: {est.name}, variants {', '.join(est.variants)}",
+            f"- interval: {iv.get('method', '?')} at level {iv.get('level', '?')}",
+        ]
+    lines += [
+        "",
+        "Force signs: the wrench the robot exerts on its environment (a push P shows as -P).",
+    ]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------- entry points
+def new_stream(rec: Recording, application_id: str = "ditherlab") -> rr.RecordingStream:
+    """A RecordingStream with a recording id derived from the recording (same input, same id)."""
+    import hashlib
+
+    import rerun as rr
+
+    h = hashlib.sha256(rec.meta_json().encode() + str(len(rec)).encode()).hexdigest()
+    return rr.RecordingStream(application_id, recording_id=h[:32])
+
+
+def save_view(
+    rec: Recording,
+    path: str | Path,
+    *,
+    estimates: EstimatesTable | None = None,
+    model: TorqueModel | None = None,
+    diagnosis: Any = None,
+    inputs: Sequence[str | Path] = (),
+    rate_3d: float | None = 25.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> ViewSummary:
+    """Write the view of ``rec`` to an ``.rrd`` file atomically; see :func:`log_view`.
+
+    Raises DitherlabError when ``path`` is one of ``inputs``.
+    """
+    from ditherlab.io.atomic import atomic_path, check_not_input
+    from ditherlab.viz.blueprint import make_blueprint
+
+    out = Path(path)
+    if out.suffix != ".rrd":
+        raise DitherlabError(f"{out}: a Rerun recording must end in .rrd")
+    check_not_input(out, [*inputs, *([rec.name] if rec.name else [])])
+    if estimates is not None:
+        check_estimates_match(rec, estimates)
+    with atomic_path(out) as tmp:
+        stream = new_stream(rec)
+        bp = make_blueprint(
+            rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench
+        )
+        stream.save(tmp, default_blueprint=bp)
+        try:
+            summary = log_view(
+                rec,
+                stream,
+                estimates=estimates,
+                model=model,
+                diagnosis=diagnosis,
+                rate_3d=rate_3d,
+                progress=progress,
+            )
+        finally:
+            stream.flush()
+            stream.disconnect()
+    return summary
+
+
+def show_view(
+    rec: Recording,
+    *,
+    mode: str = "spawn",
+    estimates: EstimatesTable | None = None,
+    model: TorqueModel | None = None,
+    diagnosis: Any = None,
+    rate_3d: float | None = 25.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> str | None:
+    """Send the view to a viewer: ``mode="spawn"`` starts the native viewer (``rr.spawn``),
+    ``mode="serve"`` serves it over gRPC and a web viewer (``rr.serve_grpc`` +
+    ``rr.serve_web_viewer``) and returns the gRPC URL.
+    """
+    import rerun as rr
+
+    from ditherlab.viz.blueprint import make_blueprint
+
+    stream = new_stream(rec)
+    bp = make_blueprint(rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench)
+    url = None
+    if mode == "spawn":
+        rr.spawn(recording=stream, default_blueprint=bp)
+    elif mode == "serve":
+        url = rr.serve_grpc(recording=stream, default_blueprint=bp)
+        rr.serve_web_viewer(connect_to=url, open_browser=False)
+    else:
+        raise DitherlabError(f"view mode is {mode!r}, expected 'spawn' or 'serve'")
+    log_view(
+        rec,
+        stream,
+        estimates=estimates,
+        model=model,
+        diagnosis=diagnosis,
+        rate_3d=rate_3d,
+        progress=progress,
+    )
+    stream.flush()
+    return url
+
+
+# ---------------------------------------------------------------------- reading back (Rerun's API)
+def rrd_contents(path: str | Path) -> dict[str, dict[str, int]]:
+    """What an ``.rrd`` file holds, read with Rerun's own reader (``rerun.chunk.RrdReader``).
+
+    Returns
+    -------
+    dict entity path (without the leading ``/``) -> component name (e.g. ``Scalars:scalars``) ->
+    number of time-indexed rows; static components are counted under the key ``"static"``
+    """
+    from rerun.chunk import RrdReader
+
+    out: dict[str, dict[str, int]] = {}
+    for ch in RrdReader(str(path)).stream():
+        ent = out.setdefault(ch.entity_path.lstrip("/"), {})
+        if ch.is_static:
+            ent["static"] = ent.get("static", 0) + ch.num_rows
+            continue
+        rb = ch.to_record_batch()
+        for f in rb.schema:
+            meta = f.metadata or {}
+            if meta.get(b"rerun:kind") == b"data":
+                ent[f.name] = ent.get(f.name, 0) + ch.num_rows
+    return out
+
+
+def rrd_scalars(path: str | Path, entity: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read one Scalars entity back from an ``.rrd`` file with Rerun's reader.
+
+    Returns
+    -------
+    t : (M,) [s] the ``time`` timeline
+    values : (M, k) the scalars of each row
+    """
+    from rerun.chunk import RrdReader
+
+    want = "/" + entity.lstrip("/")
+    ts, vs = [], []
+    for ch in RrdReader(str(path)).stream():
+        if ch.entity_path != want or ch.is_static:
+            continue
+        rb = ch.to_record_batch()
+        names = rb.schema.names
+        if "Scalars:scalars" not in names:
+            continue
+        tcol = rb.column(names.index(TIMELINE)).cast("int64").to_numpy()
+        sc = rb.column(names.index("Scalars:scalars"))
+        vs.append(np.asarray(sc.flatten().to_numpy(zero_copy_only=False)).reshape(len(tcol), -1))
+        ts.append(tcol)
+    if not ts:
+        raise DitherlabError(f"{path}: entity {entity!r} has no Scalars")
+    t = np.concatenate(ts)
+    v = np.concatenate(vs)
+    order = np.argsort(t, kind="stable")
+    return t[order] / 1e9, v[order]
+
+
+@dataclass
+class ViewRequest:
+    """Inputs of ``ditherlab view``, read and checked: see :func:`load_view_request`."""
+
+    rec: Recording
+    estimates: EstimatesTable | None = None
+    model: TorqueModel | None = None
+    save: Path | None = None
+    mode: str | None = None
+    inputs: list[Path] = field(default_factory=list)
+
+
+@dataclass
+class ViewResult:
+    """What :func:`run_view` did: the file written (or the URL served) and what was logged."""
+
+    summary: ViewSummary
+    path: Path | None = None
+    url: str | None = None
+
+
+def load_view_request(
+    recording: str | Path,
+    *,
+    estimates: str | Path | None = None,
+    model: str | Path | None = None,
+    save: str | Path | None = None,
+    mode: str | None = None,
+) -> ViewRequest:
+    """Read and check every input of a view before anything is logged or written.
+
+    Exactly one of ``save`` (an ``.rrd`` path) and ``mode`` (``"spawn"`` or ``"serve"``) must be
+    given; the estimates must come from the recording; the model must have its joint count.
+
+    Raises
+    ------
+    DitherlabError
+        Missing or unreadable files, estimates from another recording, no or two outputs.
+    """
+    from ditherlab.errors import ConfigError
+    from ditherlab.io import read
+    from ditherlab.model import TorqueModel
+
+    if (save is None) == (mode is None):
+        raise ConfigError("view needs exactly one output: --save out.rrd, --spawn or --serve")
+    if mode is not None and mode not in ("spawn", "serve"):
+        raise ConfigError(f"view mode is {mode!r}, expected 'spawn' or 'serve'")
+    if save is not None and Path(save).suffix != ".rrd":
+        raise ConfigError(f"{save}: a Rerun recording must end in .rrd")
+    rec = read(recording)
+    est = load_estimates(estimates) if estimates is not None else None
+    if est is not None:
+        check_estimates_match(rec, est)
+    mdl = TorqueModel.load(model) if model is not None else None
+    if mdl is not None and mdl.n != rec.n:
+        raise ModelError(
+            f"{model}: the model has {mdl.n} joints, the recording {recording} has {rec.n}"
+        )
+    inputs = [Path(p) for p in (recording, estimates, model) if p is not None]
+    if save is not None:
+        from ditherlab.io.atomic import check_not_input
+
+        check_not_input(save, inputs)
+    return ViewRequest(rec, est, mdl, Path(save) if save is not None else None, mode, inputs)
+
+
+def run_view(
+    req: ViewRequest,
+    *,
+    rate_3d: float | None = 25.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> ViewResult:
+    """Write (``req.save``) or show (``req.mode``) the view of a checked request."""
+    kw = {"estimates": req.estimates, "model": req.model, "rate_3d": rate_3d, "progress": progress}
+    if req.save is not None:
+        summary = save_view(req.rec, req.save, inputs=req.inputs, **kw)
+        return ViewResult(summary, path=req.save)
+    url = show_view(req.rec, mode=str(req.mode), **kw)
+    return ViewResult(ViewSummary(), url=url)

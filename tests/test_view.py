@@ -1,0 +1,300 @@
+"""Tests of ditherlab.viz (the Rerun view): every check reads the .rrd back with Rerun's reader."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from ditherlab.errors import DitherlabError, RecordingError
+from ditherlab.recording import FORCE_AXES, WRENCH_COLUMNS, Recording
+from ditherlab.viz import rerun_log as rl
+
+PAPER_POSE = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0])
+FS = 250.0
+
+
+def synthetic_campaign(
+    duration: float = 12.0, seed: int = 0, source: str = "synthetic"
+) -> Recording:
+    """A small push campaign: paper pose, three pushes along x, y, z, dither on for the second half."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(duration * FS)) / FS
+    N, n = len(t), 6
+    q = PAPER_POSE + 1e-4 * rng.standard_normal((N, n))
+    tau = 5.0 * np.sin(0.3 * t)[:, None] + rng.standard_normal((N, n))
+    w = 0.3 * rng.standard_normal((N, 6))
+    for k, (t0, axis) in enumerate(((2.0, 0), (5.0, 1), (9.0, 2))):
+        span = (t >= t0) & (t < t0 + 1.0)
+        w[span, axis] += -(15.0 + 5 * k) * np.sin(np.pi * (t[span] - t0)) ** 2
+    dither = t >= duration / 2
+    ffw = np.where(dither[:, None], 3.0 * np.sign(np.sin(80 * t))[:, None] + 0.5, 0.0) * np.ones(n)
+    amp_ref = {f"dither_amp_ref_{j + 1}": np.where(dither, 2.7, 0.0) for j in range(n)}
+    return Recording.from_arrays(
+        t,
+        q,
+        tau,
+        {"robot": "irb140", "source": source, "sample_rate_hz": FS},
+        wrench=w,
+        dither=dither,
+        tau_ffw=ffw,
+        extra=amp_ref,
+        name=f"{source}.parquet",
+    )
+
+
+def write_estimates(rec: Recording, path: Path, seed: int = 1) -> Path:
+    """An estimates file in the agreed format (schema ditherlab.estimates/1) for ``rec``."""
+    rng = np.random.default_rng(seed)
+    N, n = len(rec), rec.n
+    cols: dict[str, np.ndarray] = {"t": rec.t}
+    for k, c in enumerate(WRENCH_COLUMNS):
+        cols[c] = rec.wrench[:, k]
+    cols["dither"] = rec.dither
+    variants = ["nodither_band", "dither_band"]
+    for v in variants:
+        F = np.where(np.abs(rec.wrench) > 5, 0.7 * rec.wrench, 0.0)  # held at the prior in between
+        for k, c in enumerate(WRENCH_COLUMNS):
+            cols[f"{v}/{c}"] = F[:, k]
+            cols[f"{v}/{c}_lo"] = F[:, k] - 4.0 - rng.random(N)
+            cols[f"{v}/{c}_hi"] = F[:, k] + 4.0 + rng.random(N)
+        cols[f"{v}/active"] = (np.abs(F[:, :3]).sum(axis=1) > 0).astype(np.int64) * 0b000110
+    # Extraction: one value per 20-sample dither period (piecewise constant), per joint.
+    period = np.arange(N) // 20
+    for j in range(1, n + 1):
+        lvl = rng.standard_normal(period.max() + 1)[period]
+        cols[f"extract/upper_{j}"] = lvl + 2.5
+        cols[f"extract/lower_{j}"] = lvl - 2.5
+        cols[f"extract/signal_{j}"] = lvl
+    meta = {
+        "schema": "ditherlab.estimates/1",
+        "recording": rec.meta,
+        "recording_name": rec.name,
+        "model": {},
+        "variants": variants,
+        "interval": {"method": "set_membership", "level": 0.95},
+        "components": ["f_x", "f_y", "f_z"],
+    }
+    table = pa.table(cols).replace_schema_metadata({"ditherlab": json.dumps(meta)})
+    pq.write_table(table, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("view")
+    rec = synthetic_campaign()
+    rec_path = d / "campaign.parquet"
+    import ditherlab
+
+    ditherlab.write(rec, rec_path)
+    rec = ditherlab.read(rec_path)
+    est_path = write_estimates(rec, d / "campaign-estimates.parquet")
+    out = d / "campaign.rrd"
+    summary = rl.save_view(rec, out, estimates=rl.load_estimates(est_path))
+    return {
+        "dir": d,
+        "rec": rec,
+        "rec_path": rec_path,
+        "est_path": est_path,
+        "rrd": out,
+        "summary": summary,
+        "contents": rl.rrd_contents(out),
+    }
+
+
+def test_thin_mask_matches_slow_reference():
+    """The fast thinning keeps exactly the samples a per-sample loop keeps (neighbours equal)."""
+    rng = np.random.default_rng(3)
+    v = rng.integers(0, 3, size=(500, 2)).astype(float)
+    v[rng.random(500) < 0.05, 1] = np.nan
+    fast = rl.thin_mask(v)
+    same = lambda a, b: bool(np.all((a == b) | (np.isnan(a) & np.isnan(b))))  # noqa: E731
+    slow = [
+        i in (0, len(v) - 1) or not (same(v[i], v[i - 1]) and same(v[i], v[i + 1]))
+        for i in range(len(v))
+    ]
+    assert fast.tolist() == slow
+
+
+def test_rrd_has_every_series_at_full_rate(campaign):
+    """Per-joint torques and sensor forces are in the file with one row per recording sample."""
+    c, N, n = campaign["contents"], len(campaign["rec"]), campaign["rec"].n
+    for j in range(1, n + 1):
+        assert c[f"joints/{j}/tau"]["Scalars:scalars"] == N
+        assert c[f"joints/{j}/tau_bar"]["Scalars:scalars"] == N
+    for a in FORCE_AXES:
+        assert c[f"force/{a}/sensor"]["Scalars:scalars"] == N
+        for v in ("nodither_band", "dither_band"):
+            assert 0 < c[f"force/{a}/{v}"]["Scalars:scalars"] <= N
+    assert "force/x/dither_noband" not in c
+
+
+def test_rrd_3d_entities_at_the_3d_rate(campaign):
+    """Robot links, skeleton, arrows and interval boxes are logged at 25 Hz (one per 10 samples)."""
+    c = campaign["contents"]
+    M = len(rl.decimate_index(campaign["rec"].t, 25.0))
+    assert M == int(np.ceil(len(campaign["rec"]) / 10))
+    robot = campaign["rec"].robot()
+    for link in robot.link_poses(PAPER_POSE):
+        assert c[f"robot/links/{link}"]["Transform3D:translation"] == M
+    assert c["robot/skeleton"]["LineStrips3D:strips"] == M
+    assert c["robot/force/sensor"]["Arrows3D:vectors"] == M
+    assert c["robot/force/dither_band"]["Arrows3D:origins"] == M
+    assert c["robot/force/dither_band/interval"]["Boxes3D:half_sizes"] == M
+
+
+def test_estimate_series_equals_estimates_file_exactly(campaign):
+    """The logged estimate and interval, read back and put on every sample, equal the file's columns bit for bit."""
+    est = rl.load_estimates(campaign["est_path"]).data
+    t = est["t"].to_numpy()
+    for v in ("nodither_band", "dither_band"):
+        for a in FORCE_AXES:
+            tk, vals = rl.rrd_scalars(campaign["rrd"], f"force/{a}/{v}")
+            idx = np.searchsorted(t, tk - 1e-7)
+            np.testing.assert_allclose(t[idx], tk, atol=1e-8)
+            for k, col in enumerate((f"{v}/f_{a}", f"{v}/f_{a}_lo", f"{v}/f_{a}_hi")):
+                full = est[col].to_numpy()
+                assert np.array_equal(vals[:, k], full[idx])  # every logged value is the file's
+                assert np.array_equal(np.interp(t, t[idx], vals[:, k]), full)  # and nothing is lost
+
+
+def test_thinned_extraction_reconstructs_the_column(campaign):
+    """The piecewise-constant extraction is thinned, yet interpolating the logged rows gives the column back."""
+    est = rl.load_estimates(campaign["est_path"]).data
+    t = est["t"].to_numpy()
+    tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/extract/upper")
+    assert len(tk) < len(t) / 5
+    idx = np.searchsorted(t, tk - 1e-7)
+    assert np.array_equal(np.interp(t, t[idx], vals[:, 0]), est["extract/upper_3"].to_numpy())
+    tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/dither/amplitude")
+    np.testing.assert_array_equal(vals[:, 0], 2.5)
+
+
+def test_tau_bar_is_tau_minus_gravity(campaign):
+    """The gravity-compensated torque in the file is tau - g(q) from the robot model."""
+    rec = campaign["rec"]
+    _, vals = rl.rrd_scalars(campaign["rrd"], "joints/2/tau_bar")
+    expected = rec.tau[:, 1] - rec.robot().gravity(rec.q)[:, 1]
+    np.testing.assert_array_equal(vals[:, 0], expected)
+    assert np.ptp(rec.robot().gravity(PAPER_POSE)[0]) > 1.0  # gravity is not trivially zero here
+
+
+def test_arrows_start_at_the_tool_point(campaign):
+    """Force arrows start at the tool point of pinocchio's forward kinematics and scale the sensor force."""
+    from rerun.chunk import RrdReader
+
+    rec = campaign["rec"]
+    idx = rl.decimate_index(rec.t, 25.0)
+    tool = rec.robot().tool_pose(rec.q[idx])[:, :3, 3]
+    for ch in RrdReader(str(campaign["rrd"])).stream():
+        if ch.entity_path == "/robot/force/sensor" and not ch.is_static:
+            rb = ch.to_record_batch().to_pydict()
+            origins = np.array([r[0] for r in rb["Arrows3D:origins"]])
+            vectors = np.array([r[0] for r in rb["Arrows3D:vectors"]])
+    np.testing.assert_allclose(origins, tool, atol=1e-6)
+    np.testing.assert_allclose(vectors, 0.005 * rec.wrench[idx, :3], atol=1e-6)
+    assert abs(tool[0, 2] - 0.647) < 0.01  # the paper's pose: flange centre 0.647 m high
+
+
+def test_events_dither_and_pushes(campaign):
+    """The event log holds dither on at t=6 s and three pushes with their peaks at the sensor's peaks."""
+    from rerun.chunk import RrdReader
+
+    rows = {}
+    for ch in RrdReader(str(campaign["rrd"])).stream():
+        if ch.entity_path.startswith("/events/") and not ch.is_static:
+            d = ch.to_record_batch().to_pydict()
+            if "TextLog:text" in d:
+                rows.setdefault(ch.entity_path, []).extend(
+                    (tt.total_seconds(), x[0])
+                    for tt, x in zip(d["time"], d["TextLog:text"], strict=True)
+                )
+    assert rows["/events/dither"] == [(6.0, "dither on")]
+    pushes = rows["/events/pushes"]
+    peaks = [(tt, x) for tt, x in pushes if "peak" in x]
+    assert [round(tt, 1) for tt, _ in peaks] == [2.5, 5.5, 9.5]
+    assert len(pushes) == 9
+    assert "events/detections/dither_band" in campaign["contents"]
+
+
+def test_model_bands_and_blueprint(campaign, tmp_path):
+    """With a model the band edges of each regime are logged as given; the file carries a blueprint."""
+    from rerun.chunk import RrdReader
+
+    from ditherlab.model import Band, TorqueModel
+
+    rec = campaign["rec"]
+    model = TorqueModel(
+        robot="irb140",
+        n=6,
+        regimes={
+            "still": Band(-np.arange(1, 7.0), np.arange(1, 7.0) + 0.5, np.ones(6)),
+            "dither": Band(-0.1 * np.arange(1, 7.0), 0.1 * np.arange(1, 7.0), np.ones(6)),
+        },
+    )
+    out = tmp_path / "m.rrd"
+    rl.save_view(rec, out, model=model)
+    t, v = rl.rrd_scalars(out, "joints/4/band/still")
+    np.testing.assert_array_equal(v, [[-4.0, 4.5], [-4.0, 4.5]])
+    np.testing.assert_allclose(t, [rec.t[0], rec.t[-1]], atol=1e-8)
+    _, v = rl.rrd_scalars(out, "joints/4/band/dither")
+    np.testing.assert_array_equal(v[0], [-0.4, 0.4])
+    assert len(RrdReader(str(out)).blueprints()) == 1
+
+
+def test_estimates_from_another_recording_are_refused(campaign, tmp_path, cli):
+    """Estimates of a recording with other time stamps or other metadata give one line and exit 2."""
+    other = synthetic_campaign(duration=8.0)
+    est_t = write_estimates(other, tmp_path / "other-t.parquet")
+    r = cli("view", campaign["rec_path"], "--estimates", est_t, "--save", tmp_path / "x.rrd")
+    assert r.code == 2
+    assert r.err.strip().count("\n") == 0
+    assert (
+        "other-t.parquet: the estimates come from another recording: column t has 2000 samples"
+        in r.err
+    )
+    est_m = write_estimates(synthetic_campaign(source="robot-42"), tmp_path / "other-meta.parquet")
+    r = cli("view", campaign["rec_path"], "--estimates", est_m, "--save", tmp_path / "x.rrd")
+    assert r.code == 2 and r.err.strip().count("\n") == 0
+    assert "metadata key 'source' is 'robot-42'" in r.err
+    assert not (tmp_path / "x.rrd").exists()
+
+
+def test_missing_files_give_one_line(campaign, tmp_path, cli):
+    """A missing recording or estimates file gives one line on stderr and exit 2, nothing written."""
+    out = tmp_path / "x.rrd"
+    r = cli("view", tmp_path / "nope.parquet", "--save", out)
+    assert r.code == 2 and r.err.startswith("error: ") and r.err.strip().count("\n") == 0
+    assert "nope.parquet" in r.err
+    r = cli("view", campaign["rec_path"], "--estimates", tmp_path / "nope-e.parquet", "--save", out)
+    assert (
+        r.code == 2
+        and r.err.strip() == f"error: {tmp_path / 'nope-e.parquet'}: no such estimates file"
+    )
+    assert not out.exists()
+
+
+def test_cli_save_writes_rrd_and_says_how_to_open(campaign, tmp_path, cli):
+    """`view --save` writes the file and prints the rerun command that opens it; never over an input."""
+    out = tmp_path / "v.rrd"
+    r = cli("view", campaign["rec_path"], "--estimates", campaign["est_path"], "--save", out, "-q")
+    assert r.code == 0, r.err
+    assert f"rerun {out}" in r.out
+    assert rl.rrd_contents(out)["force/z/dither_band"]["Scalars:scalars"] > 0
+    r = cli("view", campaign["rec_path"], "-q")
+    assert r.code == 2 and "exactly one output" in r.err
+    with pytest.raises(DitherlabError, match="refusing to write over the input"):
+        rl.save_view(campaign["rec"], campaign["rrd"], inputs=[campaign["rrd"]])
+
+
+def test_check_estimates_match_accepts_its_own(campaign):
+    """The estimates written for a recording pass the check after a Parquet round trip of both."""
+    rl.check_estimates_match(campaign["rec"], rl.load_estimates(campaign["est_path"]))
+    with pytest.raises(RecordingError, match="t in row 1"):
+        shifted = campaign["rec"].with_columns(t=campaign["rec"].t + 1.0)
+        rl.check_estimates_match(shifted, rl.load_estimates(campaign["est_path"]))
