@@ -490,8 +490,8 @@ def _validate(
     if (dt <= 0).any():
         i = int(np.flatnonzero(dt <= 0)[0])
         raise RecordingError(
-            f"{where}t is not strictly increasing: t={t[i + 1]!r} s in row {i + 2} follows "
-            f"t={t[i]!r} s (expected increasing sample times)"
+            f"{where}t is not strictly increasing: t={float(t[i + 1])!r} s in row {i + 2} "
+            f"follows t={float(t[i])!r} s (expected increasing sample times)"
         )
     if "dither" in out.columns:
         d = out["dither"]
