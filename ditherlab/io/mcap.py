@@ -33,6 +33,7 @@ import pandas as pd
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.writer import CompressionType, Writer
+from zstandard import ZstdError
 
 import ditherlab
 from ditherlab.errors import ConfigError, FormatError
@@ -254,7 +255,7 @@ def read(path: Path, **options: Any) -> Recording:
                 )
     except FormatError:
         raise
-    except (McapError, struct.error, ValueError, EOFError, OSError, KeyError) as exc:
+    except (McapError, ZstdError, struct.error, ValueError, EOFError, OSError, KeyError) as exc:
         raise FormatError(f"{path}: the MCAP file is truncated or corrupt ({exc})") from None
     if not records:
         raise FormatError(f"{path}: MCAP metadata record 'ditherlab' is missing")

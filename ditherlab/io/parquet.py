@@ -34,7 +34,7 @@ def read(path: Path, **options: Any) -> Recording:
     """
     check_options(options, META_OPTIONS, "Parquet", str(path))
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(path, page_checksum_verification=True)
     except (pa.ArrowException, OSError) as exc:
         raise FormatError(
             f"{path}: not a readable Parquet file, truncated or corrupt ({exc})"
@@ -52,5 +52,5 @@ def write(rec: Recording, path: Path) -> Path:
     kv[META_KEY] = dumps_meta(rec.meta).encode("utf-8")
     table = table.replace_schema_metadata(kv)
     with atomic_path(path) as tmp:
-        pq.write_table(table, tmp, compression="zstd")
+        pq.write_table(table, tmp, compression="zstd", write_page_checksum=True)
     return Path(path)
