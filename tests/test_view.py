@@ -298,3 +298,40 @@ def test_check_estimates_match_accepts_its_own(campaign):
     with pytest.raises(RecordingError, match="t in row 1"):
         shifted = campaign["rec"].with_columns(t=campaign["rec"].t + 1.0)
         rl.check_estimates_match(shifted, rl.load_estimates(campaign["est_path"]))
+
+
+def test_link_transforms_equal_pinocchio_poses(campaign):
+    """Each link's logged translation and quaternion give back pinocchio's link pose at that sample."""
+    from rerun.chunk import RrdReader
+    from scipy.spatial.transform import Rotation
+
+    rec = campaign["rec"]
+    idx = rl.decimate_index(rec.t, 25.0)
+    poses = rec.robot().link_poses(rec.q[idx])
+    seen = 0
+    for ch in RrdReader(str(campaign["rrd"])).stream():
+        name = ch.entity_path.removeprefix("/robot/links/")
+        if name not in poses or ch.is_static:
+            continue
+        d = ch.to_record_batch().to_pydict()
+        trans = np.array([r[0] for r in d["Transform3D:translation"]])
+        quat = np.array([r[0] for r in d["Transform3D:quaternion"]])
+        np.testing.assert_allclose(trans, poses[name][:, :3, 3], atol=1e-6)
+        np.testing.assert_allclose(
+            Rotation.from_quat(quat).as_matrix(), poses[name][:, :3, :3], atol=1e-6
+        )
+        seen += 1
+    assert seen == len(poses)
+
+
+def test_real_ur10e_log_without_sensor(tmp_path):
+    """The real UR10e log (embedded URDF, ~94 Hz, no F/T sensor) gives torques and a moving robot, no force plots."""
+    import ditherlab
+
+    path = Path(__file__).resolve().parents[1] / "recordings" / "ur10e-static.parquet"
+    rec = ditherlab.read(path)
+    rl.save_view(rec, tmp_path / "ur.rrd")
+    c = rl.rrd_contents(tmp_path / "ur.rrd")
+    assert c["joints/6/tau"]["Scalars:scalars"] == len(rec)
+    assert c["robot/links/tool0"]["Transform3D:translation"] == len(rl.decimate_index(rec.t, 25.0))
+    assert not any(k.startswith(("force/", "robot/force", "events/pushes")) for k in c)

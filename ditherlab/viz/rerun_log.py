@@ -429,7 +429,7 @@ def _log_robot(
         log.send(
             path,
             t3,
-            rr.Transform3D.columns(translation=T[:, :3, 3], mat3x3=T[:, :3, :3]),
+            rr.Transform3D.columns(translation=T[:, :3, 3], quaternion=_quat_xyzw(T[:, :3, :3])),
         )
     # Skeleton through the link origins in kinematic order; coincident origins (wrist) collapse.
     origins = np.stack([T[:, :3, 3] for T in poses.values()], axis=1)  # (M, L, 3) [m]
@@ -440,7 +440,6 @@ def _log_robot(
         rr.LineStrips3D.columns(strips=list(origins)).partition(np.ones(len(t3), dtype=np.int32)),
     )
     tool = robot.tool_pose(q3)[:, :3, 3]  # (M, 3) [m]
-    s.log("robot/tool", rr.Points3D(np.zeros((1, 3))), static=True)
     if rec.has_wrench:
         f = rec.wrench[idx, :3]
         _arrows(log, "robot/force/sensor", t3, tool, f * force_scale, SENSOR_COLOR, "sensor F")
@@ -470,6 +469,13 @@ def _log_robot(
                         half_sizes=force_scale * (hi - lo) / 2,
                     ),
                 )
+
+
+def _quat_xyzw(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (M, 3, 3) -> unit quaternions (M, 4), scalar last (Rerun's order)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(R).as_quat()  # scipy returns (x, y, z, w)
 
 
 def _arrows(
@@ -715,15 +721,18 @@ def _log_events(log: _Logger, rec: Recording, estimates: EstimatesTable | None) 
         col = f"{v}/active"
         if col not in estimates.data.columns:
             continue
-        active = estimates.data[col].to_numpy() != 0
-        on, _ = _edges(active)
+        bits = estimates.data[col].to_numpy().astype(np.int64)
+        F = estimates.data[[f"{v}/f_{a}" for a in FORCE_AXES]].to_numpy(dtype=float)
+        mag = np.linalg.norm(F, axis=1)
+        on, off = _edges(bits != 0)
+        off = np.append(off, len(t))[: len(on)]
         texts = []
-        for i in on:
-            f = estimates.data.loc[i, [f"{v}/f_{a}" for a in FORCE_AXES]].to_numpy(dtype=float)
-            joints = [str(j + 1) for j in range(rec.n) if int(estimates.data[col].iat[i]) >> j & 1]
+        for a, b in zip(on, off, strict=True):
+            i = a + int(np.argmax(mag[a:b]))
+            joints = ",".join(str(j + 1) for j in range(rec.n) if np.any(bits[a:b] >> j & 1))
             texts.append(
-                f"{v}: detection, joints {','.join(joints)} outside band; F="
-                + ", ".join(f"{x:+.1f}" for x in f)
+                f"{v}: detection for {t[b - 1] - t[a]:.2f} s, joints {joints} outside band; "
+                f"peak F=({', '.join(f'{x:+.1f}' for x in F[i])}) N at t={t[i]:.2f} s"
             )
         log.text_log(f"events/detections/{v}", t[on], texts, ["WARN"] * len(on))
 
