@@ -223,7 +223,7 @@ def test_events_dither_and_pushes(campaign):
 
 
 def test_model_bands_and_blueprint(campaign, tmp_path):
-    """With a model the band edges of each regime are logged as given; the file carries a blueprint."""
+    """With a model: band edges as given, the residual tau - g - J^T F per joint, and a blueprint."""
     from rerun.chunk import RrdReader
 
     from ditherlab.model import Band, TorqueModel
@@ -245,6 +245,11 @@ def test_model_bands_and_blueprint(campaign, tmp_path):
     _, v = rl.rrd_scalars(out, "joints/4/band/dither")
     np.testing.assert_array_equal(v[0], [-0.4, 0.4])
     assert len(RrdReader(str(out)).blueprints()) == 1
+    # The base model's friction residual: tau - g(q) - J^T F_sensor, per joint.
+    _, v = rl.rrd_scalars(out, "joints/2/residual/v1")
+    robot = rec.robot()
+    jtf = np.einsum("nij,ni->nj", robot.jacobian(rec.q), rec.wrench)
+    np.testing.assert_allclose(v[:, 0], (rec.tau - robot.gravity(rec.q) - jtf)[:, 1], atol=1e-9)
 
 
 def test_estimates_from_another_recording_are_refused(campaign, tmp_path, cli):
