@@ -54,7 +54,7 @@ def read(path: Path, **options: Any) -> Recording:
         stored = {**(stored or {}), **options["meta"]}
     meta = meta_from_options(stored, options, base_dir=path.parent, where=str(path))
     try:
-        data = pd.read_csv(path, float_precision="round_trip", skipinitialspace=True)
+        data = pd.read_csv(path, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise FormatError(f"{path}: not a readable CSV file ({str(exc).strip()})") from None
     check_numeric(data, path, header_lines=1)

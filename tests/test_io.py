@@ -1,0 +1,597 @@
+"""Tests of ditherlab.io: round trips per format, bad files, ROS 2 bags, mapping files."""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+import ditherlab
+import ditherlab.io as dio
+from ditherlab.errors import ConfigError, DitherlabWarning, FormatError, RobotError
+from ditherlab.io.mapping import builtin_mappings, load_mapping
+from ditherlab.io.rosbag import merge_onto
+from ditherlab.recording import Recording
+from ditherlab.robot import RobotModel
+
+REPO = Path(__file__).resolve().parents[1]
+UR_URDF = REPO / "ditherlab" / "robots" / "ur10e.urdf"
+UR_K = np.array([10.0, 10.6956, 8.4566, 9.0029, 9.48, 10.1232])  # [N·m/A]
+SMALL = [f"{p}_{j}" for p in ("q", "tau") for j in range(1, 7)]
+IRB_JOINTS = RobotModel.from_spec("irb140").joint_names
+
+finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, width=64)
+text = st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=20)
+
+
+@st.composite
+def recordings(draw, *, text_columns: bool = True, nan_extra: bool = True) -> Recording:
+    """Random valid 6-joint IRB140 recordings with random optional columns and metadata."""
+    n_rows = draw(st.integers(2, 30))
+    t0 = draw(st.floats(-100.0, 1e4))
+    steps = draw(st.lists(st.floats(1e-3, 0.1), min_size=n_rows - 1, max_size=n_rows - 1))
+    t = t0 + np.concatenate([[0.0], np.cumsum(steps)])
+
+    def block(width: int, lo: float = -1e6, hi: float = 1e6) -> np.ndarray:
+        vals = draw(
+            st.lists(
+                st.floats(lo, hi, allow_nan=False, width=64),
+                min_size=n_rows * width,
+                max_size=n_rows * width,
+            )
+        )
+        return np.array(vals).reshape(n_rows, width)
+
+    opt = {}
+    if draw(st.booleans()):
+        opt["dq"] = block(6, -10, 10)
+    if draw(st.booleans()):
+        opt["tau_ffw"] = block(6)
+    if draw(st.booleans()):
+        opt["temp"] = block(6, -40, 150)
+    if draw(st.booleans()):
+        opt["wrench"] = block(6)
+    if draw(st.booleans()):
+        opt["dither"] = np.array(draw(st.lists(st.booleans(), min_size=n_rows, max_size=n_rows)))
+    extra = {}
+    if draw(st.booleans()):
+        x = block(1)[:, 0]
+        if nan_extra and draw(st.booleans()):
+            x[0] = np.nan
+        extra["x_extra"] = x
+    if draw(st.booleans()):
+        extra["count"] = np.array(
+            draw(st.lists(st.integers(-(2**40), 2**40), min_size=n_rows, max_size=n_rows)),
+            dtype=np.int64,
+        )
+    if text_columns and draw(st.booleans()):
+        extra["label"] = np.array(
+            draw(
+                st.lists(text.filter(lambda s: s.strip() != ""), min_size=n_rows, max_size=n_rows)
+            ),
+            dtype=object,
+        )
+    meta = {"robot": "irb140", "notes": draw(text)}
+    if draw(st.booleans()):
+        meta["tool_offset"] = [draw(st.floats(-0.5, 0.5)) for _ in range(3)]
+    return Recording.from_arrays(t, block(6, -2.0, 2.0), block(6), meta, extra=extra, **opt)
+
+
+settings.register_profile(
+    "io",
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+
+
+def fresh(tmp_path: Path, name: str) -> Path:
+    """A path in tmp_path that does not exist yet (hypothesis reuses the fixture)."""
+    p = tmp_path / name
+    if p.is_dir():
+        shutil.rmtree(p)
+    elif p.exists():
+        p.unlink()
+    return p
+
+
+# ------------------------------------------------------------------ exact round trips
+@settings(settings.get_profile("io"), max_examples=25)
+@given(rec=recordings())
+def test_parquet_round_trip_is_exact(tmp_path, rec):
+    """Parquet keeps values, dtypes, column order, extra columns and metadata exactly."""
+    p = fresh(tmp_path, "r.parquet")
+    assert dio.write(rec, p) == p
+    back = dio.read(p)
+    assert back.equals(rec)
+    assert list(back.data.dtypes) == list(rec.data.dtypes)
+
+
+@settings(settings.get_profile("io"), max_examples=25)
+@given(rec=recordings())
+def test_mcap_round_trip_is_exact(tmp_path, rec):
+    """ditherlab MCAP keeps values, dtypes, column order, extra columns and metadata exactly."""
+    p = fresh(tmp_path, "r.mcap")
+    dio.write(rec, p)
+    assert dio.detect_format(p) == "mcap"
+    back = dio.read(p)
+    assert back.equals(rec)
+    assert list(back.data.dtypes) == list(rec.data.dtypes)
+
+
+@settings(settings.get_profile("io"), max_examples=25)
+@given(rec=recordings(text_columns=False))
+def test_csv_round_trip_is_exact(tmp_path, rec):
+    """CSV + sidecar keeps float64 values bit for bit, the column order and the metadata."""
+    p = fresh(tmp_path, "r.csv")
+    dio.write(rec, p)
+    assert (tmp_path / "r.json").is_file()
+    back = dio.read(p)
+    assert back.equals(rec)
+
+
+@settings(settings.get_profile("io"), max_examples=8)
+@given(rec=recordings(text_columns=False), storage=st.sampled_from(["mcap", "sqlite3"]))
+def test_rosbag_round_trip_keeps_joint_and_wrench_values(tmp_path, rec, storage):
+    """A ROS 2 bag keeps t (to 1 ns), q, dq, tau and the wrench, and the metadata."""
+    p = fresh(tmp_path, "bag")
+    dio.write(rec, p, storage=storage)
+    assert dio.detect_format(p) == "rosbag"
+    back = dio.read(p)
+    assert len(back) == len(rec) and back.meta == rec.meta
+    np.testing.assert_allclose(back.t, rec.t, rtol=0, atol=1e-9 + 1e-15 * np.abs(rec.t).max())
+    np.testing.assert_array_equal(back.q, rec.q)
+    np.testing.assert_array_equal(back.tau, rec.tau)
+    assert back.has_dq == rec.has_dq
+    if rec.has_dq:
+        np.testing.assert_array_equal(back.dq, rec.dq)
+    assert back.has_wrench == rec.has_wrench
+    if rec.has_wrench:
+        np.testing.assert_array_equal(back.wrench, rec.wrench)
+
+
+def test_ditherlab_read_and_write_use_io(tmp_path):
+    """The package-level read/write are the io functions."""
+    rec = dio.read(REPO / "recordings" / "ur10e-static.parquet")
+    p = ditherlab.write(rec, tmp_path / "x.mcap")
+    assert ditherlab.read(p).equals(rec)
+
+
+# ------------------------------------------------------------------ bad files
+@pytest.fixture(scope="module")
+def sample() -> Recording:
+    return dio.read(REPO / "recordings" / "ur10e-static.parquet")
+
+
+def test_truncated_mcap_names_the_file(tmp_path, sample):
+    """A ditherlab MCAP cut in half is a FormatError naming the file."""
+    p = tmp_path / "a.mcap"
+    dio.write(sample, p)
+    data = p.read_bytes()
+    bad = tmp_path / "cut.mcap"
+    bad.write_bytes(data[: len(data) // 2])
+    with pytest.raises(FormatError, match=rf"^{bad}: the MCAP file is truncated or corrupt \("):
+        dio.read(bad)
+
+
+def test_corrupt_mcap_chunk_fails_its_crc(tmp_path, sample):
+    """A flipped byte inside a chunk is caught (CRC or decompression) and named."""
+    p = tmp_path / "a.mcap"
+    dio.write(sample, p)
+    data = bytearray(p.read_bytes())
+    data[1000] ^= 0xFF
+    bad = tmp_path / "flip.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match=rf"^{bad}: the MCAP file is truncated or corrupt"):
+        dio.read(bad)
+
+
+def test_mcap_with_only_a_header_is_refused(tmp_path):
+    """Five bytes of MCAP magic are not a readable file."""
+    bad = tmp_path / "head.mcap"
+    bad.write_bytes(b"\x89MCAP")
+    with pytest.raises(FormatError, match=rf"^{bad}: not a readable MCAP file"):
+        dio.read(bad)
+
+
+def test_truncated_parquet_names_the_file(tmp_path, sample):
+    """A Parquet file cut in half is a FormatError naming the file."""
+    p = tmp_path / "a.parquet"
+    dio.write(sample, p)
+    bad = tmp_path / "cut.parquet"
+    bad.write_bytes(p.read_bytes()[:5000])
+    with pytest.raises(FormatError, match=rf"^{bad}: not a readable Parquet file, truncated"):
+        dio.read(bad)
+
+
+def test_corrupt_parquet_page_fails_its_checksum(tmp_path, sample):
+    """Altered bytes inside a data page are caught by the page checksum, not read silently."""
+    p = tmp_path / "a.parquet"
+    dio.write(sample, p)
+    data = bytearray(p.read_bytes())
+    mid = len(data) // 2
+    data[mid : mid + 64] = bytes(b ^ 0x55 for b in data[mid : mid + 64])
+    bad = tmp_path / "flip.parquet"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match=r"CRC checksum verification failed"):
+        dio.read(bad)
+
+
+def test_csv_non_numeric_cell_is_named(tmp_path, sample):
+    """A text cell in a CSV is reported with file, column, row, line and value."""
+    p = tmp_path / "a.csv"
+    dio.write(sample.slice(None, 333.6), p)
+    lines = p.read_text().splitlines()
+    header = lines[0].split(",")
+    row = lines[5].split(",")
+    row[header.index("q_3")] = "oops"
+    lines[5] = ",".join(row)
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(FormatError) as exc:
+        dio.read(p)
+    assert str(exc.value) == (
+        f"{p}: column q_3 has a non-numeric value 'oops' in row 5 (line 6), expected a number"
+    )
+
+
+def test_csv_without_metadata_needs_a_robot(tmp_path, sample):
+    """A CSV without sidecar and without robot= says what to pass; robot= makes it readable."""
+    p = tmp_path / "a.csv"
+    sample.data.loc[:19, ["t", *SMALL]].to_csv(p, index=False)
+    with pytest.raises(FormatError, match=r"no robot given .* pass robot='irb140' or the path"):
+        dio.read(p)
+    rec = dio.read(p, robot=str(UR_URDF))
+    assert rec.meta["robot"]["tool_frame"] == "tool0"
+    assert rec.meta["robot"]["urdf"] == UR_URDF.read_text()
+    assert rec.robot().n == 6
+
+
+def test_unknown_robot_name_fails_on_read(tmp_path, sample):
+    """An unknown built-in robot name is a RobotError when reading."""
+    p = tmp_path / "a.csv"
+    sample.data.loc[:19, ["t", *SMALL]].to_csv(p, index=False)
+    with pytest.raises(RobotError, match="'ur99' is not a built-in robot"):
+        dio.read(p, robot="ur99")
+
+
+def test_unknown_option_is_refused(tmp_path, sample):
+    """A misspelt option is a ConfigError listing the accepted ones."""
+    p = tmp_path / "a.parquet"
+    dio.write(sample, p)
+    with pytest.raises(ConfigError, match=r"unknown option 'robto' for Parquet files"):
+        dio.read(p, robto="irb140")
+
+
+def test_degrees_give_a_unit_warning(tmp_path):
+    """Joint angles logged in degrees trigger the DitherlabWarning about units."""
+    t = np.arange(50) * 0.004
+    q = np.tile(np.array([10.0, 80.0, -120.0, 170.0, 95.0, 300.0]), (50, 1))
+    rec = Recording.from_arrays(t, q, np.zeros_like(q), {"robot": "irb140"})
+    p = tmp_path / "deg.parquet"
+    dio.write(rec, p)
+    with pytest.warns(DitherlabWarning, match=r"as if in degrees"):
+        dio.read(p)
+
+
+def test_unknown_suffix_is_sniffed_from_content(tmp_path, sample):
+    """A Parquet file without its suffix is recognised by its magic bytes."""
+    p = tmp_path / "a.parquet"
+    dio.write(sample, p)
+    q = tmp_path / "renamed.bin"
+    shutil.copy(p, q)
+    assert dio.detect_format(q) == "parquet"
+    assert dio.read(q).equals(sample)
+    other = tmp_path / "x.txt"
+    other.write_text("hello")
+    with pytest.raises(FormatError, match=r"unknown file format"):
+        dio.read(other)
+
+
+def test_failed_write_leaves_no_file(tmp_path, sample):
+    """A writer that fails leaves neither the target nor a temporary file behind."""
+    rec = sample.with_columns(bad=[object()] * len(sample))
+    with pytest.raises(ConfigError, match="extra column bad has dtype object"):
+        dio.write(rec, tmp_path / "x.mcap")
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------ ROS 2 bags
+@pytest.mark.parametrize(
+    ("name", "topics"),
+    [
+        (
+            "cdr_test_0.mcap",
+            "/array_topic [test_msgs/msg/Arrays], /test_topic [test_msgs/msg/BasicTypes]",
+        ),
+        (
+            "talker.mcap",
+            "/parameter_events [rcl_interfaces/msg/ParameterEvent], /rosout "
+            "[rcl_interfaces/msg/Log], /topic [std_msgs/msg/String]",
+        ),
+    ],
+)
+def test_real_ros2_files_name_the_missing_joint_state(shared_data, name, topics):
+    """Bags written by real ROS 2 are read and refused because they hold no JointState topic."""
+    p = shared_data / "rosbag2" / name
+    assert dio.detect_format(p) == "rosbag"
+    with pytest.raises(FormatError) as exc:
+        dio.read(p, robot="irb140")
+    assert str(exc.value) == (
+        f"{p}: no sensor_msgs/msg/JointState topic (needed for the joint positions and "
+        f"torques); topics found: {topics}"
+    )
+
+
+def test_real_ros2_messages_deserialize(shared_data):
+    """Every message of the real ROS 2 files deserializes with the reader's typestore."""
+    from rosbags.highlevel import AnyReader
+
+    for name in ("cdr_test_0.mcap", "talker.mcap"):
+        with AnyReader([shared_data / "rosbag2" / name]) as r:
+            count = sum(1 for c, _, raw in r.messages() if r.deserialize(raw, c.msgtype))
+            assert count == r.message_count > 0
+
+
+def write_foreign_bag(
+    path: Path,
+    storage: StoragePlugin,
+    t: np.ndarray,
+    q: np.ndarray,
+    tau: np.ndarray,
+    t_w: np.ndarray,
+    w: np.ndarray,
+) -> None:
+    """A bag as a robot driver writes it: shuffled joint names plus a gripper joint, no dq."""
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    JS, WS = ts.types["sensor_msgs/msg/JointState"], ts.types["geometry_msgs/msg/WrenchStamped"]
+    H, T = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
+    W, V = ts.types["geometry_msgs/msg/Wrench"], ts.types["geometry_msgs/msg/Vector3"]
+    order = [3, 0, 5, 1, 4, 2]
+    names = [IRB_JOINTS[k] for k in order] + ["gripper_joint"]
+
+    def hdr(sec: float) -> object:
+        ns = int(round(sec * 1e9))
+        return H(stamp=T(sec=ns // 10**9, nanosec=ns % 10**9), frame_id="tool0")
+
+    with Writer(path, version=9, storage_plugin=storage) as wr:
+        cj = wr.add_connection("/robot/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        cw = wr.add_connection("/ft/wrench", "geometry_msgs/msg/WrenchStamped", typestore=ts)
+        cx = wr.add_connection("/chatter", "std_msgs/msg/String", typestore=ts)
+        wr.write(
+            cx,
+            1,
+            ts.serialize_cdr(ts.types["std_msgs/msg/String"](data="hi"), "std_msgs/msg/String"),
+        )
+        for i in range(len(t)):
+            m = JS(
+                header=hdr(t[i]),
+                name=names,
+                position=np.append(q[i, order], 0.01),
+                velocity=np.zeros(0),
+                effort=np.append(tau[i, order], 0.5),
+            )
+            wr.write(cj, int(t[i] * 1e9), ts.serialize_cdr(m, "sensor_msgs/msg/JointState"))
+        for i in range(len(t_w)):
+            m = WS(
+                header=hdr(t_w[i]),
+                wrench=W(
+                    force=V(x=w[i, 0], y=w[i, 1], z=w[i, 2]),
+                    torque=V(x=w[i, 3], y=w[i, 4], z=w[i, 5]),
+                ),
+            )
+            wr.write(cw, int(t_w[i] * 1e9), ts.serialize_cdr(m, "geometry_msgs/msg/WrenchStamped"))
+
+
+@pytest.mark.parametrize("storage", [StoragePlugin.MCAP, StoragePlugin.SQLITE3])
+def test_foreign_bag_is_reordered_and_merged(tmp_path, storage):
+    """Joints are matched by name and the wrench follows the documented merge rule."""
+    rng = np.random.default_rng(3)
+    t = 10.0 + np.arange(100) * 0.004  # joint states at 250 Hz
+    q = rng.uniform(-1, 1, (100, 6))
+    tau = rng.normal(0, 20, (100, 6))
+    # wrench at 100 Hz from t=10.0505 s: within 2 ms (half the joint period) of a wrench sample
+    # that sample is taken, otherwise the two around are interpolated; joint samples more than
+    # 2 ms before the first or after the last wrench sample are dropped.
+    t_w = 10.0505 + np.arange(30) * 0.01
+    w = np.cumsum(rng.normal(0, 1, (30, 6)), axis=0)
+    bag = tmp_path / "drive_bag"
+    write_foreign_bag(bag, storage, t, q, tau, t_w, w)
+    with pytest.warns(DitherlabWarning, match=r"joint-state samples .* lie outside the wrench"):
+        rec = dio.read(bag, robot="irb140")
+    keep = (t >= t_w[0] - 0.002) & (t <= t_w[-1] + 0.002)
+    assert len(rec) == keep.sum()
+    np.testing.assert_array_equal(rec.q, q[keep])
+    np.testing.assert_array_equal(rec.tau, tau[keep])
+    assert not rec.has_dq
+    assert rec.meta["wrench_frame"] == "tool0"
+    expected, _ = merge_onto(t[keep], t_w, w, 0.002)
+    np.testing.assert_allclose(rec.wrench, expected, atol=1e-12)
+    # t=10.052 s is 1.5 ms from the first wrench sample: taken as it is
+    i = int(np.flatnonzero(np.isclose(rec.t, 10.052))[0])
+    np.testing.assert_array_equal(rec.wrench[i], w[0])
+    # t=10.056 s is 5.5 ms from it: on the line between the first two samples
+    i = int(np.flatnonzero(np.isclose(rec.t, 10.056))[0])
+    np.testing.assert_allclose(rec.wrench[i], w[0] + 0.55 * (w[1] - w[0]), atol=1e-9)
+
+
+def test_merge_rule_nearest_interpolate_drop():
+    """merge_onto: nearest within tol, linear inside the span, uncovered outside it."""
+    t_w = np.array([1.0, 2.0, 3.0])
+    w = np.tile(np.array([[0.0], [10.0], [40.0]]), (1, 6))
+    W, covered = merge_onto(np.array([0.5, 0.99, 1.5, 2.04, 2.5, 3.05, 3.5]), t_w, w, 0.05)
+    np.testing.assert_array_equal(covered, [False, True, True, True, True, True, False])
+    np.testing.assert_allclose(W[1:6, 0], [0.0, 5.0, 10.0, 25.0, 40.0])
+
+
+def test_bag_topic_options(tmp_path):
+    """A wrong joint_topic lists the topics; wrench_topic='' ignores the wrench."""
+    t = np.arange(20) * 0.004
+    bag = tmp_path / "b"
+    write_foreign_bag(
+        bag, StoragePlugin.MCAP, t, np.zeros((20, 6)), np.ones((20, 6)), t, np.ones((20, 6))
+    )
+    with pytest.raises(FormatError, match=r"topic /joint_states \(joint_topic\) is not in the bag"):
+        dio.read(bag, robot="irb140", joint_topic="/joint_states")
+    rec = dio.read(bag, robot="irb140", wrench_topic="")
+    assert not rec.has_wrench and len(rec) == 20
+    with pytest.raises(FormatError, match=r"no robot given"):
+        dio.read(bag)
+
+
+def test_bag_missing_a_robot_joint_is_named(tmp_path):
+    """A JointState without one of the robot's joints names it and the names it has."""
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    bag = tmp_path / "b"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as wr:
+        c = wr.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        m = ts.types["sensor_msgs/msg/JointState"](
+            header=ts.types["std_msgs/msg/Header"](
+                stamp=ts.types["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id=""
+            ),
+            name=["a", "b"],
+            position=np.zeros(2),
+            velocity=np.zeros(0),
+            effort=np.zeros(2),
+        )
+        wr.write(c, 1, ts.serialize_cdr(m, "sensor_msgs/msg/JointState"))
+    with pytest.raises(
+        FormatError,
+        match=rf"message 1 has no joint {IRB_JOINTS[0]} \(names in "
+        r"the message: a, b;",
+    ):
+        dio.read(bag, robot="irb140")
+
+
+# ------------------------------------------------------------------ mapping files
+def test_ur10e_mapping_reads_the_static_log(shared_data):
+    """The shipped UR10e mapping gives 6 joints, tau = current × K, and the embedded URDF."""
+    csv = shared_data / "ur10e" / "ur-static.csv"
+    rec = dio.read(csv, mapping="ur10e")
+    raw = np.loadtxt(csv, delimiter=",")
+    assert len(rec) == len(raw) and rec.n == 6
+    np.testing.assert_array_equal(rec.t, raw[:, 0])
+    np.testing.assert_array_equal(rec.q, raw[:, 1:7])
+    np.testing.assert_array_equal(rec.dq, raw[:, 7:13])
+    np.testing.assert_allclose(rec.tau, raw[:, 13:19] * UR_K, rtol=1e-15)
+    assert rec.meta["robot"]["urdf"] == UR_URDF.read_text()
+    assert rec.robot_label == "ur10e"
+
+
+def test_ur10e_urdf_gravity_matches_the_controller(shared_data):
+    """The UR10e URDF's gravity equals the controller's desired torque while still (< 0.1 N·m)."""
+    rec = dio.read(shared_data / "ur10e" / "ur-static.csv", mapping="ur10e")
+    g = rec.robot().gravity(rec.q)
+    desired = rec.data[[f"tau_desired_{j}" for j in range(1, 7)]].to_numpy()
+    rms = np.sqrt(((desired - g) ** 2).mean(axis=0))
+    assert (rms < 0.1).all(), rms
+    # the measured torque (current × K) has gravity's sign and size where gravity is large:
+    # shoulder (~50 N·m) and elbow (~12 N·m) differ from it by less than a quarter (friction
+    # holds part of the load while the arm stands still)
+    med = np.median(rec.tau, axis=0)
+    gm = g.mean(axis=0)
+    assert abs(gm[1]) > 40 and abs(gm[2]) > 10
+    assert (np.sign(med[1:3]) == np.sign(gm[1:3])).all()
+    assert (np.abs(med[1:3] - gm[1:3]) < 0.25 * np.abs(gm[1:3])).all()
+
+
+def test_mapping_with_header_units_factors_offsets(tmp_path):
+    """Header names, degrees, ms, per-joint factors and offsets give the documented values."""
+    n_rows = 5
+    time_ms = np.arange(n_rows) * 4.0
+    deg = np.linspace(-30, 30, n_rows)
+    cur = np.linspace(-1, 1, n_rows)
+    df = pd.DataFrame({"time": time_ms})
+    for j in range(6):
+        df[f"pos{j}"] = deg + j
+        df[f"cur{j}"] = cur * (j + 1)
+    data = tmp_path / "log.txt"
+    data.write_text("# exported by the vendor\n" + df.to_csv(index=False, sep=";"))
+    (tmp_path / "robots").mkdir()
+    shutil.copy(UR_URDF, tmp_path / "robots" / "arm.urdf")
+    m = tmp_path / "vendor.toml"
+    m.write_text(
+        '[input]\nheader = true\ndelimiter = ";"\ncomment = "#"\n'
+        '[time]\ncolumn = "time"\nunit = "ms"\n'
+        '[robot]\nurdf = "robots/arm.urdf"\ntool_frame = "flange"\ntool_offset = [0, 0, 0.1]\n'
+        '[meta]\nsource = "vendor X"\n'
+        f'[columns.q]\ncolumns = {[f"pos{j}" for j in range(6)]}\nunit = "deg"\n'.replace("'", '"')
+        + f"[columns.tau]\ncolumns = {[f'cur{j}' for j in range(6)]}\n".replace("'", '"')
+        + "scale = 2.0\nfactors = [[1, 2, 3, 4, 5, 6], 0.5]\noffset = [0, 0, 0, 0, 0, 1.5]\n"
+    )
+    rec = dio.read(data, mapping=m)
+    np.testing.assert_allclose(rec.t, time_ms * 1e-3)
+    np.testing.assert_allclose(rec.q[:, 2], np.deg2rad(deg + 2))
+    k = 2.0 * np.arange(1, 7) * 0.5
+    expected = cur[:, None] * np.arange(1, 7) * k + np.array([0, 0, 0, 0, 0, 1.5])
+    np.testing.assert_allclose(rec.tau, expected)
+    assert rec.meta["robot"]["tool_frame"] == "flange"
+    assert rec.meta["tool_offset"] == [0, 0, 0.1] and rec.meta["source"] == "vendor X"
+
+
+def test_mapping_errors_name_the_key(tmp_path, shared_data):
+    """Unknown keys, wrong list lengths and columns out of range name the mapping key."""
+    base = (REPO / "ditherlab" / "io" / "mappings" / "ur10e.toml").read_text()
+    base = base.replace('"../../robots/ur10e.urdf"', f'"{UR_URDF}"')
+    csv = shared_data / "ur10e" / "no_torque.csv"
+    cases = [
+        (
+            base.replace("[columns.q]", "[columns.q]\nscal = 2"),
+            r"unknown key columns\.q\.scal \(expected one of columns, factors, offset, scale, unit\)",
+        ),
+        (
+            base.replace("scale = [10.0, 10.6956,", "scale = ["),
+            r"columns\.tau\.scale has 4 values, expected 6 \(one per column\)",
+        ),
+        (
+            base.replace(
+                "columns = [14, 15, 16, 17, 18, 19]", "columns = [14, 15, 16, 17, 18, 40]"
+            ),
+            r"columns\.tau\.columns\[6\] is 40, but .*no_torque\.csv has 31 columns",
+        ),
+        (
+            base.replace('unit = "rad"', 'unit = "grad"'),
+            r"columns\.q\.unit is 'grad', expected one of rad, deg",
+        ),
+    ]
+    for i, (text_, pattern) in enumerate(cases):
+        m = tmp_path / f"m{i}.toml"
+        m.write_text(text_)
+        with pytest.raises(ConfigError, match=pattern):
+            dio.read(csv, mapping=m)
+
+
+def test_mapped_non_numeric_cell_is_named(tmp_path):
+    """A text cell in a mapped log names the file, column, target and row."""
+    rows = [
+        "0.0," + ",".join(["0.1"] * 30),
+        "0.01," + ",".join(["0.1"] * 12) + ",x," + ",".join(["0.1"] * 17),
+    ]
+    p = tmp_path / "ur.csv"
+    p.write_text("\n".join(rows) + "\n")
+    with pytest.raises(FormatError) as exc:
+        dio.read(p, mapping="ur10e")
+    assert str(exc.value) == (
+        f"{p}: column 14 (tau_1) has a non-numeric value 'x' in data row 2, expected a number"
+    )
+
+
+def test_builtin_mappings_parse():
+    """Every shipped mapping file passes the mapping checks."""
+    assert "ur10e" in builtin_mappings()
+    for name in builtin_mappings():
+        spec, path = load_mapping(name)
+        assert path.suffix == ".toml" and "q" in spec["columns"]
+
+
+def test_no_warnings_on_the_sample():
+    """The sample recording reads without a unit warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DitherlabWarning)
+        dio.read(REPO / "recordings" / "ur10e-static.parquet")
