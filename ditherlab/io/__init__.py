@@ -147,7 +147,10 @@ def write(rec: Recording, path: str | Path, *, format: str | None = None, **opti
         )
     if options and format != "rosbag":
         raise ConfigError(f"{p}: unknown option {next(iter(options))!r} for {format} output")
-    return _module(format).write(rec, p, **options)
+    try:
+        return _module(format).write(rec, p, **options)
+    except OSError as exc:  # a folder in the way, no permission, disk full: nothing is left
+        raise FormatError(f"{p}: cannot write the {format} file ({exc.strerror or exc})") from None
 
 
 def convert(src: str | Path, dst: str | Path, **options: Any) -> Path:

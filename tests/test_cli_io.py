@@ -1,0 +1,181 @@
+"""Tests of the ``ditherlab info`` and ``ditherlab convert`` commands."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import ditherlab.io as dio
+from ditherlab.errors import DitherlabWarning
+from ditherlab.recording import Recording
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "recordings" / "ur10e-static.parquet"
+
+
+def assert_user_error(res, pattern: str) -> None:
+    """Exit 2, nothing on stdout, one line on stderr matching ``pattern``, no traceback."""
+    assert res.code == 2, (res.code, res.out, res.err)
+    lines = res.err.strip().splitlines()
+    assert len(lines) == 1, res.err
+    assert lines[0].startswith("error: ")
+    assert "Traceback" not in res.err and res.out == ""
+    assert re.search(pattern, lines[0]), lines[0]
+
+
+@pytest.fixture
+def sample_copy(tmp_path) -> Path:
+    p = tmp_path / "in.parquet"
+    shutil.copy(SAMPLE, p)
+    return p
+
+
+def test_info_text(cli):
+    """info prints rate with jitter, joints, present and absent columns and regime fractions."""
+    res = cli("info", SAMPLE)
+    assert res.code == 0, res.err
+    assert "rate       100.00 Hz (interval 10.000 ms, jitter 0.944 ms std" in res.out
+    assert "robot      ur10e (6 joints: shoulder_pan_joint" in res.out
+    assert "columns    t, q, tau, dq; absent: tau_ffw, temp, wrench, dither" in res.out
+    assert "regimes    still 97.9 %, dither 0.0 %, moving 2.1 %" in res.out
+
+
+def test_info_json(cli):
+    """info --json gives the summary as JSON whose regime fractions sum to one."""
+    res = cli("info", SAMPLE, "--json")
+    assert res.code == 0, res.err
+    d = json.loads(res.out)
+    assert d["samples"] == 4259 and d["joints"] == 6
+    assert d["duration_s"] == pytest.approx(45.438)
+    assert sum(d["regimes"].values()) == pytest.approx(1.0)
+    assert d["columns"] == {
+        "dq": True,
+        "tau_ffw": False,
+        "temp": False,
+        "wrench": False,
+        "dither": False,
+    }
+    assert len(d["q_range_rad"]) == 6
+
+
+def test_info_with_mapping(cli, shared_data):
+    """info reads a foreign log through a mapping file."""
+    res = cli("info", shared_data / "ur10e" / "no_torque.csv", "--mapping", "ur10e", "--json")
+    assert res.code == 0, res.err
+    d = json.loads(res.out)
+    assert d["samples"] == 531 and d["robot"] == "ur10e"
+    assert d["regimes"]["moving"] > 0.5
+
+
+def test_info_on_a_ros2_file_without_joint_states(cli, shared_data):
+    """A real ROS 2 bag without JointState is one clear line and exit 2."""
+    res = cli("info", shared_data / "rosbag2" / "talker.mcap", "--robot", "irb140")
+    assert_user_error(
+        res,
+        r"talker\.mcap: no sensor_msgs/msg/JointState topic .* /rosout "
+        r"\[rcl_interfaces/msg/Log\]",
+    )
+
+
+def test_info_missing_file(cli, tmp_path):
+    """A file that does not exist is exit 2 with its name."""
+    assert_user_error(cli("info", tmp_path / "nope.parquet"), r"nope\.parquet: no such file")
+
+
+def test_info_unknown_robot(cli, tmp_path):
+    """An unknown --robot is exit 2 naming the robot."""
+    rec = dio.read(SAMPLE)
+    p = tmp_path / "a.csv"
+    rec.data[["t", *[f"{f}_{j}" for f in ("q", "tau") for j in range(1, 7)]]].to_csv(p, index=False)
+    assert_user_error(cli("info", p), r"a\.csv: no robot given")
+    assert_user_error(cli("info", p, "--robot", "ur3"), r"robot 'ur3' is not a built-in robot")
+    assert cli("info", p, "--robot", "irb140").code == 0
+
+
+def test_info_warns_about_degrees(cli, tmp_path):
+    """Joint angles in degrees raise the unit warning (main prints it as one stderr line)."""
+    t = np.arange(100) * 0.004
+    q = np.tile([10.0, 80.0, -120.0, 170.0, 95.0, 300.0], (100, 1))
+    p = tmp_path / "deg.parquet"
+    dio.write(Recording.from_arrays(t, q, np.zeros_like(q), {"robot": "irb140"}), p)
+    with pytest.warns(
+        DitherlabWarning, match=r"deg\.parquet: q_6 reaches 300, .* as if in degrees"
+    ):
+        res = cli("info", p)
+    assert res.code == 0 and "q min..max" in res.out
+
+
+@pytest.mark.parametrize("out", ["out.mcap", "out.csv", "out.parquet", "out_bag"])
+def test_convert_round_trip(cli, sample_copy, tmp_path, out):
+    """convert writes each format and the result reads back to the same recording."""
+    dst = tmp_path / out
+    res = cli("convert", sample_copy, dst)
+    assert res.code == 0, res.err
+    assert res.out.strip() == f"wrote {dst}"
+    back, orig = dio.read(dst), dio.read(sample_copy)
+    if out == "out_bag":
+        np.testing.assert_array_equal(back.q, orig.q)
+        np.testing.assert_array_equal(back.tau, orig.tau)
+    else:
+        assert back.equals(orig)
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+    assert leftovers == []
+
+
+def test_convert_with_mapping(cli, shared_data, tmp_path):
+    """convert --mapping turns a vendor CSV into a Parquet recording with the URDF embedded."""
+    dst = tmp_path / "ur.parquet"
+    res = cli("convert", shared_data / "ur10e" / "no_torque.csv", dst, "--mapping", "ur10e")
+    assert res.code == 0, res.err
+    rec = dio.read(dst)
+    assert len(rec) == 531 and '<robot name="ur10e">' in rec.meta["robot"]["urdf"]
+
+
+def test_convert_refuses_to_overwrite_its_input(cli, sample_copy):
+    """convert IN IN is refused and the input is untouched."""
+    before = sample_copy.read_bytes()
+    res = cli("convert", sample_copy, sample_copy)
+    assert_user_error(res, r"refusing to write over the input file")
+    assert sample_copy.read_bytes() == before
+
+
+def test_convert_refuses_the_input_through_another_spelling(cli, sample_copy):
+    """A relative path with '..' that names the input is refused too."""
+    other = sample_copy.parent / "sub" / ".." / sample_copy.name
+    (sample_copy.parent / "sub").mkdir()
+    assert_user_error(cli("convert", sample_copy, other), r"refusing to write over the input")
+
+
+def test_convert_bad_input_writes_nothing(cli, tmp_path):
+    """A corrupt input is exit 2, and neither the output nor a temporary file appears."""
+    bad = tmp_path / "bad.mcap"
+    dio.write(dio.read(SAMPLE), bad)
+    data = bad.read_bytes()
+    bad.write_bytes(data[: len(data) // 3])
+    res = cli("convert", bad, tmp_path / "out.parquet")
+    assert_user_error(res, r"bad\.mcap: the MCAP file is truncated or corrupt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap"]
+
+
+def test_convert_failing_write_leaves_no_temp_file(cli, sample_copy, tmp_path):
+    """When the rename fails (a folder is in the way) the error is one line, no temp file."""
+    blocker = tmp_path / "out.parquet"
+    blocker.mkdir()
+    (blocker / "keep").write_text("x")
+    res = cli("convert", sample_copy, blocker)
+    assert_user_error(res, r"out\.parquet: cannot write the parquet file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.parquet", "out.parquet"]
+    assert (blocker / "keep").read_text() == "x"
+
+
+def test_convert_replaces_an_existing_output(cli, sample_copy, tmp_path):
+    """An existing output (not an input) is replaced whole."""
+    dst = tmp_path / "out.mcap"
+    dst.write_bytes(b"old")
+    assert cli("convert", sample_copy, dst).code == 0
+    assert dio.read(dst).equals(dio.read(sample_copy))
