@@ -25,16 +25,20 @@ frame, [m]) is a point mass added to the link that carries the tool frame.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import tempfile
+import threading
 import warnings
 import xml.etree.ElementTree as ET
+from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 import pinocchio as pin
 
 from ditherlab.errors import DitherlabWarning, RobotError
@@ -123,45 +127,79 @@ def unique_configurations(q: np.ndarray, tol: float = 0.0) -> UniqueConfiguratio
     q : (N, n) [rad]
         Joint positions.
     tol : float [rad]
-        0 merges exact repeats only (bit-identical rows). ``tol > 0`` merges configurations in the
-        same cell of a grid of step ``tol`` on every joint and represents each cell by its centre,
-        so every sample is evaluated at most ``tol / 2`` [rad] away from its own value per joint.
+        0 merges exact repeats only (bit-identical rows; -0.0 counts as 0.0). ``tol > 0`` merges
+        configurations in the same cell of a grid of step ``tol`` on every joint and represents
+        each cell by its centre, so every sample is evaluated at most ``tol / 2`` [rad] away from
+        its own value per joint.
 
     Returns
     -------
     UniqueConfigurations
-        ``q (U, n)``, ``inverse (N,)`` with ``q_out[inverse] ≈ q``.
+        ``q (U, n)`` in order of first appearance, ``inverse (N,)`` with ``q_out[inverse] == q``
+        (exactly when ``tol == 0``).
 
     Notes
     -----
-    Runs of consecutive identical samples (a robot standing still with a quiet encoder) are
-    collapsed in O(N) first; the remaining run representatives are sorted and grouped
-    (``np.unique`` over the rows' bytes), so a configuration that recurs later in the log (encoder
-    flicker between two counts) is also computed once.
+    1. Runs of consecutive identical rows (a robot standing still with a quiet encoder) are
+       collapsed in O(N).
+    2. The run representatives are grouped by a 64-bit hash of their bits (``pandas.factorize``,
+       O(R)), so a configuration that recurs later (encoder flicker between two counts) is also
+       computed once.
+    3. The grouping is verified bit for bit; on a hash collision (never observed) it falls back to
+       sorting the rows (``numpy.unique``), so the result is exact either way.
     """
     q = np.ascontiguousarray(q, dtype=np.float64)
+    if q.ndim != 2:
+        raise RobotError(f"q has shape {q.shape}, expected (N, n)")
     N, n = q.shape
-    if tol < 0 or not np.isfinite(tol):
+    if not (np.isfinite(tol) and tol >= 0):
         raise RobotError(f"quantisation tolerance is {tol!r}, expected a finite value >= 0 [rad]")
     if N == 0:
         return UniqueConfigurations(q.copy(), np.zeros(0, dtype=np.intp), float(tol))
     if tol > 0:
-        key = np.floor(q / tol + 0.5)  # cell index (float, exact for |q / tol| < 2**52)
+        key = np.floor(q / tol + 0.5) + 0.0  # cell index (exact integers for |q / tol| < 2**52)
     else:
-        key = q + 0.0  # + 0.0 maps -0.0 to 0.0 so both count as one configuration
-    # 1) collapse runs of identical consecutive rows (O(N))
+        key = q + 0.0  # + 0.0 maps -0.0 to 0.0
+    bits = key.view(np.uint64)  # (N, n): compare and hash bit patterns (NaN == NaN here)
+    # 1) collapse runs of identical consecutive rows
     starts = np.empty(N, dtype=bool)
     starts[0] = True
-    np.any(key[1:] != key[:-1], axis=1, out=starts[1:])
+    np.any(bits[1:] != bits[:-1], axis=1, out=starts[1:])
     run_first = np.flatnonzero(starts)
-    run_id = np.cumsum(starts) - 1  # (N,) run index of each sample
-    reps = np.ascontiguousarray(key[run_first])
-    # 2) group the run representatives by their bytes (sorting; R log R for R runs)
-    rows = reps.view(np.dtype((np.void, reps.dtype.itemsize * n))).ravel()
-    _, first, inv = np.unique(rows, return_index=True, return_inverse=True)
-    inverse = inv.reshape(-1)[run_id]
-    uq = reps[first] * tol if tol > 0 else q[run_first[first]]
-    return UniqueConfigurations(np.ascontiguousarray(uq), inverse.astype(np.intp), float(tol))
+    run_id = np.cumsum(starts) - 1  # (N,) run of each sample
+    reps = bits[run_first]  # (R, n)
+    # 2) hash the representatives, group equal hashes in order of first appearance
+    codes, _ = pd.factorize(_row_hash(reps))
+    codes = codes.astype(np.intp, copy=False)
+    prev_max = np.maximum.accumulate(np.concatenate(([-1], codes[:-1])))
+    first = np.flatnonzero(codes > prev_max)  # codes appear in increasing order
+    # 3) verify bit for bit (a hash collision would merge different rows)
+    if not np.array_equal(reps[first][codes], reps):  # pragma: no cover - 2**-64 per pair
+        rows = np.ascontiguousarray(reps).view(np.dtype((np.void, 8 * n))).ravel()
+        _, first, codes = np.unique(rows, return_index=True, return_inverse=True)
+        codes = codes.reshape(-1)
+    inverse = codes[run_id]
+    uq = key[run_first[first]] * tol if tol > 0 else q[run_first[first]]
+    return UniqueConfigurations(np.ascontiguousarray(uq), inverse, float(tol))
+
+
+_GOLDEN = 0x9E3779B97F4A7C15
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+
+
+def _row_hash(bits: np.ndarray) -> np.ndarray:
+    """(R,) uint64 hash of the rows of a (R, n) uint64 array (splitmix64 finaliser per column)."""
+    h = np.zeros(len(bits), dtype=np.uint64)
+    for j in range(bits.shape[1]):
+        x = h ^ (bits[:, j] + np.uint64(_GOLDEN * (j + 1) % 2**64))
+        x ^= x >> np.uint64(30)
+        x *= _MIX1
+        x ^= x >> np.uint64(27)
+        x *= _MIX2
+        x ^= x >> np.uint64(31)
+        h = x
+    return h
 
 
 # ---------------------------------------------------------------------- URDF parsing
@@ -309,6 +347,25 @@ class RobotModel:
         self.effort_limit = np.array(model.effortLimit, dtype=float)
         self.link_names = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
         self._where = where
+        self._lock = threading.RLock()
+        self._cache: OrderedDict[tuple, dict[str, np.ndarray]] = OrderedDict()
+        #: Byte budget of the per-configuration result cache (see :meth:`evaluate`).
+        self.cache_bytes = 256 * 2**20
+        self._kernels_cache = self._kernels()
+
+    def __reduce__(self):
+        """Pickle as the constructor's arguments (pinocchio objects are rebuilt)."""
+        return (
+            _rebuild,
+            (
+                self.urdf,
+                self.tool_frame,
+                self.name,
+                self.tool_offset.tolist(),
+                self.payload,
+                self._where,
+            ),
+        )
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -474,31 +531,176 @@ class RobotModel:
         return q
 
     # ------------------------------------------------------------------ batched evaluation
-    def _batched(
+    def _kernels(self) -> dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]]:
+        """Per-quantity loops over pinocchio: name -> (fill(qs (U, n), out (U, ...)), shape).
+
+        Each ``fill`` is a tight loop with its pinocchio function and arguments bound to local
+        names: the per-sample Python overhead is then about that of one pinocchio call.
+        """
+        m, d, n = self.model, self._data, self.n
+        fid, parent = self._tool_point_id, self._tool_joint
+        tool_placement = m.frames[fid].placement
+        z = np.zeros(n)
+        cols = slice(10 * (parent - 1), 10 * parent)
+        T_params = self._tool_to_joint_params()
+        link_ids = [m.getFrameId(name) for name in self.link_names]
+        oMi, oMf = d.oMi, d.oMf
+
+        def gravity(qs: np.ndarray, out: np.ndarray) -> None:
+            f = pin.computeGeneralizedGravity
+            for i in range(len(qs)):
+                out[i] = f(m, d, qs[i])
+
+        def jacobian(qs: np.ndarray, out: np.ndarray) -> None:
+            f = pin.computeFrameJacobian
+            for i in range(len(qs)):
+                out[i] = f(m, d, qs[i], fid, _LWA)
+
+        def mass(qs: np.ndarray, out: np.ndarray) -> None:
+            f = pin.crba
+            for i in range(len(qs)):
+                out[i] = f(m, d, qs[i])
+            # pinocchio fills the upper triangle only
+            iu = np.tril_indices(n, -1)
+            out[:, iu[0], iu[1]] = out[:, iu[1], iu[0]]
+
+        def tool(qs: np.ndarray, out: np.ndarray) -> None:
+            f = pin.forwardKinematics
+            for i in range(len(qs)):
+                f(m, d, qs[i])
+                out[i] = (oMi[parent] * tool_placement).homogeneous
+
+        def links(qs: np.ndarray, out: np.ndarray) -> None:
+            f = pin.framesForwardKinematics
+            for i in range(len(qs)):
+                f(m, d, qs[i])
+                for k, j in enumerate(link_ids):
+                    out[i, k] = oMf[j].homogeneous
+
+        def regressor(qs: np.ndarray, out: np.ndarray) -> None:
+            f = pin.computeJointTorqueRegressor
+            for i in range(len(qs)):
+                out[i] = f(m, d, qs[i], z, z)[:, cols] @ T_params
+
+        return {
+            "gravity": (gravity, (n,)),
+            "jacobian": (jacobian, (6, n)),
+            "mass_matrix": (mass, (n, n)),
+            "tool_pose": (tool, (4, 4)),
+            "link_poses": (links, (len(link_ids), 4, 4)),
+            "gravity_regressor": (regressor, (n, 10)),
+        }
+
+    def _compute(
+        self,
+        qs: np.ndarray,
+        quantities: Sequence[str],
+        progress: Callable[[int, int], None] | None,
+    ) -> dict[str, np.ndarray]:
+        """Evaluate ``quantities`` at every row of ``qs (U, n)``, one pinocchio call each."""
+        kernels = self._kernels_cache
+        total = len(qs)
+        outs = {k: np.empty((total, *kernels[k][1])) for k in quantities}
+        chunk = total if progress is None else max(-(-total // 100), 256)
+        with self._lock:  # pinocchio Data is shared scratch space
+            for start in range(0, total, chunk):
+                stop = min(start + chunk, total)
+                for k in quantities:
+                    kernels[k][0](qs[start:stop], outs[k][start:stop])
+                if progress is not None:
+                    progress(stop, total)
+        if progress is not None and total == 0:
+            progress(0, 0)
+        return outs
+
+    def evaluate(
         self,
         q: np.ndarray,
-        per_config: Callable[[np.ndarray], np.ndarray],
-        shape: tuple[int, ...],
-        tol: float,
-        dedup: bool,
-        progress: Callable[[int, int], None] | None,
-    ) -> np.ndarray:
+        quantities: Sequence[str],
+        *,
+        tol: float = 0.0,
+        dedup: bool = True,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> dict[str, np.ndarray]:
+        """Several batched quantities at once, sharing one deduplication pass.
+
+        Parameters
+        ----------
+        q : (N, n) or (n,) [rad]
+            Joint positions.
+        quantities : names
+            Any of ``gravity``, ``jacobian``, ``mass_matrix``, ``tool_pose``, ``link_poses``
+            (all links stacked, (N, L, 4, 4) in the order of :attr:`link_names`),
+            ``gravity_regressor``.
+        tol : float [rad]
+            Quantisation step (see :meth:`gravity`); 0 = exact repeats only.
+        dedup : bool
+            False evaluates every sample with a plain loop (the reference path, not cached).
+        progress : callable(done, total), optional
+            Called with the number of distinct configurations evaluated so far.
+
+        Returns
+        -------
+        dict name -> array with the samples on the first axis (new arrays, safe to modify).
+
+        Notes
+        -----
+        When some configurations repeat, their results are kept in a small cache keyed by a
+        BLAKE2 digest of ``q`` and ``tol`` (at most :attr:`cache_bytes` bytes, least recently
+        used evicted), so the gravity of one recording asked for by several consumers is
+        computed once. A batch without any repeat (a robot that moves all the time) is neither
+        scattered nor cached.
+        """
+        unknown = [k for k in quantities if k not in self._kernels_cache]
+        if unknown:
+            raise RobotError(
+                f"unknown robot quantity {unknown[0]!r}, expected one of: "
+                f"{', '.join(self._kernels_cache)}"
+            )
         q = self._as_batch(q)
-        if dedup:
+        if not np.isfinite(tol) or tol < 0:
+            raise RobotError(
+                f"quantisation tolerance is {tol!r}, expected a finite value >= 0 [rad]"
+            )
+        quantities = list(dict.fromkeys(quantities))
+        if not dedup:
+            return self._compute(q, quantities, progress)
+        key = (
+            hashlib.blake2b(np.ascontiguousarray(q).data, digest_size=16).digest(),
+            q.shape,
+            float(tol),
+        )
+        entry = self._cache.pop(key, None)
+        if entry is None:
             u = unique_configurations(q, tol)
-            qs, inverse = u.q, u.inverse
-        else:
-            qs, inverse = q, None
-        out = np.empty((len(qs), *shape))
-        total = len(qs)
-        step = max(total // 100, 1)
-        for i in range(total):
-            out[i] = per_config(qs[i])
-            if progress is not None and (i % step == 0):
-                progress(i, total)
-        if progress is not None:
-            progress(total, total)
-        return out if inverse is None else out[inverse]
+            if len(u.q) == len(q):
+                # nothing repeats (a moving robot): inverse is the identity, so scattering and
+                # caching would only copy; the per-configuration results are returned as they are
+                return self._compute(u.q, quantities, progress)
+            entry = {"q": u.q, "inverse": u.inverse}
+        missing = [k for k in quantities if k not in entry]
+        if missing:
+            entry.update(self._compute(entry["q"], missing, progress))
+        elif progress is not None:
+            progress(len(entry["q"]), len(entry["q"]))
+        inverse = entry["inverse"]
+        result = {k: entry[k][inverse] for k in quantities}  # fancy indexing copies
+        self._remember(key, entry)
+        return result
+
+    def _remember(self, key: tuple, entry: dict[str, np.ndarray]) -> None:
+        size = sum(v.nbytes for v in entry.values())
+        if size > self.cache_bytes:
+            return
+        self._cache[key] = entry
+        total = sum(sum(v.nbytes for v in e.values()) for e in self._cache.values())
+        while total > self.cache_bytes:
+            _, old = self._cache.popitem(last=False)
+            total -= sum(v.nbytes for v in old.values())
+
+    def clear_cache(self) -> None:
+        """Forget every cached result."""
+        self._cache.clear()
 
     def gravity(
         self,
@@ -530,15 +732,7 @@ class RobotModel:
         -------
         (N, n) [N·m]
         """
-        m, d = self.model, self._data
-        return self._batched(
-            q,
-            lambda qi: pin.computeGeneralizedGravity(m, d, qi),
-            (self.n,),
-            tol,
-            dedup,
-            progress,
-        )
+        return self.evaluate(q, ["gravity"], tol=tol, dedup=dedup, progress=progress)["gravity"]
 
     def jacobian(
         self,
@@ -557,21 +751,32 @@ class RobotModel:
         Parameters
         ----------
         q : (N, n) or (n,) [rad]
-        tol, dedup, progress : see :meth:`gravity`.
+        tol, dedup, progress : see :meth:`gravity`. With ``tol > 0`` the error of a lever arm
+            is at most ``(tol / 2) · Σ_j |∂J/∂q_j|`` ≈ ``tol / 2 · n · reach`` [m].
 
         Returns
         -------
         (N, 6, n) [m/rad for the linear rows, 1 for the angular rows]
         """
-        m, d, fid = self.model, self._data, self._tool_point_id
-        return self._batched(
-            q,
-            lambda qi: pin.computeFrameJacobian(m, d, qi, fid, _LWA),
-            (6, self.n),
-            tol,
-            dedup,
-            progress,
-        )
+        return self.evaluate(q, ["jacobian"], tol=tol, dedup=dedup, progress=progress)["jacobian"]
+
+    def gravity_jacobian(
+        self,
+        q: np.ndarray,
+        *,
+        tol: float = 0.0,
+        dedup: bool = True,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`gravity` and :meth:`jacobian` with one deduplication pass.
+
+        Returns
+        -------
+        gravity : (N, n) [N·m]
+        jacobian : (N, 6, n)
+        """
+        r = self.evaluate(q, ["gravity", "jacobian"], tol=tol, dedup=dedup, progress=progress)
+        return r["gravity"], r["jacobian"]
 
     def mass_matrix(
         self,
@@ -592,13 +797,9 @@ class RobotModel:
         -------
         (N, n, n) [kg m²]
         """
-        m, d = self.model, self._data
-
-        def one(qi: np.ndarray) -> np.ndarray:
-            M = pin.crba(m, d, qi)  # upper triangle filled by pinocchio
-            return np.triu(M) + np.triu(M, 1).T
-
-        return self._batched(q, one, (self.n, self.n), tol, dedup, progress)
+        return self.evaluate(q, ["mass_matrix"], tol=tol, dedup=dedup, progress=progress)[
+            "mass_matrix"
+        ]
 
     def tool_pose(
         self,
@@ -620,14 +821,7 @@ class RobotModel:
         (N, 4, 4)
             Homogeneous transforms, translation [m].
         """
-        m, d, fid = self.model, self._data, self._tool_point_id
-        parent = self._tool_joint
-
-        def one(qi: np.ndarray) -> np.ndarray:
-            pin.forwardKinematics(m, d, qi)
-            return (d.oMi[parent] * m.frames[fid].placement).homogeneous
-
-        return self._batched(q, one, (4, 4), tol, dedup, progress)
+        return self.evaluate(q, ["tool_pose"], tol=tol, dedup=dedup, progress=progress)["tool_pose"]
 
     def link_poses(
         self,
@@ -636,6 +830,7 @@ class RobotModel:
         links: Sequence[str] | None = None,
         tol: float = 0.0,
         dedup: bool = True,
+        progress: Callable[[int, int], None] | None = None,
     ) -> dict[str, np.ndarray]:
         """Pose of every URDF link (body frame) in the base frame.
 
@@ -644,7 +839,7 @@ class RobotModel:
         q : (N, n) or (n,) [rad]
         links : names, optional
             Subset of :attr:`link_names` (default: all).
-        tol, dedup : see :meth:`gravity`.
+        tol, dedup, progress : see :meth:`gravity`.
 
         Returns
         -------
@@ -653,20 +848,16 @@ class RobotModel:
         """
         names = list(self.link_names if links is None else links)
         for name in names:
-            if not self.model.existFrame(name):
+            if name not in self.link_names:
                 raise RobotError(
                     f"{_prefix(self._where)}link {name!r} is not in robot {self.name!r} "
                     f"(expected one of: {', '.join(self.link_names)})"
                 )
-        ids = [self.model.getFrameId(name) for name in names]
-        m, d = self.model, self._data
-
-        def one(qi: np.ndarray) -> np.ndarray:
-            pin.framesForwardKinematics(m, d, qi)
-            return np.stack([d.oMf[i].homogeneous for i in ids])
-
-        out = self._batched(q, one, (len(ids), 4, 4), tol, dedup, None)
-        return {name: np.ascontiguousarray(out[:, k]) for k, name in enumerate(names)}
+        out = self.evaluate(q, ["link_poses"], tol=tol, dedup=dedup, progress=progress)
+        stacked = out["link_poses"]
+        return {
+            name: np.ascontiguousarray(stacked[:, self.link_names.index(name)]) for name in names
+        }
 
     def gravity_regressor(
         self,
@@ -681,10 +872,10 @@ class RobotModel:
         ``gravity_regressor(q) @ theta`` is the gravity torque of a body with dynamic parameters
         ``theta = (m, m c_x, m c_y, m c_z, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz)`` (pinocchio's
         order; mass [kg], first moments [kg m], inertia about the tool-frame origin [kg m²]),
-        all in the **tool frame**, rigidly attached to the link that carries the tool frame. A
-        payload ``{"mass": m, "com": c}`` has ``theta = (m, m c, 0, ...)``. Gravity does not
-        depend on the inertia, so the last six columns are zero; they are kept so the shape
-        matches the full joint-torque regressor.
+        all in the **tool frame** (not moved by ``tool_offset``), rigidly attached to the link
+        that carries the tool frame. A payload ``{"mass": m, "com": c}`` has
+        ``theta = (m, m c, 0, ...)``. Gravity does not depend on the inertia, so the last six
+        columns are zero; they are kept so the shape matches the full joint-torque regressor.
 
         Built from pinocchio's ``computeJointTorqueRegressor`` at zero velocity and
         acceleration (the block of the tool link's joint), mapped from that joint's frame to
@@ -699,16 +890,9 @@ class RobotModel:
         -------
         (N, n, 10) [N·m per unit parameter]
         """
-        m, d = self.model, self._data
-        z = np.zeros(self.n)
-        cols = slice(10 * (self._tool_joint - 1), 10 * self._tool_joint)
-        T = self._tool_to_joint_params()
-
-        def one(qi: np.ndarray) -> np.ndarray:
-            Y = pin.computeJointTorqueRegressor(m, d, qi, z, z)[:, cols]
-            return Y @ T
-
-        return self._batched(q, one, (self.n, 10), tol, dedup, progress)
+        return self.evaluate(q, ["gravity_regressor"], tol=tol, dedup=dedup, progress=progress)[
+            "gravity_regressor"
+        ]
 
     def _tool_to_joint_params(self) -> np.ndarray:
         """(10, 10) linear map: dynamic parameters in the tool frame -> parent joint frame."""
@@ -725,6 +909,12 @@ class RobotModel:
             e[k] = 1.0
             T[:, k] = act(base + e) - ref
         return T
+
+
+def _rebuild(urdf, tool_frame, name, tool_offset, payload, where) -> RobotModel:
+    return RobotModel(
+        urdf, tool_frame, name=name, tool_offset=tool_offset, payload=payload, where=where
+    )
 
 
 def _parse_payload(payload: Mapping[str, Any], w: str) -> tuple[float, np.ndarray]:
