@@ -48,7 +48,12 @@ def make_blueprint(
         *[
             rrb.TimeSeriesView(
                 origin=f"joints/{j}",
-                contents=["$origin/dither/**", "$origin/extract/**", "$origin/band/dither"],
+                contents=[
+                    "$origin/dither/**",
+                    "$origin/extract/**",
+                    "$origin/band/dither",
+                    "/events/dither_flag",
+                ],
                 name=f"joint {j}: dither and extraction [N·m]",
             )
             for j in joints

@@ -391,13 +391,14 @@ def log_view(
     robot = rec.robot()
     _log_robot(log, rec, robot, estimates, rate_3d, force_scale)
     tick()
-    _log_joints(log, rec, robot, model)
+    g = robot.gravity(rec.q)  # (N, n) [N·m], shared by tau_bar and the residuals
+    _log_joints(log, rec, g, model)
     tick()
     _log_dither(log, rec, estimates)
     tick()
     _log_forces(log, rec, estimates)
     tick()
-    _log_residuals(log, rec, robot, model)
+    _log_residuals(log, rec, g, model)
     tick()
     _log_events(log, rec, estimates)
     tick()
@@ -509,27 +510,27 @@ def _model_effects_torque(model: TorqueModel | None, rec: Recording) -> np.ndarr
     return effects_torque(model, rec)
 
 
-def tau_bar(rec: Recording, robot: Any, model: TorqueModel | None = None) -> np.ndarray:
+def tau_bar(rec: Recording, gravity: np.ndarray, model: TorqueModel | None = None) -> np.ndarray:
     """Gravity-compensated torque ``tau - gravity(q) - effects_torque`` as replay uses it.
 
     Parameters
     ----------
     rec : recording with ``q (N, n)`` [rad], ``tau (N, n)`` [N·m]
-    robot : its RobotModel
+    gravity : (N, n) [N·m], ``rec.robot().gravity(rec.q)``
     model : optional; its effects are subtracted when it has any
 
     Returns
     -------
     (N, n) [N·m]
     """
-    out = rec.tau - robot.gravity(rec.q)
+    out = rec.tau - gravity
     eff = _model_effects_torque(model, rec)
     return out if eff is None else out - eff
 
 
-def _log_joints(log: _Logger, rec: Recording, robot: Any, model: TorqueModel | None) -> None:
+def _log_joints(log: _Logger, rec: Recording, g: np.ndarray, model: TorqueModel | None) -> None:
     tau = rec.tau
-    tb = tau_bar(rec, robot, model)
+    tb = tau_bar(rec, g, model)
     label = "tau - gravity" if model is None or not model.effects else "tau - gravity - effects"
     t = rec.t
     span = np.array([0, len(t) - 1]) if len(t) > 1 else np.array([0])
@@ -640,7 +641,7 @@ def _log_forces(log: _Logger, rec: Recording, estimates: EstimatesTable | None) 
 
 
 # ---------------------------------------------------------------------- residuals
-def _log_residuals(log: _Logger, rec: Recording, robot: Any, model: TorqueModel | None) -> None:
+def _log_residuals(log: _Logger, rec: Recording, g: np.ndarray, model: TorqueModel | None) -> None:
     """Friction residual per joint for every model version in the model's history.
 
     ``rho = tau - gravity - effects_torque(model_k) - external_torque(model_k, sensor_wrench)``:
@@ -667,7 +668,6 @@ def _log_residuals(log: _Logger, rec: Recording, robot: Any, model: TorqueModel 
         m.version = int(h["version"])
         versions[m.version] = m
     versions[model.version] = model
-    g = robot.gravity(rec.q)
     palette = [(200, 60, 60), (230, 150, 40), (60, 160, 60), (40, 110, 230), (140, 60, 200)]
     for k, (ver, m) in enumerate(sorted(versions.items())):
         rho = rec.tau - g - effects_torque(m, rec) - external_torque(m, rec, sensor_wrench(m, rec))
