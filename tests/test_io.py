@@ -595,3 +595,30 @@ def test_no_warnings_on_the_sample():
     with warnings.catch_warnings():
         warnings.simplefilter("error", DitherlabWarning)
         dio.read(REPO / "recordings" / "ur10e-static.parquet")
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_bag_storage_file_alone_reads_robot_from_description(tmp_path, sample, storage):
+    """The storage file of a bag, read without its folder, takes the URDF from /robot_description."""
+    rec = sample.slice(None, 334.0)
+    dio.write(rec, tmp_path / "bag", storage=storage)
+    f = next(p for p in (tmp_path / "bag").iterdir() if p.suffix in (".mcap", ".db3"))
+    back = dio.read(f)
+    assert back.meta["robot"]["urdf"] == UR_URDF.read_text()
+    assert back.meta["source"] == f"ROS 2 bag {f.name}"
+    np.testing.assert_array_equal(back.tau, rec.tau)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_damaged_bag_is_a_format_error(tmp_path, sample, storage):
+    """A bag whose storage file is cut or overwritten in the middle is a FormatError."""
+    dio.write(sample.slice(None, 336.0), tmp_path / "bag", storage=storage)
+    f = next(p for p in (tmp_path / "bag").iterdir() if p.suffix in (".mcap", ".db3"))
+    data = f.read_bytes()
+    for damaged in (
+        data[: len(data) // 2],
+        data[: len(data) // 2] + b"\0" * 200 + data[len(data) // 2 + 200 :],
+    ):
+        f.write_bytes(damaged)
+        with pytest.raises(FormatError, match=rf"^{tmp_path / 'bag'}: not a readable ROS 2 bag"):
+            dio.read(tmp_path / "bag")

@@ -51,7 +51,7 @@ import numpy as np
 import pandas as pd
 
 from ditherlab.errors import ConfigError, FormatError
-from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options
+from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options, robot_spec
 from ditherlab.recording import SCHEMA, WRENCH_COLUMNS, Recording
 
 MAPPINGS_DIR = Path(__file__).parent / "mappings"
@@ -184,24 +184,21 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
 
     meta = {"schema": SCHEMA, **spec.get("meta", {})}
     rob = spec["robot"]
-    if options.get("robot") is None:
-        if "urdf" in rob:
-            options = {**options, "robot": str(rob["urdf"])}
-            options.setdefault("tool_frame", rob.get("tool_frame"))
-            base = mp.parent
-            if not str(rob["urdf"]).endswith(".urdf") and "/" not in str(rob["urdf"]):
-                options["robot"] = f"./{rob['urdf']}"
-        elif "name" in rob:
-            options = {**options, "robot": rob["name"]}
-            base = None
-        else:
-            raise ConfigError(f"{mp}: table [robot] needs 'name' (built-in) or 'urdf' (a path)")
+    if "urdf" in rob:  # a path relative to the mapping file; its text goes into the metadata
+        meta["robot"] = robot_spec(
+            Path(str(rob["urdf"])),
+            base_dir=mp.parent,
+            tool_frame=rob.get("tool_frame"),
+            where=f"{mp}: robot.urdf",
+        )
+    elif "name" in rob:
+        meta["robot"] = str(rob["name"])
     else:
-        base = None
+        raise ConfigError(f"{mp}: table [robot] needs 'name' (built-in) or 'urdf' (a path)")
     for key in ("tool_offset", "payload"):
         if key in rob:
             meta[key] = rob[key]
-    meta = meta_from_options(meta, options, base_dir=base, where=str(path))
+    meta = meta_from_options(meta, options, where=str(path))
     meta.setdefault("mapping", mp.name)
     return Recording(pd.DataFrame(cols), meta, name=str(path))
 

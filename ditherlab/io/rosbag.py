@@ -35,11 +35,14 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import sqlite3
+import struct
 import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
 
+import apsw
 import numpy as np
 import pandas as pd
 from rosbags.highlevel import AnyReader, AnyReaderError
@@ -144,7 +147,18 @@ def read(path: Path, **options: Any) -> Recording:
                     urdf_text = msg.data
     except FormatError:
         raise
-    except (AnyReaderError, OSError, ValueError, KeyError, AssertionError) as exc:
+    except (
+        AnyReaderError,
+        OSError,
+        ValueError,
+        KeyError,
+        AssertionError,
+        struct.error,
+        sqlite3.Error,
+        apsw.Error,
+        OverflowError,
+        IndexError,
+    ) as exc:  # what rosbags raises on a damaged bag
         raise FormatError(f"{path}: not a readable ROS 2 bag ({exc})") from None
     if not joints:
         raise FormatError(f"{path}: topic {jtopic} [{JOINT_STATE}] has no messages")
