@@ -142,7 +142,7 @@ def view(
     quiet: Quiet = False,
 ) -> None:
     """Review a recording, its estimates and model in Rerun (3D robot, torques, forces, events)."""
-    from ditherlab.viz.rerun_log import load_view_request, run_view
+    from ditherlab.viz.rerun_log import load_view_request, run_view, wait_until_interrupted
 
     if spawn and serve:
         raise DitherlabError("view: choose one of --spawn and --serve")
@@ -153,4 +153,5 @@ def view(
     if res.path is not None:
         echo(f"wrote {res.path} ({sum(res.summary.rows.values())} rows); open it with: rerun {res.path}")
     elif res.url:
-        echo(f"serving {res.url}")
+        echo(f"serving the view at {res.url} (Ctrl-C stops)")
+        wait_until_interrupted()

@@ -51,6 +51,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ditherlab.model import TorqueModel
 
 TIMELINE = "time"
+WEB_PORT = 9090
 ESTIMATES_SCHEMA = "ditherlab.estimates/1"
 VARIANTS = ("nodither_band", "nodither_noband", "dither_band", "dither_noband")
 EXTRACT_SIGNALS = ("upper", "lower", "signal")
@@ -916,7 +917,8 @@ def show_view(
 ) -> str | None:
     """Send the view to a viewer: ``mode="spawn"`` starts the native viewer (``rr.spawn``),
     ``mode="serve"`` serves it over gRPC and a web viewer (``rr.serve_grpc`` +
-    ``rr.serve_web_viewer``) and returns the gRPC URL.
+    ``rr.serve_web_viewer``) and returns the web viewer's URL; the servers live as long as this
+    process (see :func:`wait_until_interrupted`).
     """
     import rerun as rr
 
@@ -928,8 +930,9 @@ def show_view(
     if mode == "spawn":
         rr.spawn(recording=stream, default_blueprint=bp)
     elif mode == "serve":
-        url = rr.serve_grpc(recording=stream, default_blueprint=bp)
-        rr.serve_web_viewer(connect_to=url, open_browser=False)
+        grpc = rr.serve_grpc(recording=stream, default_blueprint=bp)
+        rr.serve_web_viewer(web_port=WEB_PORT, connect_to=grpc, open_browser=False)
+        url = f"http://localhost:{WEB_PORT}/?url={grpc}"
     else:
         raise DitherlabError(f"view mode is {mode!r}, expected 'spawn' or 'serve'")
     log_view(
@@ -943,6 +946,17 @@ def show_view(
     )
     stream.flush()
     return url
+
+
+def wait_until_interrupted() -> None:
+    """Block until Ctrl-C (keeps the servers of ``show_view(mode="serve")`` alive)."""
+    import time
+
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        return
 
 
 # ---------------------------------------------------------------------- reading back (Rerun's API)
