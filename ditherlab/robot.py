@@ -601,7 +601,7 @@ class RobotModel:
         kernels = self._kernels_cache
         total = len(qs)
         outs = {k: np.empty((total, *kernels[k][1])) for k in quantities}
-        chunk = total if progress is None else max(-(-total // 100), 256)
+        chunk = max(total if progress is None else -(-total // 100), 256)
         with self._lock:  # pinocchio Data is shared scratch space
             for start in range(0, total, chunk):
                 stop = min(start + chunk, total)

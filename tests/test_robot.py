@@ -283,3 +283,129 @@ def test_embedded_planar_urdf_gravity_analytic():
     p = robot.tool_pose(q)[:, :3, 3]
     np.testing.assert_allclose(p[:, 0], 0.5 * c1 + 0.4 * c12, atol=1e-12)
     np.testing.assert_allclose(p[:, 2], 0.5 * s1 + 0.4 * s12, atol=1e-12)
+
+
+# ---------------------------------------------------------------------- more hand-checked poses
+def _urdf_inertials(urdf: str) -> dict[str, tuple[float, np.ndarray]]:
+    """link -> (mass [kg], centre of mass in the link frame [m]) read from the URDF text."""
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for link in ET.fromstring(urdf).iter("link"):
+        inertial = link.find("inertial")
+        if inertial is not None:
+            xyz = np.array(inertial.find("origin").get("xyz").split(), dtype=float)
+            out[link.get("name")] = (float(inertial.find("mass").get("value")), xyz)
+    return out
+
+
+def test_paper_pose_gravity_by_hand(irb):
+    """Gravity on J2 and J3 in the paper pose is -g · sum of m_k times the k-th COM's x lever."""
+    inert = _urdf_inertials(irb.urdf)
+    # link frames in the paper pose (by hand from the link lengths; q5 = 90° turns link_5/6 x down)
+    elbow = np.array([A1, 0, D1 + A2])
+    wrist = np.array([A1 + D4, 0, D1 + A2])
+    down = np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])  # R_y(90°): x -> -z, z -> x
+    com = {
+        "link_2": np.array([A1, 0, D1]) + inert["link_2"][1],
+        "link_3": elbow + inert["link_3"][1],
+        "link_4": elbow + np.array([0.18, 0, 0]) + inert["link_4"][1],
+        "link_5": wrist + down @ inert["link_5"][1],
+        "link_6": wrist + np.array([0, 0, -D6]) + down @ inert["link_6"][1],
+    }
+    moment2 = sum(inert[k][0] * (com[k][0] - A1) for k in com)  # [kg m] about the J2 axis
+    moment3 = sum(inert[k][0] * (com[k][0] - A1) for k in com if k != "link_2")
+    moment5 = sum(inert[k][0] * (com[k][0] - wrist[0]) for k in ("link_5", "link_6"))
+    g = irb.gravity(PAPER_POSE)[0]
+    np.testing.assert_allclose(g, [0, -G * moment2, -G * moment3, 0, -G * moment5, 0], atol=1e-10)
+    assert abs(g[1]) > 10  # the forearm's weight is felt
+
+
+def test_zero_pose_and_tool_offset_by_hand():
+    """At q = 0 the flange is at (a1 + d4 + d6, 0, d1 + a2) facing +x; tool_offset moves along it."""
+    robot = RobotModel.from_spec("irb140", tool_offset=[0, 0, 0.1])
+    T0 = robot.tool_pose(np.zeros(6))[0]
+    np.testing.assert_allclose(T0[:3, 3], [A1 + D4 + D6 + 0.1, 0, D1 + A2], atol=1e-12)
+    np.testing.assert_allclose(T0[:3, 2], [1, 0, 0], atol=1e-9)
+    # paper pose: the tool point is 0.1 m below the flange, so Fx acts on J2 with 0.295 - 0.1
+    J = robot.jacobian(PAPER_POSE)[0]
+    np.testing.assert_allclose(J[0, 1], D1 + A2 - D6 - 0.1 - D1, atol=1e-12)
+    np.testing.assert_allclose(robot.tool_pose(PAPER_POSE)[0][:3, 3], [0.45, 0, 0.547], atol=1e-12)
+
+
+# ---------------------------------------------------------------------- batching and caching
+def test_single_configuration_and_empty_batch(irb):
+    """A (n,) configuration gives a batch of one; an empty (0, n) batch gives empty results."""
+    assert irb.gravity(PAPER_POSE).shape == (1, 6)
+    assert irb.jacobian(np.zeros((0, 6))).shape == (0, 6, 6)
+    assert irb.link_poses(np.zeros((0, 6)))["tool0"].shape == (0, 4, 4)
+
+
+def test_gravity_jacobian_and_cache_return_new_arrays(irb):
+    """gravity_jacobian equals the separate calls; mutating a result never alters a later one."""
+    q = _still_log(irb, 200, seed=8)
+    irb.clear_cache()
+    g, J = irb.gravity_jacobian(q)
+    g_ref, J_ref = irb.gravity(q, dedup=False), irb.jacobian(q, dedup=False)
+    np.testing.assert_array_equal(g, g_ref)
+    np.testing.assert_array_equal(J, J_ref)
+    g[:] = 0.0
+    J[:] = 0.0
+    g2, J2 = irb.gravity_jacobian(q)  # served from the cache
+    np.testing.assert_array_equal(g2, g_ref)
+    np.testing.assert_array_equal(J2, J_ref)
+    # a different batch with the same shape is not confused with the cached one
+    q3 = q.copy()
+    q3[0, 0] += 0.1
+    np.testing.assert_array_equal(irb.gravity(q3), irb.gravity(q3, dedup=False))
+
+
+def test_cache_respects_byte_budget():
+    """The cache never holds more than cache_bytes."""
+    robot = RobotModel.from_spec("irb140")
+    robot.cache_bytes = 200_000
+    for seed in range(6):
+        robot.gravity_jacobian(_still_log(robot, 400, seed=seed))
+        held = sum(sum(v.nbytes for v in e.values()) for e in robot._cache.values())
+        assert held <= robot.cache_bytes
+
+
+def test_progress_reports_done_and_total(irb):
+    """progress(done, total) is called with increasing counts ending at (U, U)."""
+    calls = []
+    q = random_q(irb, 1000, seed=9)
+    irb.gravity(q, progress=lambda d, t: calls.append((d, t)))
+    assert calls[-1] == (1000, 1000)
+    assert all(a[0] <= b[0] for a, b in zip(calls, calls[1:], strict=False))
+
+
+def test_hash_collision_falls_back_to_exact_grouping(monkeypatch):
+    """If every row hashed alike, the grouping would still be exact (verified, then sorted)."""
+    import ditherlab.robot as robot_mod
+
+    monkeypatch.setattr(robot_mod, "_row_hash", lambda bits: np.zeros(len(bits), np.uint64))
+    q = np.array([[0.0, 1.0], [0.0, 2.0], [0.0, 1.0], [-0.0, 2.0], [3.0, 3.0]])
+    u = robot_mod.unique_configurations(q)
+    assert len(u.q) == 3
+    np.testing.assert_array_equal(u.q[u.inverse], q)
+
+
+def test_unique_configurations_negative_zero_and_order():
+    """-0.0 and 0.0 are one configuration; groups come in order of first appearance."""
+    q = np.array([[0.5, -0.0], [0.5, 0.0], [0.1, 0.2], [0.5, 0.0], [0.1, 0.2]])
+    u = unique_configurations(q)
+    np.testing.assert_array_equal(u.inverse, [0, 0, 1, 0, 1])
+    assert u.ratio == 2.5
+
+
+def test_pickle_round_trip(irb):
+    """A RobotModel pickles (for process pools) and gives identical results after unpickling."""
+    import pickle
+
+    robot = RobotModel.from_spec(
+        "irb140", tool_offset=[0, 0, 0.1], payload={"mass": 1.0, "com": [0, 0, 0.05]}
+    )
+    back = pickle.loads(pickle.dumps(robot))
+    q = random_q(robot, 10, seed=10)
+    np.testing.assert_array_equal(back.gravity(q), robot.gravity(q))
+    np.testing.assert_array_equal(back.jacobian(q), robot.jacobian(q))
