@@ -622,3 +622,33 @@ def test_damaged_bag_is_a_format_error(tmp_path, sample, storage):
         f.write_bytes(damaged)
         with pytest.raises(FormatError, match=rf"^{tmp_path / 'bag'}: not a readable ROS 2 bag"):
             dio.read(tmp_path / "bag")
+
+
+def test_mcap_layout_is_plain_json_with_jsonschema(tmp_path, sample):
+    """Other MCAP tools see json channels with jsonschema schemas, a summary and a metadata record."""
+    import json
+
+    from mcap.reader import make_reader
+
+    p = tmp_path / "a.mcap"
+    dio.write(sample.slice(None, 334.0), p)
+    with open(p, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "ditherlab"
+        summary = reader.get_summary()
+        assert summary is not None and summary.chunk_indexes  # chunked and indexed
+        topics = {c.topic: c for c in summary.channels.values()}
+        assert set(topics) == {"/ditherlab/joints", "/ditherlab/extra"}
+        for ch in topics.values():
+            assert ch.message_encoding == "json"
+            assert summary.schemas[ch.schema_id].encoding == "jsonschema"
+        times = []
+        for schema, channel, message in reader.iter_messages(topics=["/ditherlab/joints"]):
+            body = json.loads(message.data)
+            required = json.loads(schema.data)["required"]
+            assert set(required) <= set(body) and len(body["q"]) == 6
+            times.append(message.log_time)
+        assert times == sorted(times) and len(times) == len(sample.slice(None, 334.0))
+        (meta,) = list(reader.iter_metadata())
+        assert meta.name == "ditherlab"
+        assert json.loads(meta.metadata["recording"]) == sample.meta
