@@ -643,7 +643,7 @@ def test_mcap_layout_is_plain_json_with_jsonschema(tmp_path, sample):
             assert ch.message_encoding == "json"
             assert summary.schemas[ch.schema_id].encoding == "jsonschema"
         times = []
-        for schema, channel, message in reader.iter_messages(topics=["/ditherlab/joints"]):
+        for schema, _channel, message in reader.iter_messages(topics=["/ditherlab/joints"]):
             body = json.loads(message.data)
             required = json.loads(schema.data)["required"]
             assert set(required) <= set(body) and len(body["q"]) == 6
