@@ -49,6 +49,7 @@ __all__ = [
     "UniqueConfigurations",
     "builtin_robots",
     "builtin_urdf",
+    "resolve_spec",
     "unique_configurations",
 ]
 
@@ -59,7 +60,13 @@ PAPER_POSE: np.ndarray = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0])
 PAPER_POSE.setflags(write=False)
 
 #: Built-in robots: name -> (URDF file in ditherlab/robots, tool frame).
-_BUILTIN: dict[str, tuple[str, str]] = {"irb140": ("irb140.urdf", "tool0")}
+_BUILTIN: dict[str, tuple[str, str]] = {
+    "irb140": ("irb140.urdf", "tool0"),
+    "ur10e": ("ur10e.urdf", "tool0"),
+}
+
+#: Link names tried, in order, when a URDF is given without a tool frame.
+_TOOL_FRAME_GUESSES = ("tool0", "flange", "ee_link", "tool", "end_effector")
 
 #: Name of the frame ditherlab adds at the tool point (tool frame + tool_offset).
 TOOL_POINT_FRAME = "ditherlab_tool_point"
@@ -68,7 +75,7 @@ _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 def builtin_robots() -> list[str]:
-    """Names of the built-in robots, sorted (``["irb140"]``)."""
+    """Names of the built-in robots, sorted (``["irb140", "ur10e"]``)."""
     return sorted(_BUILTIN)
 
 
@@ -82,10 +89,51 @@ def builtin_urdf(name: str) -> str:
 
 def _unknown_robot(name: Any, where: str) -> str:
     return (
-        f"{where}robot {name!r} is not a built-in robot (expected one of: "
-        f"{', '.join(builtin_robots())}, or an object {{'urdf': <URDF text>, "
-        "'tool_frame': <frame name>})"
+        f"{where}robot {_short(name)} is not a built-in robot (expected one of: "
+        f"{', '.join(builtin_robots())}, a path to a .urdf file, or an object "
+        "{'urdf': <URDF text>, 'tool_frame': <frame name>})"
     )
+
+
+def resolve_spec(
+    spec: str | Mapping[str, Any], tool_frame: str | None = None, where: str | None = None
+) -> str | dict[str, Any]:
+    """Turn a user's robot choice into a recording's ``meta["robot"]`` entry.
+
+    Parameters
+    ----------
+    spec : str or dict
+        A built-in name (kept as is), a path to a ``.urdf`` file (read and embedded, so the
+        recording is self-describing), or ``{"urdf": text, "tool_frame": name}`` (checked).
+    tool_frame : str, optional
+        Tool frame for a URDF file; default: the first of ``tool0``, ``flange``, ``ee_link``,
+        ``tool``, ``end_effector`` that exists, else the last link of the chain.
+    where : str, optional
+        File or option name for error messages.
+
+    Returns
+    -------
+    str or {"urdf": text, "tool_frame": name, "name": robot name}
+    """
+    w = _prefix(where)
+    if isinstance(spec, Mapping):
+        RobotModel.from_spec(spec, where=where)  # validates
+        return dict(spec)
+    if isinstance(spec, str) and spec in _BUILTIN:
+        return spec
+    if isinstance(spec, str | os.PathLike) and (
+        str(spec).lower().endswith(".urdf") or Path(spec).is_file()
+    ):
+        path = Path(spec)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise RobotError(f"{w}robot URDF file '{path}' does not exist") from None
+        except (OSError, UnicodeDecodeError) as e:
+            raise RobotError(f"{w}robot URDF file '{path}' cannot be read ({e})") from None
+        robot = RobotModel(text, tool_frame, where=str(path))
+        return {"urdf": text, "tool_frame": robot.tool_frame, "name": robot.name}
+    raise RobotError(_unknown_robot(spec, w))
 
 
 def _prefix(where: str | None) -> str:
@@ -273,8 +321,10 @@ class RobotModel:
     ----------
     urdf : str
         URDF text.
-    tool_frame : str
-        Name of the URDF link (or frame) at the robot's flange / tool.
+    tool_frame : str or None
+        Name of the URDF link (or frame) at the robot's flange / tool; None picks the first of
+        ``tool0``, ``flange``, ``ee_link``, ``tool``, ``end_effector``, else the last link of
+        the chain.
     name : str, optional
         Short name (default: the URDF's ``<robot name>``).
     tool_offset : (3,) [m], optional
@@ -294,7 +344,7 @@ class RobotModel:
     def __init__(
         self,
         urdf: str,
-        tool_frame: str,
+        tool_frame: str | None = None,
         *,
         name: str | None = None,
         tool_offset: Sequence[float] | np.ndarray | None = None,
@@ -303,6 +353,8 @@ class RobotModel:
     ) -> None:
         w = _prefix(where)
         model = _build_model(urdf, w)
+        if tool_frame is None:
+            tool_frame = _guess_tool_frame(model)
         if not isinstance(tool_frame, str) or not model.existFrame(tool_frame):
             links = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
             raise RobotError(
@@ -381,8 +433,8 @@ class RobotModel:
         Parameters
         ----------
         spec : str or dict
-            A built-in name (:func:`builtin_robots`) or ``{"urdf": text, "tool_frame": name}``
-            (optionally ``"name"``).
+            A built-in name (:func:`builtin_robots`), ``{"urdf": text, "tool_frame": name}``
+            (optionally ``"name"``), or a path to a ``.urdf`` file (see :func:`resolve_spec`).
         tool_offset : (3,) [m], optional
             Tool point relative to the tool frame (tool-frame axes).
         payload : {"mass": kg, "com": [x, y, z] m}, optional
@@ -391,9 +443,9 @@ class RobotModel:
             File or recording name for error messages.
         """
         w = _prefix(where)
+        if isinstance(spec, str | os.PathLike) and spec not in _BUILTIN:
+            spec = resolve_spec(spec, where=where)
         if isinstance(spec, str):
-            if spec not in _BUILTIN:
-                raise RobotError(_unknown_robot(spec, w))
             fname, tool = _BUILTIN[spec]
             return cls(
                 builtin_urdf(spec),
@@ -894,6 +946,60 @@ class RobotModel:
             "gravity_regressor"
         ]
 
+    def inverse_dynamics(
+        self,
+        q: np.ndarray,
+        dq: np.ndarray,
+        ddq: np.ndarray,
+        *,
+        dedup: bool = True,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> np.ndarray:
+        """Rigid-body joint torques ``M(q) ddq + C(q, dq) dq + g(q)`` (pinocchio's RNEA).
+
+        Arm side, with the payload; without friction, motor inertia or external wrench.
+
+        Parameters
+        ----------
+        q : (N, n) [rad]
+        dq : (N, n) [rad/s]
+        ddq : (N, n) [rad/s²]
+        dedup : bool
+            Evaluate each distinct ``(q, dq, ddq)`` once (a robot standing still repeats
+            ``(q, 0, 0)``); False = plain per-sample loop.
+        progress : callable(done, total), optional
+
+        Returns
+        -------
+        (N, n) [N·m]
+        """
+        q = self._as_batch(q)
+        dq, ddq = self._as_batch(dq), self._as_batch(ddq)
+        if not (len(q) == len(dq) == len(ddq)):
+            raise RobotError(
+                f"{_prefix(self._where)}q, dq and ddq have {len(q)}, {len(dq)} and {len(ddq)} "
+                "samples, expected the same number"
+            )
+        x = np.concatenate([q, dq, ddq], axis=1)
+        if dedup:
+            u = unique_configurations(x)
+            xs, inverse = u.q, u.inverse
+        else:
+            xs, inverse = x, None
+        n, total = self.n, len(xs)
+        out = np.empty((total, n))
+        m, d, f = self.model, self._data, pin.rnea
+        chunk = max(total if progress is None else -(-total // 100), 256)
+        with self._lock:
+            for start in range(0, total, chunk):
+                stop = min(start + chunk, total)
+                for i in range(start, stop):
+                    xi = xs[i]
+                    out[i] = f(m, d, xi[:n], xi[n : 2 * n], xi[2 * n :])
+                if progress is not None:
+                    progress(stop, total)
+        return out if inverse is None or len(xs) == len(x) else out[inverse]
+
     def _tool_to_joint_params(self) -> np.ndarray:
         """(10, 10) linear map: dynamic parameters in the tool frame -> parent joint frame."""
         X = self.model.frames[self._tool_frame_id].placement
@@ -909,6 +1015,17 @@ class RobotModel:
             e[k] = 1.0
             T[:, k] = act(base + e) - ref
         return T
+
+
+def _guess_tool_frame(model: pin.Model) -> str:
+    for name in _TOOL_FRAME_GUESSES:
+        if model.existFrame(name):
+            return name
+    last_joint = model.njoints - 1
+    bodies = [
+        f.name for f in model.frames if f.type == pin.FrameType.BODY and f.parentJoint == last_joint
+    ]
+    return bodies[-1] if bodies else model.frames[-1].name
 
 
 def _rebuild(urdf, tool_frame, name, tool_offset, payload, where) -> RobotModel:

@@ -36,7 +36,7 @@ def random_q(robot: RobotModel, N: int, seed: int) -> np.ndarray:
 # ---------------------------------------------------------------------- the built-in IRB140
 def test_builtin_list_and_attributes(irb):
     """The IRB140 is built in with six revolute joints named joint_1..6 and the ABB limits."""
-    assert builtin_robots() == ["irb140"]
+    assert builtin_robots() == ["irb140", "ur10e"]
     assert irb.n == 6 and irb.joint_names == [f"joint_{i}" for i in range(1, 7)]
     lo = np.radians([-180, -90, -230, -200, -115, -400])
     hi = np.radians([180, 110, 50, 200, 115, 400])
@@ -409,3 +409,90 @@ def test_pickle_round_trip(irb):
     q = random_q(robot, 10, seed=10)
     np.testing.assert_array_equal(back.gravity(q), robot.gravity(q))
     np.testing.assert_array_equal(back.jacobian(q), robot.jacobian(q))
+
+
+# ---------------------------------------------------------------------- inverse dynamics
+def test_inverse_dynamics_is_mass_matrix_plus_gravity_at_rest():
+    """At dq = 0, inverse_dynamics(q, 0, ddq) = M(q) ddq + g(q); dedup equals the plain loop."""
+    robot = RobotModel.from_spec("irb140", payload={"mass": 2.0, "com": [0, 0, 0.1]})
+    rng = np.random.default_rng(11)
+    q = np.repeat(random_q(robot, 5, seed=11), 20, axis=0)
+    ddq = np.repeat(rng.normal(size=(5, 6)), 20, axis=0)
+    tau = robot.inverse_dynamics(q, np.zeros_like(q), ddq)
+    expected = np.einsum("nij,nj->ni", robot.mass_matrix(q), ddq) + robot.gravity(q)
+    np.testing.assert_allclose(tau, expected, atol=1e-10)
+    dq = rng.normal(size=q.shape)
+    np.testing.assert_array_equal(
+        robot.inverse_dynamics(q, dq, ddq), robot.inverse_dynamics(q, dq, ddq, dedup=False)
+    )
+
+
+# ---------------------------------------------------------------------- UR10e against real logs
+def _ur10e_log(shared_data, name: str) -> np.ndarray:
+    """(N, 31): t, q1..6, qd1..6, i_act1..6, i_des1..6, tau_des1..6 (data README)."""
+    return np.loadtxt(shared_data / "ur10e" / name, delimiter=",")
+
+
+def test_ur10e_gravity_matches_controller_on_static_log(shared_data):
+    """On the real UR10e static log, our gravity equals the controller's desired torque (< 0.2 N·m)."""
+    log = _ur10e_log(shared_data, "ur-static.csv")
+    robot = RobotModel.from_recording_meta({"robot": "ur10e"}, n_expected=6, where="ur-static")
+    g = robot.gravity(log[:, 1:7])
+    tau_des = log[:, 25:31]
+    err = np.median(np.abs(g - tau_des), axis=0)  # [N·m]
+    assert np.all(err < 0.2), err
+    assert np.median(np.abs(tau_des[:, 1])) > 20  # the shoulder really carries the arm
+
+
+def test_ur10e_dynamics_explain_moving_log_better_than_gravity(shared_data):
+    """On the real UR10e free-motion log, RNEA cuts the shoulder residual to a third of gravity's."""
+    log = _ur10e_log(shared_data, "no_torque.csv")
+    robot = RobotModel.from_spec("ur10e")
+    t, q, dq, tau_des = log[:, 0], log[:, 1:7], log[:, 7:13], log[:, 25:31]
+    ddq = np.gradient(dq, t, axis=0)
+    res_g = np.median(np.abs(tau_des - robot.gravity(q)), axis=0)
+    res_id = np.median(np.abs(tau_des - robot.inverse_dynamics(q, dq, ddq)), axis=0)
+    assert res_id[1] < res_g[1] / 3, (res_g, res_id)
+
+
+# ---------------------------------------------------------------------- URDF files
+def test_urdf_path_is_embedded_with_guessed_tool_frame(tmp_path):
+    """A .urdf path becomes {'urdf': text, 'tool_frame': ...}; without tool0 the last link is used."""
+    from ditherlab.robot import resolve_spec
+
+    path = tmp_path / "planar.urdf"
+    path.write_text(PLANAR)
+    spec = resolve_spec(str(path))
+    assert spec == {"urdf": PLANAR, "tool_frame": "tip", "name": "planar2"}
+    robot = RobotModel.from_spec(str(path))
+    assert robot.tool_frame == "tip" and robot.n == 2
+    assert resolve_spec("irb140") == "irb140"
+    with pytest.raises(RobotError) as e:
+        resolve_spec(str(tmp_path / "missing.urdf"), where="--robot")
+    assert str(e.value) == f"--robot: robot URDF file '{tmp_path / 'missing.urdf'}' does not exist"
+
+
+def test_ur10e_tool_position_matches_published_dh():
+    """The UR10e tool0 position equals Universal Robots' published DH chain at random q."""
+    d = [0.1807, 0, 0, 0.17415, 0.11985, 0.11655]
+    a = [0, -0.6127, -0.57155, 0, 0, 0]
+    alpha = [np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0]
+
+    def dh(qs: np.ndarray) -> np.ndarray:
+        T = np.diag([-1.0, -1.0, 1.0, 1.0])  # base_link -> UR 'base' (pi about z)
+        for th, di, ai, al in zip(qs, d, a, alpha, strict=True):
+            ct, st, ca, sa = np.cos(th), np.sin(th), np.cos(al), np.sin(al)
+            T = T @ np.array(
+                [
+                    [ct, -st * ca, st * sa, ai * ct],
+                    [st, ct * ca, -ct * sa, ai * st],
+                    [0, sa, ca, di],
+                    [0, 0, 0, 1],
+                ]
+            )
+        return T[:3, 3]
+
+    robot = RobotModel.from_spec("ur10e")
+    qs = np.random.default_rng(12).uniform(-np.pi, np.pi, size=(20, 6))
+    p = robot.tool_pose(qs)[:, :3, 3]
+    np.testing.assert_allclose(p, np.stack([dh(qi) for qi in qs]), atol=1e-9)
