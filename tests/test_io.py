@@ -604,7 +604,7 @@ def test_bag_storage_file_alone_reads_robot_from_description(tmp_path, sample, s
     dio.write(rec, tmp_path / "bag", storage=storage)
     f = next(p for p in (tmp_path / "bag").iterdir() if p.suffix in (".mcap", ".db3"))
     back = dio.read(f)
-    assert back.meta["robot"]["urdf"] == UR_URDF.read_text()
+    assert back.meta["robot"]["urdf"] == rec.meta["robot"]["urdf"]
     assert back.meta["source"] == f"ROS 2 bag {f.name}"
     np.testing.assert_array_equal(back.tau, rec.tau)
 
