@@ -300,15 +300,15 @@ def _build_model(urdf: str, where: str) -> pin.Model:
         raise RobotError(f"{where}robot URDF does not parse: {reason}") from None
     if model.njoints <= 1:
         raise RobotError(f"{where}robot URDF has no movable joints (expected at least one)")
-    if model.nq != model.nv:
-        bad = [
-            model.names[j]
-            for j in range(1, model.njoints)
-            if model.joints[j].nq != model.joints[j].nv
-        ]
+    bad = [
+        f"{model.names[j]} ({model.joints[j].shortname()})"
+        for j in range(1, model.njoints)
+        if not (model.joints[j].nv == 1 and model.joints[j].nq in (1, 2))
+    ]
+    if bad:
         raise RobotError(
-            f"{where}robot URDF has joints {', '.join(bad)} with no angle limits (continuous or "
-            "planar); expected revolute or prismatic joints with one coordinate each"
+            f"{where}robot URDF has joints {', '.join(bad)} with several degrees of freedom; "
+            "expected revolute, continuous or prismatic joints"
         )
     return model
 
@@ -391,10 +391,20 @@ class RobotModel:
         self.tool_offset = offset
         self.payload = payload
         self.name = name or _robot_name(urdf) or "urdf"
-        self.n = int(model.nq)
+        self.n = int(model.nv)
+        # continuous joints have (cos, sin) coordinates in pinocchio; ditherlab's q is the angle
+        self._q_map = [
+            (int(model.idx_qs[j]), int(model.idx_vs[j]), int(model.joints[j].nq))
+            for j in range(1, model.njoints)
+        ]
+        self._angles_are_pin_q = all(nq == 1 for _, _, nq in self._q_map)
         self.joint_names = list(model.names[1:])
-        self.q_lower = np.array(model.lowerPositionLimit, dtype=float)
-        self.q_upper = np.array(model.upperPositionLimit, dtype=float)
+        self.q_lower = np.full(self.n, -np.inf)
+        self.q_upper = np.full(self.n, np.inf)
+        for iq, iv, nq in self._q_map:
+            if nq == 1:
+                self.q_lower[iv] = model.lowerPositionLimit[iq]
+                self.q_upper[iv] = model.upperPositionLimit[iq]
         self.velocity_limit = np.array(model.velocityLimit, dtype=float)
         self.effort_limit = np.array(model.effortLimit, dtype=float)
         self.link_names = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
@@ -583,6 +593,24 @@ class RobotModel:
         return q
 
     # ------------------------------------------------------------------ batched evaluation
+    def pin_configuration(self, q: np.ndarray) -> np.ndarray:
+        """Joint angles ``q (N, n) [rad]`` as pinocchio configurations ``(N, model.nq)``.
+
+        The same array for revolute and prismatic joints; a continuous joint's angle becomes
+        ``(cos q, sin q)``.
+        """
+        q = self._as_batch(q)
+        if self._angles_are_pin_q:
+            return q
+        out = np.empty((len(q), self.model.nq))
+        for iq, iv, nq in self._q_map:
+            if nq == 1:
+                out[:, iq] = q[:, iv]
+            else:
+                out[:, iq] = np.cos(q[:, iv])
+                out[:, iq + 1] = np.sin(q[:, iv])
+        return out
+
     def _kernels(self) -> dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]]:
         """Per-quantity loops over pinocchio: name -> (fill(qs (U, n), out (U, ...)), shape).
 
@@ -651,6 +679,7 @@ class RobotModel:
     ) -> dict[str, np.ndarray]:
         """Evaluate ``quantities`` at every row of ``qs (U, n)``, one pinocchio call each."""
         kernels = self._kernels_cache
+        qs = self.pin_configuration(qs)
         total = len(qs)
         outs = {k: np.empty((total, *kernels[k][1])) for k in quantities}
         chunk = max(total if progress is None else -(-total // 100), 256)
@@ -988,14 +1017,15 @@ class RobotModel:
             xs, inverse = x, None
         n, total = self.n, len(xs)
         out = np.empty((total, n))
+        qp = self.pin_configuration(xs[:, :n])
+        vs, acc = np.ascontiguousarray(xs[:, n : 2 * n]), np.ascontiguousarray(xs[:, 2 * n :])
         m, d, f = self.model, self._data, pin.rnea
         chunk = max(total if progress is None else -(-total // 100), 256)
         with self._lock:
             for start in range(0, total, chunk):
                 stop = min(start + chunk, total)
                 for i in range(start, stop):
-                    xi = xs[i]
-                    out[i] = f(m, d, xi[:n], xi[n : 2 * n], xi[2 * n :])
+                    out[i] = f(m, d, qp[i], vs[i], acc[i])
                 if progress is not None:
                     progress(stop, total)
         return out if inverse is None or len(xs) == len(x) else out[inverse]

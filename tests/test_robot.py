@@ -496,3 +496,27 @@ def test_ur10e_tool_position_matches_published_dh():
     qs = np.random.default_rng(12).uniform(-np.pi, np.pi, size=(20, 6))
     p = robot.tool_pose(qs)[:, :3, 3]
     np.testing.assert_allclose(p, np.stack([dh(qi) for qi in qs]), atol=1e-9)
+
+
+def test_continuous_joint_takes_an_angle():
+    """A continuous joint's q is an angle: same gravity and tool point as the revolute version."""
+    cont = PLANAR.replace('name="j2" type="revolute"', 'name="j2" type="continuous"')
+    robot = RobotModel.from_spec({"urdf": cont, "tool_frame": "tip"})
+    ref = RobotModel.from_spec({"urdf": PLANAR, "tool_frame": "tip"})
+    assert robot.model.nq == 3 and robot.n == 2
+    assert robot.q_upper[1] == np.inf and robot.q_upper[0] == 3.0
+    q = np.random.default_rng(13).uniform(-3, 3, size=(30, 2))
+    np.testing.assert_allclose(robot.gravity(q), ref.gravity(q), atol=1e-12)
+    np.testing.assert_allclose(robot.jacobian(q), ref.jacobian(q), atol=1e-12)
+    np.testing.assert_allclose(robot.tool_pose(q), ref.tool_pose(q), atol=1e-12)
+
+
+def test_multi_dof_joint_is_rejected():
+    """A floating joint in the URDF is named in the error with what was expected."""
+    floating = PLANAR.replace('name="j1" type="revolute"', 'name="j1" type="floating"')
+    with pytest.raises(RobotError) as e:
+        RobotModel.from_spec({"urdf": floating, "tool_frame": "tip"}, where="f.urdf")
+    assert str(e.value) == (
+        "f.urdf: robot URDF has joints j1 (JointModelFreeFlyer) with several degrees of "
+        "freedom; expected revolute, continuous or prismatic joints"
+    )
