@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import copy
 import json
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ditherlab.errors import ConfigError, FormatError, RobotError
+from ditherlab.errors import ConfigError, FormatError
 from ditherlab.recording import SCHEMA, Recording
 
 #: Options every reader accepts: they fill in or override the recording's metadata.
@@ -19,63 +18,39 @@ META_OPTIONS = ("robot", "tool_frame", "tool_offset", "payload", "source", "note
 def robot_spec(
     value: Any, *, base_dir: Path | None = None, tool_frame: str | None = None, where: str = "robot"
 ) -> str | dict[str, str]:
-    """The metadata ``robot`` entry for a ``robot=`` option.
+    """The metadata ``robot`` entry for a ``robot=`` option
+    (:func:`ditherlab.robot.resolve_spec`, with relative URDF paths taken from ``base_dir``).
 
     Parameters
     ----------
     value : str | Path | dict
-        A built-in robot name (``"irb140"``), a path to a URDF file (relative paths are taken
-        from ``base_dir`` when given), or an already formed ``{"urdf": ..., "tool_frame": ...}``.
+        A built-in robot name (``"irb140"``), a path to a URDF file, or an already formed
+        ``{"urdf": ..., "tool_frame": ...}``.
     base_dir : folder that relative URDF paths are relative to (e.g. the mapping file's).
-    tool_frame : frame of the tool for a URDF; default: the end of the longest joint chain.
+    tool_frame : frame of the tool for a URDF file; default: the robot model's guess
+        (``tool0``, ``flange``, ... else the last link).
     where : the file or option named in error messages.
 
     Returns
     -------
     str (built-in name) or dict with ``urdf`` (text), ``tool_frame`` and ``name``.
     """
+    from ditherlab.robot import resolve_spec
+
     if isinstance(value, Mapping):
-        return dict(value)
-    text = str(value)
-    looks_like_path = isinstance(value, Path) or text.endswith(".urdf") or "/" in text
-    if not looks_like_path:
-        return text
-    p = Path(text).expanduser()
-    if not p.is_absolute() and base_dir is not None:
+        return resolve_spec(value, where=where)
+    p = Path(str(value)).expanduser()
+    if base_dir is not None and not p.is_absolute() and (base_dir / p).is_file():
         p = base_dir / p
-    if not p.is_file():
-        raise RobotError(
-            f"{where}: URDF file {p} does not exist (expected a built-in robot name "
-            "or the path of a URDF file)"
-        )
-    urdf = p.read_text(encoding="utf-8")
-    name, leaf = urdf_name_and_tip(urdf, where=str(p))
-    return {"urdf": urdf, "tool_frame": tool_frame or leaf, "name": name}
+    return resolve_spec(str(p) if p.is_file() else str(value), tool_frame=tool_frame, where=where)
 
 
-def urdf_name_and_tip(urdf: str, where: str = "URDF") -> tuple[str, str]:
-    """The robot name and the link at the end of the longest joint chain of a URDF text."""
-    try:
-        root = ET.fromstring(urdf)
-    except ET.ParseError as exc:
-        raise RobotError(f"{where}: the URDF does not parse ({exc})") from None
-    parent_of: dict[str, str] = {}
-    for j in root.iter("joint"):
-        p, c = j.find("parent"), j.find("child")
-        if p is not None and c is not None:
-            parent_of[c.get("link", "")] = p.get("link", "")
-    links = [lk.get("name", "") for lk in root.iter("link")]
-    if not links:
-        raise RobotError(f"{where}: the URDF has no links")
+def urdf_spec(urdf: str, tool_frame: str | None = None, where: str = "URDF") -> dict[str, str]:
+    """The metadata ``robot`` entry for URDF text (e.g. a bag's ``/robot_description``)."""
+    from ditherlab.robot import RobotModel
 
-    def depth(link: str) -> int:
-        d = 0
-        while link in parent_of and d <= len(links):
-            link, d = parent_of[link], d + 1
-        return d
-
-    tip = max(links, key=depth)  # first of the deepest: stable
-    return root.get("name", "urdf"), tip
+    robot = RobotModel(urdf, tool_frame, where=where)
+    return {"urdf": urdf, "tool_frame": robot.tool_frame, "name": robot.name}
 
 
 def meta_from_options(

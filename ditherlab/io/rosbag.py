@@ -57,6 +57,7 @@ from ditherlab.io.common import (
     dumps_meta,
     loads_meta,
     meta_from_options,
+    urdf_spec,
 )
 from ditherlab.recording import WRENCH_COLUMNS, Recording
 
@@ -165,16 +166,8 @@ def read(path: Path, **options: Any) -> Recording:
 
     stored = loads_meta(custom["ditherlab"], str(path)) if "ditherlab" in custom else None
     if stored is None and urdf_text and options.get("robot") is None:
-        from ditherlab.io.common import urdf_name_and_tip
-
-        name, tip = urdf_name_and_tip(urdf_text, where=f"{path}: /robot_description")
-        stored = {
-            "robot": {
-                "urdf": urdf_text,
-                "tool_frame": options.get("tool_frame") or tip,
-                "name": name,
-            }
-        }
+        robot = urdf_spec(urdf_text, options.get("tool_frame"), where=f"{path}: /robot_description")
+        stored = {"robot": robot}
     foreign = "ditherlab" not in custom  # a bag that ditherlab did not write
     meta = meta_from_options(stored, options, where=str(path))
     if foreign:
