@@ -179,3 +179,22 @@ def test_convert_replaces_an_existing_output(cli, sample_copy, tmp_path):
     dst.write_bytes(b"old")
     assert cli("convert", sample_copy, dst).code == 0
     assert dio.read(dst).equals(dio.read(sample_copy))
+
+
+def test_info_bad_urdf_and_nan_are_one_line(cli, tmp_path):
+    """A URDF that does not parse and a NaN cell each give one stderr line and exit 2."""
+    rec = dio.read(SAMPLE).slice(None, 334.0)
+    p = tmp_path / "a.csv"
+    cols = ["t", *[f"{f}_{j}" for f in ("q", "tau") for j in range(1, 7)]]
+    rec.data[cols].to_csv(p, index=False)
+    bad = tmp_path / "bad.urdf"
+    bad.write_text("<robot name='x'><link name='a'>")
+    assert_user_error(cli("info", p, "--robot", bad), r"bad\.urdf")
+    df = rec.data[cols].copy()
+    df.loc[3:5, "tau_4"] = np.nan
+    df.to_csv(p, index=False)
+    t = df["t"].to_numpy()
+    assert_user_error(
+        cli("info", p, "--robot", "ur10e"),
+        rf"a\.csv: tau_4 has 3 NaN values between t={t[3]:.2f} s and t={t[5]:.2f} s$",
+    )
