@@ -522,3 +522,19 @@ def test_multi_dof_joint_is_rejected():
         "f.urdf: robot URDF has joints j1 (JointModelFreeFlyer) with several degrees of "
         "freedom; expected revolute, continuous or prismatic joints"
     )
+
+
+def test_prismatic_joint_carries_the_whole_weight():
+    """A vertical prismatic first joint holds (m1 + m2) g, whatever the second joint's angle."""
+    lift = PLANAR.replace(
+        '<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>\n'
+        '    <origin xyz="0 0 0"/><axis xyz="0 -1 0"/>',
+        '<joint name="j1" type="prismatic"><parent link="base"/><child link="l1"/>\n'
+        '    <origin xyz="0 0 0"/><axis xyz="0 0 1"/>',
+    )
+    assert 'type="prismatic"' in lift
+    robot = RobotModel.from_spec({"urdf": lift, "tool_frame": "tip"})
+    q = np.random.default_rng(14).uniform(-1, 1, size=(10, 2))
+    g = robot.gravity(q)
+    np.testing.assert_allclose(g[:, 0], (3.0 + 2.0) * G, atol=1e-10)
+    np.testing.assert_allclose(g[:, 1], 2.0 * 0.2 * G * np.cos(q[:, 1]), atol=1e-10)
