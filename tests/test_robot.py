@@ -7,6 +7,8 @@ import warnings
 import numpy as np
 import pinocchio as pin
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ditherlab.errors import DitherlabWarning, RobotError
 from ditherlab.robot import (
@@ -538,3 +540,55 @@ def test_prismatic_joint_carries_the_whole_weight():
     g = robot.gravity(q)
     np.testing.assert_allclose(g[:, 0], (3.0 + 2.0) * G, atol=1e-10)
     np.testing.assert_allclose(g[:, 1], 2.0 * 0.2 * G * np.cos(q[:, 1]), atol=1e-10)
+
+
+# ---------------------------------------------------------------------- properties and integration
+@settings(max_examples=60, deadline=None)
+@given(
+    pool=st.lists(
+        st.lists(st.floats(-4, 4, allow_nan=False, width=64), min_size=3, max_size=3),
+        min_size=1,
+        max_size=5,
+    ),
+    picks=st.lists(st.integers(0, 4), min_size=0, max_size=60),
+    tol=st.sampled_from([0.0, 1e-3, 0.5]),
+)
+def test_unique_configurations_property(pool, picks, tol):
+    """Any batch: groups are distinct cells in first-appearance order and cover every sample."""
+    pool = np.array(pool)
+    q = pool[[p % len(pool) for p in picks]] if picks else np.zeros((0, 3))
+    u = unique_configurations(q, tol)
+    assert u.inverse.shape == (len(q),)
+    if len(q) == 0:
+        return
+    if tol == 0:
+        np.testing.assert_array_equal(u.q[u.inverse], q)
+        assert len({row.tobytes() for row in (u.q + 0.0)}) == len(u.q)
+    else:
+        assert np.all(np.abs(u.q[u.inverse] - q) <= tol / 2 * (1 + 1e-12))
+    first = [int(np.flatnonzero(u.inverse == k)[0]) for k in range(len(u.q))]
+    assert first == sorted(first)
+
+
+def test_recording_robot_carries_tool_offset_and_payload():
+    """Recording.robot() builds the embedded URDF with the metadata's tool offset and payload."""
+    from ditherlab.recording import Recording
+
+    N = 5
+    q = np.tile([0.3, -0.4], (N, 1))
+    meta = {
+        "robot": {"urdf": PLANAR, "tool_frame": "tip"},
+        "tool_offset": [0.1, 0.0, 0.0],
+        "payload": {"mass": 1.5, "com": [0.1, 0.0, 0.0]},
+    }
+    rec = Recording.from_arrays(np.arange(N) / 250.0, q, np.zeros((N, 2)), meta, name="p.parquet")
+    robot = rec.robot()
+    assert robot.name == "planar2" and robot.payload == {"mass": 1.5, "com": [0.1, 0.0, 0.0]}
+    np.testing.assert_array_equal(robot.tool_offset, [0.1, 0, 0])
+    # the payload sits at the tool point, 0.5 m along the second link: extra m g 0.5 cos(q12)
+    c12 = np.cos(q[:, 0] + q[:, 1])
+    plain = RobotModel.from_spec({"urdf": PLANAR, "tool_frame": "tip"})
+    dg = robot.gravity(q) - plain.gravity(q)
+    np.testing.assert_allclose(dg[:, 1], 1.5 * G * 0.5 * c12, atol=1e-10)
+    p = robot.tool_pose(q)[:, :3, 3]
+    np.testing.assert_allclose(p[:, 0], 0.5 * np.cos(q[:, 0]) + 0.5 * c12, atol=1e-12)
