@@ -772,6 +772,8 @@ class RobotModel:
         elif progress is not None:
             progress(len(entry["q"]), len(entry["q"]))
         inverse = entry["inverse"]
+        if inverse is None and _nbytes(entry) > self.cache_bytes:
+            return {k: entry[k] for k in quantities}  # too large to keep: no copy needed
         # new arrays for the caller (fancy indexing copies), so the cache cannot be altered
         result = {k: entry[k].copy() if inverse is None else entry[k][inverse] for k in quantities}
         self._remember(key, entry)

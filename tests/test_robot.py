@@ -592,3 +592,14 @@ def test_recording_robot_carries_tool_offset_and_payload():
     np.testing.assert_allclose(dg[:, 1], 1.5 * G * 0.5 * c12, atol=1e-10)
     p = robot.tool_pose(q)[:, :3, 3]
     np.testing.assert_allclose(p[:, 0], 0.5 * np.cos(q[:, 0]) + 0.5 * c12, atol=1e-12)
+
+
+def test_batch_larger_than_cache_is_returned_uncached():
+    """A moving batch larger than the cache budget is computed, returned and not kept."""
+    robot = RobotModel.from_spec("irb140")
+    robot.cache_bytes = 10_000
+    q = random_q(robot, 300, seed=15)
+    g, J = robot.gravity_jacobian(q)
+    assert len(robot._cache) == 0
+    np.testing.assert_array_equal(J, robot.jacobian(q, dedup=False))
+    np.testing.assert_array_equal(g, robot.gravity(q, dedup=False))
