@@ -155,3 +155,21 @@ def view(
     elif res.url:
         echo(f"serving the view at {res.url} (Ctrl-C stops)")
         wait_until_interrupted()
+
+
+# ---------------------------------------------------------------- robot (helper "robot")
+@app.command()
+def robot(
+    spec: Annotated[str, typer.Argument(help="Built-in robot name (irb140, ur10e) or a URDF path.")],
+    q: Annotated[str | None, typer.Option("--q", help="Pose: 'zero', 'paper' (IRB140) or n angles in rad, comma-separated.")] = None,
+    tool_frame: Annotated[str | None, typer.Option("--tool-frame", help="Tool frame of a URDF (default: tool0, flange, ... or the last link).")] = None,
+    json_out: JsonFlag = False,
+) -> None:
+    """Joints, limits and masses of a robot; tool point, gravity and lever arms at a pose."""
+    import json
+
+    from ditherlab.robot import RobotModel, format_description, resolve_spec
+
+    model = RobotModel.from_spec(resolve_spec(spec, tool_frame=tool_frame))
+    summary = model.describe(model.parse_pose(q))
+    echo(json.dumps(summary, indent=1) if json_out else format_description(summary))

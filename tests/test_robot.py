@@ -603,3 +603,44 @@ def test_batch_larger_than_cache_is_returned_uncached():
     assert len(robot._cache) == 0
     np.testing.assert_array_equal(J, robot.jacobian(q, dedup=False))
     np.testing.assert_array_equal(g, robot.gravity(q, dedup=False))
+
+
+# ---------------------------------------------------------------------- the `ditherlab robot` command
+def test_cli_robot_paper_pose_table(cli):
+    """`ditherlab robot irb140 --q paper` prints the paper pose's tool point and lever arms."""
+    r = cli("robot", "irb140", "--q", "paper")
+    assert r.code == 0, r.err
+    assert "tool point (0.450, 0.000, 0.647) m" in r.out
+    row = next(
+        line for line in r.out.splitlines() if line.startswith("joint_2") and "0.295" in line
+    )
+    assert row.split()[2:] == ["0.295", "0.000", "0.380"]
+
+
+def test_cli_robot_json_and_urdf_file(cli, tmp_path):
+    """--json gives the summary of a URDF file, with its guessed tool frame and lever arms."""
+    import json
+
+    path = tmp_path / "planar.urdf"
+    path.write_text(PLANAR)
+    r = cli("robot", str(path), "--q", "0,0", "--json")
+    assert r.code == 0, r.err
+    d = json.loads(r.out)
+    assert d["name"] == "planar2" and d["tool_frame"] == "tip"
+    np.testing.assert_allclose(d["pose"]["tool_position"], [0.9, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(d["pose"]["lever_arms"][2], [0.9, 0.4], atol=1e-12)
+
+
+def test_cli_robot_errors(cli):
+    """An unknown robot and a pose of the wrong length give one line on stderr and exit 2."""
+    r = cli("robot", "irb14")
+    assert r.code == 2 and r.out == ""
+    assert r.err.startswith("error: robot 'irb14' is not a built-in robot (expected one of: ")
+    r = cli("robot", "ur10e", "--q", "1,2")
+    assert r.code == 2
+    assert (
+        r.err
+        == "error: --q is '1,2', expected 6 comma-separated angles in rad (or 'zero', 'paper')\n"
+    )
+    r = cli("robot", "ur10e", "--q", "paper")
+    assert r.code == 2 and "defined for robot 'irb140' only" in r.err
