@@ -1,0 +1,686 @@
+"""The force estimator of eq. (3) of the paper: batched exact solver, reference QP, intervals.
+
+For every sample ``k`` (time is the first axis) the estimator solves::
+
+    minimise over F (6), tau_f (n):
+        (tau_bar - J^T F - tau_f)^T R_e^{-1} (tau_bar - J^T F - tau_f)
+      + (F - F_bar)^T R_F^{-1} (F - F_bar)
+    subject to tau_min <= tau_f <= tau_max
+
+with ``R_e = diag(sigma^2)`` and ``R_F = diag(prior_sigma^2)``. Because ``R_e`` is diagonal the
+optimal ``tau_f`` for a fixed ``F`` is the residual ``r = tau_bar - J^T F`` clipped into the
+band, so the problem is the convex, continuously differentiable, piecewise-quadratic function::
+
+    f(F) = sum_j w_j dist(r_j(F), [tau_min_j, tau_max_j])^2 + sum_i p_i (F_i - F_bar_i)^2
+
+with ``w = 1 / sigma^2`` and ``p = 1 / prior_sigma^2``. Joints whose residual lies inside their
+band contribute nothing; joints outside contribute their weighted squared distance to the edge.
+
+Backends (one function, :func:`estimate`, dispatches on ``backend``):
+
+``"exact"``
+    Semi-smooth Newton / active-set iteration on ``f``, compiled with numba, all samples in one
+    call. Given the set ``A`` of joints outside their band (and on which side), the minimiser of
+    the quadratic piece is one ``m x m`` solve (``m`` = number of estimated components). The
+    iteration stops when the active set of the new point equals the one it was computed from:
+    then the gradient of ``f`` equals the gradient of that quadratic piece, which is zero, so the
+    point is the global minimiser of the convex ``f`` (exact up to the rounding of one Cholesky
+    solve; :attr:`Solution.kkt` reports the scaled gradient, typically ~1e-15). A full step that
+    does not lower ``f`` is replaced by an exact line search on the piecewise-quadratic ``f``
+    along the Newton direction, which makes the iteration monotone and finite.
+``"proxsuite"`` / ``"quadprog"``
+    The reference: the same QP in ``(F, tau_f)`` solved per sample through ``qpsolvers``
+    (ProxQP with ``eps_abs = 1e-12`` on a scaled problem; quadprog's dual active set method).
+    Slow, obviously right; the tests compare the exact backend with both.
+
+Components and priors
+    ``components`` selects the estimated wrench components; the others are held at
+    ``prior_mean``. A component whose ``prior_sigma`` is ``0`` is also held at its mean. A
+    component whose ``prior_sigma`` is ``inf`` has no prior; to keep the problem strictly convex
+    when the data do not determine it (all joints inside their bands, ``J`` rank deficient) it
+    gets a vanishing ridge ``p_i = 1e-12 * s`` with ``s`` the mean per-component data information
+    ``trace(J W J^T) / m`` of that sample. The result is then, up to ~1e-12 relative, the
+    minimiser of ``f`` closest to ``prior_mean`` (the Tikhonov limit); directions the data cannot
+    see stay at ``prior_mean``, and their intervals are infinite.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ditherlab.errors import ConfigError, ModelError
+
+#: Names of the six wrench components, in the order of ``F`` and of the rows of ``J``.
+COMPONENTS = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
+#: Relative ridge that replaces an infinite prior_sigma (see the module docstring).
+RIDGE = 1e-12
+#: Intervals whose half-width exceeds this many "information units" are reported as infinite.
+UNOBSERVABLE = 1e5
+
+
+@dataclass
+class Solution:
+    """The solution of eq. (3) for every sample.
+
+    Attributes
+    ----------
+    F : (N, 6) [N, N·m]
+        Estimated wrench (components not estimated are ``prior_mean``).
+    tau_f : (N, n) [N·m]
+        Optimal friction torque: the residual ``tau_bar - J^T F`` clipped into the band.
+    active : (N, n) bool
+        Joints whose residual lies strictly outside their band (they "feel" the force).
+    cost : (N,)
+        Value of the objective of eq. (3) at the optimum (a ridge for ``prior_sigma = inf`` is not
+        included).
+    iterations : (N,) int
+        Newton iterations (``exact``) or solver iterations (reference backends) per sample.
+    kkt : (N,)
+        Largest scaled gradient component ``|df/dF_i| / (sum of the magnitudes of its terms)``
+        at the returned point, a direct check of optimality (0 = exact).
+    """
+
+    F: np.ndarray
+    tau_f: np.ndarray
+    active: np.ndarray
+    cost: np.ndarray
+    iterations: np.ndarray
+    kkt: np.ndarray
+
+
+@dataclass
+class Problem:
+    """Eq. (3) for N samples, reduced to the ``m`` estimated components and broadcast.
+
+    Built by :func:`problem`; the fields are what every backend consumes.
+
+    Attributes
+    ----------
+    tau_bar : (N, n) [N·m]
+        Gravity-compensated torque minus the torque of the held components ``J_held^T F_bar``.
+    J : (N, m, n)
+        Rows of the Jacobian (transposed ``J^T`` columns) of the estimated components.
+    tau_min, tau_max : (N, n) [N·m]
+        Band edges (``-inf``/``inf`` allowed).
+    w : (N, n) [1/(N·m)^2]
+        Noise weights ``1 / sigma^2``.
+    p : (N, m)
+        Prior weights ``1 / prior_sigma^2`` (with the ridge where ``prior_sigma = inf``).
+    p_true : (m,)
+        Prior weights without the ridge (0 where ``prior_sigma = inf``).
+    prior_mean : (m,) [N, N·m]
+        Prior mean of the estimated components.
+    free : (m,) int
+        Indices (into the 6 components) of the estimated components.
+    full_mean : (6,) [N, N·m]
+        Prior mean of all six components (the held ones are returned at it).
+    """
+
+    tau_bar: np.ndarray
+    J: np.ndarray
+    tau_min: np.ndarray
+    tau_max: np.ndarray
+    w: np.ndarray
+    p: np.ndarray
+    p_true: np.ndarray
+    prior_mean: np.ndarray
+    free: np.ndarray
+    full_mean: np.ndarray
+
+    @property
+    def N(self) -> int:
+        return self.tau_bar.shape[0]
+
+    @property
+    def n(self) -> int:
+        return self.tau_bar.shape[1]
+
+    @property
+    def m(self) -> int:
+        return len(self.free)
+
+    def save(self, path) -> None:
+        """Write the problem to an ``.npz`` file (a failing case becomes a test fixture)."""
+        from ditherlab.io.atomic import atomic_path
+
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **{k: getattr(self, k) for k in self.__dataclass_fields__})
+
+    @classmethod
+    def load(cls, path) -> Problem:
+        """Read a problem written by :meth:`save`."""
+        with np.load(path) as z:
+            return cls(**{k: z[k] for k in cls.__dataclass_fields__})
+
+
+# ----------------------------------------------------------------------------- problem building
+
+
+def _per_sample(name: str, x, N: int, n: int) -> np.ndarray:
+    """Broadcast a per-joint array (n,) or (N, n) to a contiguous (N, n) float array."""
+    a = np.asarray(x, dtype=float)
+    if a.shape not in ((n,), (N, n)):
+        raise ConfigError(
+            f"estimator: {name} has shape {a.shape}; expected ({n},) or ({N}, {n}) to match tau_bar"
+        )
+    return np.ascontiguousarray(np.broadcast_to(a, (N, n)))
+
+
+def _component_indices(components: Sequence[str] | None) -> np.ndarray:
+    if components is None:
+        return np.arange(6)
+    if isinstance(components, str):
+        components = [components]
+    idx = []
+    for c in components:
+        if c not in COMPONENTS:
+            raise ConfigError(
+                f"estimator: component {c!r} is unknown; expected a subset of {', '.join(COMPONENTS)}"
+            )
+        idx.append(COMPONENTS.index(c))
+    return np.array(sorted(set(idx)), dtype=np.int64)
+
+
+def problem(
+    tau_bar,
+    J,
+    tau_min,
+    tau_max,
+    sigma,
+    prior_mean,
+    prior_sigma,
+    components: Sequence[str] | None = None,
+) -> Problem:
+    """Validate and reduce eq. (3) to the estimated components; see :func:`estimate`.
+
+    Returns
+    -------
+    Problem
+        Broadcast, contiguous arrays every backend consumes.
+
+    Raises
+    ------
+    ConfigError
+        Wrong shapes, non-finite torques or Jacobians, unknown component names.
+    ModelError
+        An inverted band (``tau_min > tau_max``), a noise ``sigma`` that is not positive and finite,
+        a negative ``prior_sigma``.
+    """
+    tb = np.asarray(tau_bar, dtype=float)
+    if tb.ndim != 2:
+        raise ConfigError(f"estimator: tau_bar has shape {tb.shape}; expected (N, n)")
+    N, n = tb.shape
+    Jx = np.asarray(J, dtype=float)
+    if Jx.shape != (N, 6, n):
+        raise ConfigError(f"estimator: J has shape {Jx.shape}; expected ({N}, 6, {n})")
+    for name, arr in (("tau_bar", tb), ("J", Jx)):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            k = int(np.argwhere(bad)[0][0])
+            raise ConfigError(
+                f"estimator: {name} at sample {k} is not finite; expected finite values"
+            )
+    a = _per_sample("tau_min", tau_min, N, n)
+    b = _per_sample("tau_max", tau_max, N, n)
+    s = _per_sample("sigma", sigma, N, n)
+    inv = a > b
+    if inv.any():
+        k, j = (int(v) for v in np.argwhere(inv)[0])
+        raise ModelError(
+            f"estimator: band of joint {j + 1} at sample {k} is inverted "
+            f"(tau_min = {a[k, j]:g} > tau_max = {b[k, j]:g}); expected tau_min <= tau_max"
+        )
+    if np.isnan(a).any() or np.isnan(b).any():
+        raise ModelError("estimator: a band edge is NaN; expected numbers (or +-inf)")
+    badsig = ~(np.isfinite(s) & (s > 0))
+    if badsig.any():
+        k, j = (int(v) for v in np.argwhere(badsig)[0])
+        raise ModelError(
+            f"estimator: sigma of joint {j + 1} at sample {k} is {s[k, j]:g}; "
+            "expected a positive finite noise level [N·m]"
+        )
+    fbar = np.asarray(prior_mean, dtype=float).reshape(-1)
+    psig = np.asarray(prior_sigma, dtype=float).reshape(-1)
+    if fbar.shape != (6,) or not np.isfinite(fbar).all():
+        raise ConfigError(f"estimator: prior_mean is {fbar!r}; expected 6 finite values [N, N·m]")
+    if psig.shape != (6,) or np.isnan(psig).any() or (psig < 0).any():
+        raise ModelError(
+            f"estimator: prior_sigma is {psig!r}; expected 6 values >= 0 (inf = no prior) [N, N·m]"
+        )
+    free = _component_indices(components)
+    free = free[psig[free] > 0]
+    held = np.setdiff1d(np.arange(6), free)
+    # The held components' torque moves into tau_bar:  tau_bar - J_held^T F_bar_held.
+    tb_red = tb - np.einsum("kin,i->kn", Jx[:, held, :], fbar[held])
+    Jf = np.ascontiguousarray(Jx[:, free, :])
+    w = 1.0 / s**2
+    with np.errstate(divide="ignore"):
+        p_true = np.where(np.isinf(psig[free]), 0.0, 1.0 / psig[free] ** 2)
+    p = np.broadcast_to(p_true, (N, len(free))).copy()
+    noprior = np.isinf(psig[free])
+    if noprior.any():
+        info = np.einsum("kin,kn->ki", Jf**2, w)  # per-component data information
+        scale = info.mean(axis=1) if len(free) else np.ones(N)
+        scale = np.where(scale > 0, scale, 1.0)
+        p[:, noprior] = RIDGE * scale[:, None]
+    return Problem(
+        tau_bar=np.ascontiguousarray(tb_red),
+        J=Jf,
+        tau_min=a,
+        tau_max=b,
+        w=np.ascontiguousarray(w),
+        p=np.ascontiguousarray(p),
+        p_true=p_true,
+        prior_mean=np.ascontiguousarray(fbar[free]),
+        free=free,
+        full_mean=fbar,
+    )
+
+
+# ------------------------------------------------------------------------------ numba kernels
+
+
+@njit(cache=True, inline="always")
+def _dist(r, lo, hi):
+    if r > hi:
+        return r - hi
+    if r < lo:
+        return r - lo
+    return 0.0
+
+
+@njit(cache=True)
+def _cost(tb, J, a, b, w, p, fb, F, m, n):
+    c = 0.0
+    for i in range(m):
+        c += p[i] * (F[i] - fb[i]) ** 2
+    for j in range(n):
+        r = tb[j]
+        for i in range(m):
+            r -= J[i, j] * F[i]
+        d = _dist(r, a[j], b[j])
+        c += w[j] * d * d
+    return c
+
+
+@njit(cache=True)
+def _sides(tb, J, a, b, F, m, n, s):
+    for j in range(n):
+        r = tb[j]
+        for i in range(m):
+            r -= J[i, j] * F[i]
+        if r > b[j]:
+            s[j] = 1
+        elif r < a[j]:
+            s[j] = -1
+        else:
+            s[j] = 0
+
+
+@njit(cache=True)
+def _newton_piece(tb, J, a, b, w, p, fb, s, m, n, R, z, u, x):
+    """Minimiser x of the quadratic piece of f with active set s (joint j outside on side s_j).
+
+    The piece is the least-squares problem ``|sqrt(p) (F - F_bar)|^2 + sum_{j active}
+    w_j (tau_bar_j - e_j - J_j^T F)^2``; it is solved by QR (Givens rotations adding one active
+    joint row at a time to the triangular factor ``diag(sqrt(p))``), not by the normal
+    equations: with tiny noise the normal equations square a condition number of ~1e5 and lose
+    1e-4 N in the prior-held directions.
+    """
+    for i in range(m):
+        for k in range(m):
+            R[i, k] = 0.0
+        R[i, i] = math.sqrt(p[i])
+        z[i] = 0.0  # unknown: dF = F - F_bar
+    for j in range(n):
+        if s[j] == 0:
+            continue
+        e = b[j] if s[j] > 0 else a[j]
+        sw = math.sqrt(w[j])
+        beta = tb[j] - e
+        for i in range(m):
+            beta -= J[i, j] * fb[i]
+            u[i] = sw * J[i, j]
+        beta *= sw
+        for i in range(m):
+            ui = u[i]
+            if ui == 0.0:
+                continue
+            rii = R[i, i]
+            r = math.sqrt(rii * rii + ui * ui)
+            c = rii / r
+            sn = ui / r
+            R[i, i] = r
+            for k in range(i + 1, m):
+                rik = R[i, k]
+                R[i, k] = c * rik + sn * u[k]
+                u[k] = c * u[k] - sn * rik
+            zi = z[i]
+            z[i] = c * zi + sn * beta
+            beta = c * beta - sn * zi
+    for i in range(m - 1, -1, -1):
+        v = z[i]
+        for k in range(i + 1, m):
+            v -= R[i, k] * x[k]
+        x[i] = v / R[i, i]
+    for i in range(m):
+        x[i] += fb[i]
+
+
+@njit(cache=True)
+def _line_search(tb, J, a, b, w, p, fb, F, d, m, n):
+    """Exact minimiser t in [0, 1] of the convex piecewise quadratic phi(t) = f(F + t d)."""
+    r0 = np.empty(n)
+    c = np.empty(n)
+    bps = np.empty(2 * n + 1)
+    nb = 0
+    for j in range(n):
+        r = tb[j]
+        cj = 0.0
+        for i in range(m):
+            r -= J[i, j] * F[i]
+            cj += J[i, j] * d[i]
+        r0[j] = r
+        c[j] = cj
+        if cj != 0.0:
+            for e in (a[j], b[j]):
+                t = (r - e) / cj
+                if 0.0 < t < 1.0:
+                    bps[nb] = t
+                    nb += 1
+    bps[nb] = 1.0
+    nb += 1
+    bps[:nb].sort()
+
+    def dphi(t):
+        v = 0.0
+        for i in range(m):
+            v += p[i] * d[i] * (F[i] + t * d[i] - fb[i])
+        for j in range(n):
+            v -= w[j] * c[j] * _dist(r0[j] - t * c[j], a[j], b[j])
+        return v
+
+    t0 = 0.0
+    g0 = dphi(0.0)
+    if g0 >= 0.0:
+        return 0.0
+    for q in range(nb):
+        t1 = bps[q]
+        g1 = dphi(t1)
+        if g1 >= 0.0:
+            # phi' is linear on [t0, t1]: its root
+            return t0 - g0 * (t1 - t0) / (g1 - g0)
+        t0, g0 = t1, g1
+    return 1.0
+
+
+@njit(cache=True)
+def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
+    N, m, n = J.shape
+    R = np.empty((m, m))
+    z = np.empty(m)
+    u = np.empty(m)
+    x = np.empty(m)
+    d = np.empty(m)
+    F = fb.copy()
+    s = np.zeros(n, np.int8)
+    sn = np.zeros(n, np.int8)
+    for k in range(N):
+        tbk, Jk, ak, bk, wk, pk = tb[k], J[k], a[k], b[k], w[k], p[k]
+        # warm start from the previous sample's solution (time series are smooth)
+        if not warm:
+            for i in range(m):
+                F[i] = fb[i]
+        _sides(tbk, Jk, ak, bk, F, m, n, s)
+        fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
+        it = 0
+        while it < max_iter:
+            it += 1
+            _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, s, m, n, R, z, u, x)
+            _sides(tbk, Jk, ak, bk, x, m, n, sn)
+            same = True
+            for j in range(n):
+                if sn[j] != s[j]:
+                    same = False
+                    break
+            if same:
+                for i in range(m):
+                    F[i] = x[i]
+                break
+            fnew = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
+            if fnew < fcur:
+                for i in range(m):
+                    F[i] = x[i]
+                fcur = fnew
+                for j in range(n):
+                    s[j] = sn[j]
+            else:
+                step = 0.0
+                for i in range(m):
+                    d[i] = x[i] - F[i]
+                    step = max(step, abs(d[i]) / (1.0 + abs(F[i])))
+                if step < 1e-15:
+                    break  # the piece's minimiser is the current point: ties at a band edge
+                t = _line_search(tbk, Jk, ak, bk, wk, pk, fb, F, d, m, n)
+                if t <= 0.0:
+                    break
+                for i in range(m):
+                    F[i] += t * d[i]
+                fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
+                _sides(tbk, Jk, ak, bk, F, m, n, s)
+        for i in range(m):
+            F_out[k, i] = F[i]
+        it_out[k] = it
+
+
+# ---------------------------------------------------------------------------------- backends
+
+
+def _solve_exact(
+    prob: Problem, max_iter: int = 100, warm: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    F = np.empty((prob.N, prob.m))
+    it = np.zeros(prob.N, np.int64)
+    if prob.N and prob.m:
+        _solve_exact_kernel(
+            prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, prob.w, prob.p,
+            prob.prior_mean, max_iter, warm, F, it,
+        )  # fmt: skip
+    return F, it
+
+
+def qp_matrices(prob: Problem, k: int) -> tuple[np.ndarray, ...]:
+    """The scaled QP of sample ``k`` in the variables ``x = (y (m), v (n))``.
+
+    ``F = F_bar + S c * y`` and ``v = (J^T (F - F_bar) + tau_f) / (S sigma)`` (the modelled
+    torque in noise units), so the Hessian is diagonal and the band becomes the rows
+    ``lo <= v - A y <= hi`` with ``A = diag(1/sigma) J^T diag(c)``. The cost divided by ``S^2``
+    is ``|t - v|^2 + sum_i p_i c_i^2 y_i^2`` with ``t = (tau_bar - J^T F_bar) / (S sigma)``.
+    ``c_i`` is the prior sigma (unit Hessian) where the prior is finite and
+    ``1 / sqrt(p_i + sum_j w_j J_ij^2)`` where it is the ridge; ``S`` makes ``t`` and the bounds
+    O(1). (The textbook form in ``(F, tau_f)`` has a condition number ~ w J^2 / p, 1e11 with
+    tiny noise, on which ProxQP at eps_abs = 1e-10 is off by tens of newtons.)
+
+    Returns
+    -------
+    P, q, G, h, A, b, c
+        The qpsolvers form ``min 1/2 x^T P x + q^T x  s.t.  G x <= h, A x = b`` (zero-width
+        bands become equalities) and the scale ``S c (m,)``.
+    """
+    m, n = prob.m, prob.n
+    J, w, p = prob.J[k], prob.w[k], prob.p[k]
+    sig = 1.0 / np.sqrt(w)
+    ridge = prob.p_true == 0.0
+    c = np.where(ridge, 1.0 / np.sqrt(p + (J**2 * w).sum(axis=1)), 1.0 / np.sqrt(p))
+    t = (prob.tau_bar[k] - J.T @ prob.prior_mean) / sig
+    lo = prob.tau_min[k] / sig
+    hi = prob.tau_max[k] / sig
+    S = max(1.0, np.abs(t).max(initial=0.0))
+    for v in (lo, hi):
+        S = max(S, np.abs(v[np.isfinite(v)]).max(initial=0.0))
+    t, lo, hi = t / S, lo / S, hi / S
+    A = (J * c[:, None]).T / sig[:, None]  # (n, m)
+    P = 2.0 * np.diag(np.concatenate([p * c**2, np.ones(n)]))
+    q = np.concatenate([np.zeros(m), -2.0 * t])
+    rows, rhs, eq_rows, eq_rhs = [], [], [], []
+    for j in range(n):
+        r = np.zeros(m + n)
+        r[:m] = -A[j]
+        r[m + j] = 1.0
+        if lo[j] == hi[j]:  # a zero-width band is an equality (two opposite rows stall ProxQP)
+            eq_rows.append(r)
+            eq_rhs.append(hi[j])
+            continue
+        if np.isfinite(hi[j]):
+            rows.append(r)
+            rhs.append(hi[j])
+        if np.isfinite(lo[j]):
+            rows.append(-r)
+            rhs.append(-lo[j])
+    G = np.array(rows).reshape(-1, m + n)
+    h = np.array(rhs, dtype=float)
+    A_eq = np.array(eq_rows).reshape(-1, m + n)
+    b_eq = np.array(eq_rhs, dtype=float)
+    return P, q, G, h, A_eq, b_eq, c * S
+
+
+#: qpsolvers options per reference backend: tight tolerances (the issue measured proxsuite at its
+#: default eps = 1e-5 off by up to 20 N on these problems).
+QP_OPTIONS = {
+    "proxsuite": ("proxqp", {"eps_abs": 1e-14, "eps_rel": 0.0, "max_iter": 100_000}),
+    "quadprog": ("quadprog", {}),
+}
+
+
+def _solve_reference(prob: Problem, backend: str) -> tuple[np.ndarray, np.ndarray]:
+    import qpsolvers
+
+    solver, opts = QP_OPTIONS[backend]
+    F = np.empty((prob.N, prob.m))
+    it = np.zeros(prob.N, np.int64)
+    if prob.m == 0:
+        return F, it
+    for k in range(prob.N):
+        P, q, G, h, A, b, c = qp_matrices(prob, k)
+        qp = qpsolvers.Problem(
+            P, q, G if len(h) else None, h if len(h) else None, A if len(b) else None,
+            b if len(b) else None,
+        )  # fmt: skip
+        sol = qpsolvers.solve_problem(qp, solver=solver, **opts)
+        if not sol.found or sol.x is None:
+            raise ConfigError(f"estimator: the {backend} reference found no solution at sample {k}")
+        F[k] = prob.prior_mean + c * sol.x[: prob.m]
+        extra = getattr(sol, "extras", {}) or {}
+        info = extra.get("info")
+        it[k] = getattr(info, "iter", 0) if info is not None else 0
+    return F, it
+
+
+def _available() -> dict[str, Callable[[Problem], tuple[np.ndarray, np.ndarray]]]:
+    out: dict[str, Callable[[Problem], tuple[np.ndarray, np.ndarray]]] = {"exact": _solve_exact}
+    try:
+        import qpsolvers
+    except ImportError:  # pragma: no cover - qpsolvers is a dependency
+        return out
+    for name, (solver, _) in QP_OPTIONS.items():
+        if solver in qpsolvers.available_solvers:
+            out[name] = lambda prob, name=name: _solve_reference(prob, name)
+    return out
+
+
+BACKENDS = ("exact", "proxsuite", "quadprog")
+
+
+def available_backends() -> list[str]:
+    """Names of the estimator backends usable here (``exact`` always)."""
+    return list(_available())
+
+
+# ----------------------------------------------------------------------------------- public
+
+
+def complete(prob: Problem, Fm: np.ndarray, iterations: np.ndarray | None = None) -> Solution:
+    """Turn the estimated components ``Fm (N, m)`` into a full :class:`Solution`."""
+    N, m = prob.N, prob.m
+    F = np.broadcast_to(prob.full_mean, (N, 6)).copy()
+    F[:, prob.free] = Fm
+    r = prob.tau_bar - np.einsum("kin,ki->kn", prob.J, Fm)  # [N·m]
+    tau_f = np.clip(r, prob.tau_min, prob.tau_max)
+    dist = r - tau_f
+    active = dist != 0.0
+    dev = Fm - prob.prior_mean
+    cost = (prob.w * dist**2).sum(axis=1) + (prob.p_true * dev**2).sum(axis=1)
+    # Gradient of f (with the ridge, the function actually minimised), relative to the size of
+    # the numbers it is computed from: |torque terms| * weight * |J|, so 1e-16 is the float floor.
+    grad = -np.einsum("kin,kn->ki", prob.J, prob.w * dist) + prob.p * dev
+    size = (
+        np.abs(prob.tau_bar) + np.abs(tau_f) + np.einsum("kin,ki->kn", np.abs(prob.J), np.abs(Fm))
+    )
+    mag = np.einsum("kin,kn->ki", np.abs(prob.J), prob.w * size) + prob.p * (
+        np.abs(Fm) + np.abs(prob.prior_mean)
+    )
+    with np.errstate(invalid="ignore", divide="ignore"):
+        kkt = np.where(mag > 0, np.abs(grad) / np.where(mag > 0, mag, 1.0), 0.0)
+    kkt = kkt.max(axis=1) if m else np.zeros(N)
+    its = np.zeros(N, np.int64) if iterations is None else np.asarray(iterations)
+    return Solution(F=F, tau_f=tau_f, active=active, cost=cost, iterations=its, kkt=kkt)
+
+
+def estimate(
+    tau_bar,
+    J,
+    tau_min,
+    tau_max,
+    sigma,
+    prior_mean,
+    prior_sigma,
+    components: Sequence[str] | None = None,
+    backend: str = "exact",
+) -> Solution:
+    """Solve eq. (3) for every sample.
+
+    Parameters
+    ----------
+    tau_bar : (N, n) [N·m]
+        Motor torque compensated for gravity (and modelled effects), arm side.
+    J : (N, 6, n) [m, 1]
+        Jacobian at the tool point, linear part first (``tau_ext = J^T F``).
+    tau_min, tau_max : (n,) or (N, n) [N·m]
+        Friction band; per sample for the dither variant (shrunk bands). ``+-inf`` allowed.
+    sigma : (n,) or (N, n) [N·m]
+        Standard deviation of the Gaussian noise, ``R_e = diag(sigma^2)``; positive.
+    prior_mean : (6,) [N, N·m]
+        ``F_bar``.
+    prior_sigma : (6,) [N, N·m]
+        ``R_F = diag(prior_sigma^2)``; ``inf`` = no prior, ``0`` = held at ``prior_mean``.
+    components : sequence of str, optional
+        Subset of :data:`COMPONENTS` to estimate (default all six); the rest are held at
+        ``prior_mean``.
+    backend : {"exact", "proxsuite", "quadprog"}
+        ``exact`` is the fast path; the others are the per-sample reference QP (qpsolvers).
+
+    Returns
+    -------
+    Solution
+        ``F (N, 6)``, ``tau_f (N, n)``, ``active (N, n)``, ``cost (N,)``, ``iterations (N,)``,
+        ``kkt (N,)``.
+    """
+    prob = problem(tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components)
+    return solve(prob, backend)
+
+
+def solve(prob: Problem, backend: str = "exact") -> Solution:
+    """Solve a prepared :class:`Problem` with one backend (see :func:`estimate`)."""
+    backends = _available()
+    if backend not in backends:
+        raise ConfigError(
+            f"estimator: backend {backend!r} is not available; installed: "
+            f"{', '.join(backends)} (the references need `pip install qpsolvers proxsuite quadprog`)"
+        )
+    Fm, it = backends[backend](prob)
+    return complete(prob, Fm, it)

@@ -1,0 +1,265 @@
+"""Tests of ditherlab.estimator: the exact solver against the reference QPs, KKT, intervals."""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+import pytest
+
+from ditherlab import estimator as E
+from ditherlab.errors import ConfigError, ModelError
+
+PAPER_PRIOR = np.array([20.0, 20.0, 20.0, 0.3, 0.3, 0.3])
+REFERENCES = [b for b in ("proxsuite", "quadprog") if b in E.available_backends()]
+
+
+# ------------------------------------------------------------------------- problem factories
+
+
+def random_problem(
+    seed=0, N=40, n=6, force=30.0, band=(2.0, 10.0), noise=(0.1, 1.0), fill=1.0, **kw
+):
+    """Eq. (3) data drawn from the model itself: tau_bar = J^T F + uniform friction + noise.
+
+    The friction is uniform on ``fill`` times the band (``fill < 1`` keeps it off the edges).
+    """
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(N, 6, n)) * np.array([1, 1, 1, 0.3, 0.3, 0.3])[None, :, None]
+    F = rng.normal(size=(N, 6)) * np.array([force, force, force, 1, 1, 1])
+    a = -rng.uniform(*band, n)
+    b = rng.uniform(*band, n)
+    sig = rng.uniform(*noise, n)
+    tb = (
+        np.einsum("kin,ki->kn", J, F)
+        + rng.uniform(fill * a, fill * b, (N, n))
+        + rng.normal(size=(N, n)) * sig
+    )
+    args = dict(
+        tau_bar=tb, J=J, tau_min=a, tau_max=b, sigma=sig,
+        prior_mean=np.zeros(6), prior_sigma=PAPER_PRIOR.copy(),
+    )  # fmt: skip
+    args.update(kw)
+    return args, F
+
+
+def _case(name):
+    """The adversarial problems every backend must agree on."""
+    args, _ = random_problem(seed=zlib.crc32(name.encode()) % 1000)
+    N, n = args["tau_bar"].shape
+    rng = np.random.default_rng(7)
+    if name == "random":
+        pass
+    elif name == "zero_joint_column":
+        args["J"][:, :, 2] = 0.0  # joint 3 sees no force at all
+    elif name == "zero_component_row":
+        args["J"][:, 4, :] = 0.0  # m_y is invisible to every joint: held by its prior
+    elif name == "rank_deficient":
+        B = rng.normal(size=(N, 6, 3))
+        C = rng.normal(size=(N, 3, n))
+        args["J"] = B @ C  # rank 3
+    elif name == "zero_width_band":
+        args["tau_max"] = args["tau_min"].copy()
+    elif name == "huge_band":
+        args["tau_min"] = np.full(n, -1e6)
+        args["tau_max"] = np.full(n, 1e6)
+    elif name == "tiny_noise":
+        args["sigma"] = np.full(n, 1e-4)
+    elif name == "one_joint":
+        args, _ = random_problem(seed=3, n=1)
+    elif name == "seven_joints":
+        args, _ = random_problem(seed=4, n=7)
+    elif name == "all_inside":
+        args, _ = random_problem(seed=5, force=0.01, band=(50.0, 60.0), fill=0.5)
+    elif name == "all_outside":
+        args, _ = random_problem(seed=6, force=300.0, band=(0.1, 0.2))
+    elif name == "force_only":
+        args["components"] = ("f_x", "f_y", "f_z")
+    elif name == "per_sample_bands_and_noise":
+        args["tau_min"] = args["tau_min"] * rng.uniform(0.1, 1.0, (N, n))
+        args["tau_max"] = args["tau_max"] * rng.uniform(0.1, 1.0, (N, n))
+        args["sigma"] = args["sigma"] * rng.uniform(0.5, 2.0, (N, n))
+    elif name == "no_prior_on_forces":
+        args["prior_sigma"] = np.array([np.inf, np.inf, np.inf, 0.3, 0.3, 0.3])
+    elif name == "prior_zero_holds":
+        args["prior_sigma"] = np.array([20.0, 0.0, 20.0, 0.3, 0.3, 0.3])
+        args["prior_mean"] = np.array([1.0, 5.0, -2.0, 0.0, 0.1, 0.0])
+    else:  # pragma: no cover
+        raise KeyError(name)
+    return args
+
+
+CASES = [
+    "random", "zero_joint_column", "zero_component_row", "rank_deficient", "zero_width_band",
+    "huge_band", "tiny_noise", "one_joint", "seven_joints", "all_inside", "all_outside",
+    "force_only", "per_sample_bands_and_noise", "no_prior_on_forces", "prior_zero_holds",
+]  # fmt: skip
+
+
+def _gradient(args, F):
+    """Gradient of f(F) of eq. (3) with tau_f eliminated, written out independently."""
+    tb, J = args["tau_bar"], args["J"]
+    N, n = tb.shape
+    a = np.broadcast_to(args["tau_min"], (N, n))
+    b = np.broadcast_to(args["tau_max"], (N, n))
+    w = 1.0 / np.broadcast_to(args["sigma"], (N, n)) ** 2
+    r = tb - np.einsum("kin,ki->kn", J, F)
+    dist = np.where(r > b, r - b, np.where(r < a, r - a, 0.0))
+    ps = args["prior_sigma"]
+    p = np.where(np.isfinite(ps) & (ps > 0), 1.0 / np.where(ps > 0, ps, 1.0) ** 2, 0.0)
+    return -2 * np.einsum("kin,kn->ki", J, w * dist) + 2 * p * (F - args["prior_mean"])
+
+
+def _cost(args, F):
+    tb, J = args["tau_bar"], args["J"]
+    N, n = tb.shape
+    a = np.broadcast_to(args["tau_min"], (N, n))
+    b = np.broadcast_to(args["tau_max"], (N, n))
+    w = 1.0 / np.broadcast_to(args["sigma"], (N, n)) ** 2
+    r = tb - np.einsum("kin,ki->kn", J, F)
+    dist = r - np.clip(r, a, b)
+    ps = args["prior_sigma"]
+    p = np.where(np.isfinite(ps) & (ps > 0), 1.0 / np.where(ps > 0, ps, 1.0) ** 2, 0.0)
+    return (w * dist**2).sum(1) + (p * (F - args["prior_mean"]) ** 2).sum(1)
+
+
+# ------------------------------------------------------------------------------ estimate
+
+
+@pytest.mark.parametrize("case", CASES)
+@pytest.mark.parametrize("backend", REFERENCES)
+def test_exact_matches_reference_qp(case, backend):
+    """The exact solver and the per-sample reference QP give the same F to 1e-6 N (relative)."""
+    if backend == "proxsuite" and case == "no_prior_on_forces":
+        pytest.skip("ProxQP does not converge on the 1e-12 ridge of a prior-less component")
+    args = _case(case)
+    ex = E.estimate(**args, backend="exact")
+    ref = E.estimate(**args, backend=backend)
+    scale = np.maximum(1.0, np.abs(ex.F))
+    assert np.all(np.abs(ex.F - ref.F) <= 1e-6 * scale), np.abs(ex.F - ref.F).max()
+    np.testing.assert_allclose(ex.cost, ref.cost, rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_exact_satisfies_kkt(case):
+    """At the exact solution the gradient of the piecewise quadratic vanishes (KKT of eq. 3)."""
+    args = _case(case)
+    sol = E.estimate(**args)
+    assert sol.kkt.max() < 1e-12
+    g = _gradient(args, sol.F)
+    free = np.ones(6, bool)
+    if "components" in args:
+        free = np.isin(E.COMPONENTS, args["components"])
+    free &= args["prior_sigma"] > 0
+    # the ridge on prior-less components adds ~1e-12 relative; scale by the data information
+    J, w = args["J"], 1.0 / np.broadcast_to(args["sigma"], args["tau_bar"].shape) ** 2
+    info = np.einsum("kin,kn->ki", np.abs(J), w * (np.abs(args["tau_bar"]) + 1))
+    assert np.all(np.abs(g[:, free]) <= 1e-9 * (info[:, free] + 1)), np.abs(g[:, free]).max()
+    # tau_f is the residual clipped into the band, and active marks the joints outside it
+    r = args["tau_bar"] - np.einsum("kin,ki->kn", J, sol.F)
+    np.testing.assert_allclose(sol.tau_f, np.clip(r, args["tau_min"], args["tau_max"]))
+    clear = np.abs(r - np.clip(r, args["tau_min"], args["tau_max"])) > 1e-9 * (1 + np.abs(r))
+    inside = np.clip(r, args["tau_min"], args["tau_max"]) == r
+    assert np.all(sol.active[clear]) and not np.any(sol.active[inside & ~_near_edge(args, r)])
+
+
+def _near_edge(args, r):
+    lo, hi = args["tau_min"], args["tau_max"]
+    return (np.abs(r - lo) < 1e-9 * (1 + np.abs(r))) | (np.abs(r - hi) < 1e-9 * (1 + np.abs(r)))
+
+
+def test_exact_is_the_minimum_among_perturbations():
+    """No random perturbation of the exact F lowers the cost of eq. (3)."""
+    args, _ = random_problem(seed=11, N=200)
+    sol = E.estimate(**args)
+    rng = np.random.default_rng(0)
+    for scale in (1e-3, 1e-1, 10.0):
+        F2 = sol.F + rng.normal(size=sol.F.shape) * scale
+        assert np.all(_cost(args, F2) >= sol.cost - 1e-9 * (1 + sol.cost))
+    np.testing.assert_allclose(_cost(args, sol.F), sol.cost, rtol=1e-12)
+
+
+def test_held_components_stay_at_prior_mean():
+    """Components not estimated (or with prior_sigma 0) are returned at the prior mean exactly."""
+    args, _ = random_problem(seed=12)
+    args["prior_mean"] = np.array([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
+    sol = E.estimate(**args, components=("f_x", "m_z"))
+    np.testing.assert_array_equal(sol.F[:, 1:5], np.broadcast_to([2.0, 3.0, 0.1, 0.2], (40, 4)))
+    assert np.all(sol.F[:, 0] != 1.0)
+    args["prior_sigma"] = np.array([20.0, 20.0, 0.0, 0.3, 0.3, 0.3])
+    sol = E.estimate(**args)
+    np.testing.assert_array_equal(sol.F[:, 2], 3.0)
+
+
+def test_unobservable_component_without_prior_stays_at_mean():
+    """A component no joint sees and without prior is returned at its prior mean (ridge limit)."""
+    args = _case("zero_component_row")
+    args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, np.inf, 0.3])
+    args["prior_mean"] = np.array([0.0, 0.0, 0.0, 0.0, 0.7, 0.0])
+    sol = E.estimate(**args)
+    np.testing.assert_allclose(sol.F[:, 4], 0.7, atol=1e-9)
+
+
+def test_inside_band_means_prior_estimate():
+    """When every residual stays inside its band the estimate is the prior mean and nothing is active."""
+    args = _case("all_inside")
+    args["prior_mean"] = np.array([0.5, -0.5, 0.2, 0.0, 0.01, 0.0])
+    sol = E.estimate(**args)
+    np.testing.assert_allclose(sol.F, np.broadcast_to(args["prior_mean"], sol.F.shape), atol=1e-12)
+    assert not sol.active.any()
+    np.testing.assert_allclose(sol.cost, 0.0, atol=1e-20)
+
+
+def test_noise_free_large_force_is_recovered():
+    """With tiny noise, zero-width bands and no prior, the estimate is the true force."""
+    args, F = random_problem(seed=13, band=(0.0, 0.0), noise=(1e-9, 1e-9))
+    args["tau_min"] = args["tau_max"] = np.zeros(6)
+    args["prior_sigma"] = np.full(6, np.inf)
+    sol = E.estimate(**args)
+    np.testing.assert_allclose(sol.F, F, atol=1e-6)
+
+
+def test_warm_start_does_not_change_the_answer():
+    """Warm starting from the previous sample gives the same F as starting at the prior mean."""
+    args, _ = random_problem(seed=14, N=300)
+    prob = E.problem(**args)
+    F1, _ = E._solve_exact(prob, warm=True)
+    F2, _ = E._solve_exact(prob, warm=False)
+    np.testing.assert_allclose(F1, F2, atol=1e-9, rtol=1e-11)
+
+
+def test_problem_save_load_round_trip(tmp_path):
+    """A saved Problem loads back identical and solves to the same F."""
+    args, _ = random_problem(seed=15)
+    prob = E.problem(**args)
+    prob.save(tmp_path / "p.npz")
+    back = E.Problem.load(tmp_path / "p.npz")
+    np.testing.assert_array_equal(E.solve(back).F, E.solve(prob).F)
+
+
+@pytest.mark.parametrize(
+    ("change", "exc", "text"),
+    [
+        (dict(tau_min=np.full(6, 5.0), tau_max=np.full(6, 1.0)), ModelError, "is inverted"),
+        (dict(sigma=np.zeros(6)), ModelError, "expected a positive finite noise level"),
+        (dict(J=np.zeros((40, 6, 5))), ConfigError, "J has shape (40, 6, 5); expected (40, 6, 6)"),
+        (dict(sigma=np.ones(5)), ConfigError, "sigma has shape (5,); expected (6,) or (40, 6)"),
+        (dict(components=("f_x", "f_w")), ConfigError, "component 'f_w' is unknown"),
+        (dict(prior_sigma=-np.ones(6)), ModelError, "expected 6 values >= 0"),
+    ],
+)
+def test_bad_input_raises_clear_error(change, exc, text):
+    """Bad shapes, inverted bands and non-positive noise raise one clear DitherlabError."""
+    args, _ = random_problem(seed=16)
+    args.update(change)
+    with pytest.raises(exc, match=None) as info:
+        E.estimate(**args)
+    assert text in str(info.value)
+
+
+def test_unknown_backend_lists_installed():
+    """An unknown backend names the installed ones."""
+    args, _ = random_problem(seed=17, N=2)
+    with pytest.raises(ConfigError) as info:
+        E.estimate(**args, backend="gurobi")
+    assert "backend 'gurobi' is not available; installed: exact" in str(info.value)
