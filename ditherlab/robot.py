@@ -842,23 +842,26 @@ class RobotModel:
             q.shape,
             float(tol),
         )
-        entry = self._cache.pop(key, None)
-        if entry is None:
-            u = unique_configurations(q, tol)
-            # inverse None: nothing repeats (a moving robot), results are already per sample
-            entry = {"q": u.q, "inverse": None if len(u.q) == len(q) else u.inverse}
-        missing = [k for k in quantities if k not in entry]
-        if missing:
-            entry.update(self._compute(entry["q"], missing, progress))
-        elif progress is not None:
-            progress(len(entry["q"]), len(entry["q"]))
-        inverse = entry["inverse"]
-        if inverse is None and _nbytes(entry) > self.cache_bytes:
-            return {k: entry[k] for k in quantities}  # too large to keep: no copy needed
-        # new arrays for the caller (fancy indexing copies), so the cache cannot be altered
-        result = {k: entry[k].copy() if inverse is None else entry[k][inverse] for k in quantities}
-        self._remember(key, entry)
-        return result
+        with self._lock:  # the cache and pinocchio Data are shared by all callers
+            entry = self._cache.pop(key, None)
+            if entry is None:
+                u = unique_configurations(q, tol)
+                # inverse None: nothing repeats (a moving robot), results are already per sample
+                entry = {"q": u.q, "inverse": None if len(u.q) == len(q) else u.inverse}
+            missing = [k for k in quantities if k not in entry]
+            if missing:
+                entry.update(self._compute(entry["q"], missing, progress))
+            elif progress is not None:
+                progress(len(entry["q"]), len(entry["q"]))
+            inverse = entry["inverse"]
+            if inverse is None and _nbytes(entry) > self.cache_bytes:
+                return {k: entry[k] for k in quantities}  # too large to keep: no copy needed
+            # new arrays for the caller (fancy indexing copies), so the cache cannot be altered
+            result = {
+                k: entry[k].copy() if inverse is None else entry[k][inverse] for k in quantities
+            }
+            self._remember(key, entry)
+            return result
 
     def _remember(self, key: tuple, entry: dict[str, np.ndarray | None]) -> None:
         size = _nbytes(entry)

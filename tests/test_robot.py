@@ -644,3 +644,16 @@ def test_cli_robot_errors(cli):
     )
     r = cli("robot", "ur10e", "--q", "paper")
     assert r.code == 2 and "defined for robot 'irb140' only" in r.err
+
+
+def test_threads_sharing_a_model_get_correct_results():
+    """Four threads using one RobotModel at once each get their own batch's exact results."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    robot = RobotModel.from_spec("irb140")
+    batches = [_still_log(robot, 200, seed=20 + k) for k in range(4)]
+    expected = [robot.jacobian(b, dedup=False) for b in batches]
+    with ThreadPoolExecutor(4) as pool:
+        got = list(pool.map(lambda b: robot.jacobian(b), batches))
+    for e, g in zip(expected, got, strict=True):
+        np.testing.assert_array_equal(g, e)
