@@ -426,7 +426,7 @@ def _log_robot(
     q3 = rec.q[idx]
     poses = robot.link_poses(q3)
     for name, T in poses.items():
-        path = f"robot/links/{name}"
+        path = f"robot/links/{rr.escape_entity_path_part(name)}"
         s.log(path, rr.TransformAxes3D(0.06), static=True)
         log.send(
             path,
