@@ -340,3 +340,11 @@ def test_real_ur10e_log_without_sensor(tmp_path):
     assert c["joints/6/tau"]["Scalars:scalars"] == len(rec)
     assert c["robot/links/tool0"]["Transform3D:translation"] == len(rl.decimate_index(rec.t, 25.0))
     assert not any(k.startswith(("force/", "robot/force", "events/pushes")) for k in c)
+
+
+def test_progress_reaches_total(campaign, tmp_path):
+    """The progress callback counts up to its total and ends there."""
+    calls = []
+    rl.save_view(campaign["rec"], tmp_path / "p.rrd", progress=lambda d, t: calls.append((d, t)))
+    done = [d for d, _ in calls]
+    assert done == sorted(done) and calls[-1][0] == calls[-1][1] > 0
