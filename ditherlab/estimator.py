@@ -61,6 +61,8 @@ COMPONENTS = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
 RIDGE = 1e-12
 #: Intervals whose half-width exceeds this many "information units" are reported as infinite.
 UNOBSERVABLE = 1e5
+#: Half-width [N, N·m] of the artificial box of the set-membership LP for prior-less components.
+BIG_BOX = 1e9
 
 
 @dataclass
@@ -684,3 +686,528 @@ def solve(prob: Problem, backend: str = "exact") -> Solution:
         )
     Fm, it = backends[backend](prob)
     return complete(prob, Fm, it)
+
+
+# ------------------------------------------------------------------------- confidence intervals
+#
+# Two intervals per estimated component, both exact for the model as stated:
+#
+# set membership  {F : a_j - k sigma_j <= tau_bar_j - J_j^T F <= b_j + k sigma_j for every joint,
+#                      |F_i - F_bar_i| <= k prior_sigma_i for every component with a prior};
+#                 [lo_i, hi_i] = [min F_i, max F_i] over that polytope (two LPs per component).
+#                 With k = Phi^-1(1 - alpha / (2 q)), q = n + (number of estimated components with
+#                 a finite prior) (Bonferroni), the true F lies in the polytope with probability
+#                 >= level when the data follow the model (friction inside its band, Gaussian
+#                 noise, F drawn from the prior), so every component's interval covers the truth
+#                 with probability >= level (conservative). When the polytope is empty (a force
+#                 far beyond the prior box, or data inconsistent with the model at this level) the
+#                 prior box is dropped for that sample (this keeps the coverage guarantee: the
+#                 event "truth in the polytope" implies a non-empty polytope); when the data alone
+#                 are inconsistent, NaN.
+# profile         {t : min_{F: F_i = t} f(F) - min_F f(F) <= chi2_1(level)}, f the cost of eq. (3)
+#                 (tau_f profiled out inside its band). The profile is convex and piecewise
+#                 quadratic in t; it is followed exactly from F_hat along the piecewise-linear path
+#                 of constrained minimisers (a parametric active set: one joint enters or leaves
+#                 at each breakpoint) until it reaches the threshold. In the purely Gaussian case
+#                 (zero-width bands) this is the Bayesian 95 % interval F_hat_i +- 1.96 sd_i and
+#                 covers exactly; a band makes it wider (residuals inside the band cost nothing).
+#
+# Components held at the prior give lo = hi = prior_mean. Components without a prior that the
+# data cannot see (information below 1e-10 of the sample's mean) give -inf / +inf.
+
+
+@njit(cache=True)
+def _qr_factor(J, w, p, s, m, n, R, u):
+    """Upper-triangular R with R^T R = diag(p) + sum_{s_j != 0} w_j J_j J_j^T (Givens rows)."""
+    for i in range(m):
+        for k in range(m):
+            R[i, k] = 0.0
+        R[i, i] = math.sqrt(p[i])
+    for j in range(n):
+        if s[j] == 0:
+            continue
+        sw = math.sqrt(w[j])
+        for i in range(m):
+            u[i] = sw * J[i, j]
+        for i in range(m):
+            ui = u[i]
+            if ui == 0.0:
+                continue
+            rii = R[i, i]
+            r = math.sqrt(rii * rii + ui * ui)
+            c = rii / r
+            sn = ui / r
+            R[i, i] = r
+            for k in range(i + 1, m):
+                rik = R[i, k]
+                R[i, k] = c * rik + sn * u[k]
+                u[k] = c * u[k] - sn * rik
+
+
+@njit(cache=True)
+def _hinv_col(R, i, m, y, x):
+    """x = H^{-1} e_i with H = R^T R (two triangular solves)."""
+    for q in range(m):
+        v = 1.0 if q == i else 0.0
+        for k in range(q):
+            v -= R[k, q] * y[k]
+        y[q] = v / R[q, q]
+    for q in range(m - 1, -1, -1):
+        v = y[q]
+        for k in range(q + 1, m):
+            v -= R[q, k] * x[k]
+        x[q] = v / R[q, q]
+
+
+@njit(cache=True)
+def _profile_kernel(tb, J, a, b, w, p, fb, Fh, thr, ridge, unobs, lo_out, hi_out, seg_out):
+    N, m, n = J.shape
+    R = np.empty((m, m))
+    u = np.empty(m)
+    y = np.empty(m)
+    v = np.empty(m)
+    F = np.empty(m)
+    r = np.empty(n)
+    s = np.zeros(n, np.int8)
+    maxseg = 4 * n + 8
+    for k in range(N):
+        tbk, Jk, ak, bk, wk, pk = tb[k], J[k], a[k], b[k], w[k], p[k]
+        f0 = _cost(tbk, Jk, ak, bk, wk, pk, fb, Fh[k], m, n)
+        target = f0 + thr
+        scale = 0.0
+        for i in range(m):
+            for j in range(n):
+                scale += wk[j] * Jk[i, j] ** 2
+        scale = scale / m if scale > 0.0 else 1.0
+        far = unobs * math.sqrt(thr / scale)
+        for i in range(m):
+            for sg in (1.0, -1.0):
+                for q in range(m):
+                    F[q] = Fh[k, q]
+                _sides(tbk, Jk, ak, bk, F, m, n, s)
+                pcur = f0
+                end = np.nan
+                nseg = 0
+                while nseg < maxseg:
+                    nseg += 1
+                    _qr_factor(Jk, wk, pk, s, m, n, R, u)
+                    _hinv_col(R, i, m, y, v)
+                    h = v[i]
+                    for q in range(m):
+                        v[q] /= h
+                    # slope of the profile along the path: grad f . v (grad f = mu e_i on it)
+                    dp = 0.0
+                    for q in range(m):
+                        dp += 2.0 * pk[q] * (F[q] - fb[q]) * v[q]
+                    db = np.inf
+                    jb = -1
+                    for j in range(n):
+                        rj = tbk[j]
+                        cj = 0.0
+                        for q in range(m):
+                            rj -= Jk[q, j] * F[q]
+                            cj += Jk[q, j] * v[q]
+                        r[j] = rj
+                        dp -= 2.0 * wk[j] * cj * _dist(rj, ak[j], bk[j])
+                        cj *= sg  # r_j(D) = r_j - D cj
+                        dj = np.inf
+                        if s[j] == 0:
+                            if cj < 0.0:
+                                dj = (bk[j] - rj) / (-cj)
+                            elif cj > 0.0:
+                                dj = (rj - ak[j]) / cj
+                        elif s[j] > 0:
+                            if cj > 0.0:
+                                dj = (rj - bk[j]) / cj
+                        elif cj < 0.0:
+                            dj = (ak[j] - rj) / (-cj)
+                        if dj < 0.0:
+                            dj = 0.0
+                        if dj < db:
+                            db = dj
+                            jb = j
+                    dp *= sg
+                    rem = target - pcur
+                    if rem <= 0.0:
+                        dstar = 0.0
+                    else:
+                        qq = 1.0 / h  # p(D) = pcur + dp D + D^2 / h on this piece
+                        dstar = 2.0 * rem / (dp + math.sqrt(dp * dp + 4.0 * qq * rem))
+                    if dstar <= db:
+                        end = F[i] + sg * dstar - Fh[k, i]
+                        break
+                    for q in range(m):
+                        F[q] += sg * db * v[q]
+                    if s[jb] == 0:
+                        cj = 0.0
+                        for q in range(m):
+                            cj += Jk[q, jb] * v[q]
+                        s[jb] = 1 if sg * cj < 0.0 else -1
+                    else:
+                        s[jb] = 0
+                    pcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
+                seg_out[k] = max(seg_out[k], nseg)
+                if ridge[i] and abs(end) > far:
+                    end = sg * np.inf
+                if sg > 0:
+                    hi_out[k, i] = Fh[k, i] + end
+                else:
+                    lo_out[k, i] = Fh[k, i] + end
+
+
+@njit(cache=True)
+def _lp_active_set(A, bv, nr, d, c, x, W, nW, G, lam, dirn, maxit):
+    """Minimise c^T x subject to A[:nr, :d] x <= bv[:nr] from the feasible point x.
+
+    Primal active-set method: W[:nW] are tight, linearly independent rows; move along the
+    steepest descent direction projected on their null space until a row blocks (added); at a
+    point where the projection vanishes, drop the row with the most negative multiplier; stop
+    when all multipliers are >= 0 (optimal). Returns (status, nW): 0 optimal, 1 unbounded,
+    2 iteration limit.
+    """
+    cn = 0.0
+    for q in range(d):
+        cn += c[q] * c[q]
+    cn = math.sqrt(cn)
+    for _it in range(maxit):
+        # lam = -(A_W A_W^T)^{-1} A_W c ; dirn = -c - A_W^T lam
+        for a1 in range(nW):
+            r1 = W[a1]
+            for a2 in range(a1 + 1):
+                r2 = W[a2]
+                v = 0.0
+                for q in range(d):
+                    v += A[r1, q] * A[r2, q]
+                G[a1, a2] = v
+            v = 0.0
+            for q in range(d):
+                v += A[r1, q] * c[q]
+            lam[a1] = -v
+        # Cholesky in place (lower) and solve
+        for a1 in range(nW):
+            for a2 in range(a1 + 1):
+                v = G[a1, a2]
+                for q in range(a2):
+                    v -= G[a1, q] * G[a2, q]
+                if a1 == a2:
+                    G[a1, a1] = math.sqrt(v) if v > 0.0 else 1e-300
+                else:
+                    G[a1, a2] = v / G[a2, a2]
+        for a1 in range(nW):
+            v = lam[a1]
+            for q in range(a1):
+                v -= G[a1, q] * lam[q]
+            lam[a1] = v / G[a1, a1]
+        for a1 in range(nW - 1, -1, -1):
+            v = lam[a1]
+            for q in range(a1 + 1, nW):
+                v -= G[q, a1] * lam[q]
+            lam[a1] = v / G[a1, a1]
+        dn = 0.0
+        for q in range(d):
+            v = -c[q]
+            for a1 in range(nW):
+                v -= A[W[a1], q] * lam[a1]
+            dirn[q] = v
+            dn += v * v
+        dn = math.sqrt(dn)
+        if nW == d or dn <= 1e-10 * cn:  # a vertex: the projected direction is zero
+            worst = -1
+            wl = -1e-10 * cn
+            for a1 in range(nW):
+                if lam[a1] < wl:
+                    wl = lam[a1]
+                    worst = a1
+            if worst < 0:
+                return 0, nW
+            W[worst] = W[nW - 1]
+            nW -= 1
+            continue
+        alpha = np.inf
+        kb = -1
+        for k in range(nr):
+            inw = False
+            for a1 in range(nW):
+                if W[a1] == k:
+                    inw = True
+                    break
+            if inw:
+                continue
+            ad = 0.0
+            ax = 0.0
+            an = 0.0
+            for q in range(d):
+                ad += A[k, q] * dirn[q]
+                ax += A[k, q] * x[q]
+                an += A[k, q] * A[k, q]
+            if ad <= 1e-10 * math.sqrt(an) * dn:
+                continue
+            sl = bv[k] - ax
+            al = (sl if sl > 0.0 else 0.0) / ad
+            if al < alpha:
+                alpha = al
+                kb = k
+        if kb < 0:
+            return 1, nW
+        for q in range(d):
+            x[q] += alpha * dirn[q]
+        W[nW] = kb
+        nW += 1
+    return 2, nW
+
+
+@njit(cache=True)
+def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, unobs, lo_out, hi_out, st_out):
+    N, m, n = J.shape
+    nr = 2 * n + 2 * m
+    d1 = m + 1
+    A = np.zeros((nr + 1, d1))
+    bv = np.zeros(nr + 1)
+    G = np.empty((d1, d1))
+    lam = np.empty(d1)
+    dirn = np.empty(d1)
+    x = np.empty(d1)
+    c = np.zeros(d1)
+    W = np.empty(d1, np.int64)
+    for k in range(N):
+        tbk, Jk = tb[k], J[k]
+        # attempt 0 with the prior box; attempt 1 (only if that polytope is empty) without it
+        for attempt in range(2):
+            # rows: J_j^T F <= tb_j - a_j + k sig_j ; -J_j^T F <= -(tb_j - b_j - k sig_j) ; box rows
+            nrow = 0
+            for j in range(n):
+                for side in (1.0, -1.0):
+                    edge = a[k, j] if side > 0 else b[k, j]
+                    if not math.isfinite(edge):
+                        continue
+                    for i in range(m):
+                        A[nrow, i] = side * Jk[i, j]
+                    A[nrow, m] = -1.0  # phase-1 slack z
+                    bv[nrow] = side * (tbk[j] - edge) + kk * sig[k, j]
+                    nrow += 1
+            nj = nrow
+            for i in range(m):
+                # an artificial box far beyond any force keeps the LP bounded; an optimum held
+                # by it (positive multiplier) is reported as unbounded below
+                hb = halfbox[i] if not ridge[i] and attempt == 0 else BIG_BOX
+                for side in (1.0, -1.0):
+                    for q in range(d1):
+                        A[nrow, q] = 0.0
+                    A[nrow, i] = side
+                    bv[nrow] = side * fb[i] + hb
+                    nrow += 1
+            for q in range(d1):
+                A[nrow, q] = 0.0
+            A[nrow, m] = -1.0
+            bv[nrow] = 0.0
+            nrow += 1
+            # phase 1: minimise z from (F_bar, z0)
+            z0 = 0.0
+            for row in range(nj):
+                v = -bv[row]
+                for i in range(m):
+                    v += A[row, i] * fb[i]
+                z0 = max(z0, v)
+            for i in range(m):
+                x[i] = fb[i]
+                c[i] = 0.0
+            x[m] = z0 + 1.0
+            c[m] = 1.0
+            st, nW = _lp_active_set(A, bv, nrow, d1, c, x, W, 0, G, lam, dirn, 50 * nrow)
+            bscale = 1.0
+            for row in range(nj):
+                bscale = max(bscale, abs(bv[row]))
+            if st == 0 and x[m] <= 1e-9 * bscale:
+                st_out[k] = attempt
+                break
+            st_out[k] = 2 if st == 0 else 3
+        if st_out[k] >= 2:
+            for i in range(m):
+                lo_out[k, i] = np.nan
+                hi_out[k, i] = np.nan
+            continue
+        # phase 2 in F alone (z fixed at 0: drop the z column; rows keep their order)
+        nW = 0
+        for i in range(m):
+            for sg in (1.0, -1.0):
+                for q in range(m):
+                    c[q] = 0.0
+                c[i] = sg
+                st, nW = _lp_active_set(A, bv, nrow - 1, m, c, x, W, nW, G, lam, dirn, 50 * nrow)
+                if st == 1:
+                    val = -sg * np.inf
+                elif st != 0:
+                    val = np.nan
+                    st_out[k] = 3
+                else:
+                    val = x[i]
+                    # an artificial box row (no prior, or prior box dropped) that holds the
+                    # optimum with a positive multiplier: without it the LP is unbounded
+                    for a1 in range(nW):
+                        row = W[a1]
+                        if row >= nj and lam[a1] > 1e-9:
+                            ib = (row - nj) // 2
+                            if ridge[ib] or st_out[k] == 1:
+                                val = -sg * np.inf
+                if sg > 0:
+                    lo_out[k, i] = val
+                else:
+                    hi_out[k, i] = val
+
+
+INTERVAL_METHODS = ("set_membership", "profile")
+
+
+def interval_k(level: float, n: int, n_prior: int) -> float:
+    """Bonferroni half-width multiplier of the set-membership interval.
+
+    ``k = Phi^-1(1 - (1 - level) / (2 q))`` with ``q = n + n_prior`` events (each joint's noise
+    within ``+- k sigma``, each prior component within ``+- k prior_sigma``).
+    """
+    from scipy.stats import norm
+
+    return float(norm.ppf(1.0 - (1.0 - level) / (2.0 * max(1, n + n_prior))))
+
+
+def _halfbox(prob: Problem, k: float) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return np.where(
+            prob.p_true > 0, k / np.sqrt(np.where(prob.p_true > 0, prob.p_true, 1.0)), np.inf
+        )
+
+
+def set_membership_reference(prob: Problem, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """The set-membership interval by ``scipy.optimize.linprog`` (HiGHS), two LPs per component.
+
+    Slow and obviously right: the reference for the numba fast path. Returns ``lo, hi (N, m)``
+    over the estimated components (NaN where the polytope is empty even without the prior box,
+    +-inf where unbounded: no ridge box here, so unobservable components come out infinite).
+    """
+    from scipy.optimize import linprog
+
+    kk = interval_k(level, prob.n, int((prob.p_true > 0).sum()))
+    half = _halfbox(prob, kk)
+    N, m = prob.N, prob.m
+    lo, hi = np.full((N, m), np.nan), np.full((N, m), np.nan)
+    sig = 1.0 / np.sqrt(prob.w)
+    bounds = [
+        (prob.prior_mean[i] - half[i], prob.prior_mean[i] + half[i])
+        if np.isfinite(half[i])
+        else (None, None)
+        for i in range(m)
+    ]
+    for k in range(N):
+        Jt = prob.J[k].T  # (n, m)
+        ub1 = prob.tau_bar[k] - prob.tau_min[k] + kk * sig[k]
+        ub2 = -(prob.tau_bar[k] - prob.tau_max[k] - kk * sig[k])
+        rows = np.vstack([Jt[np.isfinite(ub1)], -Jt[np.isfinite(ub2)]])
+        rhs = np.concatenate([ub1[np.isfinite(ub1)], ub2[np.isfinite(ub2)]])
+        bk = bounds
+        if linprog(np.zeros(m), A_ub=rows, b_ub=rhs, bounds=bk, method="highs").status == 2:
+            bk = [(None, None)] * m  # empty with the prior box: the data alone
+            if linprog(np.zeros(m), A_ub=rows, b_ub=rhs, bounds=bk, method="highs").status == 2:
+                continue  # empty: NaN
+        for i in range(m):
+            for sg in (1.0, -1.0):
+                c = np.zeros(m)
+                c[i] = sg
+                for meth in ("highs-ds", "highs-ipm"):  # the dual simplex, else interior point
+                    res = linprog(c, A_ub=rows, b_ub=rhs, bounds=bk, method=meth)
+                    if res.status in (0, 2, 3):
+                        break
+                if res.status == 2:
+                    val = np.nan
+                elif res.status not in (0, 3):
+                    raise ConfigError(
+                        f"estimator: linprog failed at sample {k} (status {res.status}: "
+                        f"{res.message}); expected a solved LP"
+                    )
+                elif res.status == 3:
+                    val = -sg * np.inf
+                else:
+                    val = res.x[i]
+                (lo if sg > 0 else hi)[k, i] = val
+    return lo, hi
+
+
+def intervals(
+    tau_bar,
+    J,
+    tau_min,
+    tau_max,
+    sigma,
+    prior_mean,
+    prior_sigma,
+    F_hat=None,
+    method: str = "set_membership",
+    level: float = 0.95,
+    components: Sequence[str] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Confidence interval of every wrench component, per sample.
+
+    Parameters
+    ----------
+    tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components
+        As for :func:`estimate`.
+    F_hat : (N, 6) [N, N·m], optional
+        The estimate of :func:`estimate` (computed when not given; used by ``profile``).
+    method : {"set_membership", "profile"}
+        ``set_membership``: ``[min F_i, max F_i]`` over every ``F`` whose residuals lie in the
+        bands widened by ``k sigma`` and which lies in the prior box ``F_bar +- k prior_sigma``,
+        ``k`` = :func:`interval_k` (Bonferroni over the joints and prior components), so it covers
+        the truth with probability >= ``level`` under the model. If that set is empty the prior
+        box is dropped for the sample; NaN when even the data alone admit no ``F``.
+        ``profile``: the ``t`` whose profiled cost ``min_{F_i = t} cost - min cost`` is at most
+        the chi-square(1) quantile of ``level`` (3.84 at 0.95); the cost is eq. (3)'s, i.e.
+        ``-2 log`` of the likelihood times the prior with the friction profiled out in its band.
+    level : float
+        Confidence level in (0, 1).
+
+    Returns
+    -------
+    lo, hi : (N, 6) [N, N·m]
+        Interval bounds; ``lo = hi = prior_mean`` for components held at the prior; ``-inf`` /
+        ``inf`` for prior-less components the data cannot determine.
+    """
+    if method not in INTERVAL_METHODS:
+        raise ConfigError(
+            f"estimator: interval method {method!r} is unknown; expected one of "
+            f"{', '.join(INTERVAL_METHODS)}"
+        )
+    if not 0.0 < float(level) < 1.0:
+        raise ConfigError(f"estimator: interval level {level!r} is invalid; expected 0 < level < 1")
+    prob = problem(tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components)
+    N, m = prob.N, prob.m
+    if F_hat is None and method == "profile":
+        Fm, _ = _solve_exact(prob)
+    elif F_hat is not None:
+        Fh = np.asarray(F_hat, dtype=float)
+        if Fh.shape != (N, 6):
+            raise ConfigError(f"estimator: F_hat has shape {Fh.shape}; expected ({N}, 6)")
+        Fm = np.ascontiguousarray(Fh[:, prob.free])
+    lo = np.broadcast_to(prob.full_mean, (N, 6)).copy()
+    hi = lo.copy()
+    if m == 0 or N == 0:
+        return lo, hi
+    lo_m, hi_m = np.empty((N, m)), np.empty((N, m))
+    ridge = prob.p_true == 0.0
+    if method == "profile":
+        from scipy.stats import chi2
+
+        thr = float(chi2.ppf(level, 1))
+        seg = np.zeros(N, np.int64)
+        _profile_kernel(
+            prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, prob.w, prob.p, prob.prior_mean,
+            Fm, thr, ridge, UNOBSERVABLE, lo_m, hi_m, seg,
+        )  # fmt: skip
+    else:
+        kk = interval_k(level, prob.n, int((~ridge).sum()))
+        st = np.zeros(N, np.int64)
+        _set_membership_kernel(
+            prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, 1.0 / np.sqrt(prob.w),
+            prob.prior_mean, np.where(ridge, 0.0, _halfbox(prob, kk)), kk, ridge, UNOBSERVABLE,
+            lo_m, hi_m, st,
+        )  # fmt: skip
+    lo[:, prob.free] = lo_m
+    hi[:, prob.free] = hi_m
+    return lo, hi

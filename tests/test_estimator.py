@@ -263,3 +263,154 @@ def test_unknown_backend_lists_installed():
     with pytest.raises(ConfigError) as info:
         E.estimate(**args, backend="gurobi")
     assert "backend 'gurobi' is not available; installed: exact" in str(info.value)
+
+
+# ----------------------------------------------------------------------------- intervals
+
+
+def model_data(seed, N=3000, n=6, band=(2.0, 10.0), noise=(0.1, 1.0), zero_band=False):
+    """Samples drawn from the model of eq. (3) itself, with F drawn from the prior."""
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(N, 6, n)) * np.array([1, 1, 1, 0.3, 0.3, 0.3])[None, :, None]
+    fb = rng.normal(size=6) * PAPER_PRIOR * 0.1
+    F = fb + rng.normal(size=(N, 6)) * PAPER_PRIOR
+    a, b = -rng.uniform(*band, n), rng.uniform(*band, n)
+    if zero_band:
+        a = b = np.zeros(n)
+    sig = rng.uniform(*noise, n)
+    tb = np.einsum("kin,ki->kn", J, F) + rng.uniform(a, b, (N, n)) + rng.normal(size=(N, n)) * sig
+    args = dict(
+        tau_bar=tb, J=J, tau_min=a, tau_max=b, sigma=sig, prior_mean=fb,
+        prior_sigma=PAPER_PRIOR.copy(),
+    )  # fmt: skip
+    return args, F
+
+
+def _sub(args, rows):
+    out = dict(args)
+    for key in ("tau_bar", "J"):
+        out[key] = args[key][rows]
+    for key in ("tau_min", "tau_max", "sigma"):
+        v = np.asarray(args[key])
+        out[key] = v[rows] if v.ndim == 2 else v
+    return out
+
+
+IV_CASES = [
+    "random", "zero_component_row", "rank_deficient", "zero_width_band", "huge_band",
+    "tiny_noise", "one_joint", "seven_joints", "all_inside", "all_outside", "force_only",
+    "per_sample_bands_and_noise", "no_prior_on_forces", "prior_zero_holds", "zero_joint_column",
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("case", IV_CASES)
+def test_set_membership_matches_linprog(case):
+    """The numba set-membership LPs give linprog's (HiGHS) bounds, NaN and inf where it does."""
+    args = _case(case)
+    prob = E.problem(**{k: v for k, v in args.items()})
+    lo, hi = E.intervals(**args, method="set_membership")
+    rlo, rhi = E.set_membership_reference(prob)
+    fr = prob.free
+    for got, ref in ((lo[:, fr], rlo), (hi[:, fr], rhi)):
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+        np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
+        ok = np.isfinite(ref)
+        tol = 1e-7 * np.maximum(1.0, np.abs(ref[ok]))
+        assert np.all(np.abs(got[ok] - ref[ok]) <= tol), np.abs(got[ok] - ref[ok]).max()
+
+
+@pytest.mark.parametrize("case", IV_CASES)
+def test_profile_endpoints_are_at_the_threshold(case):
+    """At both ends of the profile interval the profiled cost is exactly min cost + chi2_1(0.95)."""
+    args = _case(case)
+    sol = E.estimate(**args)
+    lo, hi = E.intervals(**args, F_hat=sol.F, method="profile")
+    assert np.all(lo <= sol.F) and np.all(sol.F <= hi)  # the estimate lies inside
+    prob = E.problem(**args)
+    thr = 3.841458820694124
+    ps = np.asarray(args["prior_sigma"], float)
+    rows = np.arange(0, sol.F.shape[0], 9)
+    for i in prob.free:
+        for end in (lo, hi):
+            fin = rows[np.isfinite(end[rows, i])]
+            if not len(fin):
+                continue
+            sub = _sub(args, fin)
+            # the profile at t: eq. (3) with F_i held at t (prior_sigma_i = 0), plus F_i's prior
+            pm = np.broadcast_to(np.asarray(args["prior_mean"], float), (len(fin), 6)).copy()
+            costs = []
+            for r, k in enumerate(fin):
+                s1 = _sub(sub, [r])
+                s1["prior_mean"] = pm[r].copy()
+                s1["prior_mean"][i] = end[k, i]
+                s1["prior_sigma"] = ps.copy()
+                s1["prior_sigma"][i] = 0.0
+                c = E.estimate(**s1).cost[0]
+                if np.isfinite(ps[i]) and ps[i] > 0:
+                    c += (end[k, i] - args["prior_mean"][i]) ** 2 / ps[i] ** 2
+                costs.append(c)
+            target = sol.cost[fin] + thr
+            # 1e-7: with sigma = 1e-4 the cost carries weights 1e8 and rounds at that level
+            np.testing.assert_allclose(costs, target, rtol=1e-7, atol=1e-7)
+
+
+def test_held_components_have_point_intervals():
+    """Components not estimated get lo = hi = prior mean under both methods."""
+    args, _ = random_problem(seed=21)
+    args["prior_mean"] = np.array([0.0, 0.0, 0.0, 0.1, 0.2, 0.3])
+    for method in E.INTERVAL_METHODS:
+        lo, hi = E.intervals(**args, method=method, components=("f_x", "f_y", "f_z"))
+        np.testing.assert_array_equal(lo[:, 3:], np.broadcast_to([0.1, 0.2, 0.3], (40, 3)))
+        np.testing.assert_array_equal(hi[:, 3:], lo[:, 3:])
+        assert np.all(hi[:, :3] > lo[:, :3])
+
+
+def test_unobservable_prior_less_component_has_infinite_interval():
+    """A component no joint sees and without prior has an interval (-inf, inf) under both methods."""
+    args = _case("zero_component_row")
+    args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, np.inf, 0.3])
+    for method in E.INTERVAL_METHODS:
+        lo, hi = E.intervals(**args, method=method)
+        ok = ~np.isnan(lo[:, 4])
+        assert ok.sum() > 20
+        assert np.all(np.isneginf(lo[ok, 4])) and np.all(np.isposinf(hi[ok, 4]))
+        assert np.all(np.isfinite(lo[ok][:, [0, 1, 2, 3, 5]]))
+
+
+def test_gaussian_profile_interval_is_the_posterior_interval():
+    """With zero-width bands the profile interval is F_hat +- 1.96 sqrt((J W J^T + R_F^-1)^-1)_ii."""
+    args, _ = model_data(22, N=50, zero_band=True)
+    sol = E.estimate(**args)
+    lo, hi = E.intervals(**args, F_hat=sol.F, method="profile")
+    W = 1.0 / args["sigma"] ** 2
+    H = np.einsum("kin,n,kjn->kij", args["J"], W, args["J"]) + np.diag(1 / PAPER_PRIOR**2)
+    sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
+    np.testing.assert_allclose(hi - sol.F, 1.959963984540054 * sd, rtol=1e-8)
+    np.testing.assert_allclose(sol.F - lo, 1.959963984540054 * sd, rtol=1e-8)
+
+
+@pytest.mark.parametrize(("zero_band", "method"), [(True, "profile"), (False, "profile"),
+                                                   (True, "set_membership"),
+                                                   (False, "set_membership")])  # fmt: skip
+def test_coverage_on_data_from_the_model(zero_band, method):
+    """On data drawn from the model, 95 % intervals cover the truth at the level they promise.
+
+    Profile with Gaussian noise only: 0.95 +- 0.01 (it is the posterior interval). With the band,
+    and for set membership (Bonferroni), the intervals are conservative: coverage >= 0.94.
+    """
+    args, F = model_data(23, zero_band=zero_band)
+    lo, hi = E.intervals(**args, method=method)
+    cover = ((F >= lo) & (F <= hi)).mean()
+    if zero_band and method == "profile":
+        assert abs(cover - 0.95) < 0.01, cover
+    else:
+        assert cover >= 0.94, cover
+
+
+def test_interval_bad_method_and_level():
+    """An unknown interval method or a level outside (0, 1) raises a ConfigError naming it."""
+    args, _ = random_problem(seed=24, N=3)
+    with pytest.raises(ConfigError, match="interval method 'bootstrap' is unknown"):
+        E.intervals(**args, method="bootstrap")
+    with pytest.raises(ConfigError, match="interval level 1.5 is invalid"):
+        E.intervals(**args, level=1.5)
