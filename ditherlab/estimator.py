@@ -957,7 +957,115 @@ def _lp_active_set(A, bv, nr, d, c, x, W, nW, G, lam, dirn, maxit):
 
 
 @njit(cache=True)
-def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, unobs, lo_out, hi_out, st_out):
+def _sm_rows(tbk, Jk, ak, bk, sk, fb, halfbox, kk, ridge, attempt, A, bv, m, n):
+    """The LP rows of one sample: joint slabs, the (prior or artificial) box, and z >= 0."""
+    d1 = m + 1
+    # rows: J_j^T F <= tb_j - a_j + k sig_j ; -J_j^T F <= -(tb_j - b_j - k sig_j) ; box rows
+    nrow = 0
+    for j in range(n):
+        for side in (1.0, -1.0):
+            edge = ak[j] if side > 0 else bk[j]
+            if not math.isfinite(edge):
+                continue
+            for i in range(m):
+                A[nrow, i] = side * Jk[i, j]
+            A[nrow, m] = -1.0  # phase-1 slack z
+            bv[nrow] = side * (tbk[j] - edge) + kk * sk[j]
+            nrow += 1
+    nj = nrow
+    for i in range(m):
+        # an artificial box far beyond any force keeps the LP bounded; an optimum held by it
+        # (positive multiplier) is reported as unbounded
+        hb = halfbox[i] if not ridge[i] and attempt == 0 else BIG_BOX
+        for side in (1.0, -1.0):
+            for q in range(d1):
+                A[nrow, q] = 0.0
+            A[nrow, i] = side
+            bv[nrow] = side * fb[i] + hb
+            nrow += 1
+    for q in range(d1):
+        A[nrow, q] = 0.0
+    A[nrow, m] = -1.0
+    bv[nrow] = 0.0
+    nrow += 1
+    return nrow, nj
+
+
+@njit(cache=True)
+def _vertex_check(A, bv, nrow, m, c, Wo, x, lam, M, piv):
+    """Is the vertex of the working set Wo (m rows) feasible and optimal for min c^T x?
+
+    Solves A_W x = b_W and A_W^T lam = -c by LU with partial pivoting; True when every row
+    holds (to 1e-9 relative) and every multiplier is >= 0 (to 1e-10).
+    """
+    for a1 in range(m):
+        for q in range(m):
+            M[a1, q] = A[Wo[a1], q]
+        piv[a1] = a1
+    big = 0.0
+    for a1 in range(m):
+        for q in range(m):
+            big = max(big, abs(M[a1, q]))
+    for col in range(m):
+        pr = col
+        for r in range(col + 1, m):
+            if abs(M[r, col]) > abs(M[pr, col]):
+                pr = r
+        if abs(M[pr, col]) <= 1e-12 * big:
+            return False
+        if pr != col:
+            for q in range(m):
+                tmp = M[col, q]
+                M[col, q] = M[pr, q]
+                M[pr, q] = tmp
+            tmp2 = piv[col]
+            piv[col] = piv[pr]
+            piv[pr] = tmp2
+        for r in range(col + 1, m):
+            f = M[r, col] / M[col, col]
+            M[r, col] = f
+            for q in range(col + 1, m):
+                M[r, q] -= f * M[col, q]
+    # x: L U x = P b
+    for a1 in range(m):
+        v = bv[Wo[piv[a1]]]
+        for q in range(a1):
+            v -= M[a1, q] * x[q]
+        x[a1] = v
+    for a1 in range(m - 1, -1, -1):
+        v = x[a1]
+        for q in range(a1 + 1, m):
+            v -= M[a1, q] * x[q]
+        x[a1] = v / M[a1, a1]
+    for r in range(nrow):
+        v = -bv[r]
+        for q in range(m):
+            v += A[r, q] * x[q]
+        if v > 1e-9 * (1.0 + abs(bv[r])):
+            return False
+    # lam: (P^T L U)^T lam = -c  ->  U^T L^T (P lam) = -c
+    for a1 in range(m):
+        v = -c[a1]
+        for q in range(a1):
+            v -= M[q, a1] * lam[q]
+        lam[a1] = v / M[a1, a1]
+    for a1 in range(m - 1, -1, -1):
+        v = lam[a1]
+        for q in range(a1 + 1, m):
+            v -= M[q, a1] * lam[q]
+        lam[a1] = v
+    cn = 0.0
+    for q in range(m):
+        cn = max(cn, abs(c[q]))
+    for a1 in range(m):
+        if lam[a1] < -1e-10 * cn:
+            return False
+    # lam is in pivoted order: lam[a1] belongs to row Wo[piv[a1]]
+    return True
+
+
+@njit(cache=True)
+def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_out, st_out):
     N, m, n = J.shape
     nr = 2 * n + 2 * m
     d1 = m + 1
@@ -969,39 +1077,48 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, unobs, lo_o
     x = np.empty(d1)
     c = np.zeros(d1)
     W = np.empty(d1, np.int64)
+    M = np.empty((m, m))
+    piv = np.empty(m, np.int64)
+    # optimal working set of every objective (component i, min / max) at the previous sample
+    Wst = np.full((2 * m, m), -1, np.int64)
+    wval = np.zeros(2 * m, np.bool_)
     for k in range(N):
         tbk, Jk = tb[k], J[k]
-        # attempt 0 with the prior box; attempt 1 (only if that polytope is empty) without it
+        nrow, nj = _sm_rows(tbk, Jk, a[k], b[k], sig[k], fb, halfbox, kk, ridge, 0, A, bv, m, n)
+        # warm start: the previous sample's optimal vertices are usually optimal again
+        warm = True
+        for o in range(2 * m):
+            if not wval[o]:
+                warm = False
+                break
+        if warm:
+            for o in range(2 * m):
+                i = o // 2
+                sg = 1.0 if o % 2 == 0 else -1.0
+                for q in range(m):
+                    c[q] = 0.0
+                c[i] = sg
+                if not _vertex_check(A, bv, nrow - 1, m, c, Wst[o], x, lam, M, piv):
+                    warm = False
+                    break
+                val = x[i]
+                for a1 in range(m):
+                    row = Wst[o, piv[a1]]
+                    if row >= nj and lam[a1] > 1e-9:
+                        if ridge[(row - nj) // 2]:
+                            val = -sg * np.inf
+                if sg > 0:
+                    lo_out[k, i] = val
+                else:
+                    hi_out[k, i] = val
+            if warm:
+                st_out[k] = 0
+                continue
+        # cold path: phase 1 (with the prior box, else without it), then 2m LPs chained
         for attempt in range(2):
-            # rows: J_j^T F <= tb_j - a_j + k sig_j ; -J_j^T F <= -(tb_j - b_j - k sig_j) ; box rows
-            nrow = 0
-            for j in range(n):
-                for side in (1.0, -1.0):
-                    edge = a[k, j] if side > 0 else b[k, j]
-                    if not math.isfinite(edge):
-                        continue
-                    for i in range(m):
-                        A[nrow, i] = side * Jk[i, j]
-                    A[nrow, m] = -1.0  # phase-1 slack z
-                    bv[nrow] = side * (tbk[j] - edge) + kk * sig[k, j]
-                    nrow += 1
-            nj = nrow
-            for i in range(m):
-                # an artificial box far beyond any force keeps the LP bounded; an optimum held
-                # by it (positive multiplier) is reported as unbounded below
-                hb = halfbox[i] if not ridge[i] and attempt == 0 else BIG_BOX
-                for side in (1.0, -1.0):
-                    for q in range(d1):
-                        A[nrow, q] = 0.0
-                    A[nrow, i] = side
-                    bv[nrow] = side * fb[i] + hb
-                    nrow += 1
-            for q in range(d1):
-                A[nrow, q] = 0.0
-            A[nrow, m] = -1.0
-            bv[nrow] = 0.0
-            nrow += 1
-            # phase 1: minimise z from (F_bar, z0)
+            if attempt == 1:
+                nrow, nj = _sm_rows(tbk, Jk, a[k], b[k], sig[k], fb, halfbox, kk, ridge, 1,
+                                    A, bv, m, n)  # fmt: skip
             z0 = 0.0
             for row in range(nj):
                 v = -bv[row]
@@ -1025,15 +1142,21 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, unobs, lo_o
             for i in range(m):
                 lo_out[k, i] = np.nan
                 hi_out[k, i] = np.nan
+            wval[:] = False
             continue
         # phase 2 in F alone (z fixed at 0: drop the z column; rows keep their order)
         nW = 0
         for i in range(m):
             for sg in (1.0, -1.0):
+                o = 2 * i + (0 if sg > 0 else 1)
                 for q in range(m):
                     c[q] = 0.0
                 c[i] = sg
                 st, nW = _lp_active_set(A, bv, nrow - 1, m, c, x, W, nW, G, lam, dirn, 50 * nrow)
+                wval[o] = st == 0 and nW == m and st_out[k] == 0
+                if wval[o]:
+                    for a1 in range(m):
+                        Wst[o, a1] = W[a1]
                 if st == 1:
                     val = -sg * np.inf
                 elif st != 0:
@@ -1205,8 +1328,7 @@ def intervals(
         st = np.zeros(N, np.int64)
         _set_membership_kernel(
             prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, 1.0 / np.sqrt(prob.w),
-            prob.prior_mean, np.where(ridge, 0.0, _halfbox(prob, kk)), kk, ridge, UNOBSERVABLE,
-            lo_m, hi_m, st,
+            prob.prior_mean, np.where(ridge, 0.0, _halfbox(prob, kk)), kk, ridge, lo_m, hi_m, st,
         )  # fmt: skip
     lo[:, prob.free] = lo_m
     hi[:, prob.free] = hi_m

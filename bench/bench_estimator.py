@@ -1,0 +1,127 @@
+"""Estimator speed: the exact batched solver of eq. (3) against the per-sample QP loop, intervals.
+
+Data: an IRB140 standing near the pose of SIMULATOR-NOTES.md (slow drift of q), bands
+``+-Fs = (10, 9, 8, 2.5, 2.5, 1.5) N·m``, noise ``0.03 Fs``, the friction held somewhere in the
+band and drifting, and pushes (half-sine, 1-2 s, up to 60 N in random directions) every ~4 s,
+so that a realistic mix of joints is inside / outside the band. The reference loops (quadprog,
+proxsuite through qpsolvers, per sample) run on a subset in the same process and are scaled to
+samples per second.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+FS = 250.0  # [Hz]
+BAND = np.array([10.0, 9.0, 8.0, 2.5, 2.5, 1.5])  # [N·m]
+PRIOR_SIGMA = np.array([20.0, 20.0, 20.0, 0.3, 0.3, 0.3])
+
+
+def push_data(N: int = 100_000, seed: int = 0) -> tuple[dict, np.ndarray]:
+    """Estimator inputs for N samples of a standing robot being pushed; returns (args, F_true)."""
+    from ditherlab.robot import RobotModel
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(N) / FS
+    q0 = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0])
+    q = q0 + 0.05 * np.sin(2 * np.pi * t[:, None] / 300.0 + rng.uniform(0, 6, 6))
+    J = RobotModel.from_spec("irb140").jacobian(q)  # (N, 6, n)
+    F = np.zeros((N, 6))
+    k = int(rng.integers(250, 750))
+    while k < N:
+        dur = int(rng.uniform(1.0, 2.0) * FS)
+        d = rng.normal(size=3)
+        mag = rng.uniform(0.0, 60.0)  # [N]
+        seg = np.sin(np.pi * np.arange(min(dur, N - k)) / dur)
+        F[k : k + len(seg), :3] = mag * seg[:, None] * d / np.linalg.norm(d)
+        k += dur + int(rng.uniform(2.0, 4.0) * FS)
+    # friction held in the band, drifting slowly; it cannot exceed the band
+    held = np.cumsum(rng.normal(size=(N, 6)) * 0.002, axis=0) + rng.uniform(-0.5, 0.5, 6)
+    tau_f = np.clip(held, -0.9, 0.9) * BAND
+    ext = np.einsum("kin,ki->kn", J, F)
+    sigma = 0.03 * BAND
+    tau_bar = ext + tau_f + rng.normal(size=(N, 6)) * sigma
+    args = dict(
+        tau_bar=tau_bar, J=J, tau_min=-BAND, tau_max=BAND, sigma=sigma,
+        prior_mean=np.zeros(6), prior_sigma=PRIOR_SIGMA,
+    )  # fmt: skip
+    return args, F
+
+
+def _subset(args: dict, rows) -> dict:
+    out = dict(args)
+    out["tau_bar"] = args["tau_bar"][rows]
+    out["J"] = args["J"][rows]
+    return out
+
+
+def _rate(fn, N: int, repeat: int = 3) -> tuple[float, object]:
+    best, out = np.inf, None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return N / best, out
+
+
+def run(quick: bool = False) -> list[dict]:
+    from ditherlab import estimator as E
+
+    N = 20_000 if quick else 100_000
+    args, _ = push_data(N)
+    E.estimate(**_subset(args, slice(0, 50)))  # compile / load the numba cache
+    E.intervals(**_subset(args, slice(0, 50)), method="set_membership")
+    E.intervals(**_subset(args, slice(0, 50)), method="profile")
+    rows = []
+    rate, sol = _rate(lambda: E.estimate(**args), N)
+    active = sol.active.mean()
+    rows.append(dict(name=f"estimate exact, {N} samples ({active:.0%} joint-samples active)",
+                     value=rate, unit="samples/s", target=">= 20x the QP loop; aim 1e6/s"))  # fmt: skip
+    prob = E.problem(**args)
+    krate, _ = _rate(lambda: E._solve_exact(prob), N)
+    rows.append(dict(name="  exact kernel alone (no validation/completion)", value=krate,
+                     unit="samples/s"))  # fmt: skip
+    best_ref = 0.0
+    for backend, M in (
+        ("quadprog", 2000 if not quick else 500),
+        ("proxsuite", 1000 if not quick else 200),
+    ):
+        if backend not in E.available_backends():
+            continue
+        sub = _subset(args, slice(0, N, N // M))
+        rref, ref = _rate(lambda sub=sub, backend=backend: E.estimate(**sub, backend=backend),
+                          len(sub["tau_bar"]), repeat=1)  # fmt: skip
+        ex = E.estimate(**sub)
+        dev = float(np.abs(ex.F - ref.F).max())
+        rows.append(dict(name=f"estimate {backend} loop (qpsolvers, per sample)", value=rref,
+                         unit="samples/s"))  # fmt: skip
+        rows.append(dict(name=f"  max |F_exact - F_{backend}| on {len(sub['tau_bar'])} samples",
+                         value=dev, unit="N"))  # fmt: skip
+        best_ref = max(best_ref, rref)
+    if best_ref:
+        rows[0]["reference"] = best_ref
+        rows[0]["ratio"] = rate / best_ref
+    for method in ("set_membership", "profile"):
+        r, _ = _rate(lambda method=method: E.intervals(**args, F_hat=sol.F, method=method), N,
+                     repeat=1)  # fmt: skip
+        rows.append(dict(name=f"intervals {method}, {N} samples", value=r, unit="samples/s",
+                         target=">= 1e5/s"))  # fmt: skip
+    M = 200 if quick else 400
+    prob_sub = E.problem(**_subset(args, slice(0, N, N // M)))
+    rref, _ = _rate(lambda: E.set_membership_reference(prob_sub), M, repeat=1)
+    rows[-2]["reference"] = rref
+    rows[-2]["ratio"] = rows[-2]["value"] / rref
+    from ditherlab import dither as D
+
+    t = np.arange(N) / FS
+    tau = args["tau_bar"] + D.square_wave(t, 80.0, 0.8 * BAND)
+    r, _ = _rate(lambda: D.extract(tau, t, period=2 * np.pi / 80.0), N)
+    rows.append(dict(name=f"dither.extract, {N} x 6 joints", value=r, unit="samples/s"))
+    return rows
+
+
+if __name__ == "__main__":
+    for row in run():
+        print(row)
