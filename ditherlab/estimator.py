@@ -992,20 +992,15 @@ def _sm_rows(tbk, Jk, ak, bk, sk, fb, halfbox, kk, ridge, attempt, A, bv, m, n):
 
 
 @njit(cache=True)
-def _vertex_check(A, bv, nrow, m, c, Wo, x, lam, M, piv):
-    """Is the vertex of the working set Wo (m rows) feasible and optimal for min c^T x?
-
-    Solves A_W x = b_W and A_W^T lam = -c by LU with partial pivoting; True when every row
-    holds (to 1e-9 relative) and every multiplier is >= 0 (to 1e-10).
-    """
-    for a1 in range(m):
-        for q in range(m):
-            M[a1, q] = A[Wo[a1], q]
-        piv[a1] = a1
+def _lu_rows(A, Wo, m, M, piv, tmp):
+    """LU with partial pivoting of the m x m matrix of rows A[Wo]; Wo is reordered to the pivot
+    order (so L U = A[Wo] afterwards). False if (numerically) singular."""
     big = 0.0
     for a1 in range(m):
         for q in range(m):
+            M[a1, q] = A[Wo[a1], q]
             big = max(big, abs(M[a1, q]))
+        piv[a1] = a1
     for col in range(m):
         pr = col
         for r in range(col + 1, m):
@@ -1015,53 +1010,108 @@ def _vertex_check(A, bv, nrow, m, c, Wo, x, lam, M, piv):
             return False
         if pr != col:
             for q in range(m):
-                tmp = M[col, q]
+                t = M[col, q]
                 M[col, q] = M[pr, q]
-                M[pr, q] = tmp
-            tmp2 = piv[col]
+                M[pr, q] = t
+            t2 = piv[col]
             piv[col] = piv[pr]
-            piv[pr] = tmp2
+            piv[pr] = t2
         for r in range(col + 1, m):
             f = M[r, col] / M[col, col]
             M[r, col] = f
             for q in range(col + 1, m):
                 M[r, q] -= f * M[col, q]
-    # x: L U x = P b
     for a1 in range(m):
-        v = bv[Wo[piv[a1]]]
-        for q in range(a1):
-            v -= M[a1, q] * x[q]
-        x[a1] = v
-    for a1 in range(m - 1, -1, -1):
-        v = x[a1]
-        for q in range(a1 + 1, m):
-            v -= M[a1, q] * x[q]
-        x[a1] = v / M[a1, a1]
-    for r in range(nrow):
-        v = -bv[r]
-        for q in range(m):
-            v += A[r, q] * x[q]
-        if v > 1e-9 * (1.0 + abs(bv[r])):
-            return False
-    # lam: (P^T L U)^T lam = -c  ->  U^T L^T (P lam) = -c
+        tmp[a1] = Wo[piv[a1]]
     for a1 in range(m):
-        v = -c[a1]
+        Wo[a1] = tmp[a1]
+    return True
+
+
+@njit(cache=True)
+def _lu_solve(M, m, rhs, out):
+    """out = (L U)^{-1} rhs."""
+    for a1 in range(m):
+        v = rhs[a1]
         for q in range(a1):
-            v -= M[q, a1] * lam[q]
-        lam[a1] = v / M[a1, a1]
+            v -= M[a1, q] * out[q]
+        out[a1] = v
     for a1 in range(m - 1, -1, -1):
-        v = lam[a1]
+        v = out[a1]
         for q in range(a1 + 1, m):
-            v -= M[q, a1] * lam[q]
-        lam[a1] = v
+            v -= M[a1, q] * out[q]
+        out[a1] = v / M[a1, a1]
+
+
+@njit(cache=True)
+def _lu_solve_t(M, m, rhs, out):
+    """out = (L U)^{-T} rhs."""
+    for a1 in range(m):
+        v = rhs[a1]
+        for q in range(a1):
+            v -= M[q, a1] * out[q]
+        out[a1] = v / M[a1, a1]
+    for a1 in range(m - 1, -1, -1):
+        v = out[a1]
+        for q in range(a1 + 1, m):
+            v -= M[q, a1] * out[q]
+        out[a1] = v
+
+
+@njit(cache=True)
+def _dual_vertex(A, bv, nrow, m, c, Wo, x, lam, M, piv, u, tmp, rhs, maxit):
+    """Dual simplex from the vertex Wo (m rows) for min c^T x subject to A x <= bv.
+
+    The previous sample's optimal vertex stays dual feasible (its multipliers depend on J and
+    c only) but the new torques move the right-hand sides: while a row is violated, it enters
+    and the row chosen by the dual ratio test leaves. Returns 0 optimal (x, lam, Wo), 1 the
+    polytope is empty, 2 gave up (singular, not dual feasible, iteration limit).
+    """
     cn = 0.0
     for q in range(m):
         cn = max(cn, abs(c[q]))
-    for a1 in range(m):
-        if lam[a1] < -1e-10 * cn:
-            return False
-    # lam is in pivoted order: lam[a1] belongs to row Wo[piv[a1]]
-    return True
+    for it in range(maxit):
+        if not _lu_rows(A, Wo, m, M, piv, tmp):
+            return 2
+        for a1 in range(m):
+            rhs[a1] = bv[Wo[a1]]
+        _lu_solve(M, m, rhs, x)
+        for a1 in range(m):
+            rhs[a1] = -c[a1]
+        _lu_solve_t(M, m, rhs, lam)
+        if it == 0:
+            for a1 in range(m):
+                if lam[a1] < -1e-10 * cn:
+                    return 2
+        worst = 0.0
+        r = -1
+        for row in range(nrow):
+            v = -bv[row]
+            an = 0.0
+            for q in range(m):
+                v += A[row, q] * x[q]
+                an += abs(A[row, q])
+            v /= an + 1e-300
+            if v > worst and v > 1e-9 * (1.0 + abs(bv[row])) / (an + 1e-300):
+                worst = v
+                r = row
+        if r < 0:
+            return 0
+        for q in range(m):
+            rhs[q] = A[r, q]
+        _lu_solve_t(M, m, rhs, u)
+        theta = np.inf
+        leave = -1
+        for a1 in range(m):
+            if u[a1] > 1e-12:
+                t = max(lam[a1], 0.0) / u[a1]
+                if t < theta:
+                    theta = t
+                    leave = a1
+        if leave < 0:
+            return 1
+        Wo[leave] = r
+    return 2
 
 
 @njit(cache=True)
@@ -1079,13 +1129,16 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
     W = np.empty(d1, np.int64)
     M = np.empty((m, m))
     piv = np.empty(m, np.int64)
+    tmpw = np.empty(m, np.int64)
+    u = np.empty(m)
+    rhs = np.empty(m)
     # optimal working set of every objective (component i, min / max) at the previous sample
     Wst = np.full((2 * m, m), -1, np.int64)
     wval = np.zeros(2 * m, np.bool_)
     for k in range(N):
         tbk, Jk = tb[k], J[k]
         nrow, nj = _sm_rows(tbk, Jk, a[k], b[k], sig[k], fb, halfbox, kk, ridge, 0, A, bv, m, n)
-        # warm start: the previous sample's optimal vertices are usually optimal again
+        # warm start: the previous sample's optimal vertices, repaired by dual simplex pivots
         warm = True
         for o in range(2 * m):
             if not wval[o]:
@@ -1098,12 +1151,17 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
                 for q in range(m):
                     c[q] = 0.0
                 c[i] = sg
-                if not _vertex_check(A, bv, nrow - 1, m, c, Wst[o], x, lam, M, piv):
+                for a1 in range(m):
+                    W[a1] = Wst[o, a1]
+                st = _dual_vertex(A, bv, nrow - 1, m, c, W, x, lam, M, piv, u, tmpw, rhs, 4 * m + 8)
+                if st != 0:
                     warm = False
                     break
+                for a1 in range(m):
+                    Wst[o, a1] = W[a1]
                 val = x[i]
                 for a1 in range(m):
-                    row = Wst[o, piv[a1]]
+                    row = W[a1]
                     if row >= nj and lam[a1] > 1e-9:
                         if ridge[(row - nj) // 2]:
                             val = -sg * np.inf
@@ -1112,7 +1170,7 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
                 else:
                     hi_out[k, i] = val
             if warm:
-                st_out[k] = 0
+                st_out[k] = 4
                 continue
         # cold path: phase 1 (with the prior box, else without it), then 2m LPs chained
         for attempt in range(2):
@@ -1197,6 +1255,21 @@ def _halfbox(prob: Problem, k: float) -> np.ndarray:
         return np.where(
             prob.p_true > 0, k / np.sqrt(np.where(prob.p_true > 0, prob.p_true, 1.0)), np.inf
         )
+
+
+def _set_membership(prob: Problem, level: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The numba set-membership bounds ``lo, hi (N, m)`` and a status per sample: 0 solved
+    cold with the prior box, 1 without it (empty with it), 2 empty (NaN), 3 failure (NaN),
+    4 solved by warm-started dual simplex pivots from the previous sample's vertices."""
+    ridge = prob.p_true == 0.0
+    kk = interval_k(level, prob.n, int((~ridge).sum()))
+    lo_m, hi_m = np.empty((prob.N, prob.m)), np.empty((prob.N, prob.m))
+    st = np.zeros(prob.N, np.int64)
+    _set_membership_kernel(
+        prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, 1.0 / np.sqrt(prob.w),
+        prob.prior_mean, np.where(ridge, 0.0, _halfbox(prob, kk)), kk, ridge, lo_m, hi_m, st,
+    )  # fmt: skip
+    return lo_m, hi_m, st
 
 
 def set_membership_reference(prob: Problem, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
@@ -1324,12 +1397,7 @@ def intervals(
             Fm, thr, ridge, UNOBSERVABLE, lo_m, hi_m, seg,
         )  # fmt: skip
     else:
-        kk = interval_k(level, prob.n, int((~ridge).sum()))
-        st = np.zeros(N, np.int64)
-        _set_membership_kernel(
-            prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, 1.0 / np.sqrt(prob.w),
-            prob.prior_mean, np.where(ridge, 0.0, _halfbox(prob, kk)), kk, ridge, lo_m, hi_m, st,
-        )  # fmt: skip
+        lo_m, hi_m, _ = _set_membership(prob, level)
     lo[:, prob.free] = lo_m
     hi[:, prob.free] = hi_m
     return lo, hi

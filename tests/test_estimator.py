@@ -414,3 +414,44 @@ def test_interval_bad_method_and_level():
         E.intervals(**args, method="bootstrap")
     with pytest.raises(ConfigError, match="interval level 1.5 is invalid"):
         E.intervals(**args, level=1.5)
+
+
+def smooth_series(seed=0, N=250, n=6):
+    """A time series: a slowly varying Jacobian, a push, held friction and fresh noise per sample."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(N) / 250.0
+    J0 = rng.normal(size=(6, n)) * np.array([0.4, 0.4, 0.4, 1, 1, 1])[:, None]
+    J = J0 + 0.02 * np.sin(t[:, None, None] * 3 + rng.uniform(0, 6, (1, 6, n)))
+    F = np.zeros((N, 6))
+    F[:, :3] = 40 * np.sin(np.pi * t / t[-1])[:, None] * rng.normal(size=3)
+    band = rng.uniform(1.0, 10.0, n)
+    tb = np.einsum("kin,ki->kn", J, F) + 0.5 * band * np.sin(t[:, None] + rng.uniform(0, 6, n))
+    sig = 0.03 * band
+    tb += rng.normal(size=(N, n)) * sig
+    args = dict(
+        tau_bar=tb, J=J, tau_min=-band, tau_max=band, sigma=sig, prior_mean=np.zeros(6),
+        prior_sigma=PAPER_PRIOR.copy(),
+    )  # fmt: skip
+    return args, F
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_set_membership_warm_start_matches_linprog_on_a_time_series(seed):
+    """On a smooth time series (the warm-started dual-simplex path) the bounds equal linprog's."""
+    args, _ = smooth_series(seed)
+    lo, hi = E.intervals(**args, method="set_membership")
+    prob = E.problem(**args)
+    assert (E._set_membership(prob, 0.95)[2] == 4).mean() > 0.5  # mostly the warm path
+    rlo, rhi = E.set_membership_reference(prob)
+    np.testing.assert_allclose(lo, rlo, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(hi, rhi, rtol=1e-8, atol=1e-8)
+
+
+def test_profile_on_a_time_series_matches_sample_by_sample():
+    """Profile intervals of a whole series equal those computed one sample at a time."""
+    args, _ = smooth_series(2, N=40)
+    lo, hi = E.intervals(**args, method="profile")
+    for k in range(0, 40, 7):
+        lo1, hi1 = E.intervals(**_sub(args, [k]), method="profile")
+        np.testing.assert_allclose(lo1[0], lo[k], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(hi1[0], hi[k], rtol=1e-9, atol=1e-9)
