@@ -258,8 +258,11 @@ def problem(
     free = free[psig[free] > 0]
     held = np.setdiff1d(np.arange(6), free)
     # The held components' torque moves into tau_bar:  tau_bar - J_held^T F_bar_held.
-    tb_red = tb - np.einsum("kin,i->kn", Jx[:, held, :], fbar[held])
-    Jf = np.ascontiguousarray(Jx[:, free, :])
+    if len(held):
+        tb_red = tb - np.einsum("kin,i->kn", Jx[:, held, :], fbar[held])
+        Jf = np.ascontiguousarray(Jx[:, free, :])
+    else:  # all six estimated: no copies
+        tb_red, Jf = np.ascontiguousarray(tb), np.ascontiguousarray(Jx)
     w = 1.0 / s**2
     with np.errstate(divide="ignore"):
         p_true = np.where(np.isinf(psig[free]), 0.0, 1.0 / psig[free] ** 2)
@@ -606,29 +609,59 @@ def available_backends() -> list[str]:
 # ----------------------------------------------------------------------------------- public
 
 
+@njit(cache=True)
+def _complete_kernel(tb, J, a, b, w, p, p_true, fb, Fm, tau_f, active, cost, kkt):
+    N, m, n = J.shape
+    grad = np.empty(m)
+    mag = np.empty(m)
+    for k in range(N):
+        c = 0.0
+        for i in range(m):
+            dev = Fm[k, i] - fb[i]
+            c += p_true[i] * dev * dev
+            grad[i] = p[k, i] * dev
+            mag[i] = p[k, i] * (abs(Fm[k, i]) + abs(fb[i]))
+        for j in range(n):
+            r = tb[k, j]
+            sz = abs(tb[k, j])
+            for i in range(m):
+                r -= J[k, i, j] * Fm[k, i]
+                sz += abs(J[k, i, j] * Fm[k, i])
+            tf = min(max(r, a[k, j]), b[k, j])
+            tau_f[k, j] = tf
+            d = r - tf
+            active[k, j] = d != 0.0
+            c += w[k, j] * d * d
+            sz += abs(tf)
+            for i in range(m):
+                grad[i] -= J[k, i, j] * w[k, j] * d
+                mag[i] += abs(J[k, i, j]) * w[k, j] * sz
+        cost[k] = c
+        e = 0.0
+        for i in range(m):
+            if mag[i] > 0.0:
+                e = max(e, abs(grad[i]) / mag[i])
+        kkt[k] = e
+
+
 def complete(prob: Problem, Fm: np.ndarray, iterations: np.ndarray | None = None) -> Solution:
-    """Turn the estimated components ``Fm (N, m)`` into a full :class:`Solution`."""
-    N, m = prob.N, prob.m
+    """Turn the estimated components ``Fm (N, m)`` into a full :class:`Solution`.
+
+    ``tau_f`` is the residual clipped into the band, ``active`` marks the joints outside it, and
+    ``kkt`` is the largest ``|df/dF_i|`` relative to the size of the numbers it is computed from
+    (``|J| w (|tau_bar| + |J^T F| + |tau_f|)`` and the prior term), so ~1e-16 is the float floor.
+    """
+    N, n = prob.N, prob.n
     F = np.broadcast_to(prob.full_mean, (N, 6)).copy()
     F[:, prob.free] = Fm
-    r = prob.tau_bar - np.einsum("kin,ki->kn", prob.J, Fm)  # [N·m]
-    tau_f = np.clip(r, prob.tau_min, prob.tau_max)
-    dist = r - tau_f
-    active = dist != 0.0
-    dev = Fm - prob.prior_mean
-    cost = (prob.w * dist**2).sum(axis=1) + (prob.p_true * dev**2).sum(axis=1)
-    # Gradient of f (with the ridge, the function actually minimised), relative to the size of
-    # the numbers it is computed from: |torque terms| * weight * |J|, so 1e-16 is the float floor.
-    grad = -np.einsum("kin,kn->ki", prob.J, prob.w * dist) + prob.p * dev
-    size = (
-        np.abs(prob.tau_bar) + np.abs(tau_f) + np.einsum("kin,ki->kn", np.abs(prob.J), np.abs(Fm))
-    )
-    mag = np.einsum("kin,kn->ki", np.abs(prob.J), prob.w * size) + prob.p * (
-        np.abs(Fm) + np.abs(prob.prior_mean)
-    )
-    with np.errstate(invalid="ignore", divide="ignore"):
-        kkt = np.where(mag > 0, np.abs(grad) / np.where(mag > 0, mag, 1.0), 0.0)
-    kkt = kkt.max(axis=1) if m else np.zeros(N)
+    tau_f = np.empty((N, n))
+    active = np.empty((N, n), np.bool_)
+    cost = np.empty(N)
+    kkt = np.empty(N)
+    _complete_kernel(
+        prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, prob.w, prob.p, prob.p_true,
+        prob.prior_mean, np.ascontiguousarray(Fm, dtype=float), tau_f, active, cost, kkt,
+    )  # fmt: skip
     its = np.zeros(N, np.int64) if iterations is None else np.asarray(iterations)
     return Solution(F=F, tau_f=tau_f, active=active, cost=cost, iterations=its, kkt=kkt)
 
