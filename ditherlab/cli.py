@@ -136,6 +136,7 @@ def view(
     recording: Annotated[Path, typer.Argument(help="Recording (.parquet, .csv, .mcap, bag).")],
     estimates: Annotated[Path | None, typer.Option("--estimates", help="Estimates of this recording (replay).")] = None,
     model: Annotated[Path | None, typer.Option("--model", help="Torque model (bands, residuals).")] = None,
+    diagnosis: Annotated[Path | None, typer.Option("--diagnosis", help="report.json of `diagnose -o`.")] = None,
     save: Annotated[Path | None, typer.Option("--save", help="Write a Rerun file (.rrd).")] = None,
     spawn: Annotated[bool, typer.Option("--spawn", help="Open the Rerun viewer.")] = False,
     serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
@@ -147,7 +148,8 @@ def view(
     if spawn and serve:
         raise DitherlabError("view: choose one of --spawn and --serve")
     mode = "spawn" if spawn else "serve" if serve else None
-    req = load_view_request(recording, estimates=estimates, model=model, save=save, mode=mode)
+    req = load_view_request(recording, estimates=estimates, model=model, diagnosis=diagnosis,
+                            save=save, mode=mode)
     with progress_bar("view", quiet) as progress:
         res = run_view(req, progress=progress)
     if res.path is not None:
@@ -173,3 +175,26 @@ def robot(
     model = RobotModel.from_spec(resolve_spec(spec, tool_frame=tool_frame))
     summary = model.describe(model.parse_pose(q))
     echo(json.dumps(summary, indent=1) if json_out else format_description(summary))
+
+
+# ---------------------------------------------------------------- diagnose (helper "diagnose")
+@app.command()
+def diagnose(
+    recordings: Annotated[list[Path], typer.Argument(help="Recordings (with an F/T sensor for the force error).")],
+    model: Annotated[Path, typer.Option("--model", help="Torque model (TOML); its history gains a row.")],
+    out: Annotated[Path | None, typer.Option("-o", "--out", help="Report folder (report.md, report.json, PNG figures).")] = None,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    no_history: Annotated[bool, typer.Option("--no-history", help="Do not append to the model's history.")] = False,
+    json_out: JsonFlag = False,
+    quiet: Quiet = False,
+) -> None:
+    """Where the model fails (residual vs noise floor, force error, worst windows) and which effect is missing."""
+    import json
+
+    from ditherlab.diagnose import diagnose_files
+
+    with progress_bar("diagnose", quiet or json_out) as progress:
+        d = diagnose_files(recordings, model, out_dir=out, read_options=_read_options(mapping, robot),
+                           history=not no_history, progress=progress)
+    echo(json.dumps(d.to_dict(), indent=1, default=float) if json_out else d.summary())

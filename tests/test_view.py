@@ -348,3 +348,103 @@ def test_progress_reaches_total(campaign, tmp_path):
     rl.save_view(campaign["rec"], tmp_path / "p.rrd", progress=lambda d, t: calls.append((d, t)))
     done = [d for d, _ in calls]
     assert done == sorted(done) and calls[-1][0] == calls[-1][1] > 0
+
+
+def test_residual_per_model_version_from_history(campaign, tmp_path):
+    """Each rebuildable version of the history gets its residual: v2 with ft_bias removes J^T bias."""
+    from ditherlab.model import Band, EffectSpec, TorqueModel
+
+    rec = campaign["rec"]
+    bias = {"f_x": 2.0, "f_y": -1.0, "f_z": 0.5, "m_x": 0.0, "m_y": 0.0, "m_z": 0.0}
+    model = TorqueModel(
+        robot="irb140",
+        n=6,
+        version=2,
+        regimes={"still": Band(-np.ones(6), np.ones(6), np.ones(6))},
+        effects=[EffectSpec("ft_bias", [], bias)],
+        history=[
+            {"version": 1, "effects": [], "torque_rms": [1.0] * 6},
+            {"version": 2, "effects": ["ft_bias"], "torque_rms": [0.5] * 6},
+            {"version": 3, "effects": ["viscous"], "torque_rms": [0.4] * 6},  # not rebuildable
+        ],
+    )
+    assert list(rl.model_versions(model)) == [1, 2]
+    out = tmp_path / "h.rrd"
+    rl.save_view(rec, out, model=model)
+    robot = rec.robot()
+    J, g = robot.jacobian(rec.q), robot.gravity(rec.q)
+    b = np.array(list(bias.values()))
+    v1 = rec.tau - g - np.einsum("nij,ni->nj", J, rec.wrench)
+    v2 = rec.tau - g - np.einsum("nij,ni->nj", J, rec.wrench - b)
+    _, r1 = rl.rrd_scalars(out, "joints/1/residual/v1")
+    _, r2 = rl.rrd_scalars(out, "joints/1/residual/v2")
+    np.testing.assert_allclose(r1[:, 0], v1[:, 0], atol=1e-9)
+    np.testing.assert_allclose(r2[:, 0], v2[:, 0], atol=1e-9)
+    assert np.abs(r1 - r2).max() > 0.1
+    c = rl.rrd_contents(out)
+    assert "joints/1/residual/v3" not in c
+    assert c["history/torque_rms/6"]["static"] == 1
+
+
+def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
+    """A diagnose report.json puts one entry per worst window with the suggested effect on that joint."""
+    from rerun.chunk import RrdReader
+
+    report = {
+        "recordings": [campaign["rec"].name],
+        "residual": {
+            "worst_windows": [
+                {
+                    "recording": campaign["rec"].name,
+                    "t0": 5.0,
+                    "t1": 6.0,
+                    "energy": 9.0,
+                    "worst_joint": 2,
+                    "worst_joint_ratio": 3.0,
+                },
+                {
+                    "recording": campaign["rec"].name,
+                    "t0": 2.5,
+                    "t1": 3.5,
+                    "energy": 4.0,
+                    "worst_joint": 5,
+                    "worst_joint_ratio": 2.0,
+                },
+            ]
+        },
+        "candidates": [
+            {
+                "effect": "payload",
+                "joints": [2, 3],
+                "suggested": True,
+                "explained_fraction": 0.4,
+                "text": "payload on joints 2, 3: explains 40.0 % (suggested)",
+            },
+            {
+                "effect": "viscous",
+                "joints": [5],
+                "suggested": False,
+                "explained_fraction": 0.01,
+                "text": "viscous on joint 5: explains 1.0 % (not suggested)",
+            },
+        ],
+    }
+    path = tmp_path / "report.json"
+    path.write_text(json.dumps(report))
+    out = tmp_path / "d.rrd"
+    r = cli("view", campaign["rec_path"], "--diagnosis", path, "--save", out, "-q")
+    assert r.code == 0, r.err
+    rows = []
+    for ch in RrdReader(str(out)).stream():
+        if ch.entity_path == "/diagnosis" and not ch.is_static:
+            d = ch.to_record_batch().to_pydict()
+            rows += [
+                (tt.total_seconds(), x[0])
+                for tt, x in zip(d["time"], d["TextLog:text"], strict=True)
+            ]
+    assert [tt for tt, _ in rows] == [2.5, 5.0]
+    assert "joint 2 at 3x the noise floor; suggested: payload on joints 2, 3" in rows[1][1]
+    assert "no suggested effect acts on this joint" in rows[0][1]
+    (tmp_path / "bad.json").write_text("{}")
+    r = cli("view", campaign["rec_path"], "--diagnosis", tmp_path / "bad.json", "--save", out, "-q")
+    assert r.code == 2 and "key 'candidates' is missing" in r.err

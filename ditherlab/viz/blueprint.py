@@ -60,14 +60,25 @@ def make_blueprint(
         ],
         name="Dither (Figs. 4, 5)",
     )
-    residual = rrb.Grid(
-        *[
-            rrb.TimeSeriesView(
-                origin=f"joints/{j}/residual",
-                name=f"joint {j}: residual per model version [N·m]",
-            )
-            for j in joints
-        ],
+    residual = rrb.Vertical(
+        rrb.Grid(
+            *[
+                rrb.TimeSeriesView(
+                    origin=f"joints/{j}/residual",
+                    name=f"joint {j}: residual per model version [N·m]",
+                )
+                for j in joints
+            ]
+        ),
+        rrb.Horizontal(
+            *[
+                rrb.BarChartView(
+                    origin=f"history/torque_rms/{j}", name=f"joint {j}: RMS per version [N·m]"
+                )
+                for j in joints
+            ]
+        ),
+        row_shares=[3, 1],
         name="Residuals",
     )
     forces = rrb.Vertical(
@@ -77,7 +88,13 @@ def make_blueprint(
         ],
         name="Forces (Figs. 6, 7)" + (f": {', '.join(variants)}" if variants else ""),
     )
-    info = rrb.TextDocumentView(origin="info", name="Info")
+    info = rrb.Tabs(
+        rrb.TextDocumentView(origin="info/recording", name="Recording"),
+        rrb.TextDocumentView(origin="info/diagnosis", name="Diagnosis"),
+        rrb.TextDocumentView(origin="info/history", name="Model history"),
+        rrb.TextDocumentView(origin="info/model", name="Model"),
+        name="Info",
+    )
     tabs = (
         [forces, torque, dither, residual, info]
         if has_wrench or variants

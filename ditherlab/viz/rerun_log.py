@@ -642,46 +642,97 @@ def _log_forces(log: _Logger, rec: Recording, estimates: EstimatesTable | None) 
 
 
 # ---------------------------------------------------------------------- residuals
-def _log_residuals(log: _Logger, rec: Recording, g: np.ndarray, model: TorqueModel | None) -> None:
-    """Friction residual per joint for every model version in the model's history.
+def model_versions(model: TorqueModel) -> dict[int, TorqueModel]:
+    """The model of every version in ``model.history`` that can be rebuilt exactly, and the model.
 
-    ``rho = tau - gravity - effects_torque(model_k) - external_torque(model_k, sensor_wrench)``:
-    needs the F/T sensor and :mod:`ditherlab.effects`. A history entry is replayed when it lists
-    the effects of its version (``effects``: list of ``{name, joints, params}``); the current model
-    is always shown.
+    ``add_effect`` appends an effect and keeps the earlier ones unchanged, so version k's effects
+    are the first ones of the current model when the names of its history row (``effects``) are
+    a prefix of the current names. Rows that are not (an effect replaced or removed since) are
+    left out. Bands do not enter the residual, so they are not rebuilt.
+
+    Returns
+    -------
+    dict version -> TorqueModel, in increasing version order
     """
-    if model is None or not rec.has_wrench:
-        return
-    from ditherlab.effects import effects_torque, external_torque, sensor_wrench
-    from ditherlab.model import EffectSpec
-
-    versions: dict[int, Any] = {}
+    names = model.effect_names()
+    out: dict[int, TorqueModel] = {}
     for h in model.history:
-        effs = h.get("effects") if isinstance(h, Mapping) else None
-        if not isinstance(effs, list) or "version" not in h:
+        if not isinstance(h, Mapping) or "version" not in h:
+            continue
+        effs = [e if isinstance(e, str) else e.get("name") for e in h.get("effects", [])]
+        if names[: len(effs)] != effs:
             continue
         m = model.copy()
-        m.effects = [
-            EffectSpec(e["name"], [int(x) for x in e.get("joints", [])], e.get("params", {}))
-            for e in effs
-            if isinstance(e, Mapping) and "name" in e
-        ]
+        m.effects = m.effects[: len(effs)]
         m.version = int(h["version"])
-        versions[m.version] = m
-    versions[model.version] = model
+        out[m.version] = m
+    out[model.version] = model
+    return dict(sorted(out.items()))
+
+
+def residual(rec: Recording, gravity: np.ndarray, model: TorqueModel) -> np.ndarray:
+    """Friction residual ``tau - gravity - effects_torque - external_torque(sensor_wrench)``.
+
+    Parameters
+    ----------
+    rec : recording with the F/T sensor columns
+    gravity : (N, n) [N·m]
+    model : TorqueModel (its effects, ``attenuation_lag`` and ``ft_bias`` included)
+
+    Returns
+    -------
+    (N, n) [N·m]
+    """
+    from ditherlab.effects import effects_torque, external_torque, sensor_wrench
+
+    ext = external_torque(model, rec, sensor_wrench(model, rec))
+    return rec.tau - gravity - effects_torque(model, rec) - ext
+
+
+def _log_residuals(log: _Logger, rec: Recording, g: np.ndarray, model: TorqueModel | None) -> None:
+    """Residual per joint for every rebuildable model version, and the history's RMS per version."""
+    import rerun as rr
+
+    if model is None:
+        return
     palette = [(200, 60, 60), (230, 150, 40), (60, 160, 60), (40, 110, 230), (140, 60, 200)]
-    for k, (ver, m) in enumerate(sorted(versions.items())):
-        rho = rec.tau - g - effects_torque(m, rec) - external_torque(m, rec, sensor_wrench(m, rec))
-        label = f"v{ver}: " + (" + ".join(m.effect_names()) or "base model")
-        for j in range(rec.n):
-            log.series(
-                f"joints/{j + 1}/residual/v{ver}",
-                rho[:, j],
-                names=label,
-                colors=[palette[k % len(palette)]],
-                widths=1.0,
-                thin=False,
-            )
+    if rec.has_wrench:
+        for k, (ver, m) in enumerate(model_versions(model).items()):
+            rho = residual(rec, g, m)
+            label = f"v{ver}: " + (" + ".join(m.effect_names()) or "base model")
+            for j in range(rec.n):
+                log.series(
+                    f"joints/{j + 1}/residual/v{ver}",
+                    rho[:, j],
+                    names=label,
+                    colors=[palette[k % len(palette)]],
+                    widths=1.0,
+                    thin=False,
+                )
+    rows = [h for h in model.history if isinstance(h, Mapping) and h.get("torque_rms")]
+    if not rows:
+        return
+    rms = np.array([h["torque_rms"] for h in rows], dtype=float)  # (versions, n) [N·m]
+    versions = np.array([float(h.get("version", i + 1)) for i, h in enumerate(rows)])
+    for j in range(rms.shape[1]):
+        log.stream.log(
+            f"history/torque_rms/{j + 1}",
+            rr.BarChart(rms[:, j], abscissa=versions, color=palette[j % len(palette)]),
+            static=True,
+        )
+    lines = [
+        "| version | effects | torque residual RMS per joint [N·m] | force RMS f_x f_y f_z [N] |",
+        "|---|---|---|---|",
+    ]
+    for h in rows:
+        fr = " ".join(f"{v:.3g}" for v in (h.get("force_rms") or [])[:3]) or "-"
+        lines.append(
+            f"| {h.get('version')} | {', '.join(h.get('effects', [])) or 'base'} | "
+            f"{' '.join(f'{v:.3g}' for v in h['torque_rms'])} | {fr} |"
+        )
+    log.stream.log(
+        "info/history", rr.TextDocument("\n".join(lines), media_type="text/markdown"), static=True
+    )
 
 
 # ---------------------------------------------------------------------- events
@@ -799,30 +850,72 @@ def find_pushes(
 
 
 # ---------------------------------------------------------------------- diagnosis
+def load_diagnosis(path: str | Path) -> dict[str, Any]:
+    """Read the ``report.json`` that ``ditherlab diagnose -o DIR`` writes (``Diagnosis.to_dict()``).
+
+    Raises
+    ------
+    FormatError
+        Missing file, not JSON, or no ``candidates`` list.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FormatError(f"{p}: no such diagnosis file")
+    try:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{p}: not a JSON diagnosis report ({exc})") from None
+    if not isinstance(d, dict) or not isinstance(d.get("candidates"), list):
+        raise FormatError(
+            f"{p}: key 'candidates' is missing, expected the report.json of `ditherlab diagnose -o`"
+        )
+    return d
+
+
 def _log_diagnosis(log: _Logger, rec: Recording, diagnosis: Any) -> None:
-    """Candidates of a diagnosis as text entries at their worst windows."""
+    """Diagnosis at its worst windows: one entry per window naming the worst joint and the
+    suggested effects that act on it; the ranked candidates as a document.
+
+    ``diagnosis`` is a :class:`ditherlab.diagnose.Diagnosis` or its ``to_dict()`` (report.json).
+    Windows of other recordings (by name) are skipped.
+    """
+    import rerun as rr
+
     if diagnosis is None:
         return
-    cands = getattr(diagnosis, "candidates", None)
-    if cands is None and isinstance(diagnosis, Mapping):
-        cands = diagnosis.get("candidates")
-    if not cands:
-        return
-    times, texts, levels = [], [], []
-    for rank, c in enumerate(cands, 1):
-        get = (
-            c.get if isinstance(c, Mapping) else lambda k, default=None, c=c: getattr(c, k, default)
+    d = diagnosis.to_dict() if hasattr(diagnosis, "to_dict") else dict(diagnosis)
+    cands = d.get("candidates") or []
+    windows = (d.get("residual") or {}).get("worst_windows") or []
+    recs = d.get("recordings") or []
+    mine = [
+        w
+        for w in windows
+        if len(recs) <= 1 or w.get("recording") in (rec.name, Path(rec.name or "").name)
+    ]
+    times, texts = [], []
+    for w in mine:
+        j = int(w["worst_joint"])
+        sugg = [
+            c for c in cands if c.get("suggested") and (not c.get("joints") or j in c["joints"])
+        ]
+        text = (
+            f"worst window t={w['t0']:.1f}..{w['t1']:.1f} s: joint {j} at "
+            f"{w['worst_joint_ratio']:.2g}x the noise floor"
         )
-        win = get("worst_window") or get("window")
-        t0 = float(win[0]) if win is not None else float(rec.t[0])
-        text = get("summary") or get("text") or f"{get('name')} on joints {get('joints')}"
-        times.append(t0)
-        texts.append(f"#{rank} {text}")
-        levels.append("WARN" if rank == 1 else "INFO")
+        text += (
+            ("; suggested: " + "; ".join(c["text"] for c in sugg))
+            if sugg
+            else ("; no suggested effect acts on this joint")
+        )
+        times.append(float(w["t0"]))
+        texts.append(text)
     order = np.argsort(times, kind="stable")
     log.text_log(
-        "diagnosis", np.array(times)[order], [texts[i] for i in order], [levels[i] for i in order]
+        "diagnosis", np.array(times)[order], [texts[i] for i in order], ["WARN"] * len(order)
     )
+    ranked = [f"{i}. {c['text']}" for i, c in enumerate(cands, 1)]
+    doc = "# Diagnosis\n\n" + ("\n".join(ranked) if ranked else "no candidates")
+    log.stream.log("info/diagnosis", rr.TextDocument(doc, media_type="text/markdown"), static=True)
 
 
 # ---------------------------------------------------------------------- text
@@ -1025,6 +1118,7 @@ class ViewRequest:
     save: Path | None = None
     mode: str | None = None
     inputs: list[Path] = field(default_factory=list)
+    diagnosis: dict[str, Any] | None = None
 
 
 @dataclass
@@ -1041,6 +1135,7 @@ def load_view_request(
     *,
     estimates: str | Path | None = None,
     model: str | Path | None = None,
+    diagnosis: str | Path | None = None,
     save: str | Path | None = None,
     mode: str | None = None,
 ) -> ViewRequest:
@@ -1073,12 +1168,13 @@ def load_view_request(
         raise ModelError(
             f"{model}: the model has {mdl.n} joints, the recording {recording} has {rec.n}"
         )
-    inputs = [Path(p) for p in (recording, estimates, model) if p is not None]
+    diag = load_diagnosis(diagnosis) if diagnosis is not None else None
+    inputs = [Path(p) for p in (recording, estimates, model, diagnosis) if p is not None]
     if save is not None:
         from ditherlab.io.atomic import check_not_input
 
         check_not_input(save, inputs)
-    return ViewRequest(rec, est, mdl, Path(save) if save is not None else None, mode, inputs)
+    return ViewRequest(rec, est, mdl, Path(save) if save is not None else None, mode, inputs, diag)
 
 
 def run_view(
@@ -1088,7 +1184,13 @@ def run_view(
     progress: Callable[[int, int], None] | None = None,
 ) -> ViewResult:
     """Write (``req.save``) or show (``req.mode``) the view of a checked request."""
-    kw = {"estimates": req.estimates, "model": req.model, "rate_3d": rate_3d, "progress": progress}
+    kw = {
+        "estimates": req.estimates,
+        "model": req.model,
+        "diagnosis": req.diagnosis,
+        "rate_3d": rate_3d,
+        "progress": progress,
+    }
     if req.save is not None:
         summary = save_view(req.rec, req.save, inputs=req.inputs, **kw)
         return ViewResult(summary, path=req.save)
