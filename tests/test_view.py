@@ -171,8 +171,10 @@ def test_thinned_extraction_reconstructs_the_column(campaign):
     assert len(tk) < len(t) / 5
     idx = np.searchsorted(t, tk - 1e-7)
     assert np.array_equal(np.interp(t, t[idx], vals[:, 0]), est["extract/upper_3"].to_numpy())
-    tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/dither/amplitude")
+    tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/dither/amplitude/extracted")
     np.testing.assert_array_equal(vals[:, 0], 2.5)
+    tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/dither/amplitude/amp_ref")
+    assert set(vals[:, 0]) == {0.0, 2.7} and len(tk) == 4  # a step: both ends of both runs
 
 
 def test_tau_bar_is_tau_minus_gravity(campaign):
@@ -448,3 +450,30 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
     (tmp_path / "bad.json").write_text("{}")
     r = cli("view", campaign["rec_path"], "--diagnosis", tmp_path / "bad.json", "--save", out, "-q")
     assert r.code == 2 and "key 'candidates' is missing" in r.err
+
+
+def test_fig4_signal_minus_gravity_and_shrunk_band(campaign, tmp_path):
+    """Fig. 4: the extracted signal minus gravity, J^T F of the sensor, and the still band shrunk by the amplitude under dither."""
+    from ditherlab.model import Band, TorqueModel
+
+    rec = campaign["rec"]
+    est = rl.load_estimates(campaign["est_path"]).data
+    model = TorqueModel(
+        robot="irb140", n=6, regimes={"still": Band(-4 * np.ones(6), 4.5 * np.ones(6), np.ones(6))}
+    )
+    out = tmp_path / "f4.rrd"
+    rl.save_view(rec, out, estimates=rl.load_estimates(campaign["est_path"]), model=model)
+    robot = rec.robot()
+    g = robot.gravity(rec.q)
+    t, v = rl.rrd_scalars(out, "joints/2/fig4/signal_bar")
+    idx = np.searchsorted(rec.t, t - 1e-7)
+    np.testing.assert_allclose(
+        v[:, 0], (est["extract/signal_2"].to_numpy() - g[:, 1])[idx], atol=1e-9
+    )
+    _, v = rl.rrd_scalars(out, "joints/2/tau_ext_sensor")
+    jtf = np.einsum("nij,ni->nj", robot.jacobian(rec.q), rec.wrench)
+    np.testing.assert_allclose(v[:, 0], jtf[:, 1], atol=1e-9)
+    t, v = rl.rrd_scalars(out, "joints/2/band/dither_shrunk")
+    before, during = v[t < 5.9], v[t > 6.2]
+    np.testing.assert_array_equal(np.unique(before, axis=0), [[-4.0, 4.5]])
+    np.testing.assert_array_equal(np.unique(during, axis=0), [[-1.5, 2.0]])

@@ -37,7 +37,12 @@ def make_blueprint(
         *[
             rrb.TimeSeriesView(
                 origin=f"joints/{j}",
-                contents=["$origin/tau", "$origin/tau_bar", "$origin/band/**"],
+                contents=[
+                    "$origin/tau",
+                    "$origin/tau_bar",
+                    "$origin/tau_ext_sensor",
+                    "$origin/band/**",
+                ],
                 name=f"joint {j}: tau, tau - gravity, band [N·m]",
             )
             for j in joints
@@ -46,15 +51,27 @@ def make_blueprint(
     )
     dither = rrb.Grid(
         *[
-            rrb.TimeSeriesView(
-                origin=f"joints/{j}",
-                contents=[
-                    "$origin/dither/**",
-                    "$origin/extract/**",
-                    "$origin/band/dither",
-                    "/events/dither_flag",
-                ],
-                name=f"joint {j}: dither and extraction [N·m]",
+            rrb.Vertical(
+                rrb.TimeSeriesView(
+                    origin=f"joints/{j}",
+                    contents=[
+                        "$origin/tau",
+                        "$origin/extract/**",
+                        "$origin/dither/centre/**",
+                        "$origin/dither/ffw",
+                    ],
+                    name=f"joint {j}: tau, upper/lower/signal, centre (Figs. 4, 5) [N·m]",
+                ),
+                rrb.TimeSeriesView(
+                    origin=f"joints/{j}/dither/amplitude",
+                    contents=["$origin/**", "/events/dither_flag"],
+                    name=f"joint {j}: dither amplitude, measured and reference (Fig. 5) [N·m]",
+                ),
+                rrb.TimeSeriesView(
+                    origin=f"joints/{j}",
+                    contents=["$origin/fig4/**", "$origin/band/**"],
+                    name=f"joint {j}: extracted signal - gravity, J^T F, bands (Fig. 4) [N·m]",
+                ),
             )
             for j in joints
         ],

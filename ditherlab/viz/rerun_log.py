@@ -67,6 +67,8 @@ SENSOR_COLOR = (30, 30, 30)
 AXIS_COLORS = {"x": (220, 50, 50), "y": (40, 170, 60), "z": (50, 90, 230)}
 REGIME_COLORS = {"still": (200, 60, 60), "dither": (60, 60, 200), "moving": (150, 150, 150)}
 _DITHER_COL = re.compile(r"^dither_(?P<name>[A-Za-z0-9_]+?)_(?P<j>\d+)$")
+#: Fig. 5 signals a simulator or controller may log: centre_ref_3, amp_meas_3, centre_ffw_3 ...
+_FIG5_COL = re.compile(r"^(?P<name>(?:centre|center|amp|amplitude)(?:_[a-z]+)?)_(?P<j>\d+)$")
 
 
 # ---------------------------------------------------------------------- estimates file
@@ -393,9 +395,11 @@ def log_view(
     _log_robot(log, rec, robot, estimates, rate_3d, force_scale)
     tick()
     g = robot.gravity(rec.q)  # (N, n) [N·m], shared by tau_bar and the residuals
-    _log_joints(log, rec, g, model)
+    tb = tau_bar(rec, g, model)
+    jtf = _external_sensor(rec, robot)
+    _log_joints(log, rec, tb, jtf, model)
     tick()
-    _log_dither(log, rec, estimates)
+    _log_dither(log, rec, estimates, tb, jtf, model)
     tick()
     _log_forces(log, rec, estimates)
     tick()
@@ -529,9 +533,21 @@ def tau_bar(rec: Recording, gravity: np.ndarray, model: TorqueModel | None = Non
     return out if eff is None else out - eff
 
 
-def _log_joints(log: _Logger, rec: Recording, g: np.ndarray, model: TorqueModel | None) -> None:
+def _external_sensor(rec: Recording, robot: Any) -> np.ndarray | None:
+    """``J(q)^T F_sensor`` (N, n) [N·m]: the joint torque of the sensed wrench, or None."""
+    if not rec.has_wrench:
+        return None
+    return np.einsum("nij,ni->nj", robot.jacobian(rec.q), rec.wrench)
+
+
+def _log_joints(
+    log: _Logger,
+    rec: Recording,
+    tb: np.ndarray,
+    jtf: np.ndarray | None,
+    model: TorqueModel | None,
+) -> None:
     tau = rec.tau
-    tb = tau_bar(rec, g, model)
     label = "tau - gravity" if model is None or not model.effects else "tau - gravity - effects"
     t = rec.t
     span = np.array([0, len(t) - 1]) if len(t) > 1 else np.array([0])
@@ -543,6 +559,15 @@ def _log_joints(log: _Logger, rec: Recording, g: np.ndarray, model: TorqueModel 
         log.series(
             f"{base}/tau_bar", tb[:, j], names=label, colors=[[0, 0, 0]], widths=1.5, thin=False
         )
+        if jtf is not None:
+            log.series(
+                f"{base}/tau_ext_sensor",
+                jtf[:, j],
+                names="J^T F (sensor)",
+                colors=[[0, 150, 150]],
+                widths=1.5,
+                thin=False,
+            )
         if model is None:
             continue
         for regime in ("still", "dither"):
@@ -561,52 +586,149 @@ def _log_joints(log: _Logger, rec: Recording, g: np.ndarray, model: TorqueModel 
             )
 
 
-def _log_dither(log: _Logger, rec: Recording, estimates: EstimatesTable | None) -> None:
+def dither_period(rec: Recording, estimates: EstimatesTable | None = None) -> float | None:
+    """The dither period [s] of a recording, or None when it has no dither.
+
+    In order: the estimates file's ``dither_period`` (what replay used), the metadata
+    (``dither.period`` [s] or ``dither.omega`` [rad/s], also under ``sim``), the feedforward's
+    square wave (:func:`ditherlab.dither.period_from_feedforward`).
+    """
+    if estimates is not None and estimates.meta.get("dither_period"):
+        return float(estimates.meta["dither_period"])
+    for d in (rec.meta.get("dither"), (rec.meta.get("sim") or {}).get("dither")):
+        if isinstance(d, Mapping):
+            if d.get("period"):
+                return float(d["period"])
+            if d.get("omega"):
+                return float(2 * np.pi / float(d["omega"]))
+    on = rec.dither
+    if rec.tau_ffw is None or (on is not None and not on.any()):
+        return None
+    from ditherlab.dither import period_from_feedforward
+
+    try:
+        return float(period_from_feedforward(rec.tau_ffw, rec.t))
+    except DitherlabError:
+        return None
+
+
+def _fig5_group(col: str, n: int) -> tuple[str, str, int] | None:
+    """Recording column -> (``centre``/``amplitude``/``other``, series name, joint) for Fig. 5."""
+    m = _DITHER_COL.match(col) or _FIG5_COL.match(col)
+    if m is None or not 1 <= int(m["j"]) <= n:
+        return None
+    name = m["name"]
+    if name.startswith(("centre", "center")):
+        group = "centre"
+    elif name.startswith("amp"):
+        group = "amplitude"
+    else:
+        group = "other"
+    return group, name, int(m["j"])
+
+
+def _log_dither(
+    log: _Logger,
+    rec: Recording,
+    estimates: EstimatesTable | None,
+    tb: np.ndarray,
+    jtf: np.ndarray | None,
+    model: TorqueModel | None,
+) -> None:
+    """Fig. 5 (centre and amplitude: measured, reference, feedforward) and Fig. 4 (upper, lower,
+    extracted signal; the signal minus gravity against J^T F of the sensor and the bands)."""
     ffw = rec.tau_ffw
     if ffw is not None:
         for j in range(rec.n):
             log.series(
-                f"joints/{j + 1}/dither/ffw",
-                ffw[:, j],
-                names="tau_ffw",
-                colors=[[150, 90, 200]],
-                widths=1.0,
+                f"joints/{j + 1}/dither/ffw", ffw[:, j], names="tau_ffw", colors=[[150, 150, 150]]
             )
+    shades = {"centre": (40, 110, 230), "amplitude": (230, 130, 30), "other": (120, 120, 120)}
     for col in rec.data.columns:
-        m = _DITHER_COL.match(str(col))
-        if m is None or not (1 <= int(m["j"]) <= rec.n):
+        hit = _fig5_group(str(col), rec.n)
+        if hit is None:
             continue
+        group, name, j = hit
+        light = "ref" in name or "ffw" in name or "cmd" in name
+        c = shades[group] if not light else tuple(int(x + (255 - x) * 0.5) for x in shades[group])
         vals = pd.to_numeric(rec.data[col], errors="coerce").to_numpy(dtype=float)
-        log.series(
-            f"joints/{int(m['j'])}/dither/{m['name']}", vals, names=m["name"], widths=1.5, step=True
-        )
-    if estimates is None:
+        log.series(f"joints/{j}/dither/{group}/{name}", vals, names=name, colors=[c], step=True)
+
+    period = dither_period(rec, estimates)
+    if period is None:
         return
-    d = estimates.data
+    from ditherlab.dither import dithered_band, extract
+
+    ext = extract(rec.tau, rec.t, period)
+    d = estimates.data if estimates is not None else None
     colors = {"upper": (220, 50, 50), "lower": (40, 170, 60), "signal": (0, 0, 0)}
+    still = model.regimes.get("still") if model is not None else None
+    on = _dither_window_on(rec, ext.window)
     for j in range(1, rec.n + 1):
-        cols = {s: f"extract/{s}_{j}" for s in EXTRACT_SIGNALS}
-        for s, c in cols.items():
-            if c in d.columns:
-                log.series(
-                    f"joints/{j}/extract/{s}",
-                    d[c].to_numpy(dtype=float),
-                    names=s,
-                    colors=[colors[s]],
-                    widths=1.5,
-                    step=True,
-                )
-        if cols["upper"] in d.columns and cols["lower"] in d.columns:
-            amp = (
-                d[cols["upper"]].to_numpy(dtype=float) - d[cols["lower"]].to_numpy(dtype=float)
-            ) / 2
-            log.series(
-                f"joints/{j}/dither/amplitude",
-                amp,
-                names="amplitude (measured)",
-                widths=1.5,
-                step=True,
+        sig: dict[str, np.ndarray] = {}
+        for s in EXTRACT_SIGNALS:
+            c = f"extract/{s}_{j}"
+            # The estimates file's own columns when present: the numbers replay used.
+            sig[s] = (
+                d[c].to_numpy(dtype=float)
+                if d is not None and c in d.columns
+                else (getattr(ext, s)[:, j - 1])
             )
+            log.series(f"joints/{j}/extract/{s}", sig[s], names=s, colors=[colors[s]], widths=1.5)
+        amp = (sig["upper"] - sig["lower"]) / 2
+        log.series(
+            f"joints/{j}/dither/amplitude/extracted",
+            amp,
+            names="amplitude (extracted)",
+            colors=[shades["amplitude"]],
+            widths=2.0,
+        )
+        log.series(
+            f"joints/{j}/dither/centre/extracted",
+            ext.centre[:, j - 1],
+            names="centre (extracted)",
+            colors=[shades["centre"]],
+            widths=2.0,
+        )
+        # Fig. 4, lower: the extracted signal in the estimator's units (gravity and effects off).
+        offset = rec.tau[:, j - 1] - tb[:, j - 1]  # gravity + effects [N·m]
+        log.series(
+            f"joints/{j}/fig4/signal_bar",
+            sig["signal"] - offset,
+            names="extracted signal - gravity",
+            colors=[[0, 0, 0]],
+            widths=2.0,
+        )
+        if jtf is not None:
+            log.series(
+                f"joints/{j}/fig4/tau_ext_sensor",
+                jtf[:, j - 1],
+                names="J^T F (sensor)",
+                colors=[[0, 150, 150]],
+                widths=1.5,
+                thin=False,
+            )
+        if still is not None and (model is None or "dither" not in model.regimes):
+            # The paper's rule (Fig. 4): the still band shrunk by the dither amplitude on each
+            # side, where the dither was on over the whole window; the still band elsewhere.
+            lo, hi = dithered_band(still.tau_min[j - 1], still.tau_max[j - 1], amp)
+            lo = np.where(on, lo, still.tau_min[j - 1])
+            hi = np.where(on, hi, still.tau_max[j - 1])
+            log.series(
+                f"joints/{j}/band/dither_shrunk",
+                np.column_stack([lo, hi]),
+                names=["shrunk band min", "shrunk band max"],
+                colors=[REGIME_COLORS["dither"]] * 2,
+            )
+
+
+def _dither_window_on(rec: Recording, window: int) -> np.ndarray:
+    """(N,) bool: the dither flag was on for each of the last ``window`` samples."""
+    on = rec.dither if rec.dither is not None else np.ones(len(rec), dtype=bool)
+    off = np.cumsum(np.r_[0, (~on).astype(np.int64)])
+    idx = np.arange(len(on))
+    lo = np.maximum(idx - window + 1, 0)
+    return (off[idx + 1] - off[lo] == 0) & (idx >= window - 1)
 
 
 # ---------------------------------------------------------------------- per force axis
