@@ -1,0 +1,258 @@
+"""Drive the compiled joint loop over a whole run: pinocchio dynamics in chunks, state, outputs.
+
+:class:`Engine` turns the parameter dict into the kernel's arrays, holds the state, and runs
+per-sample inputs through :func:`ditherlab.sim.plant.run_kernel` in chunks. Between chunks the
+link-side dynamics (inverse mass matrix, gravity and its gradient, tool Jacobian) are
+re-evaluated with pinocchio when the arm has moved more than ``timing.relinearise_tolerance``;
+within a chunk gravity is linearised in q.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ditherlab.sim import plant as K
+from ditherlab.sim.params import joint_array
+
+
+@dataclass
+class Inputs:
+    """Per-sample inputs of a run (N samples, n joints).
+
+    push : (N, 6) [N, N·m] wrench applied TO the tool point by the environment (base axes)
+    tau_ext : (N, n) [N·m] external torque applied directly at the joints (link side)
+    q_ref, dq_ref : (N, n) [rad], [rad/s] motor-angle reference (arm side) and its rate
+    kp_on : (N,) position loop enabled (Kp is 0 for dithering joints regardless)
+    dither_cmd : (N,) dither requested
+    fscale : (N, n) friction factor (1 = nominal), e.g. from joint temperature
+    noise : (N, n) [N·m] measurement noise added to the logged torque
+    """
+
+    push: np.ndarray
+    tau_ext: np.ndarray
+    q_ref: np.ndarray
+    dq_ref: np.ndarray
+    kp_on: np.ndarray
+    dither_cmd: np.ndarray
+    fscale: np.ndarray
+    noise: np.ndarray
+
+    @classmethod
+    def still(cls, n_samples: int, q0: np.ndarray) -> Inputs:
+        """Standing still at ``q0`` (n,), no push, no dither, no noise."""
+        n = len(q0)
+        return cls(
+            np.zeros((n_samples, 6)),
+            np.zeros((n_samples, n)),
+            np.tile(q0, (n_samples, 1)),
+            np.zeros((n_samples, n)),
+            np.ones(n_samples),
+            np.zeros(n_samples),
+            np.ones((n_samples, n)),
+            np.zeros((n_samples, n)),
+        )
+
+
+@dataclass
+class PlantExtras:
+    """Plant terms beyond the base model (set by hidden effects), per joint (n,)."""
+
+    load: np.ndarray | None = None  # band growth per |gear torque| [-]
+    stribeck: np.ndarray | None = None  # relative excess friction at zero speed [-]
+    stribeck_v: float = 0.02  # [rad/s]
+    ripple_amp: np.ndarray | None = None  # [N·m]
+    ripple_freq: np.ndarray | None = None  # [1/rad] periods per arm radian times 2 pi
+
+
+@dataclass
+class Outputs:
+    """Per-sample outputs (N samples, n joints); see :mod:`ditherlab.sim.plant` for meaning."""
+
+    tau: np.ndarray
+    q_motor: np.ndarray
+    dq_motor: np.ndarray
+    q_link: np.ndarray
+    tau_ffw: np.ndarray
+    centre_meas: np.ndarray
+    amp_meas: np.ndarray
+    centre_ref: np.ndarray
+    amp_ref: np.ndarray
+    centre_ffw: np.ndarray
+    amp_ffw: np.ndarray
+    dither: np.ndarray
+
+
+@dataclass
+class Engine:
+    """The simulator for one robot and parameter set.
+
+    Parameters
+    ----------
+    params : merged parameter dict (:func:`ditherlab.sim.params.load_params`)
+    robot : RobotModel the controller uses (gravity feedforward)
+    plant_robot : RobotModel of the true plant (differs with a hidden payload); default robot
+    extras : hidden plant terms
+    """
+
+    params: dict[str, Any]
+    robot: Any
+    plant_robot: Any = None
+    extras: PlantExtras = field(default_factory=PlantExtras)
+
+    def __post_init__(self) -> None:
+        if self.plant_robot is None:
+            self.plant_robot = self.robot
+        p, n = self.params, self.robot.n
+        self.n = n
+        fs = joint_array(p, "friction.static", n)
+        share = float(p["friction"]["motor_share"])
+        fc = fs * p["friction"]["coulomb_ratio"]
+        fv = joint_array(p, "friction.viscous", n)
+        jm = joint_array(p, "joints.motor_inertia", n)
+        kg = joint_array(p, "joints.gear_stiffness", n)
+        jp = np.zeros((K.N_JP, n))
+        jp[K.JM], jp[K.KG] = jm, kg
+        jp[K.CG] = 2.0 * p["joints"]["gear_damping_ratio"] * np.sqrt(kg * jm)
+        jp[K.FS_M], jp[K.FC_M], jp[K.FV_M] = share * fs, share * fc, share * fv
+        jp[K.FS_O], jp[K.FC_O], jp[K.FV_O] = (1 - share) * fs, (1 - share) * fc, (1 - share) * fv
+        jp[K.KP] = p["servo"]["kp"]
+        jp[K.KV], jp[K.KI] = joint_array(p, "servo.kv", n), joint_array(p, "servo.ki", n)
+        d = p["dither"]
+        jp[K.AMP_SP] = joint_array(p, "dither.amplitude_fraction", n) * fs
+        jp[K.AMP_CAP] = d["amplitude_cap"] * fs
+        jp[K.BAND] = 2.0 * fs
+        jp[K.DMASK] = np.asarray(d["joints"][:n], dtype=float)
+        ex = self.extras
+        jp[K.LOAD] = 0.0 if ex.load is None else ex.load
+        jp[K.STRIB] = 0.0 if ex.stribeck is None else ex.stribeck
+        jp[K.STRIB_V] = ex.stribeck_v
+        jp[K.RIP_A] = 0.0 if ex.ripple_amp is None else ex.ripple_amp
+        jp[K.RIP_F] = 0.0 if ex.ripple_freq is None else ex.ripple_freq
+        self.jp = jp
+        t = p["timing"]
+        fs_hz, servo_hz = float(t["sample_rate_hz"]), float(t["servo_rate_hz"])
+        nservo = round(servo_hz / fs_hz)
+        sp = np.zeros(K.N_SP)
+        sp[K.SP_DTS] = 1.0 / servo_hz
+        sp[K.SP_H] = sp[K.SP_DTS] / t["plant_substeps"]
+        sp[K.SP_NSERVO], sp[K.SP_NSUB] = nservo, t["plant_substeps"]
+        sp[K.SP_OMEGA] = d["frequency"]
+        period = 2 * np.pi / d["frequency"]
+        self.window = max(1, round(d["periods"] * period * fs_hz))
+        sp[K.SP_WIN] = self.window
+        sp[K.SP_UPD] = d["update_every"]
+        sp[K.SP_KC], sp[K.SP_KA] = d["centre_gain"], d["amplitude_gain"]
+        sp[K.SP_HOLD] = d["hold_fraction"]
+        sp[K.SP_RAMP] = max(1.0, d["ramp_s"] * fs_hz)
+        sp[K.SP_SWEEPS] = t["gauss_seidel_sweeps"]
+        self.sp = sp
+        self.sample_rate = fs_hz
+        self.fs, self.fc, self.fv = fs, fc, fv
+        self.output_inertia = joint_array(p, "joints.output_inertia", n)
+
+    # ------------------------------------------------------------------ state
+    def initial_state(self, q0: np.ndarray) -> dict[str, np.ndarray]:
+        """Standing still at motor angle ``q0`` (n,) [rad], the gear spring carrying gravity,
+        all friction stuck and unloaded."""
+        n = self.n
+        x = np.zeros((K.N_X, n))
+        g = self.plant_robot.gravity(q0)[0]
+        x[K.X_QM] = q0
+        x[K.X_Q] = q0 - g / self.jp[K.KG]
+        # the velocity integral carries what the controller's gravity model misses
+        x[K.X_I] = g - self.robot.gravity(q0)[0]
+        x[K.X_SM] = x[K.X_SO] = 1.0
+        return {
+            "x": x,
+            "ist": np.zeros(4, dtype=np.int64),
+            "fst": np.zeros(3),
+            "hist": np.zeros((n, self.window)),
+        }
+
+    def _dynamics(self, q_link: np.ndarray, q_motor: np.ndarray) -> tuple[np.ndarray, ...]:
+        n, eps = self.n, 1e-6
+        M = self.plant_robot.mass_matrix(q_link)[0] + np.diag(self.output_inertia)
+        W = np.linalg.inv(M)
+        qs = np.vstack([q_link, q_link + eps * np.eye(n)])
+        gp = self.plant_robot.gravity(qs)
+        Gp = ((gp[1:] - gp[0]) / eps).T  # dg_i/dq_k at [i, k]
+        qs = np.vstack([q_motor, q_motor + eps * np.eye(n)])
+        gc = self.robot.gravity(qs)
+        Gc = ((gc[1:] - gc[0]) / eps).T
+        JT = self.plant_robot.jacobian(q_link)[0].T.copy()
+        return W, gp[0].copy(), Gp, q_link.copy(), gc[0].copy(), Gc, q_motor.copy(), JT
+
+    # ------------------------------------------------------------------ run
+    def run(
+        self,
+        inputs: Inputs,
+        state: dict[str, np.ndarray],
+        *,
+        progress: Callable[[int, int], None] | None = None,
+        reference: bool = False,
+        chunk_callback: Callable[[int, int, dict[str, np.ndarray], np.ndarray], None] | None = None,
+    ) -> Outputs:
+        """Run all samples of ``inputs`` from ``state`` (updated in place).
+
+        Parameters
+        ----------
+        inputs : per-sample inputs (N samples)
+        state : from :meth:`initial_state`
+        progress : ``progress(done, total)`` in samples
+        reference : use the plain numpy step instead of the compiled kernel
+        chunk_callback : ``f(k0, k1, state, out)`` after every chunk (closed-loop scenarios may
+            modify the inputs of later samples in place)
+
+        Returns
+        -------
+        Outputs with arrays (N, n).
+        """
+        N, n = inputs.push.shape[0], self.n
+        out = np.zeros((K.N_OUT, N, n))
+        step = K.run_reference if reference else K.run_kernel
+        tol = float(self.params["timing"]["relinearise_tolerance"])
+        every = int(self.params["timing"]["dynamics_update_samples"])
+        x = state["x"]
+        dyn = self._dynamics(x[K.X_Q].copy(), x[K.X_QM].copy())
+        arrays = [
+            np.ascontiguousarray(a, dtype=float)
+            for a in (
+                inputs.push,
+                inputs.tau_ext,
+                inputs.q_ref,
+                inputs.dq_ref,
+                inputs.kp_on,
+                inputs.dither_cmd,
+                inputs.noise,
+                inputs.fscale,
+            )
+        ]
+        k0 = 0
+        last_report = 0
+        while k0 < N:
+            k1 = min(N, k0 + every)
+            if np.max(np.abs(x[K.X_Q] - dyn[3])) > tol or np.max(np.abs(x[K.X_QM] - dyn[6])) > tol:
+                dyn = self._dynamics(x[K.X_Q].copy(), x[K.X_QM].copy())
+            step(
+                self.jp,
+                self.sp,
+                *dyn,
+                *(a[k0:k1] for a in arrays),
+                x,
+                state["ist"],
+                state["fst"],
+                state["hist"],
+                out,
+                k0,
+            )
+            if chunk_callback is not None:
+                chunk_callback(k0, k1, state, out)
+            k0 = k1
+            if progress is not None and (k0 - last_report >= 2500 or k0 == N):
+                progress(k0, N)
+                last_report = k0
+        return Outputs(*(out[i] for i in range(K.O_DITHER)), out[K.O_DITHER, :, 0] > 0.5)
