@@ -486,16 +486,30 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
 # ---------------------------------------------------------------------------------- backends
 
 
+#: Samples per kernel call when a progress callback is given.
+CHUNK = 65536
+
+
+def _chunks(N: int, progress) -> list[slice]:
+    """Slices of the sample axis: one when there is no progress callback, else CHUNK each."""
+    if progress is None or N <= CHUNK:
+        return [slice(0, N)]
+    return [slice(k, min(N, k + CHUNK)) for k in range(0, N, CHUNK)]
+
+
 def _solve_exact(
-    prob: Problem, max_iter: int = 100, warm: bool = True
+    prob: Problem, max_iter: int = 100, warm: bool = True, progress=None
 ) -> tuple[np.ndarray, np.ndarray]:
     F = np.empty((prob.N, prob.m))
     it = np.zeros(prob.N, np.int64)
     if prob.N and prob.m:
-        _solve_exact_kernel(
-            prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, prob.w, prob.p,
-            prob.prior_mean, max_iter, warm, F, it,
-        )  # fmt: skip
+        for sl in _chunks(prob.N, progress):
+            _solve_exact_kernel(
+                prob.tau_bar[sl], prob.J[sl], prob.tau_min[sl], prob.tau_max[sl], prob.w[sl],
+                prob.p[sl], prob.prior_mean, max_iter, warm, F[sl], it[sl],
+            )  # fmt: skip
+            if progress is not None:
+                progress(sl.stop, prob.N)
     return F, it
 
 
@@ -562,7 +576,7 @@ QP_OPTIONS = {
 }
 
 
-def _solve_reference(prob: Problem, backend: str) -> tuple[np.ndarray, np.ndarray]:
+def _solve_reference(prob: Problem, backend: str, progress=None) -> tuple[np.ndarray, np.ndarray]:
     import qpsolvers
 
     solver, opts = QP_OPTIONS[backend]
@@ -583,18 +597,26 @@ def _solve_reference(prob: Problem, backend: str) -> tuple[np.ndarray, np.ndarra
         extra = getattr(sol, "extras", {}) or {}
         info = extra.get("info")
         it[k] = getattr(info, "iter", 0) if info is not None else 0
+        if progress is not None and (k + 1) % 1000 == 0:
+            progress(k + 1, prob.N)
+    if progress is not None:
+        progress(prob.N, prob.N)
     return F, it
 
 
-def _available() -> dict[str, Callable[[Problem], tuple[np.ndarray, np.ndarray]]]:
-    out: dict[str, Callable[[Problem], tuple[np.ndarray, np.ndarray]]] = {"exact": _solve_exact}
+def _available() -> dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]]:
+    out: dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
+        "exact": lambda prob, progress=None: _solve_exact(prob, progress=progress)
+    }
     try:
         import qpsolvers
     except ImportError:  # pragma: no cover - qpsolvers is a dependency
         return out
     for name, (solver, _) in QP_OPTIONS.items():
         if solver in qpsolvers.available_solvers:
-            out[name] = lambda prob, name=name: _solve_reference(prob, name)
+            out[name] = lambda prob, progress=None, name=name: _solve_reference(
+                prob, name, progress
+            )
     return out
 
 
@@ -676,6 +698,7 @@ def estimate(
     prior_sigma,
     components: Sequence[str] | None = None,
     backend: str = "exact",
+    progress: Callable[[int, int], None] | None = None,
 ) -> Solution:
     """Solve eq. (3) for every sample.
 
@@ -698,6 +721,8 @@ def estimate(
         ``prior_mean``.
     backend : {"exact", "proxsuite", "quadprog"}
         ``exact`` is the fast path; the others are the per-sample reference QP (qpsolvers).
+    progress : callable(done, total), optional
+        Called as samples are done (the exact path then works in chunks of :data:`CHUNK`).
 
     Returns
     -------
@@ -706,10 +731,12 @@ def estimate(
         ``kkt (N,)``.
     """
     prob = problem(tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components)
-    return solve(prob, backend)
+    return solve(prob, backend, progress)
 
 
-def solve(prob: Problem, backend: str = "exact") -> Solution:
+def solve(
+    prob: Problem, backend: str = "exact", progress: Callable[[int, int], None] | None = None
+) -> Solution:
     """Solve a prepared :class:`Problem` with one backend (see :func:`estimate`)."""
     backends = _available()
     if backend not in backends:
@@ -717,7 +744,7 @@ def solve(prob: Problem, backend: str = "exact") -> Solution:
             f"estimator: backend {backend!r} is not available; installed: "
             f"{', '.join(backends)} (the references need `pip install qpsolvers proxsuite quadprog`)"
         )
-    Fm, it = backends[backend](prob)
+    Fm, it = backends[backend](prob, progress=progress)
     return complete(prob, Fm, it)
 
 
@@ -1290,7 +1317,9 @@ def _halfbox(prob: Problem, k: float) -> np.ndarray:
         )
 
 
-def _set_membership(prob: Problem, level: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _set_membership(
+    prob: Problem, level: float, progress=None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The numba set-membership bounds ``lo, hi (N, m)`` and a status per sample: 0 solved
     cold with the prior box, 1 without it (empty with it), 2 empty (NaN), 3 failure (NaN),
     4 solved by warm-started dual simplex pivots from the previous sample's vertices."""
@@ -1298,10 +1327,15 @@ def _set_membership(prob: Problem, level: float) -> tuple[np.ndarray, np.ndarray
     kk = interval_k(level, prob.n, int((~ridge).sum()))
     lo_m, hi_m = np.empty((prob.N, prob.m)), np.empty((prob.N, prob.m))
     st = np.zeros(prob.N, np.int64)
-    _set_membership_kernel(
-        prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, 1.0 / np.sqrt(prob.w),
-        prob.prior_mean, np.where(ridge, 0.0, _halfbox(prob, kk)), kk, ridge, lo_m, hi_m, st,
-    )  # fmt: skip
+    sig = 1.0 / np.sqrt(prob.w)
+    half = np.where(ridge, 0.0, _halfbox(prob, kk))
+    for sl in _chunks(prob.N, progress):
+        _set_membership_kernel(
+            prob.tau_bar[sl], prob.J[sl], prob.tau_min[sl], prob.tau_max[sl], sig[sl],
+            prob.prior_mean, half, kk, ridge, lo_m[sl], hi_m[sl], st[sl],
+        )  # fmt: skip
+        if progress is not None:
+            progress(sl.stop, prob.N)
     return lo_m, hi_m, st
 
 
@@ -1371,6 +1405,7 @@ def intervals(
     method: str = "set_membership",
     level: float = 0.95,
     components: Sequence[str] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Confidence interval of every wrench component, per sample.
 
@@ -1391,6 +1426,8 @@ def intervals(
         ``-2 log`` of the likelihood times the prior with the friction profiled out in its band.
     level : float
         Confidence level in (0, 1).
+    progress : callable(done, total), optional
+        Called after each chunk of :data:`CHUNK` samples.
 
     Returns
     -------
@@ -1425,12 +1462,17 @@ def intervals(
 
         thr = float(chi2.ppf(level, 1))
         seg = np.zeros(N, np.int64)
-        _profile_kernel(
-            prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, prob.w, prob.p, prob.prior_mean,
-            Fm, thr, ridge, UNOBSERVABLE, lo_m, hi_m, seg,
-        )  # fmt: skip
+        Fm = np.ascontiguousarray(Fm)
+        for sl in _chunks(N, progress):
+            _profile_kernel(
+                prob.tau_bar[sl], prob.J[sl], prob.tau_min[sl], prob.tau_max[sl], prob.w[sl],
+                prob.p[sl], prob.prior_mean, Fm[sl], thr, ridge, UNOBSERVABLE, lo_m[sl],
+                hi_m[sl], seg[sl],
+            )  # fmt: skip
+            if progress is not None:
+                progress(sl.stop, N)
     else:
-        lo_m, hi_m, _ = _set_membership(prob, level)
+        lo_m, hi_m, _ = _set_membership(prob, level, progress)
     lo[:, prob.free] = lo_m
     hi[:, prob.free] = hi_m
     return lo, hi
