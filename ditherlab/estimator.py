@@ -520,10 +520,10 @@ def qp_matrices(prob: Problem, k: int) -> tuple[np.ndarray, ...]:
     torque in noise units), so the Hessian is diagonal and the band becomes the rows
     ``lo <= v - A y <= hi`` with ``A = diag(1/sigma) J^T diag(c)``. The cost divided by ``S^2``
     is ``|t - v|^2 + sum_i p_i c_i^2 y_i^2`` with ``t = (tau_bar - J^T F_bar) / (S sigma)``.
-    ``c_i`` is the prior sigma (unit Hessian) where the prior is finite and
-    ``1 / sqrt(p_i + sum_j w_j J_ij^2)`` where it is the ridge; ``S`` makes ``t`` and the bounds
-    O(1). (The textbook form in ``(F, tau_f)`` has a condition number ~ w J^2 / p, 1e11 with
-    tiny noise, on which ProxQP at eps_abs = 1e-10 is off by tens of newtons.)
+    ``c_i = 1 / sqrt(p_i)`` (the prior sigma, or the ridge's) makes the Hessian the identity;
+    ``S`` makes ``t`` and the bounds O(1). (The textbook form in ``(F, tau_f)`` has a condition
+    number ~ w J^2 / p, 1e11 with tiny noise, on which ProxQP at eps_abs = 1e-10 is off by tens
+    of newtons.)
 
     Returns
     -------
@@ -534,8 +534,7 @@ def qp_matrices(prob: Problem, k: int) -> tuple[np.ndarray, ...]:
     m, n = prob.m, prob.n
     J, w, p = prob.J[k], prob.w[k], prob.p[k]
     sig = 1.0 / np.sqrt(w)
-    ridge = prob.p_true == 0.0
-    c = np.where(ridge, 1.0 / np.sqrt(p + (J**2 * w).sum(axis=1)), 1.0 / np.sqrt(p))
+    c = 1.0 / np.sqrt(p)
     t = (prob.tau_bar[k] - J.T @ prob.prior_mean) / sig
     lo = prob.tau_min[k] / sig
     hi = prob.tau_max[k] / sig

@@ -130,8 +130,6 @@ def _cost(args, F):
 @pytest.mark.parametrize("backend", REFERENCES)
 def test_exact_matches_reference_qp(case, backend):
     """The exact solver and the per-sample reference QP give the same F to 1e-6 N (relative)."""
-    if backend == "proxsuite" and case == "no_prior_on_forces":
-        pytest.skip("ProxQP does not converge on the 1e-12 ridge of a prior-less component")
     args = _case(case)
     ex = E.estimate(**args, backend="exact")
     ref = E.estimate(**args, backend=backend)
