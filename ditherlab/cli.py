@@ -198,3 +198,25 @@ def diagnose(
         d = diagnose_files(recordings, model, out_dir=out, read_options=_read_options(mapping, robot),
                            history=not no_history, progress=progress)
     echo(json.dumps(d.to_dict(), indent=1, default=float) if json_out else d.summary())
+
+
+# ---------------------------------------------------------------- simulate (helper "sim")
+@app.command()
+def simulate(
+    scenario: Annotated[str, typer.Argument(help="push-campaign or lead-through.")],
+    out: OutPath,
+    seed: Seed = 0,
+    config: Annotated[Path | None, typer.Option("--config", help="TOML overriding the built-in IRB140 parameters.")] = None,
+    dither: Annotated[bool, typer.Option("--dither/--no-dither", help="Dither while standing still.")] = True,
+    hidden: Annotated[list[str] | None, typer.Option("--hidden", help="Inject an effect the base model lacks: NAME[:SIZE], repeatable.")] = None,
+    pushes_per_direction: Annotated[int | None, typer.Option("--pushes-per-direction", help="Pushes per axis and sign (push-campaign).")] = None,
+    quiet: Quiet = False,
+) -> None:
+    """Simulate the built-in IRB140 (gear springs, stick-slip friction, servo, dither) to a recording."""
+    from ditherlab.io import write
+    from ditherlab.sim import simulate as run_sim
+
+    with progress_bar(f"simulate {scenario}", quiet) as progress:
+        rec = run_sim(scenario, seed=seed, dither=dither, config=config, hidden=hidden or [],
+                      progress=progress, pushes_per_direction=pushes_per_direction)
+    echo(f"wrote {write(rec, out)} ({rec.duration:.1f} s simulated)")

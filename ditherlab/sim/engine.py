@@ -175,15 +175,16 @@ class Engine:
 
     def _dynamics(self, q_link: np.ndarray, q_motor: np.ndarray) -> tuple[np.ndarray, ...]:
         n, eps = self.n, 1e-6
-        M = self.plant_robot.mass_matrix(q_link)[0] + np.diag(self.output_inertia)
-        W = np.linalg.inv(M)
+        # dedup=False: the plain evaluation path, without the robot model's result cache
         qs = np.vstack([q_link, q_link + eps * np.eye(n)])
-        gp = self.plant_robot.gravity(qs)
+        pl = self.plant_robot.evaluate(qs, ["gravity", "mass_matrix", "jacobian"], dedup=False)
+        W = np.linalg.inv(pl["mass_matrix"][0] + np.diag(self.output_inertia))
+        gp = pl["gravity"]
         Gp = ((gp[1:] - gp[0]) / eps).T  # dg_i/dq_k at [i, k]
         qs = np.vstack([q_motor, q_motor + eps * np.eye(n)])
-        gc = self.robot.gravity(qs)
+        gc = self.robot.evaluate(qs, ["gravity"], dedup=False)["gravity"]
         Gc = ((gc[1:] - gc[0]) / eps).T
-        JT = self.plant_robot.jacobian(q_link)[0].T.copy()
+        JT = pl["jacobian"][0].T.copy()
         return W, gp[0].copy(), Gp, q_link.copy(), gc[0].copy(), Gc, q_motor.copy(), JT
 
     # ------------------------------------------------------------------ run

@@ -1,0 +1,168 @@
+"""Hidden effects: physics the base torque model lacks, injected into the simulated plant.
+
+Each effect is written in the plant's own physical terms (a friction factor from a warming
+joint, a cogging torque on the motor rotor, a mass on the flange, a compliant support that
+carries part of the push, ...), never with the functions that diagnosis later fits
+(``ditherlab.effects`` is not imported here, and this module is not part of the effect library).
+The truth of every injected effect goes into ``meta["sim"]["hidden"]``.
+
+| name | SIZE | plant physics |
+|---|---|---|
+| ``load_friction`` | [-] N·m of band per N·m of gear torque | band and Coulomb level grow with the torque the gear transmits (mesh normal force) |
+| ``temperature_friction`` | [°C] warm-up rise | joints warm as ``T = T0 + SIZE (1 - exp(-t/tau))``; friction (band, Coulomb, viscous) falls by ``coefficient`` per °C; ``temp_j`` logged unless ``log_temperature`` is false |
+| ``position_ripple`` | [N·m] amplitude | cogging torque ``SIZE sin(Z qm)`` on the motor rotor, ``Z = periods_per_rev`` |
+| ``payload`` | [kg] | a point mass at ``com`` in the tool frame that the controller's model lacks |
+| ``attenuation_lag`` | [-] share | a compliant support carries ``SIZE`` of the push; the rest reaches the arm through a tool mount with a first-order lag ``time_constant``; the F/T sensor sees the whole push |
+| ``stribeck`` | [-] | slipping friction ``Fc (1 + SIZE exp(-(v/vs)^2))`` |
+| ``ft_bias`` | [N] | the F/T sensor's force channels carry a constant offset of this magnitude, direction drawn from the seed |
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ditherlab.errors import ConfigError
+
+#: Name -> unit of SIZE.
+EFFECTS: dict[str, str] = {
+    "load_friction": "N·m per N·m",
+    "temperature_friction": "°C",
+    "position_ripple": "N·m",
+    "payload": "kg",
+    "attenuation_lag": "share",
+    "stribeck": "share of Fc",
+    "ft_bias": "N",
+}
+
+
+@dataclass(frozen=True)
+class HiddenSpec:
+    """One requested hidden effect: ``name`` and ``size`` (None = the configured default)."""
+
+    name: str
+    size: float | None = None
+
+
+def parse_hidden(items: Iterable[Any]) -> list[HiddenSpec]:
+    """Parse ``"NAME[:SIZE]"`` strings, ``(name, size)`` pairs or :class:`HiddenSpec` objects.
+
+    Raises
+    ------
+    ConfigError
+        Unknown effect name, a size that is not a number, a negative size, or a repeated name.
+    """
+    specs: list[HiddenSpec] = []
+    for item in items:
+        if isinstance(item, HiddenSpec):
+            name, size = item.name, item.size
+        elif isinstance(item, str):
+            name, _, raw = item.partition(":")
+            try:
+                size = float(raw) if raw else None
+            except ValueError:
+                raise ConfigError(
+                    f"--hidden {item}: size '{raw}' is not a number; expected NAME[:SIZE]"
+                ) from None
+        else:
+            name, size = item
+            size = None if size is None else float(size)
+        if name not in EFFECTS:
+            known = ", ".join(EFFECTS)
+            raise ConfigError(f"--hidden {name}: unknown effect; expected one of {known}")
+        if size is not None and (not np.isfinite(size) or size < 0):
+            raise ConfigError(
+                f"--hidden {name}:{size:g}: negative size; expected a size >= 0 [{EFFECTS[name]}]"
+            )
+        if any(s.name == name for s in specs):
+            raise ConfigError(f"--hidden {name}: given twice; expected each effect once")
+        specs.append(HiddenSpec(name, size))
+    return specs
+
+
+@dataclass
+class HiddenPlant:
+    """What the hidden effects change in a run (arrays over N samples, n joints)."""
+
+    load: np.ndarray | None = None
+    stribeck: np.ndarray | None = None
+    stribeck_v: float = 0.02
+    ripple_amp: np.ndarray | None = None
+    ripple_freq: np.ndarray | None = None
+    fscale: np.ndarray | None = None  # (N, n) friction factor
+    temp: np.ndarray | None = None  # (N, n) [°C] logged temperature, or None
+    payload: dict[str, Any] | None = None
+    arm_share: float = 1.0  # share of the push reaching the arm
+    lag: float = 0.0  # [s] first-order lag of that share
+    ft_bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    truth: list[dict[str, Any]] = field(default_factory=list)
+
+    def arm_push(self, push: np.ndarray, dt: float) -> np.ndarray:
+        """The wrench that reaches the arm, (N, 6), from the push on the tool (N, 6)."""
+        out = push * self.arm_share
+        if self.lag > 0:
+            alpha = dt / (self.lag + dt)
+            y = np.zeros(6)
+            out = out.copy()
+            for k in range(len(out)):
+                y = y + alpha * (out[k] - y)
+                out[k] = y
+        return out
+
+
+def build_hidden(
+    specs: list[HiddenSpec],
+    params: Mapping[str, Any],
+    t: np.ndarray,
+    n: int,
+    rng: np.random.Generator,
+) -> HiddenPlant:
+    """Turn the requested effects into plant terms for a run at times ``t`` (N,) [s].
+
+    Sizes not given take ``params["hidden"][name]["size"]``; the other constants of each
+    effect come from the same table.
+    """
+    hp = HiddenPlant()
+    N = len(t)
+    for spec in specs:
+        cfg = dict(params["hidden"][spec.name])
+        size = float(cfg["size"] if spec.size is None else spec.size)
+        truth: dict[str, Any] = {"name": spec.name, "size": size, "unit": EFFECTS[spec.name],
+                                 "joints": list(range(1, n + 1))}
+        if spec.name == "load_friction":
+            hp.load = np.full(n, size)
+        elif spec.name == "temperature_friction":
+            temp = cfg["ambient"] + size * (1.0 - np.exp(-(t - t[0]) / cfg["time_constant"]))
+            temp = np.tile(temp[:, None], (1, n))
+            factor = np.clip(1.0 - cfg["coefficient"] * (temp - cfg["ambient"]), 0.05, None)
+            hp.fscale = factor if hp.fscale is None else hp.fscale * factor
+            hp.temp = temp if cfg["log_temperature"] else None
+            truth.update({k: cfg[k] for k in ("coefficient", "time_constant", "ambient",
+                                              "log_temperature")})
+        elif spec.name == "position_ripple":
+            hp.ripple_amp = np.full(n, size)
+            hp.ripple_freq = np.full(n, float(cfg["periods_per_rev"]))
+            truth["periods_per_rev"] = cfg["periods_per_rev"]
+        elif spec.name == "payload":
+            hp.payload = {"mass": size, "com": [float(c) for c in cfg["com"]]}
+            truth["com"] = hp.payload["com"]
+        elif spec.name == "attenuation_lag":
+            hp.arm_share = max(0.0, 1.0 - size)
+            hp.lag = float(cfg["time_constant"])
+            truth["time_constant"] = hp.lag
+        elif spec.name == "stribeck":
+            hp.stribeck = np.full(n, size)
+            hp.stribeck_v = float(cfg["velocity"])
+            truth["velocity"] = hp.stribeck_v
+        elif spec.name == "ft_bias":
+            d = rng.normal(size=3)
+            d /= np.linalg.norm(d)
+            hp.ft_bias = np.concatenate([size * d, np.zeros(3)])
+            truth["bias"] = [float(v) for v in hp.ft_bias]
+        hp.truth.append(truth)
+    if hp.fscale is None:
+        hp.fscale = np.ones((N, n))
+    return hp

@@ -1,0 +1,180 @@
+"""Scenarios: what the simulated robot is asked to do, and the Recording that comes out.
+
+``push-campaign``: standing in the paper's pose; a short excitation (every joint moves slowly
+back and forth, one sine cycle per entry of ``excitation_periods``) so that Coulomb and viscous
+friction can be identified from moving data; a still settle; the dither ramp (in the dithered
+run; the undithered run stands still for the same time); then smooth raised-cosine pushes along
+±x, ±y, ±z of the base frame in shuffled order, magnitudes stratified over
+[magnitude_min, magnitude_max], each followed by a rest; finally the dither is ramped off. The push
+plan and every noise sample depend only on the seed and the options, never on ``dither``, so a
+dithered and an undithered run with the same seed are paired. Friction state is carried from push
+to push.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from ditherlab.errors import ConfigError
+from ditherlab.recording import Recording
+from ditherlab.sim.engine import Engine, Inputs, PlantExtras
+from ditherlab.sim.hidden import HiddenSpec, build_hidden
+from ditherlab.sim.params import joint_array
+
+AXES = ("x", "y", "z")
+
+
+def _plan_pushes(pc: Mapping[str, Any], rng: np.random.Generator) -> list[dict[str, Any]]:
+    per = int(pc["pushes_per_direction"])
+    pushes = []
+    for axis in range(3):
+        for sign in (1, -1):
+            # stratified magnitudes: one draw in each of `per` equal bins
+            edges = np.linspace(pc["magnitude_min"], pc["magnitude_max"], per + 1)
+            mags = edges[:-1] + rng.random(per) * np.diff(edges)
+            for m in mags:
+                pushes.append({"axis": AXES[axis], "sign": sign, "magnitude": float(m)})
+    order = rng.permutation(len(pushes))
+    pushes = [pushes[i] for i in order]
+    for p in pushes:
+        p["duration"] = float(rng.uniform(pc["duration_min"], pc["duration_max"]))
+        p["rest"] = float(rng.uniform(pc["rest_min"], pc["rest_max"]))
+    return pushes
+
+
+def push_campaign(
+    engine_for: Callable[[Any], Engine],
+    params: dict[str, Any],
+    *,
+    seed: int,
+    dither: bool,
+    hidden: list[HiddenSpec],
+    progress: Callable[[int, int], None] | None,
+    robot: Any,
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Simulate the push campaign; returns (columns for Recording.from_arrays, meta["sim"] part).
+
+    Parameters
+    ----------
+    engine_for : builds the Engine for a HiddenPlant
+    params : merged parameters
+    seed : random seed (push plan, noise, hidden-effect draws)
+    dither : dither on after the excitation
+    hidden : hidden effects to inject
+    progress : ``progress(done, total)``
+    robot : the controller's RobotModel
+    """
+    pc = params["push_campaign"]
+    fs_hz = float(params["timing"]["sample_rate_hz"])
+    dt = 1.0 / fs_hz
+    n = robot.n
+    seeds = np.random.SeedSequence(seed).spawn(3)
+    plan_rng, noise_rng, hidden_rng = (np.random.default_rng(s) for s in seeds)
+    pushes = _plan_pushes(pc, plan_rng)
+
+    amp = float(pc["excitation_amplitude"])
+    periods = [float(T) for T in pc["excitation_periods"]]
+    if any(h.name == "position_ripple" for h in hidden):
+        # ripple shows only in motion: sweep several ripple periods
+        amp, periods = max(amp, 0.35), periods * 2
+    t_exc = float(sum(periods))
+    ramp = float(params["dither"]["ramp_s"])
+    settle = float(pc["settle_s"])
+    t_dither_on = t_exc + settle
+    t = t_dither_on + ramp + settle
+    for p in pushes:
+        p["t0"] = t
+        t += p["duration"] + p["rest"]
+    t_dither_off = t
+    t_end = t + ramp + 0.5
+    N = int(np.ceil(t_end * fs_hz))
+    tt = np.arange(N) * dt
+
+    q0 = np.asarray(params["pose"]["q0"], dtype=float)[:n]
+    q_ref = np.tile(q0, (N, 1))
+    dq_ref = np.zeros((N, n))
+    t0 = 0.0
+    for T in periods:
+        m = (tt >= t0) & (tt < t0 + T)
+        ph = 2 * np.pi * (tt[m] - t0) / T
+        q_ref[m] += amp * np.sin(ph)[:, None]
+        dq_ref[m] += (amp * 2 * np.pi / T * np.cos(ph))[:, None]
+        t0 += T
+
+    push = np.zeros((N, 6))
+    push_id = np.full(N, -1, dtype=np.int64)
+    for i, p in enumerate(pushes):
+        m = (tt >= p["t0"]) & (tt < p["t0"] + p["duration"])
+        shape = 0.5 * (1 - np.cos(2 * np.pi * (tt[m] - p["t0"]) / p["duration"]))
+        push[m, AXES.index(p["axis"])] += p["sign"] * p["magnitude"] * shape
+        push_id[m] = i
+
+    hp = build_hidden(hidden, params, tt, n, hidden_rng)
+    engine = engine_for(hp)
+    fs = engine.fs
+    noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * fs
+    ft_noise = noise_rng.normal(size=(N, 6)) * np.r_[
+        np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])]
+
+    dcmd = np.zeros(N)
+    if dither:
+        dcmd[(tt >= t_dither_on) & (tt < t_dither_off)] = 1.0
+    inputs = Inputs(push=hp.arm_push(push, dt), tau_ext=np.zeros((N, n)), q_ref=q_ref,
+                    dq_ref=dq_ref, kp_on=np.ones(N), dither_cmd=dcmd, fscale=hp.fscale,
+                    noise=noise)
+    state = engine.initial_state(q0)
+    out = engine.run(inputs, state, progress=progress)
+
+    wrench = -push + hp.ft_bias + ft_noise  # F = wrench the robot exerts = -push
+    cols = {"t": tt, "q": out.q_motor, "dq": out.dq_motor, "tau": out.tau,
+            "tau_ffw": out.tau_ffw, "wrench": wrench, "dither": out.dither, "temp": hp.temp,
+            "extra": {"push": push_id}}
+    on = out.dither & (tt >= t_dither_on + ramp + settle)
+    dsp = joint_array(params, "dither.amplitude_fraction", n) * fs
+    mask = np.asarray(params["dither"]["joints"][:n], dtype=bool)
+    sim_meta = {
+        "pushes": [{k: p[k] for k in ("t0", "duration", "rest", "axis", "sign", "magnitude")}
+                   for p in pushes],
+        "timeline": {"excitation_end": t_exc, "dither_on": t_dither_on if dither else None,
+                     "first_push": pushes[0]["t0"] if pushes else None,
+                     "dither_off": t_dither_off if dither else None, "end": float(tt[-1])},
+        "excitation": {"amplitude": amp, "periods": periods},
+        "dither_amplitudes": {
+            "set_point": [float(v) if mk else 0.0 for v, mk in zip(dsp, mask, strict=True)],
+            "feedforward_mean": [float(out.amp_ffw[on, j].mean()) if on.any() and mask[j]
+                                 else 0.0 for j in range(n)],
+            "measured_mean": [float(out.amp_meas[on, j].mean()) if on.any() and mask[j]
+                              else 0.0 for j in range(n)],
+            "unit": "N·m (amplitude of the logged torque; feedforward = square-wave amplitude)",
+        },
+        "hidden": hp.truth,
+    }
+    return cols, sim_meta
+
+
+SCENARIOS = {"push-campaign": push_campaign}
+
+
+def check_scenario(name: str) -> None:
+    """Raise ConfigError for an unknown scenario name."""
+    if name not in SCENARIOS and name != "lead-through":
+        raise ConfigError(
+            f"scenario '{name}' is unknown; expected one of {', '.join([*SCENARIOS, 'lead-through'])}"
+        )
+
+
+def to_recording(cols: dict[str, Any], meta: dict[str, Any]) -> Recording:
+    """Build the Recording from scenario columns."""
+    return Recording.from_arrays(
+        cols["t"], cols["q"], cols["tau"], meta, dq=cols["dq"], tau_ffw=cols["tau_ffw"],
+        wrench=cols["wrench"], temp=cols["temp"], dither=cols["dither"], extra=cols["extra"],
+        name="sim")
+
+
+def plant_extras(hp: Any) -> PlantExtras:
+    """Hidden plant terms for the Engine."""
+    return PlantExtras(load=hp.load, stribeck=hp.stribeck, stribeck_v=hp.stribeck_v,
+                       ripple_amp=hp.ripple_amp, ripple_freq=hp.ripple_freq)
