@@ -822,12 +822,14 @@ def _hinv_col(R, i, m, y, x):
 def _profile_kernel(tb, J, a, b, w, p, fb, Fh, thr, ridge, unobs, lo_out, hi_out, seg_out):
     N, m, n = J.shape
     R = np.empty((m, m))
+    R0 = np.empty((m, m))
     u = np.empty(m)
     y = np.empty(m)
     v = np.empty(m)
     F = np.empty(m)
     r = np.empty(n)
     s = np.zeros(n, np.int8)
+    s0 = np.zeros(n, np.int8)
     maxseg = 4 * n + 8
     for k in range(N):
         tbk, Jk, ak, bk, wk, pk = tb[k], J[k], a[k], b[k], w[k], p[k]
@@ -839,18 +841,25 @@ def _profile_kernel(tb, J, a, b, w, p, fb, Fh, thr, ridge, unobs, lo_out, hi_out
                 scale += wk[j] * Jk[i, j] ** 2
         scale = scale / m if scale > 0.0 else 1.0
         far = unobs * math.sqrt(thr / scale)
+        # every path starts at F_hat with the same active set: factor it once per sample
+        _sides(tbk, Jk, ak, bk, Fh[k], m, n, s0)
+        _qr_factor(Jk, wk, pk, s0, m, n, R0, u)
         for i in range(m):
             for sg in (1.0, -1.0):
                 for q in range(m):
                     F[q] = Fh[k, q]
-                _sides(tbk, Jk, ak, bk, F, m, n, s)
+                for j in range(n):
+                    s[j] = s0[j]
                 pcur = f0
                 end = np.nan
                 nseg = 0
                 while nseg < maxseg:
                     nseg += 1
-                    _qr_factor(Jk, wk, pk, s, m, n, R, u)
-                    _hinv_col(R, i, m, y, v)
+                    if nseg == 1:
+                        _hinv_col(R0, i, m, y, v)
+                    else:
+                        _qr_factor(Jk, wk, pk, s, m, n, R, u)
+                        _hinv_col(R, i, m, y, v)
                     h = v[i]
                     for q in range(m):
                         v[q] /= h
@@ -1118,7 +1127,7 @@ def _lu_solve_t(M, m, rhs, out):
 
 
 @njit(cache=True)
-def _dual_vertex(A, bv, nrow, m, c, Wo, x, lam, M, piv, u, tmp, rhs, maxit):
+def _dual_vertex(A, bv, rn, nrow, m, c, Wo, x, lam, M, piv, u, tmp, rhs, maxit):
     """Dual simplex from the vertex Wo (m rows) for min c^T x subject to A x <= bv.
 
     The previous sample's optimal vertex stays dual feasible (its multipliers depend on J and
@@ -1146,14 +1155,13 @@ def _dual_vertex(A, bv, nrow, m, c, Wo, x, lam, M, piv, u, tmp, rhs, maxit):
         r = -1
         for row in range(nrow):
             v = -bv[row]
-            an = 0.0
             for q in range(m):
                 v += A[row, q] * x[q]
-                an += abs(A[row, q])
-            v /= an + 1e-300
-            if v > worst and v > 1e-9 * (1.0 + abs(bv[row])) / (an + 1e-300):
-                worst = v
-                r = row
+            if v > 1e-9 * (1.0 + abs(bv[row])):
+                v /= rn[row]  # violation in F units: the most violated row enters
+                if v > worst:
+                    worst = v
+                    r = row
         if r < 0:
             return 0
         for q in range(m):
@@ -1191,12 +1199,18 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
     tmpw = np.empty(m, np.int64)
     u = np.empty(m)
     rhs = np.empty(m)
+    rn = np.empty(nr + 1)
     # optimal working set of every objective (component i, min / max) at the previous sample
     Wst = np.full((2 * m, m), -1, np.int64)
     wval = np.zeros(2 * m, np.bool_)
     for k in range(N):
         tbk, Jk = tb[k], J[k]
         nrow, nj = _sm_rows(tbk, Jk, a[k], b[k], sig[k], fb, halfbox, kk, ridge, 0, A, bv, m, n)
+        for row in range(nrow):
+            v = 1e-300
+            for q in range(m):
+                v += abs(A[row, q])
+            rn[row] = v
         # warm start: the previous sample's optimal vertices, repaired by dual simplex pivots
         warm = True
         for o in range(2 * m):
@@ -1212,7 +1226,9 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
                 c[i] = sg
                 for a1 in range(m):
                     W[a1] = Wst[o, a1]
-                st = _dual_vertex(A, bv, nrow - 1, m, c, W, x, lam, M, piv, u, tmpw, rhs, 4 * m + 8)
+                st = _dual_vertex(
+                    A, bv, rn, nrow - 1, m, c, W, x, lam, M, piv, u, tmpw, rhs, 4 * m + 8
+                )
                 if st != 0:
                     warm = False
                     break
