@@ -1,0 +1,185 @@
+"""Tests of ditherlab.identify: the band-plus-noise maximum likelihood and the identify command."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import integrate
+from synthetic import moving_recording, push_recording
+
+from ditherlab.errors import RecordingError
+from ditherlab.identify import (
+    _nll_mix,
+    band_noise_logpdf,
+    causal_mean,
+    fit_band,
+    friction_residual,
+    identify,
+    sigma_from_differences,
+)
+from ditherlab.model import PAPER_PRIOR_SIGMA, TorqueModel
+
+
+@pytest.fixture(scope="module")
+def campaign():
+    rec, truth = push_recording(0)
+    return rec, truth
+
+
+@pytest.fixture(scope="module")
+def dither_campaign():
+    return push_recording(1, dither=True, magnitudes=(5.0, 10.0, 20.0, 40.0))
+
+
+def test_density_integrates_to_one():
+    """The uniform-convolved-with-Gaussian density integrates to 1, also in the Gaussian limit."""
+    for a, b, s in ((-2.0, 3.0, 0.3), (0.0, 1e-12, 0.5), (-1.0, 1.0, 5.0)):
+        val, _ = integrate.quad(
+            lambda x, a=a, b=b, s=s: np.exp(band_noise_logpdf(np.array([x]), a, b, s))[0],
+            -60,
+            60,
+            points=[a, b],
+            limit=200,
+        )
+        assert val == pytest.approx(1.0, abs=1e-7)
+
+
+def test_mixture_gradient_matches_finite_differences():
+    """The analytic gradient of the edge-atom likelihood equals central finite differences."""
+    rng = np.random.default_rng(0)
+    x = np.linspace(-3, 4, 200)
+    w = rng.uniform(0, 1, 200)
+    th = np.array([0.3, 2.0, np.log(0.4), -1.0, 0.5])
+    _, g = _nll_mix(th, x, w)
+    num = np.array(
+        [(_nll_mix(th + e, x, w)[0] - _nll_mix(th - e, x, w)[0]) / 2e-6 for e in np.eye(5) * 1e-6]
+    )
+    np.testing.assert_allclose(g, num, rtol=1e-5, atol=1e-8)
+
+
+def test_fit_band_recovers_iid_truth_jointly():
+    """Joint ML (sigma="ml", no atoms) recovers a, b, sigma of iid draws within 4 standard errors."""
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-5, 4, 40000) + rng.normal(0, 0.4, 40000)
+    fit = fit_band(x, sigma="ml", edges=False, n_boot=30, seed=1)
+    for est, se, true in (
+        (fit.a, fit.se_a, -5),
+        (fit.b, fit.se_b, 4),
+        (fit.sigma, fit.se_sigma, 0.4),
+    ):
+        assert se > 0
+        assert abs(est - true) < 4 * se + 1e-3
+
+
+def test_fit_band_piecewise_constant_friction():
+    """Friction held in blocks plus white noise: the default fit recovers edges and noise."""
+    rng = np.random.default_rng(5)
+    held = np.repeat(rng.uniform(-3.0, 2.0, 400), 125)
+    x = held + rng.normal(0, 0.1, held.size)
+    fit = fit_band(x, n_boot=30, seed=2, blocks=np.arange(x.size) // 1000)
+    assert fit.sigma == pytest.approx(0.1, rel=0.03)
+    assert abs(fit.a + 3.0) < 4 * fit.se_a + 0.02
+    assert abs(fit.b - 2.0) < 4 * fit.se_b + 0.02
+
+
+def test_fit_band_is_deterministic():
+    """The same data and seed give identical fits and standard errors."""
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-1, 1, 5000) + rng.normal(0, 0.1, 5000)
+    assert fit_band(x, n_boot=10, seed=4) == fit_band(x, n_boot=10, seed=4)
+
+
+def test_sigma_from_differences_lag():
+    """Lagged differences recover the noise of a running mean when the lag is its window."""
+    rng = np.random.default_rng(2)
+    e = rng.normal(0, 1.0, 100000)
+    m = causal_mean(e[:, None], 20)[:, 0]
+    assert sigma_from_differences(e) == pytest.approx(1.0, rel=0.02)
+    assert sigma_from_differences(m[20:], lag=20) == pytest.approx(1 / np.sqrt(20), rel=0.03)
+
+
+def test_identify_still_band_against_truth(campaign):
+    """On a synthetic push campaign the still bands of the pushed joints match the truth."""
+    rec, truth = campaign
+    model = identify([rec], n_boot=20, seed=0)
+    lo, hi, sig = truth["still"]
+    b = model.regimes["still"]
+    for j in range(3):  # joints 1-3 are swept across their whole band by the pushes
+        assert abs(b.tau_min[j] - lo[j]) < 4 * b.stderr["tau_min"][j] + 0.02 * (hi[j] - lo[j])
+        assert abs(b.tau_max[j] - hi[j]) < 4 * b.stderr["tau_max"][j] + 0.02 * (hi[j] - lo[j])
+    np.testing.assert_allclose(b.sigma, sig, rtol=0.05)
+    assert list(model.prior_sigma) == list(PAPER_PRIOR_SIGMA)
+    assert model.robot == "irb140" and model.n == 6
+
+
+def test_identify_dither_band_is_shrunk_band(dither_campaign):
+    """The dither regime, fitted on the extracted signal, is the band shrunk by the amplitude."""
+    rec, truth = dither_campaign
+    model = identify([rec], n_boot=10, seed=0)
+    lo, hi, _ = truth["dither"]
+    b = model.regimes["dither"]
+    for j in range(3):
+        assert b.tau_min[j] == pytest.approx(lo[j], abs=0.05)
+        assert b.tau_max[j] == pytest.approx(hi[j], abs=0.05)
+
+
+def test_identify_moving_coulomb_viscous():
+    """Moving segments give Coulomb and viscous friction and the band around them."""
+    rec, truth = moving_recording(0)
+    model = identify([rec], n_boot=10)
+    b = model.regimes["moving"]
+    np.testing.assert_allclose(b.coulomb, truth["coulomb"], rtol=0.05)
+    err = np.abs(b.viscous - truth["viscous"])
+    assert np.all(err < 4 * b.stderr["viscous"] + 0.05 * truth["viscous"])
+    np.testing.assert_allclose(b.sigma, truth["sigma"], rtol=0.05)
+
+
+def test_identify_model_round_trips(tmp_path, campaign):
+    """The identified model saves to TOML and loads back with the same bands and errors."""
+    rec, _ = campaign
+    model = identify([rec], n_boot=5)
+    p = model.save(tmp_path / "m.toml")
+    back = TorqueModel.load(p)
+    for name, band in model.regimes.items():
+        np.testing.assert_allclose(back.regimes[name].tau_min, band.tau_min)
+        np.testing.assert_allclose(back.regimes[name].stderr["tau_max"], band.stderr["tau_max"])
+
+
+def test_identify_without_sensor_names_the_way_out(campaign):
+    """Without F/T columns identify stops with one sentence naming --assume-no-force."""
+    rec, _ = campaign
+    bare = rec.with_data(rec.data.drop(columns=["f_x", "f_y", "f_z", "m_x", "m_y", "m_z"]))
+    with pytest.raises(RecordingError, match="identify needs a reference F/T sensor"):
+        identify([bare])
+    m = identify([bare.slice(0.0, 1.9)], assume_no_force=True, n_boot=0)
+    assert "still" in m.regimes
+    np.testing.assert_allclose(
+        friction_residual(bare, assume_no_force=True), bare.tau - bare.robot().gravity(bare.q)
+    )
+
+
+def test_cli_identify_writes_model(tmp_path, cli, campaign):
+    """`ditherlab identify` writes a loadable model and prints the bands."""
+    from ditherlab.io import write
+
+    rec, _ = campaign
+    src = write(rec, tmp_path / "push.parquet")
+    out = tmp_path / "model.toml"
+    r = cli("identify", src, "-o", out, "--bootstrap", "5", "-q")
+    assert r.code == 0, r.err
+    assert TorqueModel.load(out).regimes["still"].n == 6
+    assert "still" in r.out
+
+
+def test_cli_identify_without_sensor_exit_2(tmp_path, cli, campaign):
+    """identify on a recording without F/T columns: one line, exit 2, nothing written."""
+    from ditherlab.io import write
+
+    rec, _ = campaign
+    bare = rec.with_data(rec.data.drop(columns=["f_x", "f_y", "f_z", "m_x", "m_y", "m_z"]))
+    src = write(bare, tmp_path / "bare.parquet")
+    out = tmp_path / "model.toml"
+    r = cli("identify", src, "-o", out, "-q")
+    assert r.code == 2
+    assert r.err.count("\n") == 1 and "identify needs a reference F/T sensor" in r.err
+    assert not out.exists()
