@@ -200,6 +200,31 @@ def diagnose(
     echo(json.dumps(d.to_dict(), indent=1, default=float) if json_out else d.summary())
 
 
+# ---------------------------------------------------------------- identify, replay, report (helper "replay")
+@app.command()
+def identify(
+    recordings: Annotated[list[Path], typer.Argument(help="Push recordings with an F/T sensor (f_x..m_z).")],
+    out: OutPath,
+    model: Annotated[Path | None, typer.Option("--model", help="Base model: its prior and effects are kept, its bands re-fitted.")] = None,
+    add: Annotated[list[str] | None, typer.Option("--add", help="Fit one more effect (diagnose's library), repeatable.")] = None,
+    assume_no_force: Annotated[bool, typer.Option("--assume-no-force", help="No F/T sensor: you state that no external force acts; bands from rest periods.")] = False,
+    bootstrap: Annotated[int, typer.Option("--bootstrap", help="Bootstrap replicates for the standard errors.")] = 30,
+    seed: Seed = 0,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    quiet: Quiet = False,
+) -> None:
+    """Fit bands, noise (R_e) and sliding friction per joint and regime by maximum likelihood."""
+    from ditherlab.identify import identify_files, summary
+
+    with progress_bar("identify", quiet) as progress:
+        m = identify_files(recordings, out, base=model, add=add or [], assume_no_force=assume_no_force,
+                           n_boot=bootstrap, seed=seed, read_options=_read_options(mapping, robot),
+                           progress=progress)
+    echo(summary(m))
+    echo(f"wrote {out}")
+
+
 # ---------------------------------------------------------------- simulate (helper "sim")
 @app.command()
 def simulate(
