@@ -62,7 +62,9 @@ def simulate(
     from ditherlab.sim import scenarios as sc
 
     if scenario not in SCENARIOS:
-        raise ConfigError(f"scenario '{scenario}' is unknown; expected one of {', '.join(SCENARIOS)}")
+        raise ConfigError(
+            f"scenario '{scenario}' is unknown; expected one of {', '.join(SCENARIOS)}"
+        )
     specs = parse_hidden(hidden)
     table = scenario.replace("-", "_")
     overrides: dict[str, Any] = {}
@@ -91,13 +93,27 @@ def simulate(
         return Engine(params, robot, plant_robot, sc.plant_extras(hp))
 
     if scenario == "push-campaign":
-        cols, sim_meta = sc.push_campaign(engine_for, params, seed=int(seed), dither=bool(dither),
-                                          hidden=specs, progress=progress, robot=robot)
+        cols, sim_meta = sc.push_campaign(
+            engine_for,
+            params,
+            seed=int(seed),
+            dither=bool(dither),
+            hidden=specs,
+            progress=progress,
+            robot=robot,
+        )
     else:
         from ditherlab.sim.leadthrough import lead_through
 
-        cols, sim_meta = lead_through(engine_for, params, seed=int(seed), dither=bool(dither),
-                                      hidden=specs, progress=progress, robot=robot)
+        cols, sim_meta = lead_through(
+            engine_for,
+            params,
+            seed=int(seed),
+            dither=bool(dither),
+            hidden=specs,
+            progress=progress,
+            robot=robot,
+        )
     sim_meta_all = {
         "scenario": scenario,
         "seed": int(seed),
@@ -108,9 +124,13 @@ def simulate(
         "bands": _bands(params, robot.n),
         **sim_meta,
     }
-    meta = {"robot": "irb140", "sample_rate_hz": float(params["timing"]["sample_rate_hz"]),
-            "source": "sim", "notes": f"ditherlab simulate {scenario} seed={seed} "
-            f"dither={'on' if dither else 'off'}", "sim": sim_meta_all}
+    meta = {
+        "robot": "irb140",
+        "sample_rate_hz": float(params["timing"]["sample_rate_hz"]),
+        "source": "sim",
+        "notes": f"ditherlab simulate {scenario} seed={seed} dither={'on' if dither else 'off'}",
+        "sim": sim_meta_all,
+    }
     return sc.to_recording(cols, meta)
 
 

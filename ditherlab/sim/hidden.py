@@ -130,8 +130,12 @@ def build_hidden(
     for spec in specs:
         cfg = dict(params["hidden"][spec.name])
         size = float(cfg["size"] if spec.size is None else spec.size)
-        truth: dict[str, Any] = {"name": spec.name, "size": size, "unit": EFFECTS[spec.name],
-                                 "joints": list(range(1, n + 1))}
+        truth: dict[str, Any] = {
+            "name": spec.name,
+            "size": size,
+            "unit": EFFECTS[spec.name],
+            "joints": list(range(1, n + 1)),
+        }
         if spec.name == "load_friction":
             hp.load = np.full(n, size)
         elif spec.name == "temperature_friction":
@@ -140,8 +144,9 @@ def build_hidden(
             factor = np.clip(1.0 - cfg["coefficient"] * (temp - cfg["ambient"]), 0.05, None)
             hp.fscale = factor if hp.fscale is None else hp.fscale * factor
             hp.temp = temp if cfg["log_temperature"] else None
-            truth.update({k: cfg[k] for k in ("coefficient", "time_constant", "ambient",
-                                              "log_temperature")})
+            truth.update(
+                {k: cfg[k] for k in ("coefficient", "time_constant", "ambient", "log_temperature")}
+            )
         elif spec.name == "position_ripple":
             hp.ripple_amp = np.full(n, size)
             hp.ripple_freq = np.full(n, float(cfg["periods_per_rev"]))

@@ -116,38 +116,65 @@ def push_campaign(
     engine = engine_for(hp)
     fs = engine.fs
     noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * fs
-    ft_noise = noise_rng.normal(size=(N, 6)) * np.r_[
-        np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])]
+    ft_noise = (
+        noise_rng.normal(size=(N, 6))
+        * np.r_[
+            np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])
+        ]
+    )
 
     dcmd = np.zeros(N)
     if dither:
         dcmd[(tt >= t_dither_on) & (tt < t_dither_off)] = 1.0
-    inputs = Inputs(push=hp.arm_push(push, dt), tau_ext=np.zeros((N, n)), q_ref=q_ref,
-                    dq_ref=dq_ref, kp_on=np.ones(N), dither_cmd=dcmd, fscale=hp.fscale,
-                    noise=noise)
+    inputs = Inputs(
+        push=hp.arm_push(push, dt),
+        tau_ext=np.zeros((N, n)),
+        q_ref=q_ref,
+        dq_ref=dq_ref,
+        kp_on=np.ones(N),
+        dither_cmd=dcmd,
+        fscale=hp.fscale,
+        noise=noise,
+    )
     state = engine.initial_state(q0)
     out = engine.run(inputs, state, progress=progress)
 
     wrench = -push + hp.ft_bias + ft_noise  # F = wrench the robot exerts = -push
-    cols = {"t": tt, "q": out.q_motor, "dq": out.dq_motor, "tau": out.tau,
-            "tau_ffw": out.tau_ffw, "wrench": wrench, "dither": out.dither, "temp": hp.temp,
-            "extra": {"push": push_id}}
+    cols = {
+        "t": tt,
+        "q": out.q_motor,
+        "dq": out.dq_motor,
+        "tau": out.tau,
+        "tau_ffw": out.tau_ffw,
+        "wrench": wrench,
+        "dither": out.dither,
+        "temp": hp.temp,
+        "extra": {"push": push_id},
+    }
     on = out.dither & (tt >= t_dither_on + ramp + settle)
     dsp = joint_array(params, "dither.amplitude_fraction", n) * fs
     mask = np.asarray(params["dither"]["joints"][:n], dtype=bool)
     sim_meta = {
-        "pushes": [{k: p[k] for k in ("t0", "duration", "rest", "axis", "sign", "magnitude")}
-                   for p in pushes],
-        "timeline": {"excitation_end": t_exc, "dither_on": t_dither_on if dither else None,
-                     "first_push": pushes[0]["t0"] if pushes else None,
-                     "dither_off": t_dither_off if dither else None, "end": float(tt[-1])},
+        "pushes": [
+            {k: p[k] for k in ("t0", "duration", "rest", "axis", "sign", "magnitude")}
+            for p in pushes
+        ],
+        "timeline": {
+            "excitation_end": t_exc,
+            "dither_on": t_dither_on if dither else None,
+            "first_push": pushes[0]["t0"] if pushes else None,
+            "dither_off": t_dither_off if dither else None,
+            "end": float(tt[-1]),
+        },
         "excitation": {"amplitude": amp, "periods": periods},
         "dither_amplitudes": {
             "set_point": [float(v) if mk else 0.0 for v, mk in zip(dsp, mask, strict=True)],
-            "feedforward_mean": [float(out.amp_ffw[on, j].mean()) if on.any() and mask[j]
-                                 else 0.0 for j in range(n)],
-            "measured_mean": [float(out.amp_meas[on, j].mean()) if on.any() and mask[j]
-                              else 0.0 for j in range(n)],
+            "feedforward_mean": [
+                float(out.amp_ffw[on, j].mean()) if on.any() and mask[j] else 0.0 for j in range(n)
+            ],
+            "measured_mean": [
+                float(out.amp_meas[on, j].mean()) if on.any() and mask[j] else 0.0 for j in range(n)
+            ],
             "unit": "N·m (amplitude of the logged torque; feedforward = square-wave amplitude)",
         },
         "hidden": hp.truth,
@@ -169,12 +196,26 @@ def check_scenario(name: str) -> None:
 def to_recording(cols: dict[str, Any], meta: dict[str, Any]) -> Recording:
     """Build the Recording from scenario columns."""
     return Recording.from_arrays(
-        cols["t"], cols["q"], cols["tau"], meta, dq=cols["dq"], tau_ffw=cols["tau_ffw"],
-        wrench=cols["wrench"], temp=cols["temp"], dither=cols["dither"], extra=cols["extra"],
-        name="sim")
+        cols["t"],
+        cols["q"],
+        cols["tau"],
+        meta,
+        dq=cols["dq"],
+        tau_ffw=cols["tau_ffw"],
+        wrench=cols["wrench"],
+        temp=cols["temp"],
+        dither=cols["dither"],
+        extra=cols["extra"],
+        name="sim",
+    )
 
 
 def plant_extras(hp: Any) -> PlantExtras:
     """Hidden plant terms for the Engine."""
-    return PlantExtras(load=hp.load, stribeck=hp.stribeck, stribeck_v=hp.stribeck_v,
-                       ripple_amp=hp.ripple_amp, ripple_freq=hp.ripple_freq)
+    return PlantExtras(
+        load=hp.load,
+        stribeck=hp.stribeck,
+        stribeck_v=hp.stribeck_v,
+        ripple_amp=hp.ripple_amp,
+        ripple_freq=hp.ripple_freq,
+    )
