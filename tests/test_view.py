@@ -163,18 +163,27 @@ def test_estimate_series_equals_estimates_file_exactly(campaign):
                 assert np.array_equal(np.interp(t, t[idx], vals[:, k]), full)  # and nothing is lost
 
 
-def test_thinned_extraction_reconstructs_the_column(campaign):
-    """The piecewise-constant extraction is thinned, yet interpolating the logged rows gives the column back."""
+def test_extraction_where_dither_is_on(campaign):
+    """The extraction is logged where the dither was on over a whole window (the file's values, bit
+    for bit, nothing lost) and NaN elsewhere."""
+    rec = campaign["rec"]
     est = rl.load_estimates(campaign["est_path"]).data
     t = est["t"].to_numpy()
-    tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/extract/upper")
-    assert len(tk) < len(t) / 5
+    tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/extract")
     idx = np.searchsorted(t, tk - 1e-7)
-    assert np.array_equal(np.interp(t, t[idx], vals[:, 0]), est["extract/upper_3"].to_numpy())
+    on = np.isfinite(vals[:, 0])
+    assert vals.shape[1] == 4 and (~on).sum() == 2  # the NaN stretch costs two rows
+    assert t[idx][on].min() > 6.0 and t[idx][~on].max() < 6.1  # dither on from t = 6 s
+    for k, s in enumerate(("upper", "lower", "signal")):
+        full = est[f"extract/{s}_3"].to_numpy()
+        assert np.array_equal(vals[on, k], full[idx][on])
+        late = t >= tk[on][0]
+        assert np.array_equal(np.interp(t[late], t[idx][on], vals[on, k]), full[late])
     tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/dither/amplitude/extracted")
-    np.testing.assert_array_equal(vals[:, 0], 2.5)
+    assert set(vals[np.isfinite(vals[:, 0]), 0]) == {2.5}
     tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/dither/amplitude/amp_ref")
     assert set(vals[:, 0]) == {0.0, 2.7} and len(tk) == 4  # a step: both ends of both runs
+    assert rec.n == 6
 
 
 def test_tau_bar_is_tau_minus_gravity(campaign):
@@ -183,6 +192,8 @@ def test_tau_bar_is_tau_minus_gravity(campaign):
     _, vals = rl.rrd_scalars(campaign["rrd"], "joints/2/tau_bar")
     expected = rec.tau[:, 1] - rec.robot().gravity(rec.q)[:, 1]
     np.testing.assert_array_equal(vals[:, 0], expected)
+    jtf = np.einsum("nij,ni->nj", rec.robot().jacobian(rec.q), rec.wrench)
+    np.testing.assert_allclose(vals[:, 1], jtf[:, 1], atol=1e-9)
     assert np.ptp(rec.robot().gravity(PAPER_POSE)[0]) > 1.0  # gravity is not trivially zero here
 
 
@@ -453,7 +464,7 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
 
 
 def test_fig4_signal_minus_gravity_and_shrunk_band(campaign, tmp_path):
-    """Fig. 4: the extracted signal minus gravity, J^T F of the sensor, and the still band shrunk by the amplitude under dither."""
+    """Fig. 4: the extracted signal minus gravity, and the still band shrunk by the amplitude under dither."""
     from ditherlab.model import Band, TorqueModel
 
     rec = campaign["rec"]
@@ -467,12 +478,10 @@ def test_fig4_signal_minus_gravity_and_shrunk_band(campaign, tmp_path):
     g = robot.gravity(rec.q)
     t, v = rl.rrd_scalars(out, "joints/2/fig4/signal_bar")
     idx = np.searchsorted(rec.t, t - 1e-7)
-    np.testing.assert_allclose(
-        v[:, 0], (est["extract/signal_2"].to_numpy() - g[:, 1])[idx], atol=1e-9
-    )
-    _, v = rl.rrd_scalars(out, "joints/2/tau_ext_sensor")
-    jtf = np.einsum("nij,ni->nj", robot.jacobian(rec.q), rec.wrench)
-    np.testing.assert_allclose(v[:, 0], jtf[:, 1], atol=1e-9)
+    on = np.isfinite(v[:, 0])
+    expected = (est["extract/signal_2"].to_numpy() - g[:, 1])[idx]
+    np.testing.assert_allclose(v[on, 0], expected[on], atol=1e-9)
+    assert on.sum() > 1000 and not np.isfinite(v[t < 5.9, 0]).any()
     t, v = rl.rrd_scalars(out, "joints/2/band/dither_shrunk")
     before, during = v[t < 5.9], v[t > 6.2]
     np.testing.assert_array_equal(np.unique(before, axis=0), [[-4.0, 4.5]])

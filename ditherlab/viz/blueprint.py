@@ -35,15 +35,16 @@ def make_blueprint(
     joints = range(1, n_joints + 1)
     torque = rrb.Grid(
         *[
-            rrb.TimeSeriesView(
-                origin=f"joints/{j}",
-                contents=[
-                    "$origin/tau",
-                    "$origin/tau_bar",
-                    "$origin/tau_ext_sensor",
-                    "$origin/band/**",
-                ],
-                name=f"joint {j}: tau, tau - gravity, band [N·m]",
+            rrb.Vertical(
+                rrb.TimeSeriesView(
+                    origin=f"joints/{j}",
+                    contents=["$origin/tau_bar", "$origin/band/**"],
+                    name=f"joint {j}: tau - gravity, J^T F (sensor), bands [N·m]",
+                ),
+                rrb.TimeSeriesView(
+                    origin=f"joints/{j}/tau", name=f"joint {j}: logged torque [N·m]"
+                ),
+                row_shares=[2, 1],
             )
             for j in joints
         ],
@@ -69,7 +70,7 @@ def make_blueprint(
                 ),
                 rrb.TimeSeriesView(
                     origin=f"joints/{j}",
-                    contents=["$origin/fig4/**", "$origin/band/**"],
+                    contents=["$origin/fig4/**", "$origin/tau_bar", "$origin/band/**"],
                     name=f"joint {j}: extracted signal - gravity, J^T F, bands (Fig. 4) [N·m]",
                 ),
             )

@@ -12,12 +12,17 @@ Entity layout (``j`` = 1..n, ``a`` = x, y, z, ``V`` = estimator variant)::
     robot/force/V               arrow of the estimated force                      (rate_3d)
     robot/force/V/interval      box spanned by the interval [lo, hi] per axis     (rate_3d)
     joints/j/tau                logged motor torque [N·m]
-    joints/j/tau_bar            tau - gravity(q) (- the model's effects) [N·m]
+    joints/j/tau_bar            [tau - gravity(q) (- the model's effects), J^T F_sensor] [N·m]
     joints/j/band/<regime>      friction band edges [min, max] of the model [N·m]
     joints/j/dither/ffw         torque feedforward sent (dither square wave + centre) [N·m]
-    joints/j/dither/<name>      recording columns ``dither_<name>_j`` (references, loop outputs)
-    joints/j/dither/amplitude   (upper - lower) / 2 of the extraction [N·m]
-    joints/j/extract/<s>        extraction ``upper``, ``lower``, ``signal`` from the estimates
+    joints/j/dither/centre/<s>  Fig. 5 centre: recording columns such as ``centre_ref_j``,
+                                ``dither_centre_meas_j``
+    joints/j/dither/amplitude/<s>  Fig. 5 amplitude: ``extracted`` ((upper - lower) / 2) and the
+                                recording's columns such as ``amp_ref_j``
+    joints/j/extract            [upper, lower, signal, centre] of the extraction (the estimates
+                                file's columns where present)
+    joints/j/fig4/signal_bar    extracted signal - gravity (- effects) [N·m]
+    joints/j/band/dither_shrunk the still band shrunk by the extracted amplitude under dither
     joints/j/residual/v<k>      friction residual of model version k [N·m]
     force/a/sensor              sensor force [N]
     force/a/V                   [estimate, lo, hi] of variant V [N]
@@ -399,7 +404,7 @@ def log_view(
     jtf = _external_sensor(rec, robot)
     _log_joints(log, rec, tb, jtf, model)
     tick()
-    _log_dither(log, rec, estimates, tb, jtf, model)
+    _log_dither(log, rec, estimates, tb, model)
     tick()
     _log_forces(log, rec, estimates)
     tick()
@@ -556,18 +561,14 @@ def _log_joints(
         log.series(
             f"{base}/tau", tau[:, j], names="tau", colors=[[120, 120, 120]], widths=1.0, thin=False
         )
-        log.series(
-            f"{base}/tau_bar", tb[:, j], names=label, colors=[[0, 0, 0]], widths=1.5, thin=False
-        )
-        if jtf is not None:
-            log.series(
-                f"{base}/tau_ext_sensor",
-                jtf[:, j],
-                names="J^T F (sensor)",
-                colors=[[0, 150, 150]],
-                widths=1.5,
-                thin=False,
-            )
+        # tau_bar and J^T F of the sensor share one entity: same units and scale, and one time
+        # column and row id for both halves the file size of the pair.
+        if jtf is None:
+            vals, names, colors = tb[:, j], label, [[0, 0, 0]]
+        else:
+            vals = np.column_stack([tb[:, j], jtf[:, j]])
+            names, colors = [label, "J^T F (sensor)"], [[0, 0, 0], [0, 150, 150]]
+        log.series(f"{base}/tau_bar", vals, names=names, colors=colors, widths=1.5, thin=False)
         if model is None:
             continue
         for regime in ("still", "dither"):
@@ -632,7 +633,6 @@ def _log_dither(
     rec: Recording,
     estimates: EstimatesTable | None,
     tb: np.ndarray,
-    jtf: np.ndarray | None,
     model: TorqueModel | None,
 ) -> None:
     """Fig. 5 (centre and amplitude: measured, reference, feedforward) and Fig. 4 (upper, lower,
@@ -661,53 +661,50 @@ def _log_dither(
 
     ext = extract(rec.tau, rec.t, period)
     d = estimates.data if estimates is not None else None
-    colors = {"upper": (220, 50, 50), "lower": (40, 170, 60), "signal": (0, 0, 0)}
     still = model.regimes.get("still") if model is not None else None
+    # Dither quantities mean something only where the dither was on over the whole window; NaN
+    # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
     on = _dither_window_on(rec, ext.window)
+    off = ~on
     for j in range(1, rec.n + 1):
         sig: dict[str, np.ndarray] = {}
         for s in EXTRACT_SIGNALS:
             c = f"extract/{s}_{j}"
             # The estimates file's own columns when present: the numbers replay used.
-            sig[s] = (
-                d[c].to_numpy(dtype=float)
-                if d is not None and c in d.columns
-                else (getattr(ext, s)[:, j - 1])
-            )
-            log.series(f"joints/{j}/extract/{s}", sig[s], names=s, colors=[colors[s]], widths=1.5)
+            if d is not None and c in d.columns:
+                sig[s] = d[c].to_numpy(dtype=float)
+            else:
+                sig[s] = getattr(ext, s)[:, j - 1]
+        # upper, lower, signal and the window mean (Fig. 5's measured centre) share one entity
+        # (same units and scale; one time column and row id for four series).
+        log.series(
+            f"joints/{j}/extract",
+            np.where(
+                off[:, None],
+                np.nan,
+                np.column_stack([sig[s] for s in EXTRACT_SIGNALS] + [ext.centre[:, j - 1]]),
+            ),
+            names=[*EXTRACT_SIGNALS, "centre (window mean)"],
+            colors=[[220, 50, 50], [40, 170, 60], [0, 0, 0], shades["centre"]],
+            widths=[1.0, 1.0, 2.0, 2.0],
+        )
         amp = (sig["upper"] - sig["lower"]) / 2
         log.series(
             f"joints/{j}/dither/amplitude/extracted",
-            amp,
+            np.where(off, np.nan, amp),
             names="amplitude (extracted)",
             colors=[shades["amplitude"]],
-            widths=2.0,
-        )
-        log.series(
-            f"joints/{j}/dither/centre/extracted",
-            ext.centre[:, j - 1],
-            names="centre (extracted)",
-            colors=[shades["centre"]],
             widths=2.0,
         )
         # Fig. 4, lower: the extracted signal in the estimator's units (gravity and effects off).
         offset = rec.tau[:, j - 1] - tb[:, j - 1]  # gravity + effects [N·m]
         log.series(
             f"joints/{j}/fig4/signal_bar",
-            sig["signal"] - offset,
+            np.where(off, np.nan, sig["signal"] - offset),
             names="extracted signal - gravity",
-            colors=[[0, 0, 0]],
+            colors=[[200, 0, 200]],
             widths=2.0,
         )
-        if jtf is not None:
-            log.series(
-                f"joints/{j}/fig4/tau_ext_sensor",
-                jtf[:, j - 1],
-                names="J^T F (sensor)",
-                colors=[[0, 150, 150]],
-                widths=1.5,
-                thin=False,
-            )
         if still is not None and (model is None or "dither" not in model.regimes):
             # The paper's rule (Fig. 4): the still band shrunk by the dither amplitude on each
             # side, where the dither was on over the whole window; the still band elsewhere.
