@@ -78,8 +78,9 @@ def push_campaign(
     amp = float(pc["excitation_amplitude"])
     periods = [float(T) for T in pc["excitation_periods"]]
     if any(h.name == "position_ripple" for h in hidden):
-        # ripple shows only in motion: sweep several ripple periods
-        amp, periods = max(amp, 0.35), periods * 2
+        # ripple shows only in motion: sweep several ripple periods at the same speeds
+        scale = max(amp, 0.35) / amp if amp > 0 else 1.0
+        amp, periods = amp * scale, [T * scale for T in periods]
     t_exc = float(sum(periods))
     ramp = float(params["dither"]["ramp_s"])
     settle = float(pc["settle_s"])
