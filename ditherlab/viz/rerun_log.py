@@ -54,10 +54,10 @@ if TYPE_CHECKING:  # pragma: no cover
     import rerun as rr
 
     from ditherlab.model import TorqueModel
+    from ditherlab.replay import Estimates
 
 TIMELINE = "time"
 WEB_PORT = 9090
-ESTIMATES_SCHEMA = "ditherlab.estimates/1"
 VARIANTS = ("nodither_band", "nodither_noband", "dither_band", "dither_noband")
 EXTRACT_SIGNALS = ("upper", "lower", "signal")
 
@@ -77,74 +77,25 @@ _FIG5_COL = re.compile(r"^(?P<name>(?:centre|center|amp|amplitude)(?:_[a-z]+)?)_
 
 
 # ---------------------------------------------------------------------- estimates file
-@dataclass
-class EstimatesTable:
-    """An estimates file as read for viewing: the table and its ``ditherlab`` metadata.
-
-    Attributes
-    ----------
-    data : DataFrame with ``t`` [s] and the columns of the estimates format (see DESIGN/brief)
-    meta : dict, the JSON object stored under the Parquet key-value metadata key ``ditherlab``
-    name : file name for messages
-    """
-
-    data: pd.DataFrame
-    meta: dict[str, Any]
-    name: str | None = None
-
-    @property
-    def variants(self) -> list[str]:
-        """Variants present in the table, in the canonical order."""
-        return [v for v in VARIANTS if f"{v}/f_x" in self.data.columns]
-
-
-def load_estimates(path: str | Path) -> EstimatesTable:
-    """Read an estimates Parquet file (``ditherlab.estimates/1``).
-
-    Parameters
-    ----------
-    path : file written by ``ditherlab replay``
+def load_estimates(path: str | Path) -> Estimates:
+    """Read an estimates file with :meth:`ditherlab.replay.Estimates.load` and check its columns.
 
     Raises
     ------
     FormatError
-        When the file is missing, not Parquet, or lacks the ``ditherlab`` metadata, ``t``, or
-        any variant column.
+        Missing or unreadable file, not an estimates file, or a listed variant without columns.
     """
-    import pyarrow.lib
-    import pyarrow.parquet as pq
+    from ditherlab.replay import Estimates
 
-    p = Path(path)
-    if not p.is_file():
-        raise FormatError(f"{p}: no such estimates file")
-    try:
-        table = pq.read_table(p)
-    except (pyarrow.lib.ArrowInvalid, OSError) as exc:
-        raise FormatError(f"{p}: not a Parquet estimates file ({exc})") from None
-    kv = table.schema.metadata or {}
-    raw = kv.get(b"ditherlab")
-    if raw is None:
-        raise FormatError(
-            f"{p}: Parquet metadata key 'ditherlab' is missing (expected an estimates file "
-            f"written by ditherlab replay, schema {ESTIMATES_SCHEMA!r})"
-        )
-    try:
-        meta = json.loads(raw)
-    except json.JSONDecodeError as exc:
-        raise FormatError(f"{p}: Parquet metadata key 'ditherlab' is not JSON ({exc})") from None
-    if meta.get("schema") != ESTIMATES_SCHEMA:
-        raise FormatError(
-            f"{p}: metadata key 'schema' is {meta.get('schema')!r}, expected {ESTIMATES_SCHEMA!r}"
-        )
-    data = table.to_pandas()
-    if "t" not in data.columns:
-        raise FormatError(f"{p}: required column t is missing")
-    est = EstimatesTable(data, meta, str(p))
-    if not est.variants:
-        raise FormatError(
-            f"{p}: no estimate columns found (expected e.g. dither_band/f_x; "
-            f"variants are {', '.join(VARIANTS)})"
-        )
+    est = Estimates.load(path)
+    if "t" not in est.data.columns:
+        raise FormatError(f"{path}: required column t is missing")
+    for v in est.variants:
+        if v not in VARIANTS:
+            raise FormatError(f"{path}: metadata lists variant {v!r}, expected one of {VARIANTS}")
+        missing = [c for c in (f"{v}/f_x", f"{v}/f_y", f"{v}/f_z") if c not in est.data.columns]
+        if missing:
+            raise FormatError(f"{path}: column {missing[0]} is missing (variant {v} is listed)")
     return est
 
 
@@ -161,7 +112,7 @@ def _json_default(x: Any) -> Any:
     return str(x)
 
 
-def check_estimates_match(rec: Recording, est: EstimatesTable) -> None:
+def check_estimates_match(rec: Recording, est: Estimates) -> None:
     """Raise RecordingError unless ``est`` was computed from ``rec``.
 
     The time stamps must be identical (same count, same values) and the recording metadata stored
@@ -341,7 +292,7 @@ def log_view(
     rec: Recording,
     stream: rr.RecordingStream,
     *,
-    estimates: EstimatesTable | None = None,
+    estimates: Estimates | None = None,
     model: TorqueModel | None = None,
     diagnosis: Any = None,
     rate_3d: float | None = 25.0,
@@ -422,7 +373,7 @@ def _log_robot(
     log: _Logger,
     rec: Recording,
     robot: Any,
-    estimates: EstimatesTable | None,
+    estimates: Estimates | None,
     rate_3d: float | None,
     force_scale: float,
 ) -> None:
@@ -587,7 +538,7 @@ def _log_joints(
             )
 
 
-def dither_period(rec: Recording, estimates: EstimatesTable | None = None) -> float | None:
+def dither_period(rec: Recording, estimates: Estimates | None = None) -> float | None:
     """The dither period [s] of a recording, or None when it has no dither.
 
     In order: the estimates file's ``dither_period`` (what replay used), the metadata
@@ -631,7 +582,7 @@ def _fig5_group(col: str, n: int) -> tuple[str, str, int] | None:
 def _log_dither(
     log: _Logger,
     rec: Recording,
-    estimates: EstimatesTable | None,
+    estimates: Estimates | None,
     tb: np.ndarray,
     model: TorqueModel | None,
 ) -> None:
@@ -666,6 +617,8 @@ def _log_dither(
     # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
     on = _dither_window_on(rec, ext.window)
     off = ~on
+    # The simulator states its amplitude set-points (the reference of Fig. 5) in the metadata.
+    setpoint = ((rec.meta.get("sim") or {}).get("dither_amplitudes") or {}).get("set_point")
     for j in range(1, rec.n + 1):
         sig: dict[str, np.ndarray] = {}
         for s in EXTRACT_SIGNALS:
@@ -696,6 +649,14 @@ def _log_dither(
             colors=[shades["amplitude"]],
             widths=2.0,
         )
+        if setpoint is not None and j <= len(setpoint):
+            log.series(
+                f"joints/{j}/dither/amplitude/set_point",
+                np.where(off, np.nan, float(setpoint[j - 1])),
+                names="amplitude set-point",
+                colors=[tuple(int(x + (255 - x) * 0.5) for x in shades["amplitude"])],
+                widths=1.5,
+            )
         # Fig. 4, lower: the extracted signal in the estimator's units (gravity and effects off).
         offset = rec.tau[:, j - 1] - tb[:, j - 1]  # gravity + effects [N·m]
         log.series(
@@ -729,7 +690,7 @@ def _dither_window_on(rec: Recording, window: int) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- per force axis
-def _log_forces(log: _Logger, rec: Recording, estimates: EstimatesTable | None) -> None:
+def _log_forces(log: _Logger, rec: Recording, estimates: Estimates | None) -> None:
     if rec.has_wrench:
         w = rec.wrench
         for k, a in enumerate(FORCE_AXES):
@@ -855,7 +816,7 @@ def _log_residuals(log: _Logger, rec: Recording, g: np.ndarray, model: TorqueMod
 
 
 # ---------------------------------------------------------------------- events
-def _log_events(log: _Logger, rec: Recording, estimates: EstimatesTable | None) -> None:
+def _log_events(log: _Logger, rec: Recording, estimates: Estimates | None) -> None:
     t = rec.t
     d = rec.dither
     if d is not None:
@@ -886,6 +847,7 @@ def _log_events(log: _Logger, rec: Recording, estimates: EstimatesTable | None) 
                     f"push {p.index} end",
                 ]
             log.text_log("events/pushes", np.array(times), texts, ["INFO"] * len(times))
+    _log_commanded_pushes(log, rec)
     if estimates is None:
         return
     for v in estimates.variants:
@@ -906,6 +868,32 @@ def _log_events(log: _Logger, rec: Recording, estimates: EstimatesTable | None) 
                 f"peak F=({', '.join(f'{x:+.1f}' for x in F[i])}) N at t={t[i]:.2f} s"
             )
         log.text_log(f"events/detections/{v}", t[on], texts, ["WARN"] * len(on))
+
+
+def _log_commanded_pushes(log: _Logger, rec: Recording) -> None:
+    """The simulator's pushes (``meta["sim"]["pushes"]``: t0, duration, axis, sign, magnitude)."""
+    pushes = (rec.meta.get("sim") or {}).get("pushes") or []
+    times, texts = [], []
+    for k, p in enumerate(pushes, 1):
+        try:
+            t0, dur = float(p["t0"]), float(p["duration"])
+            what = f"{'+' if p['sign'] > 0 else '-'}{p['axis']} {float(p['magnitude']):.1f} N"
+        except (KeyError, TypeError, ValueError):
+            continue
+        times += [t0, t0 + dur / 2, t0 + dur]
+        texts += [
+            f"push {k} (simulated) start: {what} for {dur:.2f} s",
+            f"push {k} (simulated) peak: {what}",
+            f"push {k} (simulated) end",
+        ]
+    if times:
+        order = np.argsort(times, kind="stable")
+        log.text_log(
+            "events/pushes_simulated",
+            np.array(times)[order],
+            [texts[i] for i in order],
+            ["DEBUG"] * len(order),
+        )
 
 
 @dataclass(frozen=True)
@@ -1038,7 +1026,7 @@ def _log_diagnosis(log: _Logger, rec: Recording, diagnosis: Any) -> None:
 
 
 # ---------------------------------------------------------------------- text
-def _recording_markdown(rec: Recording, est: EstimatesTable | None) -> str:
+def _recording_markdown(rec: Recording, est: Estimates | None) -> str:
     lines = [
         f"# {rec.name or 'recording'}",
         "",
@@ -1075,7 +1063,7 @@ def save_view(
     rec: Recording,
     path: str | Path,
     *,
-    estimates: EstimatesTable | None = None,
+    estimates: Estimates | None = None,
     model: TorqueModel | None = None,
     diagnosis: Any = None,
     inputs: Sequence[str | Path] = (),
@@ -1121,7 +1109,7 @@ def show_view(
     rec: Recording,
     *,
     mode: str = "spawn",
-    estimates: EstimatesTable | None = None,
+    estimates: Estimates | None = None,
     model: TorqueModel | None = None,
     diagnosis: Any = None,
     rate_3d: float | None = 25.0,
@@ -1232,7 +1220,7 @@ class ViewRequest:
     """Inputs of ``ditherlab view``, read and checked: see :func:`load_view_request`."""
 
     rec: Recording
-    estimates: EstimatesTable | None = None
+    estimates: Estimates | None = None
     model: TorqueModel | None = None
     save: Path | None = None
     mode: str | None = None
