@@ -55,6 +55,7 @@ from ditherlab.effects import (
     Effect,
     FitResult,
     Scored,
+    Stack,
     effects_torque,
     get_effect,
     model_text,
@@ -443,13 +444,13 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
     folds = None
     best_train = [math.inf] * K
     test_l1 = [0.0] * K
-    test_l0 = [0.0] * K
     full: FitResult | None = None
     full_resid = None
     base_st = None
     for gi in grid_idx:
         h = grid[gi]
         st = stack(e, scs, j, h, ref)
+        sg = st.signs(e.signs(h))
         if folds is None:
             folds = _folds(st.block, total, K, guard)
             base_st = st
@@ -457,29 +458,19 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
             if allowed is not None and k not in allowed[gi]:
                 continue
             tr = train(st.block)
-            w, L = solve_signed(
-                st.e[tr], st.h[tr], st.s[tr], st.C[tr], st.W[tr], st.o[tr], e.signs(h)
-            )
+            w, L = solve_signed(st.e[tr], st.h[tr], st.s[tr], st.C[tr], st.W[tr], st.o[tr], sg)
             if L < best_train[k]:
                 best_train[k] = L
-                x = st.e[test] - st.o[test] - st.C[test] @ w
-                test_l1[k] = float(
-                    np.sum(
-                        (np.maximum(np.abs(x) - st.h[test] - st.W[test] @ w, 0) / st.s[test]) ** 2
-                    )
-                )
+                test_l1[k] = _loss(st, test, w)
         if allowed is not None and K not in allowed[gi]:
             continue
-        w, L = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, e.signs(h))
+        w, L = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg)
         if full is None or L < full.loss:
-            full = FitResult(w, h, ref, L)
+            full = FitResult(w[: st.k], h, ref, L)
             x = st.e - st.o - st.C @ w
             full_resid = np.sign(x) * np.maximum(np.abs(x) - st.h - st.W @ w, 0) / st.s
     assert folds is not None and base_st is not None and full is not None
-    b0 = np.maximum(np.abs(base_st.e) - base_st.h, 0) / base_st.s
-    for k, (test, _) in enumerate(folds):
-        test_l0[k] = float(np.sum(b0[test] ** 2))
-    L0 = float(np.sum(b0**2))
+    test_l0, L0, b0 = _baseline(base_st, folds)
     L1 = full.loss
     active = (b0 != 0) | (full_resid != 0)
     n_act = int(active.sum())
@@ -492,6 +483,43 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
         dbic = 0.0
     better = sum(1 for a, b in zip(test_l0, test_l1, strict=True) if b < a)
     return JointScore(j, sum(test_l0), sum(test_l1), better, K, dbic, n_eff, full)
+
+
+def _loss(st: Stack, m: np.ndarray, w: np.ndarray) -> float:
+    """Band-aware loss of the stacked samples ``m`` for the full parameter vector w."""
+    x = st.e[m] - st.o[m] - st.C[m] @ w
+    return float(np.sum((np.maximum(np.abs(x) - st.h[m] - st.W[m] @ w, 0) / st.s[m]) ** 2))
+
+
+def _baseline(st: Stack, folds: list) -> tuple[list[float], float, np.ndarray]:
+    """The effect-free model (intercepts only): held-out loss per fold, full loss, residual."""
+    k = st.k
+    zero = np.zeros(len(st.e))
+    Cn, Wn = st.C[:, k:], st.W[:, k:]
+    free = (0,) * Cn.shape[1]
+    out = []
+    for test, train in folds:
+        tr = train(st.block)
+        w, _ = solve_signed(st.e[tr], st.h[tr], st.s[tr], Cn[tr], Wn[tr], zero[tr], free)
+        x = st.e[test] - Cn[test] @ w
+        out.append(float(np.sum((np.maximum(np.abs(x) - st.h[test], 0) / st.s[test]) ** 2)))
+    w, L = solve_signed(st.e, st.h, st.s, Cn, Wn, zero, free)
+    x = st.e - Cn @ w
+    return out, L, np.sign(x) * np.maximum(np.abs(x) - st.h, 0) / st.s
+
+
+def _baseline_total(scs: Sequence[Scored], n: int, K: int, guard_s: float) -> float:
+    """Held-out loss of the effect-free model summed over all joints (the candidates' share
+    of the residual is measured against this)."""
+    e = EFFECTS["viscous"]  # any per-joint effect: only its intercept columns are used
+    total = sum(len(s.e) for s in scs)
+    fs = scs[0].sig.rec.sample_rate
+    guard = int(round(guard_s * fs)) if np.isfinite(fs) else 0
+    out = 0.0
+    for j in range(n):
+        st = stack(e, scs, j, None, {})
+        out += sum(_baseline(st, _folds(st.block, total, K, guard))[0])
+    return out
 
 
 def _evaluate(
@@ -569,10 +597,7 @@ def candidates(
     names = [n for n in (effects or EFFECTS) if n not in have]
     for n in names:
         get_effect(n)
-    total = 0.0
-    for sc in scs:
-        m = sc.use
-        total += float(np.sum((np.maximum(np.abs(sc.e) - sc.h, 0)[m] / sc.sigma[m]) ** 2))
+    total = _baseline_total(scs, model.n, folds, guard)
     out, skipped = [], {}
     for i, n in enumerate(names):
         why = _applicable(n, recs)
@@ -1020,3 +1045,37 @@ def _json_default(x: Any) -> Any:
     if isinstance(x, np.ndarray):
         return x.tolist()
     raise TypeError(type(x).__name__)
+
+
+def diagnose_files(
+    recordings: Sequence[str | Path],
+    model_path: str | Path,
+    *,
+    out_dir: str | Path | None = None,
+    read_options: dict[str, Any] | None = None,
+    history: bool = True,
+    progress: Callable[[int, int], None] | None = None,
+) -> Diagnosis:
+    """The ``ditherlab diagnose`` command: read, diagnose, append the history, write the report.
+
+    Parameters
+    ----------
+    recordings : recording files (any format :func:`ditherlab.io.read` knows)
+    model_path : the model TOML; its history gets one row (atomically) unless ``history=False``
+    out_dir : folder for ``report.md``, ``report.json`` and the PNG figures (optional)
+    read_options : passed to :func:`ditherlab.io.read` (``mapping``, ``robot``)
+    """
+    from ditherlab.io import read
+    from ditherlab.io.atomic import check_not_input
+
+    model = TorqueModel.load(model_path)
+    recs = [read(p, **(read_options or {})) for p in recordings]
+    if out_dir is not None:
+        for name in ("report.md", "report.json"):
+            check_not_input(Path(out_dir) / name, [*recordings, model_path])
+    d = diagnose(model, recs, progress=progress)
+    if history:
+        d.model = append_history(model_path, d.history_entry())
+    if out_dir is not None:
+        write_report(d, out_dir)
+    return d

@@ -252,6 +252,12 @@ class Effect(abc.ABC):
         return len(self.linear)
 
 
+def _mm(W: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``W.T @ X`` for tall skinny matrices without BLAS threads (which oversubscribe a shared
+    two-core machine and run ~10x slower than this single-threaded loop)."""
+    return np.einsum("mf,mp->fp", W, X)
+
+
 def _fmt(x: float) -> str:
     return f"{x:.3g}"
 
@@ -346,6 +352,11 @@ class TemperatureFriction(Effect):
     @staticmethod
     def _x(sig: Signals, j: int, h: Any) -> np.ndarray:
         if h is None:
+            if sig.rec.temp is None:
+                raise ModelError(
+                    f"{_where(sig.rec)}effect 'temperature_friction' is driven by column "
+                    f"temp_{j + 1}, which the recording lacks"
+                )
             return sig.rec.temp[:, j]
         return np.exp(-sig.ts / h)
 
@@ -385,13 +396,14 @@ class PositionRipple(Effect):
     name = "position_ripple"
     physics = "periodic torque in joint angle (gear teeth, cogging)"
     driven_by = "q, period found by a least-squares periodogram"
-    linear = ("a_sin", "b_cos")
+    linear = ("a_sin", "b_cos", "a2_sin", "b2_cos")
     hyper = "period"
     shows_in = ("moving",)
 
     def design(self, sig, j, h, ref):
+        # fundamental and second harmonic (tooth meshing is rarely a pure sine)
         ph = 2 * np.pi * sig.q[:, j] / h
-        return Design(np.column_stack([np.sin(ph), np.cos(ph)]))
+        return Design(np.column_stack([np.sin(ph), np.cos(ph), np.sin(2 * ph), np.cos(2 * ph)]))
 
     def grid(self, sig, j):
         q = np.concatenate([s.q[s.moving[:, j], j] for s in sig])
@@ -426,11 +438,11 @@ class PositionRipple(Effect):
             ph = np.outer(q[idx], f[c0 : c0 + 100])
             S, C = np.sin(ph), np.cos(ph)
             ee = e[idx][:, None]
-            parts["ss"].append(W.T @ (S * S))
-            parts["sc"].append(W.T @ (S * C))
-            parts["cc"].append(W.T @ (C * C))
-            parts["es"].append(W.T @ (ee * S))
-            parts["ec"].append(W.T @ (ee * C))
+            parts["ss"].append(_mm(W, S * S))
+            parts["sc"].append(_mm(W, S * C))
+            parts["cc"].append(_mm(W, C * C))
+            parts["es"].append(_mm(W, ee * S))
+            parts["ec"].append(_mm(W, ee * C))
         sums = {k: np.concatenate(v, axis=1) for k, v in parts.items()}  # (F, P)
         det = sums["ss"] * sums["cc"] - sums["sc"] ** 2
         det = np.where(det > 1e-12 * (sums["ss"] * sums["cc"] + 1e-300), det, np.inf)
@@ -809,6 +821,8 @@ class Scored:
     tau: np.ndarray
     notes: list[str] = field(default_factory=list)
     sigma_hf: np.ndarray | None = None
+    #: the model's moving band has (coulomb, viscous): identification re-fits them
+    sliding: tuple[bool, bool] = (False, False)
 
     def excess(
         self, shift: np.ndarray | None = None, widen: np.ndarray | None = None
@@ -831,15 +845,18 @@ def _dither_signal(rec: Recording) -> tuple[np.ndarray, np.ndarray] | None:
     return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool)
 
 
-def scored(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Scored:
+def scored(
+    model: TorqueModel, rec: Recording, *, use_sensor: bool = True, min_samples: int = 200
+) -> Scored:
     """The band-aware residual ``rho = tau - gravity - effects - J^T F`` of a recording.
 
     Per regime: in ``still`` and ``dither`` the stick band ``[tau_min, tau_max]`` (widened by the
     model's load/temperature effects) absorbs whatever lies inside it; in ``moving`` the band
     collapses onto the sliding friction ``coulomb·sign(dq) + viscous·dq`` (when the model has
-    them) and the whole residual about ``centre`` counts. In the dither regime the torque is the
-    paper's extracted signal (mean of the upper and lower half-period means) when ``tau_ffw`` is
-    logged and :mod:`ditherlab.dither` is available; otherwise dither samples are not scored.
+    them) plus one offset in ``[tau_min, tau_max]`` (the data's mean offset, clipped into the
+    band), and the whole residual about that line counts. In the dither regime the torque is the
+    paper's extracted signal (:func:`ditherlab.replay.extract_dither`); without it dither samples
+    are not scored.
 
     Parameters
     ----------
@@ -847,6 +864,8 @@ def scored(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Sc
     rec : Recording
     use_sensor : subtract ``external_torque(sensor_wrench)`` (needs F/T columns); when False or
         absent, the residual contains the external torque (free-motion logs have none).
+    min_samples : a joint's regime with fewer samples in this recording is not scored (as in
+        :func:`ditherlab.identify.identify`).
 
     Raises
     ------
@@ -883,6 +902,14 @@ def scored(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Sc
         m = (reg == code) & use
         if not m.any():
             continue
+        few = m.sum(axis=0) < min_samples
+        if few.any():
+            # a handful of samples (e.g. velocity reversals flagged still) is not a regime:
+            # identification fits no band from it either
+            use &= ~(m & few)
+            m &= ~few
+            if not m.any():
+                continue
         if name not in model.regimes:
             use &= ~m
             notes.append(f"{int(m.any(axis=1).sum())} {name} samples not scored (no band)")
@@ -896,6 +923,13 @@ def scored(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Sc
                 cen += b.coulomb * np.sign(sig.dq)
             if b.viscous is not None:
                 cen += b.viscous * sig.dq
+            # the band collapses to one point in [tau_min, tau_max]: the one the data sit at
+            # (mean offset from the sliding line, clipped into the band)
+            for j in range(rec.n):
+                mj = m[:, j]
+                if mj.any():
+                    off = float(np.mean((rho - cen + centre)[mj, j] - centre[j]))
+                    cen[:, j] += np.clip(centre[j] + off, b.tau_min[j], b.tau_max[j]) - centre[j]
             hh = np.zeros(rho.shape)
         else:
             hh = np.broadcast_to(half, rho.shape)
@@ -904,7 +938,10 @@ def scored(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Sc
         sigma[m] = np.broadcast_to(b.sigma, rho.shape)[m]
     wid = widening(model, rec)
     h = np.where(reg == MOVING, h, np.maximum(h + wid, 0.0))
-    return Scored(sig, e, h, sigma, use, tau, notes, white_noise(e, use & (reg != DITHER), reg))
+    mb = model.regimes.get("moving")
+    sliding = (mb is not None and mb.coulomb is not None, mb is not None and mb.viscous is not None)
+    hf = white_noise(e, use & (reg != DITHER), reg)
+    return Scored(sig, e, h, sigma, use, tau, notes, hf, sliding)
 
 
 def white_noise(e: np.ndarray, use: np.ndarray, reg: np.ndarray) -> np.ndarray:
@@ -988,29 +1025,38 @@ def _solve(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, floa
     """
     k = C.shape[1]
     base = e - o
+    s2 = 1.0 / s**2
+    if k == 0:
+        return np.zeros(0), float(np.sum(np.maximum(np.abs(base) - h, 0.0) ** 2 * s2))
+
+    def mv(A: np.ndarray, w: np.ndarray) -> np.ndarray:
+        # single-threaded matrix-vector product (see _mm)
+        return np.einsum("mk,k->m", A, w)
 
     def loss_of(w: np.ndarray) -> float:
-        x = base - C @ w
-        return float(np.sum((np.maximum(np.abs(x) - h - W @ w, 0.0) / s) ** 2))
+        x = base - mv(C, w)
+        return float(np.sum(np.maximum(np.abs(x) - h - mv(W, w), 0.0) ** 2 * s2))
 
     w = np.zeros(k) if w0 is None else np.asarray(w0, dtype=float).copy()
     L = loss_of(w)
     scale = np.sqrt(np.mean(C**2, axis=0) + np.mean(W**2, axis=0)) + 1e-300
+    prev_act = None
     for _ in range(iters):
-        x = base - C @ w
+        x = base - mv(C, w)
         sg = np.sign(x)
-        ex = np.abs(x) - h - W @ w
+        ex = np.abs(x) - h - mv(W, w)
         act = ex > 0
         if not act.any():
             break
-        Jm = (-(sg[act, None] * C[act]) - W[act]) / s[act, None]
+        if prev_act is not None and np.array_equal(act, prev_act):
+            break  # the last full Gauss-Newton step solved this piece exactly
+        Jm = (-(sg[act, None] * C[act]) - W[act]) / (s[act, None] * scale)
         r = ex[act] / s[act]
-        A = Jm / scale
         # ridge-regularised normal equations (keeps singular designs, e.g. no motion, finite)
-        G = A.T @ A
+        G = _mm(Jm, Jm)
         G[np.diag_indices(k)] += 1e-9 * (np.trace(G) / k + 1e-300)
         try:
-            d = -np.linalg.solve(G, A.T @ r) / scale
+            d = -np.linalg.solve(G, np.einsum("mk,m->k", Jm, r)) / scale
         except np.linalg.LinAlgError:
             break
         t = 1.0
@@ -1024,6 +1070,7 @@ def _solve(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, floa
             break
         improve = L - Ln
         w, L = wn, Ln
+        prev_act = act if t == 1.0 else None
         if improve <= 1e-12 * max(L, 1e-300) and t == 1.0:
             break
     return w, L
@@ -1031,7 +1078,15 @@ def _solve(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, floa
 
 @dataclass
 class Stack:
-    """Samples of one or several recordings stacked for one joint (or all joints, shared)."""
+    """Samples of one or several recordings stacked for one joint (or all joints, shared).
+
+    The design ``C`` (and ``W``) holds the effect's ``k`` columns followed by nuisance columns:
+    one indicator per (joint, regime) group, and per joint ``sign(dq)`` and ``dq`` in the moving
+    regime (when the model has Coulomb / viscous terms). Identification re-fits the bands and
+    the sliding line with the effect in place, so they absorb whatever part of an effect is
+    constant within a regime or proportional to sign(dq) or dq: an effect is credited only with
+    the rest, and the baseline it is compared with gets the same nuisance columns.
+    """
 
     e: np.ndarray
     h: np.ndarray
@@ -1040,11 +1095,16 @@ class Stack:
     W: np.ndarray
     o: np.ndarray
     block: np.ndarray  # (M,) time index within the concatenated samples (for folds)
+    k: int  # number of effect columns (the rest are intercepts)
+
+    def signs(self, eff: Sequence[int]) -> tuple[int, ...]:
+        return tuple(eff) + (0,) * (self.C.shape[1] - self.k)
 
 
 def stack(e: Effect, sc: Sequence[Scored], j: int | None, h: Any, ref: dict[str, Any]) -> Stack:
     """Flatten the scored samples of joint j (or all joints when the effect is shared)."""
-    es, hs, ss, Cs, Ws, os_, bs = [], [], [], [], [], [], []
+    es, hs, ss, Cs, Ws, os_, bs, gs = [], [], [], [], [], [], [], []
+    ns: list[tuple[int, np.ndarray]] = []
     t0 = 0
     for s in sc:
         d = e.design(s.sig, j, h, ref)
@@ -1066,8 +1126,33 @@ def stack(e: Effect, sc: Sequence[Scored], j: int | None, h: Any, ref: dict[str,
             Ws.append(np.zeros_like(C[m]) if Wd is None else (Wd * ~mv[:, None])[m])
             os_.append(np.zeros(int(m.sum())) if o is None else o[m])
             bs.append(t0 + np.flatnonzero(m))
+            gs.append(jj * 3 + s.sig.regime[m, jj].astype(np.int64))
+            # sliding-friction nuisance (moving only): joint jj's sign(dq) and dq columns
+            dqm = np.where(mv, s.sig.dq[:, jj], 0.0)[m]
+            cols = []
+            if s.sliding[0]:
+                cols.append(np.sign(dqm))
+            if s.sliding[1]:
+                cols.append(dqm)
+            ns.append((jj, np.column_stack(cols) if cols else np.zeros((len(dqm), 0))))
         t0 += N
-    return Stack(*(np.concatenate(a) for a in (es, hs, ss, Cs, Ws, os_, bs)))
+    e_, h_, s_, C_, W_, o_, b_, g_ = (np.concatenate(a) for a in (es, hs, ss, Cs, Ws, os_, bs, gs))
+    _, gi = np.unique(g_, return_inverse=True)
+    G = np.zeros((len(g_), int(gi.max()) + 1 if len(g_) else 0))
+    G[np.arange(len(g_)), gi] = 1.0
+    # sliding columns per joint, block-placed (zeros for the other joints' rows)
+    joints_in = sorted({jj for jj, _ in ns})
+    width = max((a.shape[1] for _, a in ns), default=0)
+    S = np.zeros((len(g_), width * len(joints_in)))
+    r0 = 0
+    for jj, a in ns:
+        c0 = joints_in.index(jj) * width
+        S[r0 : r0 + len(a), c0 : c0 + a.shape[1]] = a
+        r0 += len(a)
+    S = S[:, np.any(S != 0, axis=0)]
+    N_ = np.hstack([G, S])
+    k = C_.shape[1]
+    return Stack(e_, h_, s_, np.hstack([C_, N_]), np.hstack([W_, np.zeros_like(N_)]), o_, b_, k)
 
 
 def fit_effect(
@@ -1103,9 +1188,11 @@ def fit_effect(
     for h in grid:
         st = stack(e, sc, j, h, ref)
         m = train(st.block) if train is not None else slice(None)
-        w, L = solve_signed(st.e[m], st.h[m], st.s[m], st.C[m], st.W[m], st.o[m], e.signs(h))
+        w, L = solve_signed(
+            st.e[m], st.h[m], st.s[m], st.C[m], st.W[m], st.o[m], st.signs(e.signs(h))
+        )
         if best is None or L < best.loss:
-            best = FitResult(w, h, ref, L)
+            best = FitResult(w[: st.k], h, ref, L)
     assert best is not None
     return best
 
