@@ -486,3 +486,74 @@ def test_fig4_signal_minus_gravity_and_shrunk_band(campaign, tmp_path):
     before, during = v[t < 5.9], v[t > 6.2]
     np.testing.assert_array_equal(np.unique(before, axis=0), [[-4.0, 4.5]])
     np.testing.assert_array_equal(np.unique(during, axis=0), [[-1.5, 2.0]])
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    """The real chain on a small simulated push campaign: simulate, identify, replay, then view."""
+    import warnings
+
+    import ditherlab
+    from ditherlab.identify import identify
+    from ditherlab.replay import replay
+    from ditherlab.sim import simulate
+
+    d = tmp_path_factory.mktemp("sim")
+    rec = simulate(
+        "push-campaign", seed=0, pushes_per_direction=1, magnitude_min=10.0, magnitude_max=30.0
+    )
+    rec_path = d / "campaign.parquet"
+    ditherlab.write(rec, rec_path)
+    rec = ditherlab.read(rec_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        model = identify([rec], n_boot=2)
+    model_path = model.save(d / "model.toml")
+    est = replay(rec, model)
+    est_path = est.save(d / "estimates.parquet")
+    return {
+        "dir": d,
+        "rec": rec,
+        "rec_path": rec_path,
+        "model_path": model_path,
+        "est": rl.load_estimates(est_path),
+        "est_path": est_path,
+    }
+
+
+def test_simulated_campaign_view(simulated, cli):
+    """On the simulator's campaign the CLI writes every series at full rate, the estimates exactly
+    as replay wrote them, the simulated pushes and the Fig. 5 set-point."""
+    out = simulated["dir"] / "campaign.rrd"
+    r = cli(
+        "view",
+        simulated["rec_path"],
+        "--estimates",
+        simulated["est_path"],
+        "--model",
+        simulated["model_path"],
+        "--save",
+        out,
+        "-q",
+    )
+    assert r.code == 0, r.err
+    assert r.out.strip().endswith(f"open it with: rerun {out}")
+    rec, est = simulated["rec"], simulated["est"]
+    N = len(rec)
+    c = rl.rrd_contents(out)
+    for j in range(1, 7):
+        assert c[f"joints/{j}/tau"]["Scalars:scalars"] == N
+        assert c[f"joints/{j}/tau_bar"]["Scalars:scalars"] == N
+        assert c[f"joints/{j}/residual/v1"]["Scalars:scalars"] == N
+        assert f"joints/{j}/dither/amplitude/set_point" in c
+    assert est.variants == ["nodither_band", "nodither_noband", "dither_band", "dither_noband"]
+    for v in est.variants:
+        for a in FORCE_AXES:
+            tk, vals = rl.rrd_scalars(out, f"force/{a}/{v}")
+            idx = np.searchsorted(rec.t, tk - 1e-7)
+            F = est.data[f"{v}/f_{a}"].to_numpy()
+            assert np.array_equal(vals[:, 0], F[idx])
+            assert np.array_equal(np.interp(rec.t, rec.t[idx], vals[:, 0]), F)
+    pushes = rec.meta["sim"]["pushes"]
+    assert c["events/pushes_simulated"]["TextLog:text"] == 3 * len(pushes)
+    assert c["events/dither"]["TextLog:text"] == 2
