@@ -557,3 +557,52 @@ def test_simulated_campaign_view(simulated, cli):
     pushes = rec.meta["sim"]["pushes"]
     assert c["events/pushes_simulated"]["TextLog:text"] == 3 * len(pushes)
     assert c["events/dither"]["TextLog:text"] == 2
+
+
+def test_blueprint_points_at_logged_entities(simulated, cli):
+    """Every view origin and content query of the stored blueprint matches logged entities, except
+    those for inputs this campaign lacks (model history, diagnosis, centre references)."""
+    import fnmatch
+
+    from rerun.chunk import RrdReader
+
+    out = simulated["dir"] / "bp.rrd"
+    r = cli(
+        "view",
+        simulated["rec_path"],
+        "--estimates",
+        simulated["est_path"],
+        "--model",
+        simulated["model_path"],
+        "--save",
+        out,
+        "-q",
+    )
+    assert r.code == 0, r.err
+    entities = set(rl.rrd_contents(out))
+    reader = RrdReader(str(out))
+    origins, queries = {}, {}
+    for ch in reader.stream(store=reader.blueprints()[0]):
+        d = ch.to_record_batch().to_pydict()
+        view = ch.entity_path.removesuffix("/ViewContents")
+        if "ViewBlueprint:space_origin" in d:
+            origins[view] = d["ViewBlueprint:space_origin"][-1][0]
+        if "ViewContents:query" in d:
+            queries[view] = d["ViewContents:query"][-1]
+    assert len(origins) > 40
+    unmatched = set()
+    for view, origin in origins.items():
+        for q in queries.get(view, ["$origin/**"]):
+            pat = q.replace("$origin", origin.rstrip("/")).lstrip("/").replace("/**", "*")
+            if not any(fnmatch.fnmatchcase(e, pat) for e in entities):
+                unmatched.add(pat)
+    allowed = (
+        "history/*",
+        "diagnosis*",
+        "info/diagnosis*",
+        "info/history*",
+        "joints/*/dither/centre*",
+    )
+    assert unmatched and all(any(fnmatch.fnmatchcase(u, a) for a in allowed) for u in unmatched), (
+        unmatched
+    )

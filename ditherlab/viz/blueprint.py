@@ -120,7 +120,7 @@ def make_blueprint(
     )
     left = rrb.Vertical(
         rrb.Spatial3DView(origin="robot", name="Robot and forces"),
-        rrb.TextLogView(origin="/", contents=["events/**", "diagnosis/**"], name="Events"),
+        rrb.TextLogView(origin="/", contents=["/events/**", "/diagnosis/**"], name="Events"),
         row_shares=[3, 2],
     )
     return rrb.Blueprint(
