@@ -59,7 +59,8 @@ class Estimates:
     ----------
     data : DataFrame, one row per sample
     meta : dict with ``schema``, ``recording``, ``recording_name``, ``model``, ``variants``,
-        ``interval`` (``method``, ``level``), ``components``
+        ``interval`` (``method``, ``level``), ``components``, and ``moving_spans`` (the time spans
+    in which some joint moved, [s], so that the report can tell rest from motion)
     name : where it was read from (for messages)
     """
 
@@ -530,7 +531,15 @@ def replay(
     }
     if ext is not None:
         meta["dither_period"] = ext.period
+    meta["moving_spans"] = time_spans(rec.t, (reg == MOVING).any(axis=1))
     return Estimates(pd.DataFrame(cols), _json_safe(meta), name=None)
+
+
+def time_spans(t: np.ndarray, mask: np.ndarray) -> list[list[float]]:
+    """``[[t_start, t_end], ...]`` [s] of the runs of True in ``mask`` (N,)."""
+    e = np.diff(np.r_[0, np.asarray(mask, dtype=np.int8), 0])
+    s0, s1 = np.flatnonzero(e == 1), np.flatnonzero(e == -1)
+    return [[float(t[a]), float(t[b - 1])] for a, b in zip(s0, s1, strict=True)]
 
 
 def _json_safe(x: Any) -> Any:
@@ -558,5 +567,50 @@ __all__ = [
     "extract_dither",
     "parse_components",
     "replay",
+    "replay_file",
+    "describe",
     "ModelError",
 ]
+
+
+def replay_file(
+    path: str | Path,
+    model_path: str | Path,
+    out: str | Path,
+    *,
+    read_options: dict | None = None,
+    **options: Any,
+) -> Estimates:
+    """Read a recording and a model, :func:`replay`, and save the estimates (atomic, never over
+    an input). ``options`` are those of :func:`replay`."""
+    from ditherlab.io import read
+    from ditherlab.io.atomic import check_not_input
+
+    check_not_input(out, [path, model_path])
+    model = TorqueModel.load(model_path)
+    rec = read(path, **(read_options or {}))
+    est = replay(rec, model, **options)
+    est.save(out)
+    est.name = str(out)
+    return est
+
+
+def describe(est: Estimates) -> str:
+    """A few lines: samples, variants, interval method, and per variant the force RMS error and
+    interval coverage against the F/T sensor when it is there."""
+    lines = [
+        f"{len(est.data)} samples, variants: {', '.join(est.variants)}; intervals "
+        f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
+    ]
+    if est.has_wrench:
+        F = est.wrench[:, :3]
+        for v in est.variants:
+            Fh = est.F(v)[:, :3]
+            lo, hi = est.interval(v)
+            cov = ((lo[:, :3] <= F) & (F <= hi[:, :3])).mean()
+            rms = np.sqrt(((Fh - F) ** 2).mean(axis=0))
+            lines.append(
+                f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
+                f" interval coverage {cov:.1%}"
+            )
+    return "\n".join(lines)

@@ -115,12 +115,23 @@ def test_identify_still_band_against_truth(campaign):
 def test_identify_dither_band_is_shrunk_band(dither_campaign):
     """The dither regime, fitted on the extracted signal, is the band shrunk by the amplitude."""
     rec, truth = dither_campaign
-    model = identify([rec], n_boot=10, seed=0)
+    model = identify([rec], n_boot=10, seed=0, dither_band="ml")
     lo, hi, _ = truth["dither"]
     b = model.regimes["dither"]
     for j in range(3):
         assert b.tau_min[j] == pytest.approx(lo[j], abs=0.05)
         assert b.tau_max[j] == pytest.approx(hi[j], abs=0.05)
+
+
+def test_identify_dither_band_shrunk_rule(dither_campaign, campaign):
+    """By default the dither band is the still band shrunk by the measured amplitude (Fig. 4)."""
+    rec, truth = dither_campaign
+    model = identify([campaign[0], rec], n_boot=0)
+    st, d = model.regimes["still"], model.regimes["dither"]
+    A = truth["amplitude"]
+    np.testing.assert_allclose(d.tau_min[:3], st.tau_min[:3] + A[:3], atol=0.05)
+    np.testing.assert_allclose(d.tau_max[:3], st.tau_max[:3] - A[:3], atol=0.05)
+    assert "shrunk by the measured dither amplitude" in model.notes
 
 
 def test_identify_moving_coulomb_viscous():
