@@ -245,3 +245,48 @@ def simulate(
         rec = run_sim(scenario, seed=seed, dither=dither, config=config, hidden=hidden or [],
                       progress=progress, pushes_per_direction=pushes_per_direction)
     echo(f"wrote {write(rec, out)} ({rec.duration:.1f} s simulated)")
+
+
+@app.command()
+def replay(
+    recording: Annotated[Path, typer.Argument(help="Recording to replay the estimator over.")],
+    model: Annotated[Path, typer.Option("--model", help="Torque model (TOML) from `ditherlab identify`.")],
+    out: OutPath,
+    level: Annotated[float, typer.Option("--level", help="Interval confidence level.")] = 0.95,
+    interval: Annotated[str, typer.Option("--interval", help="Interval method: profile or set_membership.")] = "profile",
+    components: Annotated[str, typer.Option("--components", help="Estimated components: all, fxyz, or a list like f_x,f_z.")] = "all",
+    variants: Annotated[str | None, typer.Option("--variants", help="Comma list of nodither_band, nodither_noband, dither_band, dither_noband (default: all the recording allows).")] = None,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    quiet: Quiet = False,
+) -> None:
+    """Replay the estimator (no dither / dither x with / without the uniform term) -> estimates Parquet."""
+    from ditherlab.replay import describe, replay_file
+
+    with progress_bar("replay", quiet) as progress:
+        est = replay_file(recording, model, out, read_options=_read_options(mapping, robot), level=level,
+                          interval=interval, components=components, progress=progress,
+                          variants=variants.split(",") if variants else None)
+    echo(describe(est))
+    echo(f"wrote {out}")
+
+
+@app.command()
+def report(
+    estimates: Annotated[list[Path], typer.Argument(help="Estimates files from `ditherlab replay` (with the F/T columns).")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Report folder (report.md, report.html, report.json, PNG figures).")],
+    recording: Annotated[list[Path] | None, typer.Option("--recording", help="The recordings behind the estimates (adds Figs. 2, 4, 5), repeatable.")] = None,
+    bootstrap: Annotated[int, typer.Option("--bootstrap", help="Bootstrap replicates of the detection curves.")] = 200,
+    seed: Seed = 0,
+    json_out: JsonFlag = False,
+    quiet: Quiet = False,
+) -> None:
+    """Detection thresholds per direction beside the paper's §VI-C numbers, curves, coverage, figures."""
+    import json
+
+    from ditherlab.report import make_report, summary_text
+
+    with progress_bar("report", quiet or json_out) as progress:
+        a = make_report(estimates, out, recordings=recording or [], n_boot=bootstrap, seed=seed,
+                        progress=progress)
+    echo(json.dumps(a, indent=1, default=float) if json_out else summary_text(a) + f"\nwrote {out}/report.md")
