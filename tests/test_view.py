@@ -561,7 +561,7 @@ def test_simulated_campaign_view(simulated, cli):
 
 def test_blueprint_points_at_logged_entities(simulated, cli):
     """Every view origin and content query of the stored blueprint matches logged entities, except
-    those for inputs this campaign lacks (model history, diagnosis, centre references)."""
+    those for inputs this campaign lacks (model history, diagnosis)."""
     import fnmatch
 
     from rerun.chunk import RrdReader
@@ -596,13 +596,7 @@ def test_blueprint_points_at_logged_entities(simulated, cli):
             pat = q.replace("$origin", origin.rstrip("/")).lstrip("/").replace("/**", "*")
             if not any(fnmatch.fnmatchcase(e, pat) for e in entities):
                 unmatched.add(pat)
-    allowed = (
-        "history/*",
-        "diagnosis*",
-        "info/diagnosis*",
-        "info/history*",
-        "joints/*/dither/centre*",
-    )
+    allowed = ("history/*", "diagnosis*", "info/diagnosis*", "info/history*")
     assert unmatched and all(any(fnmatch.fnmatchcase(u, a) for a in allowed) for u in unmatched), (
         unmatched
     )

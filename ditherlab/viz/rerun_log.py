@@ -15,8 +15,8 @@ Entity layout (``j`` = 1..n, ``a`` = x, y, z, ``V`` = estimator variant)::
     joints/j/tau_bar            [tau - gravity(q) (- the model's effects), J^T F_sensor] [N·m]
     joints/j/band/<regime>      friction band edges [min, max] of the model [N·m]
     joints/j/dither/ffw         torque feedforward sent (dither square wave + centre) [N·m]
-    joints/j/dither/centre/<s>  Fig. 5 centre: recording columns such as ``centre_ref_j``,
-                                ``dither_centre_meas_j``
+    joints/j/dither/centre/<s>  Fig. 5 centre: its reference ``gravity`` and recording columns
+                                such as ``centre_ref_j``, ``dither_centre_meas_j``
     joints/j/dither/amplitude/<s>  Fig. 5 amplitude: ``extracted`` ((upper - lower) / 2) and the
                                 recording's columns such as ``amp_ref_j``
     joints/j/extract            [upper, lower, signal, centre] of the extraction (the estimates
@@ -355,7 +355,7 @@ def log_view(
     jtf = _external_sensor(rec, robot)
     _log_joints(log, rec, tb, jtf, model)
     tick()
-    _log_dither(log, rec, estimates, tb, model)
+    _log_dither(log, rec, estimates, g, tb, model)
     tick()
     _log_forces(log, rec, estimates)
     tick()
@@ -583,6 +583,7 @@ def _log_dither(
     log: _Logger,
     rec: Recording,
     estimates: Estimates | None,
+    g: np.ndarray,
     tb: np.ndarray,
     model: TorqueModel | None,
 ) -> None:
@@ -648,6 +649,14 @@ def _log_dither(
             names="amplitude (extracted)",
             colors=[shades["amplitude"]],
             widths=2.0,
+        )
+        # The centre loop's reference is the gravity torque (Fig. 5, top).
+        log.series(
+            f"joints/{j}/dither/centre/gravity",
+            np.where(off, np.nan, g[:, j - 1]),
+            names="centre reference (gravity)",
+            colors=[tuple(int(x + (255 - x) * 0.5) for x in shades["centre"])],
+            widths=1.5,
         )
         if setpoint is not None and j <= len(setpoint):
             log.series(
