@@ -844,18 +844,21 @@ def _log_events(log: _Logger, rec: Recording, estimates: Estimates | None) -> No
             step=True,
         )
     if rec.has_wrench:
-        pushes = find_pushes(t, rec.wrench[:, :3])
-        if pushes:
-            times, texts = [], []
-            for p in pushes:
-                times += [p.t_start, p.t_peak, p.t_end]
-                vec = ", ".join(f"{x:+.1f}" for x in p.peak)
-                texts += [
-                    f"push {p.index} start ({p.axis})",
-                    f"push {p.index} peak |F|={p.magnitude:.1f} N ({vec}) N",
-                    f"push {p.index} end",
-                ]
-            log.text_log("events/pushes", np.array(times), texts, ["INFO"] * len(times))
+        from ditherlab.thresholds import find_pushes
+
+        w = rec.wrench
+        times, texts = [], []
+        for k, p in enumerate(find_pushes(t, w), 1):
+            ax = "xyz".index(p.axis)
+            i = p.i0 + int(np.argmax(np.abs(w[p.i0 : p.i1, ax])))
+            applied = f"{'+' if p.sign > 0 else '-'}{p.axis}"
+            times += [p.start, float(t[i]), p.end]
+            texts += [
+                f"push {k} start ({applied})",
+                f"push {k} peak: {p.peak:.1f} N applied along {applied}",
+                f"push {k} end ({p.end - p.start:.2f} s)",
+            ]
+        log.text_log("events/pushes", np.array(times), texts, ["INFO"] * len(times))
     _log_commanded_pushes(log, rec)
     if estimates is None:
         return
@@ -903,66 +906,6 @@ def _log_commanded_pushes(log: _Logger, rec: Recording) -> None:
             [texts[i] for i in order],
             ["DEBUG"] * len(order),
         )
-
-
-@dataclass(frozen=True)
-class Push:
-    """One push seen by the F/T sensor (times [s], force [N])."""
-
-    index: int
-    t_start: float
-    t_peak: float
-    t_end: float
-    peak: tuple[float, float, float]
-    magnitude: float
-    axis: str
-
-
-def find_pushes(
-    t: np.ndarray, force: np.ndarray, threshold: float = 3.0, min_gap: float = 0.2
-) -> list[Push]:
-    """Pushes in the sensor force: spans where ``|f|`` exceeds ``threshold``.
-
-    Uses :func:`ditherlab.thresholds.find_pushes` when that module provides it; this function's
-    own rule is a hysteresis-free threshold on ``|f|`` with spans closer than ``min_gap`` merged.
-
-    Parameters
-    ----------
-    t : (N,) [s]
-    force : (N, 3) [N]
-    threshold : [N]
-    min_gap : [s]
-
-    Returns
-    -------
-    list of Push, in time order
-    """
-    mag = np.linalg.norm(force, axis=1)
-    on, off = _edges(mag > threshold)
-    if len(off) < len(on):
-        off = np.append(off, len(t))
-    spans: list[list[int]] = []
-    for a, b in zip(on, off, strict=True):
-        if spans and t[a] - t[spans[-1][1] - 1] < min_gap:
-            spans[-1][1] = b
-        else:
-            spans.append([a, b])
-    out = []
-    for k, (a, b) in enumerate(spans):
-        i = a + int(np.argmax(mag[a:b]))
-        pk = force[i]
-        out.append(
-            Push(
-                k + 1,
-                float(t[a]),
-                float(t[i]),
-                float(t[b - 1]),
-                tuple(map(float, pk)),
-                float(mag[i]),
-                "xyz"[int(np.argmax(np.abs(pk)))],
-            )
-        )
-    return out
 
 
 # ---------------------------------------------------------------------- diagnosis
