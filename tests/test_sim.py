@@ -318,3 +318,35 @@ def test_cli_unknown_config_key(cli, tmp_path):
     cfg.write_text("[dither]\nfrequence = 70\n")
     r = cli("simulate", "push-campaign", "-o", tmp_path / "x.parquet", "--config", cfg, "-q")
     assert r.code == 2 and f"{cfg}: unknown key 'dither.frequence'" in r.err
+
+
+@functools.lru_cache(maxsize=1)
+def _lead():
+    return simulate("lead-through", seed=SEED)
+
+
+def test_lead_through_follows_the_operator_and_stops_when_released():
+    """Lead-through: the tool moves along each push (z, y, x, combined) and stops after release."""
+    rec = _lead()
+    tool = rec.robot().tool_pose(rec.q)[:, :3, 3]
+    for s in rec.meta["sim"]["operator"]:
+        t_release = s["t0"] + 0.8 + s["flat"]
+        i0, i1 = np.searchsorted(rec.t, [s["t0"], t_release])
+        move = tool[i1] - tool[i0]
+        along = move @ np.asarray(s["direction"])
+        assert along > 0.05 and along > 0.9 * np.linalg.norm(move)
+        i2, i3 = np.searchsorted(rec.t, [t_release + 1.0, t_release + 2.4])
+        assert np.linalg.norm(tool[i3] - tool[i2]) / (rec.t[i3] - rec.t[i2]) < 0.005  # [m/s]
+
+
+def test_lead_through_dithers_only_when_still():
+    """Lead-through: dither is on while standing still and ramped off once the tool moves."""
+    rec = _lead()
+    assert rec.dither[(rec.t > 1.5) & (rec.t < 4.0)].all()
+    for s in rec.meta["sim"]["operator"]:
+        late = (rec.t > s["t0"] + 0.4 + s["flat"] - 0.5) & (rec.t < s["t0"] + 0.4 + s["flat"])
+        assert not rec.dither[late].any()  # off by the end of each push (1 s ramp)
+    est = rec.data[["fhat_x", "fhat_y", "fhat_z"]].to_numpy()
+    s = rec.meta["sim"]["operator"][2]  # the x push, mid-way
+    k = np.searchsorted(rec.t, s["t0"] + 0.4 + s["flat"] / 2)
+    assert abs(est[k, 0] - s["magnitude"]) < 0.25 * s["magnitude"]

@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.errors import ConfigError
 from ditherlab.recording import Recording
 from ditherlab.sim.engine import Engine, Inputs, PlantExtras
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
@@ -181,17 +180,6 @@ def push_campaign(
         "hidden": hp.truth,
     }
     return cols, sim_meta
-
-
-SCENARIOS = {"push-campaign": push_campaign}
-
-
-def check_scenario(name: str) -> None:
-    """Raise ConfigError for an unknown scenario name."""
-    if name not in SCENARIOS and name != "lead-through":
-        raise ConfigError(
-            f"scenario '{name}' is unknown; expected one of {', '.join([*SCENARIOS, 'lead-through'])}"
-        )
 
 
 def to_recording(cols: dict[str, Any], meta: dict[str, Any]) -> Recording:
