@@ -600,3 +600,19 @@ def test_blueprint_points_at_logged_entities(simulated, cli):
     assert unmatched and all(any(fnmatch.fnmatchcase(u, a) for a in allowed) for u in unmatched), (
         unmatched
     )
+
+
+def test_save_view_files_for_the_demo(simulated):
+    """The demo's one call writes the .rrd from file paths and refuses to write over an input."""
+    out = rl.save_view_files(
+        simulated["rec_path"],
+        simulated["dir"] / "demo.rrd",
+        estimates=simulated["est_path"],
+        model=simulated["model_path"],
+    )
+    assert rl.rrd_contents(out)["force/x/dither_band"]["Scalars:scalars"] > 0
+    odd = simulated["dir"] / "model-named.rrd"  # a model file may have any name
+    odd.write_bytes(simulated["model_path"].read_bytes())
+    with pytest.raises(DitherlabError, match="refusing to write over the input"):
+        rl.save_view_files(simulated["rec_path"], odd, model=odd)
+    assert odd.read_bytes() == simulated["model_path"].read_bytes()

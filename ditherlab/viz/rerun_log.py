@@ -1255,3 +1255,24 @@ def run_view(
         return ViewResult(summary, path=req.save)
     url = show_view(req.rec, mode=str(req.mode), **kw)
     return ViewResult(ViewSummary(), url=url)
+
+
+def save_view_files(
+    recording: str | Path,
+    out: str | Path,
+    *,
+    estimates: str | Path | None = None,
+    model: str | Path | None = None,
+    diagnosis: str | Path | None = None,
+    rate_3d: float | None = 25.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Read the files, check them and write the view to ``out`` (``.rrd``); returns ``out``.
+
+    The one call a script (``make demo``) needs; see :func:`load_view_request` for the checks.
+    """
+    req = load_view_request(
+        recording, estimates=estimates, model=model, diagnosis=diagnosis, save=out
+    )
+    run_view(req, rate_3d=rate_3d, progress=progress)
+    return Path(out)
