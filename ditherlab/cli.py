@@ -235,6 +235,7 @@ def simulate(
     dither: Annotated[bool, typer.Option("--dither/--no-dither", help="Dither while standing still.")] = True,
     hidden: Annotated[list[str] | None, typer.Option("--hidden", help="Inject an effect the base model lacks: NAME[:SIZE], repeatable.")] = None,
     pushes_per_direction: Annotated[int | None, typer.Option("--pushes-per-direction", help="Pushes per axis and sign (push-campaign).")] = None,
+    log_temperature: Annotated[bool, typer.Option("--log-temperature/--no-log-temperature", help="With --hidden temperature_friction: write temp_j columns.")] = True,
     quiet: Quiet = False,
 ) -> None:
     """Simulate the built-in IRB140 (gear springs, stick-slip friction, servo, dither) to a recording."""
@@ -243,7 +244,8 @@ def simulate(
 
     with progress_bar(f"simulate {scenario}", quiet) as progress:
         rec = run_sim(scenario, seed=seed, dither=dither, config=config, hidden=hidden or [],
-                      progress=progress, pushes_per_direction=pushes_per_direction)
+                      progress=progress, pushes_per_direction=pushes_per_direction,
+                      log_temperature=None if log_temperature else False)
     echo(f"wrote {write(rec, out)} ({rec.duration:.1f} s simulated)")
 
 

@@ -350,3 +350,25 @@ def test_lead_through_dithers_only_when_still():
     s = rec.meta["sim"]["operator"][2]  # the x push, mid-way
     k = np.searchsorted(rec.t, s["t0"] + 0.4 + s["flat"] / 2)
     assert abs(est[k, 0] - s["magnitude"]) < 0.25 * s["magnitude"]
+
+
+def test_cli_no_log_temperature(cli, tmp_path):
+    """--no-log-temperature hides the temperature columns of temperature_friction."""
+    out = tmp_path / "t.parquet"
+    r = cli(
+        "simulate",
+        "push-campaign",
+        "-o",
+        out,
+        "--pushes-per-direction",
+        "1",
+        "--hidden",
+        "temperature_friction:10",
+        "--no-log-temperature",
+        "-q",
+    )
+    assert r.code == 0, r.err
+    from ditherlab.io import read
+
+    rec = read(out)
+    assert rec.temp is None and rec.meta["sim"]["hidden"][0]["log_temperature"] is False

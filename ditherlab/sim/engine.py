@@ -205,8 +205,9 @@ class Engine:
         state : from :meth:`initial_state`
         progress : ``progress(done, total)`` in samples
         reference : use the plain numpy step instead of the compiled kernel
-        chunk_callback : ``f(k0, k1, state, out)`` after every chunk (closed-loop scenarios may
-            modify the inputs of later samples in place)
+        chunk_callback : ``f(k0, k1, state, out)`` after every chunk with the raw output array
+            ``out`` (N_OUT, N, n); closed-loop scenarios may modify the inputs of later samples in
+            place (the input arrays must then be float64 and C-contiguous, so they are not copied)
 
         Returns
         -------

@@ -17,7 +17,7 @@ implicit); a slipping side whose update would reverse its velocity sticks. Why: 
 alternatives (tanh, LuGre, presliding springs) let the servo's velocity integral creep through
 the band, so a sub-band push shows fully in the torque (the paper's Fig. 2 left is lost), and a
 velocity threshold (Karnopp) chatters and depends on the step size (SIMULATOR-NOTES.md;
-``tests/test_sim_plant.py`` checks step independence and the flat torque below the band). On the
+``tests/test_sim_paper.py`` checks step independence and the flat torque below the band). On the
 link side the joints are coupled through M, so the stuck/slip friction torques are found by
 projected Gauss-Seidel on ``W = M^-1`` (a box problem per joint, warm-started).
 
