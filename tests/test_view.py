@@ -616,3 +616,12 @@ def test_save_view_files_for_the_demo(simulated):
     with pytest.raises(DitherlabError, match="refusing to write over the input"):
         rl.save_view_files(simulated["rec_path"], odd, model=odd)
     assert odd.read_bytes() == simulated["model_path"].read_bytes()
+
+
+def test_window_mean_equals_the_extraction_centre(campaign):
+    """The fast window mean equals ditherlab.dither.extract's centre (the paper's period mean)."""
+    from ditherlab.dither import extract
+
+    rec = campaign["rec"]
+    ext = extract(rec.tau, rec.t, 2 * np.pi / 80)
+    np.testing.assert_allclose(rl.window_mean(rec.tau, ext.window), ext.centre, atol=1e-9)

@@ -611,22 +611,25 @@ def _log_dither(
         return
     from ditherlab.dither import dithered_band, extract
 
-    ext = extract(rec.tau, rec.t, period)
     d = estimates.data if estimates is not None else None
+    have = d is not None and all(f"extract/{s}_1" in d.columns for s in EXTRACT_SIGNALS)
+    # The estimates file's own columns when present (the numbers replay used); the extraction of
+    # ditherlab.dither otherwise. The window is the extraction's: whole periods at this rate.
+    window = max(2, int(round(period / float(np.median(np.diff(rec.t)))))) if len(rec) > 1 else 2
+    ext = None if have else extract(rec.tau, rec.t, period)
+    centre = window_mean(rec.tau, window) if ext is None else ext.centre  # (N, n) [N·m]
     still = model.regimes.get("still") if model is not None else None
     # Dither quantities mean something only where the dither was on over the whole window; NaN
     # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
-    on = _dither_window_on(rec, ext.window)
+    on = _dither_window_on(rec, window)
     off = ~on
     # The simulator states its amplitude set-points (the reference of Fig. 5) in the metadata.
     setpoint = ((rec.meta.get("sim") or {}).get("dither_amplitudes") or {}).get("set_point")
     for j in range(1, rec.n + 1):
         sig: dict[str, np.ndarray] = {}
         for s in EXTRACT_SIGNALS:
-            c = f"extract/{s}_{j}"
-            # The estimates file's own columns when present: the numbers replay used.
-            if d is not None and c in d.columns:
-                sig[s] = d[c].to_numpy(dtype=float)
+            if ext is None:
+                sig[s] = d[f"extract/{s}_{j}"].to_numpy(dtype=float)
             else:
                 sig[s] = getattr(ext, s)[:, j - 1]
         # upper, lower, signal and the window mean (Fig. 5's measured centre) share one entity
@@ -636,7 +639,7 @@ def _log_dither(
             np.where(
                 off[:, None],
                 np.nan,
-                np.column_stack([sig[s] for s in EXTRACT_SIGNALS] + [ext.centre[:, j - 1]]),
+                np.column_stack([sig[s] for s in EXTRACT_SIGNALS] + [centre[:, j - 1]]),
             ),
             names=[*EXTRACT_SIGNALS, "centre (window mean)"],
             colors=[[220, 50, 50], [40, 170, 60], [0, 0, 0], shades["centre"]],
@@ -687,6 +690,28 @@ def _log_dither(
                 names=["shrunk band min", "shrunk band max"],
                 colors=[REGIME_COLORS["dither"]] * 2,
             )
+
+
+def window_mean(x: np.ndarray, window: int) -> np.ndarray:
+    """Causal moving mean over the last ``window`` samples (fewer at the start).
+
+    The paper's dither centre (§III-B): the mean of the samples of the last whole periods; the
+    same definition as :attr:`ditherlab.dither.DitherSignal.centre`, by cumulative sums.
+
+    Parameters
+    ----------
+    x : (N, n)
+    window : samples
+
+    Returns
+    -------
+    (N, n), same unit as ``x``
+    """
+    x = np.asarray(x, dtype=float)
+    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    idx = np.arange(len(x))
+    lo = np.maximum(idx - window + 1, 0)
+    return (c[idx + 1] - c[lo]) / (idx + 1 - lo)[:, None]
 
 
 def _dither_window_on(rec: Recording, window: int) -> np.ndarray:
