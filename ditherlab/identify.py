@@ -674,13 +674,16 @@ def identify(
         band = _assemble(code, n, fits, out_regimes.get(name))
         if band is not None:
             out_regimes[name] = band
+    widened = _coulomb_floor(out_regimes, fits)
     if dither_band == "shrunk" and "dither" in out_regimes and "still" in out_regimes and amps:
         out_regimes["dither"], amp = _shrunk_dither_band(
             out_regimes["still"], out_regimes["dither"], amps
         )
         dither_note = (
             "; dither band = still band shrunk by the measured dither amplitude "
-            + "[" + ", ".join(f"{a:.3g}" for a in amp) + "] N·m (paper Fig. 4)"
+            + "["
+            + ", ".join(f"{a:.3g}" for a in amp)
+            + "] N·m (paper Fig. 4)"
         )
     else:
         dither_note = "; dither band fitted on the extracted signal" if amps else ""
@@ -695,6 +698,12 @@ def identify(
         + (" assuming no external force (no F/T sensor)" if assume_no_force else "")
         + f"; bootstrap {n_boot} x {block:g} s blocks, seed {seed}"
         + dither_note
+        + (
+            "; still band widened to the sliding friction (a stuck joint holds at least "
+            f"coulomb) on joint(s) {', '.join(str(j + 1) for j in widened)}"
+            if widened
+            else ""
+        )
     )
     model = TorqueModel(
         robot=first.meta["robot"],
@@ -710,6 +719,26 @@ def identify(
         notes=notes,
     )
     return model
+
+
+def _coulomb_floor(regs: dict[str, Band], fits: dict) -> list[int]:
+    """Widen the fitted still band of a joint to ``[-|coulomb|, |coulomb|]`` where the moving
+    data give its sliding friction: physically the static band holds at least the sliding
+    friction (Fs >= Fc), and a joint that the pushes never moved out of its band shows only a
+    sliver of it in the still data. Returns the (0-based) joints widened."""
+    st, mv = regs.get("still"), regs.get("moving")
+    if st is None or mv is None or mv.coulomb is None:
+        return []
+    out = []
+    for j in range(len(st.sigma)):
+        if (MOVING, j) not in fits or (STILL, j) not in fits:
+            continue
+        c = abs(float(mv.coulomb[j]))
+        if st.tau_min[j] > -c or st.tau_max[j] < c:
+            st.tau_min[j] = min(st.tau_min[j], -c)
+            st.tau_max[j] = max(st.tau_max[j], c)
+            out.append(j)
+    return out
 
 
 def _shrunk_dither_band(

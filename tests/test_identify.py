@@ -194,3 +194,31 @@ def test_cli_identify_without_sensor_exit_2(tmp_path, cli, campaign):
     assert r.code == 2
     assert r.err.count("\n") == 1 and "identify needs a reference F/T sensor" in r.err
     assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def sim_pair():
+    from ditherlab.sim import simulate
+
+    return [simulate("push-campaign", seed=3, dither=d, pushes_per_direction=6) for d in (False, True)]
+
+
+def test_identify_against_simulator_truth(sim_pair):
+    """On the simulator's paired campaigns the still band of the pushed joints lies between the
+    true sliding (Coulomb) and static friction, the noise matches, and the dither band is the
+    still band shrunk by about the simulator's dither amplitude set-point."""
+    model = identify(sim_pair, n_boot=5)
+    truth = sim_pair[0].meta["sim"]
+    fs = np.array(truth["bands"]["static"])
+    fc = np.array(truth["bands"]["coulomb"])
+    st = model.regimes["still"]
+    for j in range(3):  # joints 1-3 carry the x, y, z pushes in the paper's pose
+        assert -fs[j] - 0.3 <= st.tau_min[j] <= -fc[j] + 0.3
+        assert fc[j] - 0.3 <= st.tau_max[j] <= fs[j] + 0.3
+    frac = truth["params"]["noise"]["tau_sigma_fraction"]
+    np.testing.assert_allclose(st.sigma[:3], frac * fs[:3], rtol=0.2)
+    d = model.regimes["dither"]
+    amp = np.array(truth["params"]["dither"]["amplitude_fraction"]) * fs
+    width = (st.tau_max - st.tau_min) - (d.tau_max - d.tau_min)
+    np.testing.assert_allclose(width[:3], np.minimum(2 * amp[:3], st.tau_max[:3] - st.tau_min[:3]),
+                               atol=0.15 * fs[0])
