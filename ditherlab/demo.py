@@ -257,6 +257,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         res = run_pipeline(args.out, pushes_per_direction=args.pushes, quiet=args.quiet)
         print(pipeline_text(res), flush=True)
+        from ditherlab.viz.rerun_log import save_view_files
+
+        rrd = save_view_files(
+            res.recordings[1], args.out / "demo.rrd", estimates=res.estimates[1], model=res.model
+        )
+        print(f"\n== Rerun view of {res.recordings[1].name}: open it with: rerun {rrd}", flush=True)
         rec = dio.read(args.recording)
         print(f"\n== ditherlab info {args.recording}")
         print(format_info(describe(rec)))
