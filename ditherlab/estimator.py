@@ -27,7 +27,14 @@ Backends (one function, :func:`estimate`, dispatches on ``backend``):
     point is the global minimiser of the convex ``f`` (exact up to the rounding of one Cholesky
     solve; :attr:`Solution.kkt` reports the scaled gradient, typically ~1e-15). A full step that
     does not lower ``f`` is replaced by an exact line search on the piecewise-quadratic ``f``
-    along the Newton direction, which makes the iteration monotone and finite.
+    along the Newton direction, which makes the iteration monotone and finite. The pieces are
+    solved by QR (not the normal equations), so tiny noise does not square the conditioning.
+    Limit: when ``max(w) / min(p)`` exceeds ~1e14 (e.g. sigma 1e-4 N·m with prior_sigma 2e4 N)
+    whether a joint held at its band edge is active is decided below double precision; the
+    solver then tries releasing each such joint and keeps the release when it lowers ``f``,
+    which fixed the cases found by fuzzing but not all of them (a fuzz of 300 problems at that
+    conditioning left 5 samples up to 6 N away from quadprog; at sane conditioning the worst
+    deviation was 5e-8 relative).
 ``"proxsuite"`` / ``"quadprog"``
     The reference: the same QP in ``(F, tau_f)`` solved per sample through ``qpsolvers``
     (ProxQP with ``eps_abs = 1e-12`` on a scaled problem; quadprog's dual active set method).
@@ -315,6 +322,7 @@ def _cost(tb, J, a, b, w, p, fb, F, m, n):
 
 @njit(cache=True)
 def _sides(tb, J, a, b, F, m, n, s):
+    """Side of every joint at F: +1 above its band, -1 below, 0 inside."""
     for j in range(n):
         r = tb[j]
         for i in range(m):
@@ -435,6 +443,7 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
     F = fb.copy()
     s = np.zeros(n, np.int8)
     sn = np.zeros(n, np.int8)
+    sa = np.zeros(n, np.int8)
     for k in range(N):
         tbk, Jk, ak, bk, wk, pk = tb[k], J[k], a[k], b[k], w[k], p[k]
         # warm start from the previous sample's solution (time series are smooth)
@@ -444,6 +453,7 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
         _sides(tbk, Jk, ak, bk, F, m, n, s)
         fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
         it = 0
+        n_amb_tries = 0
         while it < max_iter:
             it += 1
             _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, s, m, n, R, z, u, x)
@@ -454,6 +464,39 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
                     same = False
                     break
             if same:
+                # Joints held active at a distance within rounding of their edge: with a huge
+                # w_j (tiny noise) and a weak prior the sign of that distance is noise, and the
+                # piece without them may be the true optimum (13 N away in a fuzzed case).
+                improved = False
+                if n_amb_tries < 8:
+                    f1 = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
+                    fbest = f1 - 1e-12 * (1.0 + f1)
+                    for j in range(n):
+                        if s[j] == 0:
+                            continue
+                        e = bk[j] if s[j] > 0 else ak[j]
+                        r = tbk[j]
+                        size = abs(tbk[j]) + abs(e)
+                        for i in range(m):
+                            r -= Jk[i, j] * x[i]
+                            size += abs(Jk[i, j] * x[i])
+                        if abs(r - e) > 1e-9 * size:
+                            continue
+                        for q in range(n):
+                            sa[q] = s[q]
+                        sa[j] = 0
+                        _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, sa, m, n, R, z, u, d)
+                        f2 = _cost(tbk, Jk, ak, bk, wk, pk, fb, d, m, n)
+                        if f2 < fbest:
+                            fbest = f2
+                            improved = True
+                            for i in range(m):
+                                F[i] = d[i]
+                if improved:
+                    n_amb_tries += 1
+                    fcur = fbest
+                    _sides(tbk, Jk, ak, bk, F, m, n, s)
+                    continue
                 for i in range(m):
                     F[i] = x[i]
                 break
@@ -770,6 +813,12 @@ def solve(
 #                 at each breakpoint) until it reaches the threshold. In the purely Gaussian case
 #                 (zero-width bands) this is the Bayesian 95 % interval F_hat_i +- 1.96 sd_i and
 #                 covers exactly; a band makes it wider (residuals inside the band cost nothing).
+#
+# Measured coverage of 95 % intervals on data drawn from the model (tests, seeded): profile
+# 0.949 with Gaussian noise only, 0.975 with bands (forces ~0.999, moments ~0.95); set membership
+# 0.996-0.997. The LP fast path agrees with linprog (HiGHS) to ~1e-8 on the test problems and to
+# ~4e-6 relative on fuzzed ill-conditioned ones (HiGHS's own feasibility tolerance is 1e-7).
+# Prior-less components whose data bound exceeds BIG_BOX = 1e9 are reported infinite.
 #
 # Components held at the prior give lo = hi = prior_mean. Components without a prior that the
 # data cannot see (information below 1e-10 of the sample's mean) give -inf / +inf.
@@ -1394,7 +1443,9 @@ def set_membership_reference(prob: Problem, level: float = 0.95) -> tuple[np.nda
                     if res.status in (0, 2, 3):
                         break
                 if res.status == 2:
-                    val = np.nan
+                    # the polytope is known to be non-empty (checked above): HiGHS's presolve
+                    # reports "infeasible or unbounded" as infeasible; it is unbounded
+                    val = -sg * np.inf
                 elif res.status not in (0, 3):
                     raise ConfigError(
                         f"estimator: linprog failed at sample {k} (status {res.status}: "
