@@ -625,3 +625,21 @@ def test_window_mean_equals_the_extraction_centre(campaign):
     rec = campaign["rec"]
     ext = extract(rec.tau, rec.t, 2 * np.pi / 80)
     np.testing.assert_allclose(rl.window_mean(rec.tau, ext.window), ext.centre, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_demo_writes_rrd_and_says_how_to_open(tmp_path, capsys):
+    """`make demo` (ditherlab.demo.main) writes demo.rrd with the estimates and prints `rerun <path>`."""
+    import warnings
+
+    from ditherlab.demo import main
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        assert main(["--out", str(tmp_path), "--pushes", "1", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    rrd = tmp_path / "demo.rrd"
+    assert f"open it with: rerun {rrd}" in out
+    c = rl.rrd_contents(rrd)
+    assert c["force/z/dither_band"]["Scalars:scalars"] > 1000
+    assert "joints/1/residual/v1" in c and "robot/force/dither_band/interval" in c
