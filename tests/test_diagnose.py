@@ -1,0 +1,171 @@
+"""Tests of diagnosis: the hidden effect ranked first, the error falling after adding it, no false
+discovery on clean data, two effects in turn, the CLI, the history and bad input.
+
+Recordings come from the synthetic plant of ``test_effects.make_recording`` (moving IRB140,
+hidden effects in forms that differ from the library's); models from ``identify``.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from test_effects import make_recording
+
+from ditherlab.diagnose import diagnose, noise_floor_sq, residual_summary
+from ditherlab.effects import add_effect, scored
+from ditherlab.identify import identify
+from ditherlab.io import write
+from ditherlab.model import EffectSpec, TorqueModel
+
+#: hidden effect -> joints (1-based) where the synthetic plant has it
+HIDDEN = {
+    "stribeck": [2, 3],
+    "load_friction": [2, 3],
+    "temperature_friction": [1, 2, 3],
+    "position_ripple": [2],
+    "payload": None,
+    "attenuation_lag": None,
+    "ft_bias": None,
+    "inertia": None,
+}
+
+
+def _identify(rec):
+    return identify([rec], n_boot=3)
+
+
+@pytest.fixture(scope="module")
+def loops():
+    """Per hidden effect: recording, model, diagnosis, model with the top effect, RMS after."""
+    out = {}
+    for name in HIDDEN:
+        rec = make_recording((name,), seed=7, duration=8.0)
+        m = _identify(rec)
+        d = diagnose(m, [rec])
+        after = None
+        if d.suggested:
+            m2 = add_effect(m, [rec], d.suggested[0].effect)
+            after = residual_summary(m2, [scored(m2, rec)])
+        out[name] = (rec, m, d, after)
+    return out
+
+
+@pytest.mark.parametrize("name", list(HIDDEN))
+def test_hidden_effect_ranked_first_on_right_joints(loops, name):
+    """Diagnosis suggests the planted effect first, on the joints where it was planted."""
+    _, _, d, _ = loops[name]
+    assert d.suggested, d.summary()
+    top = d.suggested[0]
+    assert top.effect == name, d.summary()
+    if HIDDEN[name] is not None:
+        assert top.joints == HIDDEN[name]
+    assert top.explained_fraction > 0.2
+
+
+@pytest.mark.parametrize("name", list(HIDDEN))
+def test_error_falls_to_noise_floor_after_adding(loops, name):
+    """Adding the top effect cuts the worst joint's residual RMS by >= 30 % and brings it within
+    25 % of the noise floor."""
+    _, _, d, after = loops[name]
+    r0 = np.array(d.residual["torque_rms"])
+    floor = np.array(d.residual["noise_floor"])
+    r1 = np.array(after["torque_rms"])
+    j = int(np.argmax(r0 / floor))
+    assert r1[j] <= 0.7 * r0[j], (r0, r1)
+    assert np.all(r1 <= 1.25 * floor), (r1, floor)
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_no_false_discovery_on_clean_data(seed):
+    """A recording without hidden effects gives no suggested candidate and a residual at the floor."""
+    rec = make_recording((), seed=seed, duration=8.0)
+    d = diagnose(_identify(rec), [rec])
+    assert not d.suggested, d.summary()
+    r = np.array(d.residual["torque_rms"])
+    assert np.all(r <= 1.15 * np.array(d.residual["noise_floor"]))
+
+
+def test_two_effects_larger_first_then_smaller():
+    """With two effects planted, the larger is suggested first, and after adding it the smaller."""
+    rec = make_recording(("load_friction", "position_ripple"), seed=8, duration=10.0)
+    m = _identify(rec)
+    d = diagnose(m, [rec])
+    assert d.suggested[0].effect == "load_friction", d.summary()
+    m2 = add_effect(m, [rec], "load_friction")
+    d2 = diagnose(m2, [rec])
+    assert d2.suggested and d2.suggested[0].effect == "position_ripple", d2.summary()
+    assert d2.suggested[0].joints == [2]
+
+
+def test_noise_floor_formula():
+    """The still-regime floor is sigma²/2 for a wide band, sigma² for a zero band, and matches a
+    Monte Carlo of a friction at the band edge plus noise."""
+    s = np.array([0.3])
+    assert noise_floor_sq(s, np.array([100.0]), np.array([False]))[0] == pytest.approx(0.045)
+    assert noise_floor_sq(s, np.array([0.0]), np.array([False]))[0] == pytest.approx(0.09)
+    h = 0.2
+    x = h + np.random.default_rng(0).normal(0, 0.3, 400_000)
+    mc = np.mean(np.maximum(np.abs(x) - h, 0) ** 2)
+    assert noise_floor_sq(s, np.array([h]), np.array([False]))[0] == pytest.approx(mc, rel=0.02)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A recording with a hidden ripple and its identified model, on disk."""
+    d = tmp_path_factory.mktemp("diag")
+    rec = make_recording(("position_ripple",), seed=9, duration=8.0)
+    rp = write(rec, d / "rec.parquet")
+    mp = _identify(rec).save(d / "model.toml")
+    return d, rp, mp, rec
+
+
+def test_cli_json_report_and_history(files, cli):
+    """The CLI prints the JSON contract (best first), writes report + figures, and the history
+    gains one row per model version with the torque RMS falling."""
+    d, rp, mp, rec = files
+    res = cli("diagnose", rp, "--model", mp, "--json", "-o", d / "report")
+    assert res.code == 0, res.err
+    out = json.loads(res.out)
+    assert set(out) >= {"model", "residual", "candidates"}
+    c0 = out["candidates"][0]
+    assert c0["effect"] == "position_ripple" and c0["joints"] == [2] and c0["suggested"]
+    fr = [c["explained_fraction"] for c in out["candidates"] if c["suggested"]]
+    assert fr == sorted(fr, reverse=True)
+    assert (d / "report" / "report.md").is_file()
+    assert (d / "report" / f"evidence_{c0['effect']}.png").stat().st_size > 1000
+    m1 = TorqueModel.load(mp)
+    assert len(m1.history) == 1 and m1.history[0]["version"] == 1
+    m2 = add_effect(m1, [rec], "position_ripple")
+    mp2 = m2.save(d / "model2.toml")
+    res = cli("diagnose", rp, "--model", mp2, "-o", d / "report2")
+    assert res.code == 0, res.err
+    hist = TorqueModel.load(mp2).history
+    assert [h["version"] for h in hist] == [1, 2]
+    assert hist[1]["torque_rms"][1] < 0.7 * hist[0]["torque_rms"][1]
+    assert "| 2 | position_ripple |" in (d / "report2" / "report.md").read_text()
+
+
+def test_cli_bad_input(files, cli, tmp_path):
+    """Unknown effect, a missing column and a model without the recording's regime: one line,
+    exit 2."""
+    d, rp, mp, rec = files
+    m = TorqueModel.load(mp)
+    m.effects = [EffectSpec("friction", [1], {})]
+    bad = m.save(tmp_path / "bad.toml")
+    res = cli("diagnose", rp, "--model", bad, "--no-history", "--quiet")
+    assert res.code == 2 and res.err.strip().count("\n") == 0
+    assert "unknown effect 'friction', expected one of: viscous, stribeck" in res.err
+    nof = write(make_recording((), seed=1, duration=4.0, wrench=False), tmp_path / "nof.parquet")
+    m.effects = []
+    m2 = add_effect(m, [rec], "ft_bias", refit=False)
+    p2 = m2.save(tmp_path / "bias.toml")
+    res = cli("diagnose", nof, "--model", p2, "--no-history", "--quiet")
+    assert res.code == 2 and "needs the F/T sensor column f_x" in res.err
+    m3 = TorqueModel.load(mp)
+    del m3.regimes["moving"]
+    p3 = m3.save(tmp_path / "nomoving.toml")
+    res = cli("diagnose", rp, "--model", p3, "--no-history", "--quiet")
+    assert res.code == 2
+    assert "moving samples but the model has no [regimes.moving]" in res.err
