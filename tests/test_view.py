@@ -643,3 +643,16 @@ def test_demo_writes_rrd_and_says_how_to_open(tmp_path, capsys):
     c = rl.rrd_contents(rrd)
     assert c["force/z/dither_band"]["Scalars:scalars"] > 1000
     assert "joints/1/residual/v1" in c and "robot/force/dither_band/interval" in c
+
+
+def test_model_of_another_robot_is_refused(campaign, tmp_path, cli):
+    """A model identified on another robot gives one line naming both robots and exit 2."""
+    from ditherlab.model import Band, TorqueModel
+
+    m = TorqueModel(
+        robot="ur10e", n=6, regimes={"still": Band(-np.ones(6), np.ones(6), np.ones(6))}
+    )
+    path = m.save(tmp_path / "ur.toml")
+    r = cli("view", campaign["rec_path"], "--model", path, "--save", tmp_path / "x.rrd", "-q")
+    assert r.code == 2 and r.err.strip().count("\n") == 0
+    assert "robot is irb140 with 6 joints but the model" in r.err and "ur10e" in r.err

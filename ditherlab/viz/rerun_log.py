@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import DitherlabError, FormatError, ModelError, RecordingError
+from ditherlab.errors import DitherlabError, FormatError, RecordingError
 from ditherlab.recording import FORCE_AXES, Recording
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -1248,10 +1248,10 @@ def load_view_request(
     if est is not None:
         check_estimates_match(rec, est)
     mdl = TorqueModel.load(model) if model is not None else None
-    if mdl is not None and mdl.n != rec.n:
-        raise ModelError(
-            f"{model}: the model has {mdl.n} joints, the recording {recording} has {rec.n}"
-        )
+    if mdl is not None:
+        from ditherlab.identify import check_robot
+
+        check_robot(mdl, rec)
     diag = load_diagnosis(diagnosis) if diagnosis is not None else None
     inputs = [Path(p) for p in (recording, estimates, model, diagnosis) if p is not None]
     if save is not None:
