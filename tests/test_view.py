@@ -172,7 +172,9 @@ def test_extraction_where_dither_is_on(campaign):
     tk, vals = rl.rrd_scalars(campaign["rrd"], "joints/3/extract")
     idx = np.searchsorted(t, tk - 1e-7)
     on = np.isfinite(vals[:, 0])
-    assert vals.shape[1] == 4 and (~on).sum() == 2  # the NaN stretch costs two rows
+    assert vals.shape[1] == 5 and (~on).sum() == 2  # the NaN stretch costs two rows
+    g = rec.robot().gravity(rec.q)[:, 2]
+    assert np.array_equal(vals[on, 4], g[idx][on])
     assert t[idx][on].min() > 6.0 and t[idx][~on].max() < 6.1  # dither on from t = 6 s
     for k, s in enumerate(("upper", "lower", "signal")):
         full = est[f"extract/{s}_3"].to_numpy()
@@ -596,7 +598,13 @@ def test_blueprint_points_at_logged_entities(simulated, cli):
             pat = q.replace("$origin", origin.rstrip("/")).lstrip("/").replace("/**", "*")
             if not any(fnmatch.fnmatchcase(e, pat) for e in entities):
                 unmatched.add(pat)
-    allowed = ("history/*", "diagnosis*", "info/diagnosis*", "info/history*")
+    allowed = (
+        "history/*",
+        "diagnosis*",
+        "info/diagnosis*",
+        "info/history*",
+        "joints/*/dither/centre*",
+    )
     assert unmatched and all(any(fnmatch.fnmatchcase(u, a) for a in allowed) for u in unmatched), (
         unmatched
     )

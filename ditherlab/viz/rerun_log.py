@@ -15,12 +15,13 @@ Entity layout (``j`` = 1..n, ``a`` = x, y, z, ``V`` = estimator variant)::
     joints/j/tau_bar            [tau - gravity(q) (- the model's effects), J^T F_sensor] [N·m]
     joints/j/band/<regime>      friction band edges [min, max] of the model [N·m]
     joints/j/dither/ffw         torque feedforward sent (dither square wave + centre) [N·m]
-    joints/j/dither/centre/<s>  Fig. 5 centre: its reference ``gravity`` and recording columns
-                                such as ``centre_ref_j``, ``dither_centre_meas_j``
+    joints/j/dither/centre/<s>  Fig. 5 centre: recording columns such as ``centre_ref_j``,
+                                ``dither_centre_meas_j``
     joints/j/dither/amplitude/<s>  Fig. 5 amplitude: ``extracted`` ((upper - lower) / 2) and the
                                 recording's columns such as ``amp_ref_j``
-    joints/j/extract            [upper, lower, signal, centre] of the extraction (the estimates
-                                file's columns where present)
+    joints/j/extract            [upper, lower, signal, centre, gravity] (the extraction: the
+                                estimates file's columns where present; centre = window mean;
+                                gravity = the centre's reference)
     joints/j/fig4/signal_bar    extracted signal - gravity (- effects) [N·m]
     joints/j/band/dither_shrunk the still band shrunk by the extracted amplitude under dither
     joints/j/residual/v<k>      friction residual of model version k [N·m]
@@ -632,18 +633,22 @@ def _log_dither(
                 sig[s] = d[f"extract/{s}_{j}"].to_numpy(dtype=float)
             else:
                 sig[s] = getattr(ext, s)[:, j - 1]
-        # upper, lower, signal and the window mean (Fig. 5's measured centre) share one entity
-        # (same units and scale; one time column and row id for four series).
+        # upper, lower, signal, the window mean (Fig. 5's measured centre) and its reference, the
+        # gravity torque, share one entity (same units, scale and time base: one time column and
+        # row id for five series).
+        light = tuple(int(x + (255 - x) * 0.5) for x in shades["centre"])
         log.series(
             f"joints/{j}/extract",
             np.where(
                 off[:, None],
                 np.nan,
-                np.column_stack([sig[s] for s in EXTRACT_SIGNALS] + [centre[:, j - 1]]),
+                np.column_stack(
+                    [sig[s] for s in EXTRACT_SIGNALS] + [centre[:, j - 1], g[:, j - 1]]
+                ),
             ),
-            names=[*EXTRACT_SIGNALS, "centre (window mean)"],
-            colors=[[220, 50, 50], [40, 170, 60], [0, 0, 0], shades["centre"]],
-            widths=[1.0, 1.0, 2.0, 2.0],
+            names=[*EXTRACT_SIGNALS, "centre (window mean)", "centre reference (gravity)"],
+            colors=[[220, 50, 50], [40, 170, 60], [0, 0, 0], shades["centre"], light],
+            widths=[1.0, 1.0, 2.0, 2.0, 1.5],
         )
         amp = (sig["upper"] - sig["lower"]) / 2
         log.series(
@@ -652,14 +657,6 @@ def _log_dither(
             names="amplitude (extracted)",
             colors=[shades["amplitude"]],
             widths=2.0,
-        )
-        # The centre loop's reference is the gravity torque (Fig. 5, top).
-        log.series(
-            f"joints/{j}/dither/centre/gravity",
-            np.where(off, np.nan, g[:, j - 1]),
-            names="centre reference (gravity)",
-            colors=[tuple(int(x + (255 - x) * 0.5) for x in shades["centre"])],
-            widths=1.5,
         )
         if setpoint is not None and j <= len(setpoint):
             log.series(
