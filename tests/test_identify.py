@@ -137,7 +137,7 @@ def test_identify_dither_band_shrunk_rule(dither_campaign, campaign):
 def test_identify_moving_coulomb_viscous():
     """Moving segments give Coulomb and viscous friction and the band around them."""
     rec, truth = moving_recording(0)
-    model = identify([rec], n_boot=10)
+    model = identify([rec], n_boot=10, max_accel=np.inf)  # the synthetic joints have no inertia
     b = model.regimes["moving"]
     np.testing.assert_allclose(b.coulomb, truth["coulomb"], rtol=0.05)
     err = np.abs(b.viscous - truth["viscous"])
@@ -200,7 +200,9 @@ def test_cli_identify_without_sensor_exit_2(tmp_path, cli, campaign):
 def sim_pair():
     from ditherlab.sim import simulate
 
-    return [simulate("push-campaign", seed=3, dither=d, pushes_per_direction=6) for d in (False, True)]
+    return [
+        simulate("push-campaign", seed=3, dither=d, pushes_per_direction=6) for d in (False, True)
+    ]
 
 
 def test_identify_against_simulator_truth(sim_pair):
@@ -220,5 +222,6 @@ def test_identify_against_simulator_truth(sim_pair):
     d = model.regimes["dither"]
     amp = np.array(truth["params"]["dither"]["amplitude_fraction"]) * fs
     width = (st.tau_max - st.tau_min) - (d.tau_max - d.tau_min)
-    np.testing.assert_allclose(width[:3], np.minimum(2 * amp[:3], st.tau_max[:3] - st.tau_min[:3]),
-                               atol=0.15 * fs[0])
+    np.testing.assert_allclose(
+        width[:3], np.minimum(2 * amp[:3], st.tau_max[:3] - st.tau_min[:3]), atol=0.15 * fs[0]
+    )

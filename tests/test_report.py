@@ -1,0 +1,105 @@
+"""Tests of ditherlab.report and the `ditherlab report` command."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from synthetic import push_recording
+
+from ditherlab.identify import identify
+from ditherlab.replay import replay
+from ditherlab.report import make_report, paper_table, summary_text
+from ditherlab.thresholds import NoPushesError
+
+MAGS = (5.0, 15.0, 30.0, 50.0)
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    plain, _ = push_recording(4, magnitudes=MAGS)
+    dith, _ = push_recording(4, dither=True, magnitudes=MAGS)
+    model = identify([plain, dith], n_boot=0)
+    d = tmp_path_factory.mktemp("est")
+    paths = []
+    for name, r in (("plain", plain), ("dither", dith)):
+        est = replay(r, model)
+        paths.append(est.save(d / f"{name}.parquet"))
+    return paths, (plain, dith)
+
+
+def test_report_files_and_numbers(tmp_path, pair):
+    """The report folder holds Markdown, HTML, JSON (same numbers) and the figures."""
+    paths, recs = pair
+    out = tmp_path / "rep"
+    a = make_report(paths, out, recordings=list(recs), n_boot=20)
+    for f in (
+        "report.md",
+        "report.html",
+        "report.json",
+        "fig6_estimates.png",
+        "detection.png",
+        "fig2_torques.png",
+        "fig4_extraction.png",
+        "fig5_dither_control.png",
+    ):
+        assert (out / f).stat().st_size > 0, f
+        assert f in a["files"]
+    j = json.loads((out / "report.json").read_text())
+    assert (
+        j["conditions"]["dither_band"]["directions"]["x"]
+        == a["conditions"]["dither_band"]["directions"]["x"]
+    )
+    md = (out / "report.md").read_text()
+    assert "32 N / 40 N" in md and "10 N / 20 N" in md and "![" in md
+    assert "<table>" in (out / "report.html").read_text()
+    head, rows = paper_table(a)
+    assert [r[0] for r in rows] == ["x", "y", "z"] and len(head) == 6
+    assert "22 N / 30 N" in summary_text(a)
+
+
+def test_report_is_deterministic(tmp_path, pair):
+    """The same estimates and seed give an identical report.json."""
+    paths, _ = pair
+    make_report(paths, tmp_path / "a", n_boot=20, figures=False)
+    make_report(paths, tmp_path / "b", n_boot=20, figures=False)
+    assert (tmp_path / "a" / "report.json").read_text() == (
+        tmp_path / "b" / "report.json"
+    ).read_text()
+
+
+def test_cli_report_json(tmp_path, cli, pair):
+    """`ditherlab report --json` prints the numbers that report.json holds."""
+    paths, _ = pair
+    out = tmp_path / "rep"
+    r = cli("report", *paths, "-o", out, "--json", "--bootstrap", "10", "-q")
+    assert r.code == 0, r.err
+    printed = json.loads(r.out)
+    stored = json.loads((out / "report.json").read_text())
+    assert printed["conditions"] == stored["conditions"]
+
+
+def test_cli_report_without_pushes_exit_2(tmp_path, cli):
+    """Estimates without pushes: one line, exit 2, no report folder."""
+    rec, _ = push_recording(0, magnitudes=(5.0,), axes=("x",), signs=(1.0,))
+    rest = rec.slice(0.0, 1.9)  # before the first push
+    est = replay(rest, identify([rec], n_boot=0))
+    p = est.save(tmp_path / "rest.parquet")
+    out = tmp_path / "rep"
+    r = cli("report", p, "-o", out, "-q")
+    assert r.code == 2
+    assert r.err.count("\n") == 1 and "no pushes found" in r.err
+    assert not out.exists()
+    with pytest.raises(NoPushesError):
+        make_report([p], out)
+    assert not out.exists()
+
+
+def test_cli_report_on_a_recording_exit_2(tmp_path, cli, pair):
+    """A recording given where estimates are expected: one line naming the file, exit 2."""
+    from ditherlab.io import write
+
+    src = write(pair[1][0].slice(0, 5.0), tmp_path / "rec.parquet")
+    r = cli("report", src, "-o", tmp_path / "rep", "-q")
+    assert r.code == 2 and "expected 'ditherlab.estimates/1'" in r.err
+    assert not (tmp_path / "rep").exists()
