@@ -140,6 +140,8 @@ def view(
     save: Annotated[Path | None, typer.Option("--save", help="Write a Rerun file (.rrd).")] = None,
     spawn: Annotated[bool, typer.Option("--spawn", help="Open the Rerun viewer.")] = False,
     serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
     quiet: Quiet = False,
 ) -> None:
     """Review a recording, its estimates and model in Rerun (3D robot, torques, forces, events)."""
@@ -149,7 +151,7 @@ def view(
         raise DitherlabError("view: choose one of --spawn and --serve")
     mode = "spawn" if spawn else "serve" if serve else None
     req = load_view_request(recording, estimates=estimates, model=model, diagnosis=diagnosis,
-                            save=save, mode=mode)
+                            save=save, mode=mode, read_options=_read_options(mapping, robot))
     with progress_bar("view", quiet) as progress:
         res = run_view(req, progress=progress)
     if res.path is not None:

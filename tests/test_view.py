@@ -664,3 +664,16 @@ def test_model_of_another_robot_is_refused(campaign, tmp_path, cli):
     r = cli("view", campaign["rec_path"], "--model", path, "--save", tmp_path / "x.rrd", "-q")
     assert r.code == 2 and r.err.strip().count("\n") == 0
     assert "robot is irb140 with 6 joints but the model" in r.err and "ur10e" in r.err
+
+
+def test_foreign_log_through_a_mapping(shared_data, tmp_path, cli):
+    """A vendor CSV (real UR10e free motion) is viewed through its mapping file: the robot moves in 3D."""
+    out = tmp_path / "ur.rrd"
+    csv = shared_data / "ur10e" / "no_torque.csv"
+    r = cli("view", csv, "--mapping", "ur10e", "--save", out, "-q")
+    assert r.code == 0, r.err
+    c = rl.rrd_contents(out)
+    n = sum(1 for _ in csv.open())
+    assert c["joints/1/tau"]["Scalars:scalars"] == n
+    t, _ = rl.rrd_scalars(out, "joints/1/tau")
+    assert t[-1] - t[0] > 5.0

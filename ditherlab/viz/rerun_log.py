@@ -1219,11 +1219,13 @@ def load_view_request(
     diagnosis: str | Path | None = None,
     save: str | Path | None = None,
     mode: str | None = None,
+    read_options: Mapping[str, Any] | None = None,
 ) -> ViewRequest:
     """Read and check every input of a view before anything is logged or written.
 
     Exactly one of ``save`` (an ``.rrd`` path) and ``mode`` (``"spawn"`` or ``"serve"``) must be
-    given; the estimates must come from the recording; the model must have its joint count.
+    given; the estimates must come from the recording; the model must be for its robot.
+    ``read_options`` go to :func:`ditherlab.io.read` (``mapping``, ``robot`` for foreign logs).
 
     Raises
     ------
@@ -1240,7 +1242,7 @@ def load_view_request(
         raise ConfigError(f"view mode is {mode!r}, expected 'spawn' or 'serve'")
     if save is not None and Path(save).suffix != ".rrd":
         raise ConfigError(f"{save}: a Rerun recording must end in .rrd")
-    rec = read(recording)
+    rec = read(recording, **dict(read_options or {}))
     est = load_estimates(estimates) if estimates is not None else None
     if est is not None:
         check_estimates_match(rec, est)
