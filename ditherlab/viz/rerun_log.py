@@ -27,8 +27,14 @@ Entity layout (``j`` = 1..n, ``a`` = x, y, z, ``V`` = estimator variant)::
     joints/j/residual/v<k>      friction residual of model version k [N·m]
     force/a/sensor              sensor force [N]
     force/a/V                   [estimate, lo, hi] of variant V [N]
-    events/dither, events/pushes, events/detections/V, diagnosis    text logs
-    info/recording, info/model  text documents (static)
+    history/torque_rms/j        bar chart: residual RMS per model version (model history)
+    events/dither_flag          the dither flag as a 0/1 series
+    events/dither, events/pushes, events/pushes_simulated, events/detections/V, diagnosis
+                                text logs (dither on/off; pushes found in the F/T sensor and the
+                                simulator's own; detections per variant; worst windows)
+    info/recording, info/model, info/history, info/diagnosis    text documents (static)
+
+Forces are the wrench the robot exerts on its environment (RECORDING.md): a push P shows as -P.
 
 Series that stay constant over runs of samples (dither extraction, loop outputs, estimates held
 at the prior) are thinned losslessly: a sample is dropped only when it equals both neighbours, so
@@ -59,7 +65,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 TIMELINE = "time"
 WEB_PORT = 9090
-VARIANTS = ("nodither_band", "nodither_noband", "dither_band", "dither_noband")
 EXTRACT_SIGNALS = ("upper", "lower", "signal")
 
 #: Colours (RGB) per variant, sensor and joint-series role; chosen to stay apart in a legend.
@@ -70,7 +75,6 @@ VARIANT_COLORS: dict[str, tuple[int, int, int]] = {
     "dither_noband": (120, 190, 250),
 }
 SENSOR_COLOR = (30, 30, 30)
-AXIS_COLORS = {"x": (220, 50, 50), "y": (40, 170, 60), "z": (50, 90, 230)}
 REGIME_COLORS = {"still": (200, 60, 60), "dither": (60, 60, 200), "moving": (150, 150, 150)}
 _DITHER_COL = re.compile(r"^dither_(?P<name>[A-Za-z0-9_]+?)_(?P<j>\d+)$")
 #: Fig. 5 signals a simulator or controller may log: centre_ref_3, amp_meas_3, centre_ffw_3 ...
@@ -86,7 +90,7 @@ def load_estimates(path: str | Path) -> Estimates:
     FormatError
         Missing or unreadable file, not an estimates file, or a listed variant without columns.
     """
-    from ditherlab.replay import Estimates
+    from ditherlab.replay import VARIANTS, Estimates
 
     est = Estimates.load(path)
     if "t" not in est.data.columns:
@@ -222,7 +226,6 @@ class ViewSummary:
     rows: dict[str, int] = field(default_factory=dict)
     variants: list[str] = field(default_factory=list)
     n_joints: int = 0
-    notes: list[str] = field(default_factory=list)
 
 
 class _Logger:
