@@ -677,3 +677,12 @@ def test_foreign_log_through_a_mapping(shared_data, tmp_path, cli):
     assert c["joints/1/tau"]["Scalars:scalars"] == n
     t, _ = rl.rrd_scalars(out, "joints/1/tau")
     assert t[-1] - t[0] > 5.0
+
+
+def test_recording_id_follows_the_inputs(campaign):
+    """Same inputs give the same Rerun recording id; other estimates of the same recording another."""
+    rec = campaign["rec"]
+    est = rl.load_estimates(campaign["est_path"])
+    a = rl.new_stream(rec, est).get_recording_id()
+    assert a == rl.new_stream(rec, rl.load_estimates(campaign["est_path"])).get_recording_id()
+    assert a != rl.new_stream(rec).get_recording_id()

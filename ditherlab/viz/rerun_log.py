@@ -1026,14 +1026,30 @@ def _recording_markdown(rec: Recording, est: Estimates | None) -> str:
 
 
 # ---------------------------------------------------------------------- entry points
-def new_stream(rec: Recording, application_id: str = "ditherlab") -> rr.RecordingStream:
-    """A RecordingStream with a recording id derived from the recording (same input, same id)."""
+def new_stream(
+    rec: Recording,
+    estimates: Estimates | None = None,
+    model: TorqueModel | None = None,
+    application_id: str = "ditherlab",
+) -> rr.RecordingStream:
+    """A RecordingStream whose recording id is derived from its inputs.
+
+    The same recording, estimates and model give the same id (the viewer shows a re-written file
+    in place of the old one); another recording or other estimates of it give another id (the
+    viewer keeps them apart instead of merging them).
+    """
     import hashlib
 
     import rerun as rr
 
-    h = hashlib.sha256(rec.meta_json().encode() + str(len(rec)).encode()).hexdigest()
-    return rr.RecordingStream(application_id, recording_id=h[:32])
+    h = hashlib.sha256()
+    h.update(rec.meta_json().encode())
+    h.update(np.asarray(rec.t).tobytes())
+    if estimates is not None:
+        h.update(json.dumps(_plain_json(estimates.meta), sort_keys=True).encode())
+    if model is not None:
+        h.update(model.dumps().encode())
+    return rr.RecordingStream(application_id, recording_id=h.hexdigest()[:32])
 
 
 def save_view(
@@ -1061,7 +1077,7 @@ def save_view(
     if estimates is not None:
         check_estimates_match(rec, estimates)
     with atomic_path(out) as tmp:
-        stream = new_stream(rec)
+        stream = new_stream(rec, estimates, model)
         bp = make_blueprint(
             rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench
         )
@@ -1101,7 +1117,7 @@ def show_view(
 
     from ditherlab.viz.blueprint import make_blueprint
 
-    stream = new_stream(rec)
+    stream = new_stream(rec, estimates, model)
     bp = make_blueprint(rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench)
     url = None
     if mode == "spawn":
