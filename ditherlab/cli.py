@@ -188,6 +188,7 @@ def diagnose(
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
     no_history: Annotated[bool, typer.Option("--no-history", help="Do not append to the model's history.")] = False,
+    regime: Annotated[list[str] | None, typer.Option("--regime", help="Score only this regime (still, dither, moving); repeatable.")] = None,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
 ) -> None:
@@ -198,7 +199,7 @@ def diagnose(
 
     with progress_bar("diagnose", quiet or json_out) as progress:
         d = diagnose_files(recordings, model, out_dir=out, read_options=_read_options(mapping, robot),
-                           history=not no_history, progress=progress)
+                           history=not no_history, regimes=regime, progress=progress)
     echo(json.dumps(d.to_dict(), indent=1, default=float) if json_out else d.summary())
 
 

@@ -64,6 +64,7 @@ from ditherlab.effects import (
     signals,
     solve_signed,
     stack,
+    white_noise,
 )
 from ditherlab.errors import ModelError
 from ditherlab.model import TorqueModel
@@ -219,7 +220,7 @@ def force_error(
     model: TorqueModel,
     scs: Sequence[Scored],
     level: float = 0.95,
-    max_interval_samples: int = 3000,
+    max_interval_samples: int = 500,
 ) -> dict[str, Any] | None:
     """Estimate of eq. (3) minus the (bias-corrected) sensor, per axis and regime, and coverage.
 
@@ -756,6 +757,7 @@ def diagnose(
     guard: float = 0.5,
     min_fraction: float = MIN_FRACTION,
     effects: Sequence[str] | None = None,
+    regimes: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Diagnosis:
     """Compare model and measurements, and rank the missing effects.
@@ -767,6 +769,8 @@ def diagnose(
         ``attenuation_lag`` / ``ft_bias`` candidates possible)
     folds, guard, min_fraction : see :func:`candidates`
     effects : candidate names to try (default: all not in the model)
+    regimes : score only these regimes (e.g. ``("still", "dither")`` for the force estimate at
+        rest); default all
     progress : ``progress(done, total)``
 
     Returns
@@ -788,7 +792,12 @@ def diagnose(
         # regimes present but absent from the model -> one clear error
         reg = signals(r).regime
         for code, name in REGIME_NAMES.items():
-            if name not in model.regimes and (reg == code).sum(axis=0).max() >= MIN_REGIME_SAMPLES:
+            wanted = regimes is None or name in regimes
+            if (
+                wanted
+                and name not in model.regimes
+                and (reg == code).sum(axis=0).max() >= MIN_REGIME_SAMPLES
+            ):
                 where = f"{r.name}: " if r.name else ""
                 raise ModelError(
                     f"{where}the recording has {int((reg == code).any(axis=1).sum())} {name} samples "
@@ -796,6 +805,15 @@ def diagnose(
                     "identify the model from a recording with that regime"
                 )
         sc = scored(model, r)
+        if regimes is not None:
+            bad = [x for x in regimes if x not in REGIME_NAMES.values()]
+            if bad:
+                raise ModelError(
+                    f"regime {bad[0]!r} is unknown, expected one of: {', '.join(REGIME_NAMES.values())}"
+                )
+            keep = np.isin(sc.sig.regime, [c for c, n in REGIME_NAMES.items() if n in regimes])
+            sc.use = sc.use & keep
+            sc.sigma_hf = white_noise(sc.e, sc.use & (sc.sig.regime != DITHER), sc.sig.regime)
         scs.append(sc)
         notes.extend(f"{r.name or 'recording'}: {x}" for x in sc.notes)
         if not r.has_wrench:
@@ -1077,6 +1095,7 @@ def diagnose_files(
     out_dir: str | Path | None = None,
     read_options: dict[str, Any] | None = None,
     history: bool = True,
+    regimes: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Diagnosis:
     """The ``ditherlab diagnose`` command: read, diagnose, append the history, write the report.
@@ -1096,7 +1115,7 @@ def diagnose_files(
     if out_dir is not None:
         for name in ("report.md", "report.json"):
             check_not_input(Path(out_dir) / name, [*recordings, model_path])
-    d = diagnose(model, recs, progress=progress)
+    d = diagnose(model, recs, regimes=regimes or None, progress=progress)
     if history:
         d.model = append_history(model_path, d.history_entry())
     if out_dir is not None:

@@ -169,3 +169,33 @@ def test_cli_bad_input(files, cli, tmp_path):
     res = cli("diagnose", rp, "--model", p3, "--no-history", "--quiet")
     assert res.code == 2
     assert "moving samples but the model has no [regimes.moving]" in res.err
+
+
+def test_ur10e_free_motion_lacks_inertia(shared_data):
+    """On the real UR10e free-motion log, a gravity + Coulomb/viscous model lacks the dynamic
+    torque: diagnosis suggests ``inertia`` first (big joints 1-3), and adding it halves their
+    residual."""
+    from ditherlab.identify import fit_sliding
+    from ditherlab.io import read
+    from ditherlab.model import Band
+    from ditherlab.recording import MOVING, regimes
+
+    rec = read(shared_data / "ur10e" / "no_torque.csv", mapping="ur10e")
+    reg = regimes(rec)
+    rho = rec.tau - rec.robot().gravity(rec.q)
+    cols = {k: np.zeros(rec.n) for k in ("a", "b", "s", "c", "v")}
+    for j in range(rec.n):
+        mv = reg[:, j] == MOVING
+        c, v, fit, *_ = fit_sliding(rho[mv, j], rec.dq[mv, j], n_boot=0)
+        for k, x in zip(("a", "b", "s", "c", "v"), (fit.a, fit.b, fit.sigma, c, v), strict=True):
+            cols[k][j] = x
+    band = Band(cols["a"], cols["b"], cols["s"], coulomb=cols["c"], viscous=cols["v"])
+    m = TorqueModel(rec.meta["robot"], rec.n, regimes={"moving": band})
+    d = diagnose(m, [rec])
+    top = d.suggested[0]
+    assert top.effect == "inertia" and {1, 2, 3} <= set(top.joints), d.summary()
+    assert top.explained_fraction > 0.5
+    m2 = add_effect(m, [rec], "inertia", joints=top.joints)
+    r0 = np.array(d.residual["torque_rms"])
+    r1 = np.array(residual_summary(m2, [scored(m2, rec)])["torque_rms"])
+    assert np.all(r1[:3] < 0.7 * r0[:3]), (r0, r1)
