@@ -27,6 +27,7 @@ Entity layout (``j`` = 1..n, ``a`` = x, y, z, ``V`` = estimator variant)::
     joints/j/residual/v<k>      friction residual of model version k [N·m]
     force/a/sensor              sensor force [N]
     force/a/V                   [estimate, lo, hi] of variant V [N]
+    force/a/online              the recording's ``fhat_a`` column: an estimate used online [N]
     history/torque_rms/j        bar chart: residual RMS per model version (model history)
     events/dither_flag          the dither flag as a 0/1 series
     events/dither, events/pushes, events/pushes_simulated, events/detections/V, diagnosis
@@ -563,7 +564,9 @@ def dither_period(rec: Recording, estimates: Estimates | None = None) -> float |
     from ditherlab.dither import period_from_feedforward
 
     try:
-        return float(period_from_feedforward(rec.tau_ffw, rec.t))
+        # its interpolation divides by zero where the square wave is flat; those entries are unused
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return float(period_from_feedforward(rec.tau_ffw, rec.t))
     except DitherlabError:
         return None
 
@@ -736,6 +739,16 @@ def _log_forces(log: _Logger, rec: Recording, estimates: Estimates | None) -> No
                 widths=1.5,
                 thin=False,
             )
+    # An estimate the controller used online (the simulator's lead-through logs fhat_x..z).
+    for a in FORCE_AXES:
+        if f"fhat_{a}" in rec.data.columns:
+            log.series(
+                f"force/{a}/online",
+                rec.data[f"fhat_{a}"].to_numpy(dtype=float),
+                names="online estimate (controller)",
+                colors=[[150, 60, 200]],
+                widths=1.5,
+            )
     if estimates is None:
         return
     d = estimates.data
@@ -894,17 +907,45 @@ def _log_events(log: _Logger, rec: Recording, estimates: Estimates | None) -> No
         bits = estimates.data[col].to_numpy().astype(np.int64)
         F = estimates.data[[f"{v}/f_{a}" for a in FORCE_AXES]].to_numpy(dtype=float)
         mag = np.linalg.norm(F, axis=1)
-        on, off = _edges(bits != 0)
-        off = np.append(off, len(t))[: len(on)]
+        spans = merge_spans(t, bits != 0, DETECTION_MERGE_GAP)
         texts = []
-        for a, b in zip(on, off, strict=True):
+        for a, b in spans:
             i = a + int(np.argmax(mag[a:b]))
             joints = ",".join(str(j + 1) for j in range(rec.n) if np.any(bits[a:b] >> j & 1))
             texts.append(
                 f"{v}: detection for {t[b - 1] - t[a]:.2f} s, joints {joints} outside band; "
                 f"peak F=({', '.join(f'{x:+.1f}' for x in F[i])}) N at t={t[i]:.2f} s"
             )
-        log.text_log(f"events/detections/{v}", t[on], texts, ["WARN"] * len(on))
+        starts = np.array([t[a] for a, _ in spans])
+        log.text_log(f"events/detections/{v}", starts, texts, ["WARN"] * len(spans))
+
+
+#: Detections closer than this [s] are one event (a joint flickering at its band edge).
+DETECTION_MERGE_GAP = 0.25
+
+
+def merge_spans(t: np.ndarray, flag: np.ndarray, gap: float) -> list[tuple[int, int]]:
+    """Runs of ``flag`` as ``[start, end)`` index pairs, runs less than ``gap`` [s] apart merged.
+
+    Parameters
+    ----------
+    t : (N,) [s]
+    flag : (N,) bool
+    gap : [s]
+
+    Returns
+    -------
+    list of (start, end) sample indices, in time order
+    """
+    on, off = _edges(flag)
+    off = np.append(off, len(t))[: len(on)]
+    spans: list[list[int]] = []
+    for a, b in zip(on, off, strict=True):
+        if spans and t[a] - t[spans[-1][1] - 1] < gap:
+            spans[-1][1] = int(b)
+        else:
+            spans.append([int(a), int(b)])
+    return [(a, b) for a, b in spans]
 
 
 def _log_commanded_pushes(log: _Logger, rec: Recording) -> None:
