@@ -727,3 +727,33 @@ def test_lead_through_online_estimate_and_motion(tmp_path):
                 [r[0] for r in ch.to_record_batch().to_pydict()["Transform3D:translation"]]
             )
     assert np.ptp(p, axis=0).max() > 0.02  # the tool travelled more than 2 cm
+
+
+def test_rerun_cli_verifies_the_file(simulated, cli, tmp_path):
+    """Rerun's own `rerun rrd verify` loads and interprets the written file without error (and
+    rejects a truncated copy, so the check can fail)."""
+    import subprocess
+    import sys
+
+    rerun = Path(sys.executable).parent / "rerun"
+    if not rerun.exists():
+        pytest.skip("the rerun CLI of rerun-sdk is not installed beside this Python")
+    out = tmp_path / "v.rrd"
+    r = cli(
+        "view",
+        simulated["rec_path"],
+        "--estimates",
+        simulated["est_path"],
+        "--model",
+        simulated["model_path"],
+        "--save",
+        out,
+        "-q",
+    )
+    assert r.code == 0, r.err
+    ok = subprocess.run([rerun, "rrd", "verify", out], capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and "verified without error" in ok.stdout + ok.stderr
+    bad = tmp_path / "cut.rrd"
+    bad.write_bytes(out.read_bytes()[: out.stat().st_size // 2])
+    cut = subprocess.run([rerun, "rrd", "verify", bad], capture_output=True, text=True, timeout=120)
+    assert cut.returncode != 0
