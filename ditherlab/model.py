@@ -196,6 +196,12 @@ class TorqueModel:
     def copy(self) -> TorqueModel:
         return copy.deepcopy(self)
 
+    def __str__(self) -> str:
+        """One readable equation per joint (:func:`ditherlab.effects.model_text`)."""
+        from ditherlab.effects import model_text
+
+        return model_text(self)
+
     # -------------------------------------------------------------- file I/O
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"schema": SCHEMA, "robot": self.robot, "n_joints": self.n,

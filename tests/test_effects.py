@@ -272,6 +272,7 @@ def test_add_effect_round_trip_and_text(recs, tmp_path):
     m3 = TorqueModel.load(path)
     np.testing.assert_allclose(effects_torque(m3, rec), effects_torque(m2, rec))
     text = model_text(m3)
+    assert str(m3) == text
     assert "tau_2 = gravity + J^T F + band[" in text
     assert "·load_friction(|L_2|, sign dq_2)" in text
     assert "load_friction" not in text.splitlines()[1]  # joint 1 has none
