@@ -199,3 +199,43 @@ def test_ur10e_free_motion_lacks_inertia(shared_data):
     r0 = np.array(d.residual["torque_rms"])
     r1 = np.array(residual_summary(m2, [scored(m2, rec)])["torque_rms"])
     assert np.all(r1[:3] < 0.7 * r0[:3]), (r0, r1)
+
+
+# ---------------------------------------------------------------- the built-in simulator
+SIM_REGIMES = ("still", "dither")
+
+
+@pytest.fixture(scope="module")
+def sim_runs():
+    """Short push campaigns of the built-in simulator, clean and with hidden attenuation_lag."""
+    from ditherlab.sim import simulate
+
+    out = {}
+    for hidden in ((), (("attenuation_lag", 0.3),)):
+        rec = simulate("push-campaign", seed=3, hidden=list(hidden), pushes_per_direction=2)
+        m = identify([rec], n_boot=3)
+        out[hidden[0][0] if hidden else "clean"] = (rec, m, diagnose(m, [rec], regimes=SIM_REGIMES))
+    return out
+
+
+def test_sim_clean_campaign_no_candidate(sim_runs):
+    """A simulated push campaign without hidden effects gives no suggested candidate."""
+    _, _, d = sim_runs["clean"]
+    assert not d.suggested, d.summary()
+
+
+def test_sim_attenuation_lag_found_with_its_physics(sim_runs):
+    """With the simulator's compliant support (70 % of the push reaches the arm through a 0.15 s
+    lag), attenuation_lag is suggested first; its gain and delay match the plant, and adding it
+    lowers the residual of its joints."""
+    rec, m, d = sim_runs["attenuation_lag"]
+    assert d.suggested and d.suggested[0].effect == "attenuation_lag", d.summary()
+    c = d.suggested[0]
+    m2 = add_effect(m, [rec], c.effect, joints=c.joints, refit=False)
+    p = m2.effects[-1].params
+    assert all(0.5 < g < 0.85 for g in p["gain"]), p
+    assert all(0.08 < dl / rec.sample_rate < 0.25 for dl in p["delay"]), p
+    js = [j - 1 for j in c.joints]
+    r0 = np.array(d.residual["torque_rms"])[js]
+    d2 = diagnose(m2, [rec], regimes=SIM_REGIMES, effects=[])
+    assert np.all(np.array(d2.residual["torque_rms"])[js] < 0.9 * r0)
