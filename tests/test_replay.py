@@ -236,3 +236,49 @@ def test_cli_replay_and_bad_inputs(tmp_path, cli, recs, model):
         assert r.code == 2, (path, r.err)
         assert r.err.count("\n") == 1 and msg in r.err, r.err
         assert not out2.exists()
+
+
+def test_closed_form_noband_intervals_match_general_profile(recs, model):
+    """The closed-form intervals of the no-band variants equal the estimator's general profile
+    search to 1e-6 N, for all six components and for a subset."""
+    from ditherlab.estimator import intervals
+    from ditherlab.replay import band_as_noise, gaussian_profile_intervals
+
+    dith = recs[1].slice(0, 30.0)
+    r = dith.robot()
+    tb = dith.tau - r.gravity(dith.q)
+    J = r.jacobian(dith.q)
+    b = model.regimes["still"]
+    N = len(dith)
+    a_, b_, s_ = band_as_noise(
+        *(np.broadcast_to(x, (N, 6)) for x in (b.tau_min, b.tau_max, b.sigma))
+    )
+    for comps in (None, ["f_x", "f_z"]):
+        sol = estimate(tb, J, a_, b_, s_, model.prior_mean, model.prior_sigma, components=comps)
+        fast = gaussian_profile_intervals(
+            tb,
+            J,
+            a_,
+            b_,
+            s_,
+            model.prior_mean,
+            model.prior_sigma,
+            F_hat=sol.F,
+            level=0.9,
+            components=comps,
+        )
+        ref = intervals(
+            tb,
+            J,
+            a_,
+            b_,
+            s_,
+            model.prior_mean,
+            model.prior_sigma,
+            F_hat=sol.F,
+            method="profile",
+            level=0.9,
+            components=comps,
+        )
+        np.testing.assert_allclose(fast[0], ref[0], atol=1e-6)
+        np.testing.assert_allclose(fast[1], ref[1], atol=1e-6)
