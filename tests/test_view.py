@@ -757,3 +757,24 @@ def test_rerun_cli_verifies_the_file(simulated, cli, tmp_path):
     bad.write_bytes(out.read_bytes()[: out.stat().st_size // 2])
     cut = subprocess.run([rerun, "rrd", "verify", bad], capture_output=True, text=True, timeout=120)
     assert cut.returncode != 0
+
+
+def test_real_diagnosis_object(simulated, tmp_path):
+    """A Diagnosis from ditherlab.diagnose is logged: one entry per worst window, its joint named."""
+    import warnings
+
+    from ditherlab.diagnose import diagnose
+    from ditherlab.model import TorqueModel
+
+    model = TorqueModel.load(simulated["model_path"])
+    rec = simulated["rec"]
+    if "moving" not in model.regimes:  # diagnose needs a band for every regime it meets
+        model.regimes["moving"] = model.regimes["still"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        d = diagnose(model, [rec], effects=["viscous", "payload"])
+    out = tmp_path / "diag.rrd"
+    rl.save_view(rec, out, model=model, diagnosis=d)
+    c = rl.rrd_contents(out)
+    assert c["diagnosis"]["TextLog:text"] == len(d.windows) > 0
+    assert c["info/diagnosis"]["static"] == 1
