@@ -205,7 +205,13 @@ def pipeline_text(res: PipelineResult) -> str:
     from ditherlab.report import summary_text
 
     a = res.analysis
-    lines = [summary_text(a), ""]
+    lines = [
+        summary_text(a),
+        "(each cell: smallest applied force whose estimate rose above the noise level / "
+        "smallest force beyond which every estimate exceeded 10 N; the minimum is an extreme "
+        "statistic, the detection curve's F50 below shows the bulk)",
+        "",
+    ]
     lines.append("noise level (99.9 % of |F_hat| at rest, >= 1 N), x/y/z:")
     for name, c in a["conditions"].items():
         nl = c["noise_level"]
