@@ -414,16 +414,29 @@ def _tau_int(x: np.ndarray, max_lag: int = 1000) -> float:
     return 1.0 + 2.0 * s
 
 
-def _folds(block: np.ndarray, total: int, K: int, guard: int) -> list[tuple[np.ndarray, Callable]]:
-    """K contiguous time blocks: (test mask, train-mask function) per fold."""
+def _folds(st: Stack, total: int, K: int, guard: int) -> list[tuple[np.ndarray, Callable]]:
+    """K contiguous time blocks: (test mask, train-mask function) per fold.
+
+    The block edges split the *informative* samples evenly (moving samples, where the band has
+    collapsed, and samples outside the band), not the time axis: a push campaign has all its
+    motion in the first seconds, and equal time blocks would put it all in one fold, leaving
+    nothing to train on when that fold is held out. Each block stays contiguous in time, and
+    ``guard`` samples on each side of it are removed from training.
+    """
+    info = (st.h == 0) | (np.abs(st.e) > st.h)
+    b = np.sort(st.block[info]) if info.any() else np.sort(st.block)
+    if len(b) >= K:
+        inner = [int(b[int(len(b) * k / K)]) for k in range(1, K)]
+    else:
+        inner = list(np.linspace(0, total, K + 1).astype(int)[1:-1])
+    edges = [0, *inner, total + 1]
     out = []
-    edges = np.linspace(0, total, K + 1).astype(int)
     for k in range(K):
         lo, hi = int(edges[k]), int(edges[k + 1])
-        test = (block >= lo) & (block < hi)
+        test = (st.block >= lo) & (st.block < hi)
 
-        def train(b: np.ndarray, lo: int = lo, hi: int = hi) -> np.ndarray:
-            return (b < lo - guard) | (b >= hi + guard)
+        def train(bl: np.ndarray, lo: int = lo, hi: int = hi) -> np.ndarray:
+            return (bl < lo - guard) | (bl >= hi + guard)
 
         out.append((test, train))
     return out
@@ -440,7 +453,7 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
     allowed: dict[int, set[int]] | None = None
     if j is not None and len(grid) > 1:
         st0 = stack(e, scs, j, grid[0], ref)
-        fl0 = _folds(st0.block, total, K, guard)
+        fl0 = _folds(st0, total, K, guard)
         masks = [tr(st0.block) for _, tr in fl0] + [np.ones(len(st0.e), dtype=bool)]
         lists = e.shortlist(scs, j, grid, masks)
         allowed = {}
@@ -461,7 +474,7 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
         st = stack(e, scs, j, h, ref)
         sg = st.signs(e.signs(h))
         if folds is None:
-            folds = _folds(st.block, total, K, guard)
+            folds = _folds(st, total, K, guard)
             base_st = st
         for k, (test, train) in enumerate(folds):
             if allowed is not None and k not in allowed[gi]:
@@ -527,7 +540,7 @@ def _baseline_total(scs: Sequence[Scored], n: int, K: int, guard_s: float) -> fl
     out = 0.0
     for j in range(n):
         st = stack(e, scs, j, None, {})
-        out += sum(_baseline(st, _folds(st.block, total, K, guard))[0])
+        out += sum(_baseline(st, _folds(st, total, K, guard))[0])
     return out
 
 
@@ -581,7 +594,7 @@ def candidates(
     *,
     effects: Sequence[str] | None = None,
     folds: int = 5,
-    guard: float = 0.5,
+    guard: float = 0.25,
     min_fraction: float = MIN_FRACTION,
     scored_recs: Sequence[Scored] | None = None,
     max_samples: int = 4000,
@@ -754,7 +767,7 @@ def diagnose(
     recs: Sequence[Recording],
     *,
     folds: int = 5,
-    guard: float = 0.5,
+    guard: float = 0.25,
     min_fraction: float = MIN_FRACTION,
     effects: Sequence[str] | None = None,
     regimes: Sequence[str] | None = None,
