@@ -944,7 +944,8 @@ def _evidence_figure(d: Diagnosis, c: Candidate, path: Path) -> None:
         o = np.argsort(x)
         ax.plot(x[o], p[o], ".", ms=2, color="C3", label=f"fitted {c.effect}")
         ax.set_xlabel(label)
-        ax.set_ylabel(f"residual joint {j + 1} [N·m]")
+        signed = e.name in ("load_friction", "temperature_friction")
+        ax.set_ylabel(f"residual{' · sign(dq)' if signed else ''} joint {j + 1} [N·m]")
         ax.legend(loc="best", fontsize=7, markerscale=4)
     fig.suptitle(
         f"{c.effect}: {100 * c.explained_fraction:.1f} % explained (held-out)", fontsize=10

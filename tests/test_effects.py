@@ -287,3 +287,21 @@ def test_missing_columns_are_named(recs):
     m.effects = [EffectSpec("temperature_friction", [1], {"coef": [-0.1], "x_ref": [30.0]})]
     with pytest.raises(ModelError, match="driven by column temp_1, which the recording lacks"):
         effects_torque(m, rec)
+
+
+def test_periodogram_shortlist_matches_full_grid(recs):
+    """The fast least-squares periodogram's shortlist holds the period that a full band-aware fit
+    at every grid period finds best (the slow, obviously right reference)."""
+    from ditherlab.effects import stack
+
+    e = EFFECTS["position_ripple"]
+    sc = [scored(base_model(), recs["position_ripple"])]
+    grid = e.grid([s.sig for s in sc], 1)
+    losses = []
+    for h in grid:
+        st = stack(e, sc, 1, h, {})
+        losses.append(_solve(st.e, st.h, st.s, st.C, st.W, st.o)[1])
+    best = grid[int(np.argmin(losses))]
+    st0 = stack(e, sc, 1, grid[0], {})
+    short = e.shortlist(sc, 1, grid, [np.ones(len(st0.e), dtype=bool)])[0]
+    assert best in short
