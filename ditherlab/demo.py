@@ -229,7 +229,13 @@ def pipeline_text(res: PipelineResult) -> str:
         cells = []
         for ax in ("x", "y", "z"):
             d = c["directions"].get(ax)
-            if d:
+            if d and d["curve"].get("bound"):
+                cv = d["curve"]
+                sign = "<" if cv["bound"] == "below" else ">"
+                cells.append(
+                    f"{sign} {cv['bound_force']:.0f} N (every push {'' if sign == '<' else 'un'}seen)"
+                )
+            elif d:
                 cv = d["curve"]
                 cells.append(
                     f"{cv['F50']:.0f} [{cv['F50_ci'][0]:.0f}, {cv['F50_ci'][1]:.0f}] / "

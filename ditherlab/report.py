@@ -34,6 +34,9 @@ def _fmt(x: Any, unit: str = "N", nd: int = 1) -> str:
 
 
 def _ci(c: dict, key: str) -> str:
+    if c.get("bound"):
+        sign = "<" if c["bound"] == "below" else ">"
+        return f"{sign} {c['bound_force']:.1f} N ({'all' if sign == '<' else 'none'} seen)"
     v = c.get(key)
     lo, hi = c.get(f"{key}_ci", [None, None])
     if v is None or not math.isfinite(v):

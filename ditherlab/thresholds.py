@@ -229,14 +229,28 @@ def fit_logistic(
 
     Returns
     -------
-    dict with ``F50``, ``F90``, ``scale`` [N] and ``F50_ci``, ``F90_ci`` (lo, hi) [N], or NaNs for
-    fewer than 3 pushes.
+    dict with ``F50``, ``F90``, ``scale`` [N] and ``F50_ci``, ``F90_ci`` (lo, hi) [N]; NaNs for
+    fewer than 3 pushes; when every push (or none) was seen, NaNs and ``bound`` = ``"below"``
+    (``"above"``) with ``bound_force`` the smallest (largest) force [N].
     """
     force = np.asarray(force, dtype=float)
     hit = np.asarray(hit, dtype=bool)
     nan = float("nan")
     if len(force) < 3:
         return {"F50": nan, "F90": nan, "scale": nan, "F50_ci": [nan, nan], "F90_ci": [nan, nan]}
+    if hit.all() or not hit.any():
+        # no transition in the data: F50 and F90 lie below the smallest (all seen) or above
+        # the largest force (none seen); report the bound instead of a grid edge
+        bound = float(force.min()) if hit.all() else float(force.max())
+        return {
+            "F50": nan,
+            "F90": nan,
+            "scale": nan,
+            "F50_ci": [nan, nan],
+            "F90_ci": [nan, nan],
+            "bound": ("below" if hit.all() else "above"),
+            "bound_force": bound,
+        }
     fmax = float(force.max())
     g50 = np.linspace(0.0, 1.5 * fmax, 300)
     gs = np.geomspace(0.25, 50.0, 60)

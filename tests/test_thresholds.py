@@ -132,3 +132,12 @@ def test_no_pushes_raises():
     est.data = est.data.drop(columns=list(COMPONENTS))
     with pytest.raises(NoPushesError, match="no F/T columns f_x..m_z"):
         analyse([est])
+
+
+def test_logistic_without_transition_reports_a_bound():
+    """When every push is seen, F50 is reported as below the smallest force, not a grid edge."""
+    f = np.array([6.0, 10.0, 20.0, 40.0])
+    c = fit_logistic(f, np.ones(4, bool))
+    assert c["bound"] == "below" and c["bound_force"] == 6.0 and np.isnan(c["F50"])
+    c = fit_logistic(f, np.zeros(4, bool))
+    assert c["bound"] == "above" and c["bound_force"] == 40.0
