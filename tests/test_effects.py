@@ -305,3 +305,13 @@ def test_periodogram_shortlist_matches_full_grid(recs):
     st0 = stack(e, sc, 1, grid[0], {})
     short = e.shortlist(sc, 1, grid, [np.ones(len(st0.e), dtype=bool)])[0]
     assert best in short
+
+
+def test_temperature_from_logged_column():
+    """With temp columns the effect is driven by temperature: friction falls as the joint warms
+    (negative coefficient), no time constant is fitted."""
+    rec = make_recording(("temperature_friction",), seed=5, duration=10.0, temp=True)
+    f = fit_effect(EFFECTS["temperature_friction"], [scored(base_model(), rec)], 1)
+    assert f.h is None and f.w[0] < 0
+    # truth: d(friction)/dT at the mean temperature ~ -Fc·0.03·exp(-0.03·ΔT) ≈ -0.13 N·m/°C
+    assert -0.25 < f.w[0] < -0.06
