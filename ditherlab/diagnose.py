@@ -557,7 +557,8 @@ def _evaluate(
     if e.shared:
         s = _score(e, scs, None, K, guard_s)
         ok = s.passes(min_fraction)
-        frac = s.gain / total_loss if total_loss > 0 else 0.0
+        # the shared fit covers every joint: its own held-out baseline is the whole residual
+        frac = s.fraction
         from ditherlab.effects import _make_spec
 
         spec = _make_spec(e, {-1: s.fit})
