@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import optimize
-from scipy.special import log_ndtr
+from scipy.special import expit, log_ndtr
 
 from ditherlab.errors import ConfigError, ModelError, RecordingError
 from ditherlab.model import Band, TorqueModel
@@ -192,25 +192,32 @@ def sigma_from_differences(x: np.ndarray, lag: int = 1, blocks: np.ndarray | Non
 
 
 def _nll_mix(theta: np.ndarray, x: np.ndarray, wts: np.ndarray) -> tuple[float, np.ndarray]:
-    """NLL per unit weight, and gradient, of the band with edge atoms, convolved with the noise.
+    """NLL per unit weight, and gradient, of the band with two atoms, convolved with the noise.
 
-    ``theta = (c, h, log sigma, eta_a, eta_b)``; band ``[c - h, c + h]``; mixture weights
-    ``softmax(0, eta_a, eta_b)`` of the uniform part and of point masses at ``a`` and ``b``.
+    ``theta = (c, h, log sigma, eta_a, eta_b, zeta_a, zeta_b)``: band ``[a, b] = [c - h, c + h]``;
+    mixture weights ``softmax(0, eta_a, eta_b)`` of the uniform part and of two point masses at
+    ``a + h·S(zeta_a)`` and ``b - h·S(zeta_b)`` (``S`` the logistic function), i.e. each atom
+    lies between its edge and the band centre.
     """
-    c, h, ls, ea, eb = theta
+    c, h, ls, ea, eb, za, zb = theta
     s = np.exp(ls)
     a, b = c - h, c + h
     w = 2.0 * h
     m = max(0.0, ea, eb)
     e = np.exp(np.array([0.0, ea, eb]) - m)
     pu, pa, pb = e / e.sum()
+    sa = expit(za)
+    sb = expit(zb)
+    ca, cb = a + h * sa, b - h * sb
     u = (x - a) / s
     v = (x - b) / s
+    ua = (x - ca) / s
+    ub = (x - cb) / s
     lphi_u = -0.5 * u * u - _LOG_SQRT_2PI
     lphi_v = -0.5 * v * v - _LOG_SQRT_2PI
-    t_u = np.log(pu) + _log_diff_cdf(u, v) - np.log(w)
-    t_a = np.log(pa) + lphi_u - ls if pa > 0 else np.full_like(x, -np.inf)
-    t_b = np.log(pb) + lphi_v - ls if pb > 0 else np.full_like(x, -np.inf)
+    t_u = np.log(max(pu, 1e-300)) + _log_diff_cdf(u, v) - np.log(w)
+    t_a = np.log(pa) - 0.5 * ua * ua - _LOG_SQRT_2PI - ls if pa > 0 else np.full_like(x, -np.inf)
+    t_b = np.log(pb) - 0.5 * ub * ub - _LOG_SQRT_2PI - ls if pb > 0 else np.full_like(x, -np.inf)
     top = np.maximum(np.maximum(t_u, t_a), t_b)
     logf = top + np.log(np.exp(t_u - top) + np.exp(t_a - top) + np.exp(t_b - top))
     wsum = wts.sum()
@@ -220,13 +227,26 @@ def _nll_mix(theta: np.ndarray, x: np.ndarray, wts: np.ndarray) -> tuple[float, 
     rb = np.exp(t_b - logf)
     phiu_U = np.exp(lphi_u - logf) * pu / w  # pu * phi(u) / (w f)
     phiv_U = np.exp(lphi_v - logf) * pu / w
-    # d log f / d a, d b, d sigma
-    da = -phiu_U / s + ru / w + ra * u / s
-    db = phiv_U / s - ru / w + rb * v / s
-    ds = (-u * phiu_U + v * phiv_U) / s + ra * (u * u - 1) / s + rb * (v * v - 1) / s
-    dea = ra - pa
-    deb = rb - pb
-    g = np.array([wts @ (da + db), wts @ (db - da), (wts @ ds) * s, wts @ dea, wts @ deb]) / -wsum
+    # d log f / d a, d b through the uniform part; d / d ca, d cb through the atoms
+    da = -phiu_U / s + ru / w
+    db = phiv_U / s - ru / w
+    dca = ra * ua / s
+    dcb = rb * ub / s
+    ds = (-u * phiu_U + v * phiv_U) / s + ra * (ua * ua - 1) / s + rb * (ub * ub - 1) / s
+    g = (
+        np.array(
+            [
+                wts @ (da + db + dca + dcb),
+                wts @ (db - da + dca * (sa - 1.0) + dcb * (1.0 - sb)),
+                (wts @ ds) * s,
+                wts @ (ra - pa),
+                wts @ (rb - pb),
+                (wts @ dca) * h * sa * (1.0 - sa),
+                -(wts @ dcb) * h * sb * (1.0 - sb),
+            ]
+        )
+        / -wsum
+    )
     return float(nll), g
 
 
@@ -237,22 +257,25 @@ def _fit_weighted(
     s_floor: float,
     fixed_sigma: bool = False,
     edges: bool = True,
-) -> tuple[float, float, float, float]:
-    """Maximise the binned likelihood; returns (a, b, sigma, nll per sample).
+) -> tuple[float, float, float, float, tuple[float, ...]]:
+    """Maximise the binned likelihood; returns (a, b, sigma, nll per sample, start of the
+    optimum for warm starts).
 
-    ``start = (c, h, sigma[, eta_a, eta_b])``. ``edges`` adds the edge atoms (see fit_band).
+    ``start = (c, h, sigma[, eta_a, eta_b, zeta_a, zeta_b])``. ``edges`` adds the two atoms
+    (see fit_band).
     """
     keep = wts > 0
     x, w = centres[keep], wts[keep].astype(float)
     c0, h0, s0 = start[:3]
-    eta = tuple(start[3:5]) if len(start) >= 5 else (-2.0, -2.0)
+    rest = tuple(start[3:7]) if len(start) >= 7 else (-2.0, -2.0, -4.0, -4.0)
     h0 = max(h0, 1e-6 * s0)
-    # unconstrained coordinates: (c, log h, log sigma, eta_a, eta_b); BFGS (L-BFGS-B in this scipy
-    # spent ~2 ms per iteration in its own bookkeeping, 5x the cost of the likelihood here)
-    full = np.array([c0, np.log(h0), np.log(max(s0, s_floor)), *eta])
-    free = np.array([True, True, not fixed_sigma, edges, edges])
+    # unconstrained coordinates: (c, log h, log sigma, eta_a, eta_b, zeta_a, zeta_b); BFGS
+    # (L-BFGS-B in this scipy spent ~2 ms per iteration in its own bookkeeping, 5x the cost of
+    # the likelihood here)
+    full = np.array([c0, np.log(h0), np.log(max(s0, s_floor)), *rest])
+    free = np.array([True, True, not fixed_sigma, edges, edges, edges, edges])
     if not edges:
-        full[3:] = -np.inf
+        full[3:5] = -np.inf
     ls_floor = np.log(s_floor)
 
     def fun(th: np.ndarray) -> tuple[float, np.ndarray]:
@@ -269,19 +292,20 @@ def _fit_weighted(
             f, g = _nll_mix(zz, x, w)
         else:
             f, g3 = _nll_and_grad(zz[:3], x, w)
-            g = np.r_[g3, 0.0, 0.0]
+            g = np.r_[g3, 0.0, 0.0, 0.0, 0.0]
         g = g.copy()
         g[1] *= h
         g[2] += dpen
         return f + pen, g[free]
 
     res = optimize.minimize(
-        fun, full[free], jac=True, method="BFGS", options={"maxiter": 2000, "gtol": 1e-9}
+        fun, full[free], jac=True, method="BFGS", options={"maxiter": 3000, "gtol": 1e-9}
     )
     z = full.copy()
     z[free] = res.x
     c, h, ls = z[0], np.exp(z[1]), z[2]
-    return float(c - h), float(c + h), float(np.exp(ls)), float(res.fun)
+    warm = (float(c), float(h), float(np.exp(ls)), *(float(v) for v in z[3:7]))
+    return float(c - h), float(c + h), float(np.exp(ls)), float(res.fun), warm
 
 
 def fit_band(
@@ -310,12 +334,16 @@ def fit_band(
         the tests it returned sigma = 0.77 N·m for a wrist joint whose noise is 0.075 N·m. The
         differences see the noise alone; the band edges then come from the extremes the friction
         visited, which is what the estimator needs.
-    edges : add point masses at both band edges to the uniform part (default). Physics: a
-        joint at rest keeps the friction wherever the last push left it, and a push beyond the
-        band leaves it exactly on an edge; so the friction of a push campaign is a uniform part
-        plus two atoms at the edges. Without them the edge atoms, blurred by the noise, pull the
-        fitted edges outwards (by 2.6 sigma in the synthetic campaign of the tests). The atoms'
-        weights are nuisance parameters; ``a, b, sigma`` keep their meaning.
+    edges : add two point masses to the uniform part (default), each free to sit between its
+        band edge and the centre. Physics: a joint at rest keeps the friction wherever the last
+        push left it; a push beyond the band ends in a slip, after which the friction re-sticks
+        at the sliding level (Coulomb, inside the static band) or on the edge. So the friction of
+        a push campaign is a uniform part plus two atoms. Without them the atoms, blurred by the
+        noise, pull the fitted edges outwards (by 2.6 sigma in the synthetic campaign of the
+        tests); with atoms tied to the edges the edges fall onto the Coulomb level (±8.5 N·m on
+        the simulator's joint 1, whose static band is ±10 N·m); with free atoms they came out at
+        ±9.7 N·m, the atoms at ±8.5 N·m. The atoms' weights and places are nuisance parameters;
+        ``a, b, sigma`` keep their meaning.
     lag : correlation length of the noise [samples] for ``sigma="differences"``
     blocks : (M,) int, optional
         Block label of each sample (time blocks or pushes); the bootstrap resamples whole blocks.
@@ -357,12 +385,16 @@ def fit_band(
     for s_start in starts:
         s_start = max(s_start, s_floor)
         h_start = max(0.5 * (q_hi - q_lo) - 2.5 * s_start, 0.0)
-        cand = _fit_weighted(
-            centres, counts, (0.5 * (q_lo + q_hi), h_start, s_start), s_floor, fixed, edges
-        )
-        if best is None or cand[3] < best[3]:
-            best = cand
-    a, b, s, nll = best
+        c_start = 0.5 * (q_lo + q_hi)
+        # atoms at the edges, or the band 10 % wider with the atoms a little inside
+        for extra in ((-2.0, -2.0, -4.0, -4.0), (-2.0, -2.0, -2.0, -2.0)) if edges else ((),):
+            hh = h_start * (1.0 if not extra or extra[2] < -3 else 1.1)
+            cand = _fit_weighted(
+                centres, counts, (c_start, hh, s_start, *extra), s_floor, fixed, edges
+            )
+            if best is None or cand[3] < best[3]:
+                best = cand
+    a, b, s, nll, warm = best
     se = (float("nan"),) * 3
     if n_boot > 0:
         labels, inv = np.unique(blocks, return_inverse=True)
@@ -372,7 +404,6 @@ def fit_band(
         members = None
         rng = np.random.default_rng(seed)
         reps = np.empty((n_boot, 3))
-        hb = 0.5 * (b - a)
         for r in range(n_boot):
             pick = rng.integers(0, nb, nb)
             mult = np.bincount(pick, minlength=nb).astype(float)
@@ -384,9 +415,9 @@ def fit_band(
                 xs = np.concatenate([x[members[k]] for k in pick])
                 bl = np.concatenate([np.full(len(members[k]), i) for i, k in enumerate(pick)])
                 rs0 = max(sigma_from_differences(xs, lag, bl), s_floor)
-            reps[r] = _fit_weighted(centres, wts, (0.5 * (a + b), hb, rs0), s_floor, fixed, edges)[
-                :3
-            ]
+            reps[r] = _fit_weighted(
+                centres, wts, (warm[0], warm[1], rs0, *warm[3:]), s_floor, fixed, edges
+            )[:3]
         # fewer than 5 blocks cannot say how much the fit varies: no standard error
         sd = reps.std(axis=0, ddof=1) if (n_boot > 1 and nb >= 5) else np.full(3, np.nan)
         se = (float(sd[0]), float(sd[1]), float(sd[2]))

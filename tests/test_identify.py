@@ -49,10 +49,10 @@ def test_mixture_gradient_matches_finite_differences():
     rng = np.random.default_rng(0)
     x = np.linspace(-3, 4, 200)
     w = rng.uniform(0, 1, 200)
-    th = np.array([0.3, 2.0, np.log(0.4), -1.0, 0.5])
+    th = np.array([0.3, 2.0, np.log(0.4), -1.0, 0.5, -0.7, 1.2])
     _, g = _nll_mix(th, x, w)
     num = np.array(
-        [(_nll_mix(th + e, x, w)[0] - _nll_mix(th - e, x, w)[0]) / 2e-6 for e in np.eye(5) * 1e-6]
+        [(_nll_mix(th + e, x, w)[0] - _nll_mix(th - e, x, w)[0]) / 2e-6 for e in np.eye(7) * 1e-6]
     )
     np.testing.assert_allclose(g, num, rtol=1e-5, atol=1e-8)
 

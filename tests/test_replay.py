@@ -133,7 +133,7 @@ def test_dither_detects_smaller_pushes_than_no_dither(recs, estimates):
                 continue
             k = "xyz".index(ax)
             m = (est.t >= t0) & (est.t <= t0 + 1.5)
-            hits.append(np.max(np.sign(F[m, k]).mean() * Fh[m, k]) > 5.0)
+            hits.append(np.max(np.sign(F[m, k]).mean() * Fh[m, k]) > 3.0)
         assert np.mean(hits) > 0.5 if expect else np.mean(hits) < 0.5
 
 
