@@ -1155,6 +1155,32 @@ def stack(e: Effect, sc: Sequence[Scored], j: int | None, h: Any, ref: dict[str,
     return Stack(e_, h_, s_, np.hstack([C_, N_]), np.hstack([W_, np.zeros_like(N_)]), o_, b_, k)
 
 
+#: Smallest :func:`identifiability` for which add_effect accepts a fit.
+MIN_IDENTIFIABILITY = 0.02
+
+
+def identifiability(st: Stack) -> float:
+    """How much of the effect's design is left once the nuisance columns are projected out.
+
+    The smallest singular value of the effect columns (weighted by 1/sigma) after removing
+    their least-squares projection on the intercept and sliding-friction columns, relative to
+    their own norm: 1 = fully distinct, 0 = the bands and the sliding line can take it all (e.g.
+    ``ft_bias`` or ``payload`` in one fixed pose), and then its parameters are arbitrary.
+    """
+    if st.k == 0 or len(st.e) == 0:
+        return 0.0
+    w = 1.0 / st.s[:, None]
+    Ce = st.C[:, : st.k] * w
+    N = st.C[:, st.k :] * w
+    if N.shape[1]:
+        coef, *_ = np.linalg.lstsq(N, Ce, rcond=None)
+        Ce = Ce - N @ coef
+    norms = np.linalg.norm(st.C[:, : st.k] * w, axis=0)
+    if not np.all(norms > 0):
+        return 0.0
+    return float(np.linalg.svd(Ce / norms, compute_uv=False).min())
+
+
 def fit_effect(
     e: Effect,
     sc: Sequence[Scored],
@@ -1252,6 +1278,15 @@ def add_effect(
         else:
             js = [int(j) - 1 for j in joints]
         fits = {j: fit_effect(e, sc, j) for j in js}
+    for j, f in fits.items():
+        st = stack(e, sc, None if j == -1 else j, f.h, f.ref)
+        if identifiability(st) < MIN_IDENTIFIABILITY:
+            where = "these recordings" if j == -1 else f"joint {j + 1} of these recordings"
+            raise ModelError(
+                f"effect {name!r} cannot be told apart from the bands in {where}: its torque "
+                f"barely changes within a regime ({e.driven_by}); record a varying pose, motion "
+                "or force"
+            )
     spec = _clean_none(_make_spec(e, fits))
     new = base.copy()
     new.effects.append(spec)

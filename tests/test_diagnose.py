@@ -240,3 +240,13 @@ def test_sim_attenuation_lag_found_with_its_physics(sim_runs):
     d2 = diagnose(m2, [rec], regimes=SIM_REGIMES, effects=[])
     r1 = np.array(d2.residual["torque_rms"])[js]
     assert np.all(r1 < r0) and np.sum(r1**2) < 0.8 * np.sum(r0**2), (r0, r1)
+
+
+def test_sim_fixed_pose_payload_not_identifiable(sim_runs):
+    """In a push campaign's single pose a payload is a constant gravity torque the bands absorb:
+    add_effect refuses it with one sentence instead of storing arbitrary parameters."""
+    from ditherlab.errors import ModelError
+
+    rec, m, _ = sim_runs["clean"]
+    with pytest.raises(ModelError, match="'payload' cannot be told apart from the bands"):
+        add_effect(m, [rec], "payload", refit=False)
