@@ -225,3 +225,20 @@ def test_identify_against_simulator_truth(sim_pair):
     np.testing.assert_allclose(
         width[:3], np.minimum(2 * amp[:3], st.tau_max[:3] - st.tau_min[:3]), atol=0.15 * fs[0]
     )
+
+
+def test_cli_identify_add_effect(tmp_path, cli):
+    """`identify --model base --add payload` keeps the base prior and adds the effect (v + 1)."""
+    from ditherlab.io import write
+
+    rec, _ = moving_recording(1, duration=30.0)
+    src = write(rec, tmp_path / "moving.parquet")
+    base = identify([rec], n_boot=0, max_accel=np.inf)
+    base.prior_sigma = np.array([15.0, 15.0, 15.0, 0.2, 0.2, 0.2])
+    bp = base.save(tmp_path / "base.toml")
+    out = tmp_path / "model.toml"
+    r = cli("identify", src, "--model", bp, "--add", "payload", "-o", out, "--bootstrap", "0", "-q")
+    assert r.code == 0, r.err
+    m = TorqueModel.load(out)
+    assert m.effect_names() == ["payload"] and m.version == 2
+    np.testing.assert_allclose(m.prior_sigma, base.prior_sigma)
