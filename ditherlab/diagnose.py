@@ -90,6 +90,16 @@ BIC_THRESHOLD = -10.0
 AXES = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
 
 
+def _nanmean(x: np.ndarray, axis: int | None = None) -> np.ndarray:
+    """Mean over the finite values; NaN (without a warning) where there are none."""
+    x = np.asarray(x, dtype=float)
+    ok = np.isfinite(x)
+    cnt = ok.sum(axis=axis)
+    tot = np.where(ok, x, 0.0).sum(axis=axis)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
+
+
 # ============================================================== noise floor
 def noise_floor_sq(sigma: np.ndarray, half: np.ndarray, moving: np.ndarray) -> np.ndarray:
     """Expected squared band-aware residual while the model is right, per sample.
@@ -147,8 +157,8 @@ def residual_summary(model: TorqueModel, scs: Sequence[Scored]) -> dict[str, Any
         regs.append(sc.sig.regime)
         sigs.append(sc.sigma)
     ex, fl, reg, sg = (np.concatenate(a) for a in (exs, fls, regs, sigs))
-    rms = np.sqrt(np.nanmean(ex**2, axis=0))
-    floor = np.sqrt(np.nanmean(fl, axis=0))
+    rms = np.sqrt(_nanmean(ex**2, axis=0))
+    floor = np.sqrt(_nanmean(fl, axis=0))
     rows = []
     for j in range(n):
         for code, name in REGIME_NAMES.items():
@@ -189,7 +199,7 @@ def worst_windows(
         while start < t[-1]:
             m = (t >= start) & (t < start + width)
             if m.sum() > 3:
-                per = np.nanmean(r[m], axis=0)
+                per = _nanmean(r[m], axis=0)
                 if np.isfinite(per).any():
                     j = int(np.nanargmax(per))
                     out.append(
@@ -197,7 +207,7 @@ def worst_windows(
                             "recording": sc.sig.rec.name or "<memory>",
                             "t0": float(start),
                             "t1": float(start + width),
-                            "energy": float(np.nanmean(per)),
+                            "energy": float(_nanmean(per)),
                             "worst_joint": j + 1,
                             "worst_joint_ratio": float(math.sqrt(per[j])),
                         }
@@ -302,7 +312,7 @@ def force_error(
                     "bias": [float(v) for v in np.mean(err[m], axis=0)],
                 }
             )
-    coverage = np.nanmean(cov, axis=0) if np.isfinite(cov).any() else None
+    coverage = _nanmean(cov, axis=0) if np.isfinite(cov).any() else None
     return {
         "axes": list(AXES),
         "rms": [float(v) for v in np.sqrt(np.mean(err**2, axis=0))],
@@ -982,7 +992,7 @@ def _history_figure(hist: list[dict[str, Any]], path: Path) -> None:
     for j in range(tr.shape[1]):
         ax.plot(v, tr[:, j], "o-", label=f"joint {j + 1}")
     fl = np.array([h.get("noise_floor", [np.nan] * tr.shape[1]) for h in hist])
-    ax.plot(v, np.nanmean(fl, axis=1), "k--", label="noise floor (mean)")
+    ax.plot(v, _nanmean(fl, axis=1), "k--", label="noise floor (mean)")
     ax.set_xlabel("model version")
     ax.set_ylabel("torque residual RMS [N·m]")
     ax.legend(fontsize=7)
