@@ -25,7 +25,9 @@ def main() -> None:
     args = ap.parse_args()
     here = Path(__file__).parent
     rows: list[dict] = []
-    for mod in sorted(m.name for m in pkgutil.iter_modules([str(here)]) if m.name.startswith("bench_")):
+    for mod in sorted(
+        m.name for m in pkgutil.iter_modules([str(here)]) if m.name.startswith("bench_")
+    ):
         if args.only and args.only not in mod:
             continue
         t0 = time.perf_counter()
@@ -42,9 +44,16 @@ def main() -> None:
 
 def _print_row(r: dict) -> None:
     ratio = f"{r['ratio']:.1f}x vs reference" if r.get("ratio") is not None else ""
-    ref = f" (reference {r['reference']:.4g} {r.get('unit', '')})" if r.get("reference") is not None else ""
+    ref = (
+        f" (reference {r['reference']:.4g} {r.get('unit', '')})"
+        if r.get("reference") is not None
+        else ""
+    )
     target = f"  [target: {r['target']}]" if r.get("target") else ""
-    print(f"{r['name']:<58} {r['value']:>12.4g} {r.get('unit', ''):<12}{ref} {ratio}{target}", flush=True)
+    print(
+        f"{r['name']:<58} {r['value']:>12.4g} {r.get('unit', ''):<12}{ref} {ratio}{target}",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

@@ -33,10 +33,14 @@ app = typer.Typer(
 
 # ---------------------------------------------------------------- shared option aliases
 OutPath = Annotated[Path, typer.Option("-o", "--out", help="Output file (written atomically).")]
-Seed = Annotated[int, typer.Option("--seed", help="Random seed; the same seed gives the same output.")]
+Seed = Annotated[
+    int, typer.Option("--seed", help="Random seed; the same seed gives the same output.")
+]
 RobotOpt = Annotated[
     str | None,
-    typer.Option("--robot", help="Robot for files without metadata: a built-in name or a URDF path."),
+    typer.Option(
+        "--robot", help="Robot for files without metadata: a built-in name or a URDF path."
+    ),
 ]
 JsonFlag = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON on stdout.")]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")]
@@ -50,9 +54,17 @@ def progress_bar(desc: str, quiet: bool = False) -> Iterator[Callable[[int, int]
         return
     from tqdm import tqdm
 
-    bar = tqdm(desc=desc, total=1, unit="", file=sys.stderr, leave=False, dynamic_ncols=True,
-               bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}")
+    bar = tqdm(
+        desc=desc,
+        total=1,
+        unit="",
+        file=sys.stderr,
+        leave=False,
+        dynamic_ncols=True,
+        bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}",
+    )
     try:
+
         def update(done: int, total: int) -> None:
             bar.total = max(int(total), 1)
             bar.n = min(int(done), bar.total)
@@ -134,9 +146,15 @@ def convert(
 @app.command()
 def view(
     recording: Annotated[Path, typer.Argument(help="Recording (.parquet, .csv, .mcap, bag).")],
-    estimates: Annotated[Path | None, typer.Option("--estimates", help="Estimates of this recording (replay).")] = None,
-    model: Annotated[Path | None, typer.Option("--model", help="Torque model (bands, residuals).")] = None,
-    diagnosis: Annotated[Path | None, typer.Option("--diagnosis", help="report.json of `diagnose -o`.")] = None,
+    estimates: Annotated[
+        Path | None, typer.Option("--estimates", help="Estimates of this recording (replay).")
+    ] = None,
+    model: Annotated[
+        Path | None, typer.Option("--model", help="Torque model (bands, residuals).")
+    ] = None,
+    diagnosis: Annotated[
+        Path | None, typer.Option("--diagnosis", help="report.json of `diagnose -o`.")
+    ] = None,
     save: Annotated[Path | None, typer.Option("--save", help="Write a Rerun file (.rrd).")] = None,
     spawn: Annotated[bool, typer.Option("--spawn", help="Open the Rerun viewer.")] = False,
     serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
@@ -150,12 +168,21 @@ def view(
     if spawn and serve:
         raise DitherlabError("view: choose one of --spawn and --serve")
     mode = "spawn" if spawn else "serve" if serve else None
-    req = load_view_request(recording, estimates=estimates, model=model, diagnosis=diagnosis,
-                            save=save, mode=mode, read_options=_read_options(mapping, robot))
+    req = load_view_request(
+        recording,
+        estimates=estimates,
+        model=model,
+        diagnosis=diagnosis,
+        save=save,
+        mode=mode,
+        read_options=_read_options(mapping, robot),
+    )
     with progress_bar("view", quiet) as progress:
         res = run_view(req, progress=progress)
     if res.path is not None:
-        echo(f"wrote {res.path} ({sum(res.summary.rows.values())} rows); open it with: rerun {res.path}")
+        echo(
+            f"wrote {res.path} ({sum(res.summary.rows.values())} rows); open it with: rerun {res.path}"
+        )
     elif res.url:
         echo(f"serving the view at {res.url} (Ctrl-C stops)")
         wait_until_interrupted()
@@ -164,9 +191,22 @@ def view(
 # ---------------------------------------------------------------- robot (helper "robot")
 @app.command()
 def robot(
-    spec: Annotated[str, typer.Argument(help="Built-in robot name (irb140, ur10e) or a URDF path.")],
-    q: Annotated[str | None, typer.Option("--q", help="Pose: 'zero', 'paper' (IRB140) or n angles in rad, comma-separated.")] = None,
-    tool_frame: Annotated[str | None, typer.Option("--tool-frame", help="Tool frame of a URDF (default: tool0, flange, ... or the last link).")] = None,
+    spec: Annotated[
+        str, typer.Argument(help="Built-in robot name (irb140, ur10e) or a URDF path.")
+    ],
+    q: Annotated[
+        str | None,
+        typer.Option(
+            "--q", help="Pose: 'zero', 'paper' (IRB140) or n angles in rad, comma-separated."
+        ),
+    ] = None,
+    tool_frame: Annotated[
+        str | None,
+        typer.Option(
+            "--tool-frame",
+            help="Tool frame of a URDF (default: tool0, flange, ... or the last link).",
+        ),
+    ] = None,
     json_out: JsonFlag = False,
 ) -> None:
     """Joints, limits and masses of a robot; tool point, gravity and lever arms at a pose."""
@@ -182,13 +222,27 @@ def robot(
 # ---------------------------------------------------------------- diagnose (helper "diagnose")
 @app.command()
 def diagnose(
-    recordings: Annotated[list[Path], typer.Argument(help="Recordings (with an F/T sensor for the force error).")],
-    model: Annotated[Path, typer.Option("--model", help="Torque model (TOML); its history gains a row.")],
-    out: Annotated[Path | None, typer.Option("-o", "--out", help="Report folder (report.md, report.json, PNG figures).")] = None,
+    recordings: Annotated[
+        list[Path], typer.Argument(help="Recordings (with an F/T sensor for the force error).")
+    ],
+    model: Annotated[
+        Path, typer.Option("--model", help="Torque model (TOML); its history gains a row.")
+    ],
+    out: Annotated[
+        Path | None,
+        typer.Option("-o", "--out", help="Report folder (report.md, report.json, PNG figures)."),
+    ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
-    no_history: Annotated[bool, typer.Option("--no-history", help="Do not append to the model's history.")] = False,
-    regime: Annotated[list[str] | None, typer.Option("--regime", help="Score only this regime (still, dither, moving); repeatable.")] = None,
+    no_history: Annotated[
+        bool, typer.Option("--no-history", help="Do not append to the model's history.")
+    ] = False,
+    regime: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--regime", help="Score only this regime (still, dither, moving); repeatable."
+        ),
+    ] = None,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
 ) -> None:
@@ -198,20 +252,45 @@ def diagnose(
     from ditherlab.diagnose import diagnose_files
 
     with progress_bar("diagnose", quiet or json_out) as progress:
-        d = diagnose_files(recordings, model, out_dir=out, read_options=_read_options(mapping, robot),
-                           history=not no_history, regimes=regime, progress=progress)
+        d = diagnose_files(
+            recordings,
+            model,
+            out_dir=out,
+            read_options=_read_options(mapping, robot),
+            history=not no_history,
+            regimes=regime,
+            progress=progress,
+        )
     echo(json.dumps(d.to_dict(), indent=1, default=float) if json_out else d.summary())
 
 
 # ---------------------------------------------------------------- identify, replay, report (helper "replay")
 @app.command()
 def identify(
-    recordings: Annotated[list[Path], typer.Argument(help="Push recordings with an F/T sensor (f_x..m_z).")],
+    recordings: Annotated[
+        list[Path], typer.Argument(help="Push recordings with an F/T sensor (f_x..m_z).")
+    ],
     out: OutPath,
-    model: Annotated[Path | None, typer.Option("--model", help="Base model: its prior and effects are kept, its bands re-fitted.")] = None,
-    add: Annotated[list[str] | None, typer.Option("--add", help="Fit one more effect (diagnose's library), repeatable.")] = None,
-    assume_no_force: Annotated[bool, typer.Option("--assume-no-force", help="No F/T sensor: you state that no external force acts; bands from rest periods.")] = False,
-    bootstrap: Annotated[int, typer.Option("--bootstrap", help="Bootstrap replicates for the standard errors.")] = 30,
+    model: Annotated[
+        Path | None,
+        typer.Option(
+            "--model", help="Base model: its prior and effects are kept, its bands re-fitted."
+        ),
+    ] = None,
+    add: Annotated[
+        list[str] | None,
+        typer.Option("--add", help="Fit one more effect (diagnose's library), repeatable."),
+    ] = None,
+    assume_no_force: Annotated[
+        bool,
+        typer.Option(
+            "--assume-no-force",
+            help="No F/T sensor: you state that no external force acts; bands from rest periods.",
+        ),
+    ] = False,
+    bootstrap: Annotated[
+        int, typer.Option("--bootstrap", help="Bootstrap replicates for the standard errors.")
+    ] = 30,
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
@@ -221,9 +300,17 @@ def identify(
     from ditherlab.identify import identify_files, summary
 
     with progress_bar("identify", quiet) as progress:
-        m = identify_files(recordings, out, base=model, add=add or [], assume_no_force=assume_no_force,
-                           n_boot=bootstrap, seed=seed, read_options=_read_options(mapping, robot),
-                           progress=progress)
+        m = identify_files(
+            recordings,
+            out,
+            base=model,
+            add=add or [],
+            assume_no_force=assume_no_force,
+            n_boot=bootstrap,
+            seed=seed,
+            read_options=_read_options(mapping, robot),
+            progress=progress,
+        )
     echo(summary(m))
     echo(f"wrote {out}")
 
@@ -234,11 +321,30 @@ def simulate(
     scenario: Annotated[str, typer.Argument(help="push-campaign or lead-through.")],
     out: OutPath,
     seed: Seed = 0,
-    config: Annotated[Path | None, typer.Option("--config", help="TOML overriding the built-in IRB140 parameters.")] = None,
-    dither: Annotated[bool, typer.Option("--dither/--no-dither", help="Dither while standing still.")] = True,
-    hidden: Annotated[list[str] | None, typer.Option("--hidden", help="Inject an effect the base model lacks: NAME[:SIZE], repeatable.")] = None,
-    pushes_per_direction: Annotated[int | None, typer.Option("--pushes-per-direction", help="Pushes per axis and sign (push-campaign).")] = None,
-    log_temperature: Annotated[bool, typer.Option("--log-temperature/--no-log-temperature", help="With --hidden temperature_friction: write temp_j columns.")] = True,
+    config: Annotated[
+        Path | None,
+        typer.Option("--config", help="TOML overriding the built-in IRB140 parameters."),
+    ] = None,
+    dither: Annotated[
+        bool, typer.Option("--dither/--no-dither", help="Dither while standing still.")
+    ] = True,
+    hidden: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--hidden", help="Inject an effect the base model lacks: NAME[:SIZE], repeatable."
+        ),
+    ] = None,
+    pushes_per_direction: Annotated[
+        int | None,
+        typer.Option("--pushes-per-direction", help="Pushes per axis and sign (push-campaign)."),
+    ] = None,
+    log_temperature: Annotated[
+        bool,
+        typer.Option(
+            "--log-temperature/--no-log-temperature",
+            help="With --hidden temperature_friction: write temp_j columns.",
+        ),
+    ] = True,
     quiet: Quiet = False,
 ) -> None:
     """Simulate the built-in IRB140 (gear springs, stick-slip friction, servo, dither) to a recording."""
@@ -246,21 +352,43 @@ def simulate(
     from ditherlab.sim import simulate as run_sim
 
     with progress_bar(f"simulate {scenario}", quiet) as progress:
-        rec = run_sim(scenario, seed=seed, dither=dither, config=config, hidden=hidden or [],
-                      progress=progress, pushes_per_direction=pushes_per_direction,
-                      log_temperature=None if log_temperature else False)
+        rec = run_sim(
+            scenario,
+            seed=seed,
+            dither=dither,
+            config=config,
+            hidden=hidden or [],
+            progress=progress,
+            pushes_per_direction=pushes_per_direction,
+            log_temperature=None if log_temperature else False,
+        )
     echo(f"wrote {write(rec, out)} ({rec.duration:.1f} s simulated)")
 
 
 @app.command()
 def replay(
     recording: Annotated[Path, typer.Argument(help="Recording to replay the estimator over.")],
-    model: Annotated[Path, typer.Option("--model", help="Torque model (TOML) from `ditherlab identify`.")],
+    model: Annotated[
+        Path, typer.Option("--model", help="Torque model (TOML) from `ditherlab identify`.")
+    ],
     out: OutPath,
     level: Annotated[float, typer.Option("--level", help="Interval confidence level.")] = 0.95,
-    interval: Annotated[str, typer.Option("--interval", help="Interval method: profile or set_membership.")] = "profile",
-    components: Annotated[str, typer.Option("--components", help="Estimated components: all, fxyz, or a list like f_x,f_z.")] = "all",
-    variants: Annotated[str | None, typer.Option("--variants", help="Comma list of nodither_band, nodither_noband, dither_band, dither_noband (default: all the recording allows).")] = None,
+    interval: Annotated[
+        str, typer.Option("--interval", help="Interval method: profile or set_membership.")
+    ] = "profile",
+    components: Annotated[
+        str,
+        typer.Option(
+            "--components", help="Estimated components: all, fxyz, or a list like f_x,f_z."
+        ),
+    ] = "all",
+    variants: Annotated[
+        str | None,
+        typer.Option(
+            "--variants",
+            help="Comma list of nodither_band, nodither_noband, dither_band, dither_noband (default: all the recording allows).",
+        ),
+    ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
     quiet: Quiet = False,
@@ -269,19 +397,43 @@ def replay(
     from ditherlab.replay import describe, replay_file
 
     with progress_bar("replay", quiet) as progress:
-        est = replay_file(recording, model, out, read_options=_read_options(mapping, robot), level=level,
-                          interval=interval, components=components, progress=progress,
-                          variants=variants.split(",") if variants else None)
+        est = replay_file(
+            recording,
+            model,
+            out,
+            read_options=_read_options(mapping, robot),
+            level=level,
+            interval=interval,
+            components=components,
+            progress=progress,
+            variants=variants.split(",") if variants else None,
+        )
     echo(describe(est))
     echo(f"wrote {out}")
 
 
 @app.command()
 def report(
-    estimates: Annotated[list[Path], typer.Argument(help="Estimates files from `ditherlab replay` (with the F/T columns).")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Report folder (report.md, report.html, report.json, PNG figures).")],
-    recording: Annotated[list[Path] | None, typer.Option("--recording", help="The recordings behind the estimates (adds Figs. 2, 4, 5), repeatable.")] = None,
-    bootstrap: Annotated[int, typer.Option("--bootstrap", help="Bootstrap replicates of the detection curves.")] = 200,
+    estimates: Annotated[
+        list[Path],
+        typer.Argument(help="Estimates files from `ditherlab replay` (with the F/T columns)."),
+    ],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "-o", "--out", help="Report folder (report.md, report.html, report.json, PNG figures)."
+        ),
+    ],
+    recording: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--recording",
+            help="The recordings behind the estimates (adds Figs. 2, 4, 5), repeatable.",
+        ),
+    ] = None,
+    bootstrap: Annotated[
+        int, typer.Option("--bootstrap", help="Bootstrap replicates of the detection curves.")
+    ] = 200,
     seed: Seed = 0,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
@@ -292,6 +444,16 @@ def report(
     from ditherlab.report import make_report, summary_text
 
     with progress_bar("report", quiet or json_out) as progress:
-        a = make_report(estimates, out, recordings=recording or [], n_boot=bootstrap, seed=seed,
-                        progress=progress)
-    echo(json.dumps(a, indent=1, default=float) if json_out else summary_text(a) + f"\nwrote {out}/report.md")
+        a = make_report(
+            estimates,
+            out,
+            recordings=recording or [],
+            n_boot=bootstrap,
+            seed=seed,
+            progress=progress,
+        )
+    echo(
+        json.dumps(a, indent=1, default=float)
+        if json_out
+        else summary_text(a) + f"\nwrote {out}/report.md"
+    )

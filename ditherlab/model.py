@@ -150,7 +150,9 @@ class TorqueModel:
             raise ModelError(f"{where}prior.sigma is {self.prior_sigma.tolist()}, expected >= 0")
         for name, b in self.regimes.items():
             if name not in REGIMES:
-                raise ModelError(f"{where}unknown regime [regimes.{name}], expected one of {REGIMES}")
+                raise ModelError(
+                    f"{where}unknown regime [regimes.{name}], expected one of {REGIMES}"
+                )
             for k in ("tau_min", "tau_max", "sigma", "coulomb", "viscous"):
                 v = getattr(b, k)
                 if v is not None and len(v) != self.n:
@@ -158,7 +160,9 @@ class TorqueModel:
                         f"{where}regimes.{name}.{k} has {len(v)} values, expected {self.n} (one per joint)"
                     )
                 if v is not None and not np.all(np.isfinite(v)):
-                    raise ModelError(f"{where}regimes.{name}.{k} is {v.tolist()}, expected finite numbers")
+                    raise ModelError(
+                        f"{where}regimes.{name}.{k} is {v.tolist()}, expected finite numbers"
+                    )
             inv = np.flatnonzero(b.tau_min > b.tau_max)
             if inv.size:
                 j = int(inv[0])
@@ -204,8 +208,12 @@ class TorqueModel:
 
     # -------------------------------------------------------------- file I/O
     def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"schema": SCHEMA, "robot": self.robot, "n_joints": self.n,
-                             "version": self.version}
+        d: dict[str, Any] = {
+            "schema": SCHEMA,
+            "robot": self.robot,
+            "n_joints": self.n,
+            "version": self.version,
+        }
         if self.notes:
             d["notes"] = self.notes
         if self.tool_offset is not None:
@@ -255,7 +263,9 @@ class TorqueModel:
         for i, e in enumerate(d.get("effects", [])):
             if "name" not in e:
                 raise ModelError(f"{where}effects[{i}].name is missing")
-            effects.append(EffectSpec(e["name"], [int(j) for j in e.get("joints", [])], e.get("params", {})))
+            effects.append(
+                EffectSpec(e["name"], [int(j) for j in e.get("joints", [])], e.get("params", {}))
+            )
         return cls(
             robot=d["robot"],
             n=int(d["n_joints"]),

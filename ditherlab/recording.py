@@ -118,7 +118,13 @@ class Recording:
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         cols: dict[str, np.ndarray] = {"t": np.asarray(t, dtype=float)}
-        for prefix, arr in (("q", q), ("dq", dq), ("tau", tau), ("tau_ffw", tau_ffw), ("temp", temp)):
+        for prefix, arr in (
+            ("q", q),
+            ("dq", dq),
+            ("tau", tau),
+            ("tau_ffw", tau_ffw),
+            ("temp", temp),
+        ):
             if arr is None:
                 continue
             arr = np.asarray(arr, dtype=float).reshape(len(cols["t"]), -1)
@@ -409,7 +415,9 @@ def _validate(
     if "tool_offset" in meta:
         off = meta["tool_offset"]
         if not (isinstance(off, list | tuple) and len(off) == 3):
-            raise RecordingError(f"{where}metadata key 'tool_offset' is {off!r}, expected [x, y, z]")
+            raise RecordingError(
+                f"{where}metadata key 'tool_offset' is {off!r}, expected [x, y, z]"
+            )
     if "payload" in meta:
         p = meta["payload"]
         if not (isinstance(p, Mapping) and "mass" in p):
@@ -417,7 +425,9 @@ def _validate(
                 f"{where}metadata key 'payload' is {p!r}, expected {{'mass': kg, 'com': [x, y, z]}}"
             )
         if float(p["mass"]) < 0:
-            raise RecordingError(f"{where}metadata key 'payload.mass' is {p['mass']}, expected >= 0")
+            raise RecordingError(
+                f"{where}metadata key 'payload.mass' is {p['mass']}, expected >= 0"
+            )
 
     cols = list(data.columns)
     if len(set(cols)) != len(cols):
