@@ -52,6 +52,17 @@ def progress_bar(desc: str, quiet: bool = False) -> Iterator[Callable[[int, int]
     if quiet:
         yield lambda done, total: None
         return
+    if not sys.stderr.isatty():
+        # A log file or CI: one line at the start and one at the end instead of a redrawn bar.
+        import time
+
+        t0 = time.perf_counter()
+        print(f"{desc} ...", file=sys.stderr, flush=True)
+        try:
+            yield lambda done, total: None
+        finally:
+            print(f"{desc}: done in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+        return
     from tqdm import tqdm
 
     bar = tqdm(
