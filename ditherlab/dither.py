@@ -129,6 +129,28 @@ def period_from_feedforward(tau_ffw, t) -> float:
     return float(2.0 * half[good].mean())
 
 
+def full_window(on: np.ndarray, window: int) -> np.ndarray:
+    """Where ``on`` held for each of the last ``window`` samples, the current one included.
+
+    Parameters
+    ----------
+    on : (N,) bool
+        E.g. the dither flag.
+    window : int
+        Samples per window (>= 1).
+
+    Returns
+    -------
+    (N,) bool
+        False for the first ``window - 1`` samples (the window is not full yet).
+    """
+    on = np.asarray(on, dtype=bool)
+    off = np.cumsum(np.r_[0, (~on).astype(np.int64)])
+    idx = np.arange(len(on))
+    lo = np.maximum(idx - window + 1, 0)
+    return (off[idx + 1] - off[lo] == 0) & (idx >= window - 1)
+
+
 def _window_stats(x: np.ndarray, W: int, chunk: int = 65536):
     """Causal window mean, and means above / below it, of every column of x (N, n)."""
     N, n = x.shape

@@ -28,7 +28,7 @@ the sensor columns and ``dither`` copied, per variant ``V/f_x .. V/m_z``, ``V/<c
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -211,6 +211,20 @@ def dither_on(rec: Recording) -> np.ndarray | None:
     return ((hi - lo) > 1e-6).any(axis=1)
 
 
+def meta_dither_period(meta: Mapping[str, Any]) -> float | None:
+    """The dither period [s] a recording's metadata states, or None.
+
+    ``dither.period`` [s] or ``dither.omega`` [rad/s], at the top level or under ``sim``.
+    """
+    for d in (meta.get("dither"), (meta.get("sim") or {}).get("dither")):
+        if isinstance(d, Mapping):
+            if d.get("period"):
+                return float(d["period"])
+            if d.get("omega"):
+                return float(2 * np.pi / float(d["omega"]))
+    return None
+
+
 def dither_period(rec: Recording) -> float:
     """The dither period [s].
 
@@ -219,12 +233,9 @@ def dither_period(rec: Recording) -> float:
     (:func:`ditherlab.dither.period_from_feedforward`), else the strongest spectral line above
     2 Hz of ``tau`` over the longest stretch with the dither on.
     """
-    for d in (rec.meta.get("dither"), (rec.meta.get("sim") or {}).get("dither")):
-        if isinstance(d, dict):
-            if d.get("period"):
-                return float(d["period"])
-            if d.get("omega"):
-                return float(2 * np.pi / float(d["omega"]))
+    stated = meta_dither_period(rec.meta)
+    if stated is not None:
+        return stated
     if rec.tau_ffw is not None:
         from ditherlab.dither import period_from_feedforward
 
@@ -291,11 +302,7 @@ def extract_dither(rec: Recording, tau: np.ndarray | None = None) -> Extraction 
     x = rec.tau if tau is None else tau
     sig = dmod.extract(x, rec.t, period)
     w = max(int(round(period * rec.sample_rate)), 1)
-    # valid: the dither was on for the whole window (t - period, t]
-    c = np.cumsum(np.r_[0, (~on).astype(np.int64)])
-    idx = np.arange(len(on))
-    lo = np.maximum(idx - w + 1, 0)
-    valid = (c[idx + 1] - c[lo] == 0) & (idx >= w - 1)
+    valid = dmod.full_window(on, w)  # the dither was on for the whole window (t - period, t]
     return Extraction(
         upper=np.asarray(sig.upper),
         lower=np.asarray(sig.lower),
@@ -641,6 +648,7 @@ __all__ = [
     "band_as_noise",
     "dither_on",
     "dither_period",
+    "meta_dither_period",
     "extract_dither",
     "gaussian_profile_intervals",
     "parse_components",

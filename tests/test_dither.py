@@ -162,3 +162,12 @@ def test_band_as_noise_has_the_variance_of_uniform_plus_gaussian():
     assert abs(x.var() - sp**2) < 0.01 * sp**2
     np.testing.assert_allclose(D.band_as_noise([0.0, -1.0], [0.0, 1.0], [2.0, 0.0]),
                                [2.0, np.sqrt(4 / 12)])  # fmt: skip
+
+
+def test_full_window_against_a_loop():
+    """full_window is True exactly where the flag held over the whole last window."""
+    rng = np.random.default_rng(3)
+    on = rng.random(300) > 0.1
+    for W in (1, 2, 7, 20):
+        ref = [k >= W - 1 and bool(on[k - W + 1 : k + 1].all()) for k in range(len(on))]
+        np.testing.assert_array_equal(D.full_window(on, W), ref)

@@ -20,6 +20,7 @@ from ditherlab.replay import (
     available_variants,
     dither_period,
     extract_dither,
+    meta_dither_period,
     replay,
 )
 
@@ -164,6 +165,13 @@ def test_dither_period_from_feedforward(recs):
     assert dither_period(dith) == pytest.approx(truth["period"], rel=0.01)
     ext = extract_dither(dith)
     assert ext is not None and not ext.valid[:5].any() and ext.valid[-1]
+
+
+def test_meta_dither_period_reads_period_or_omega():
+    """The stated period is dither.period [s] or 2 pi / dither.omega, also under sim; else None."""
+    assert meta_dither_period({"dither": {"period": 0.05}}) == 0.05
+    assert meta_dither_period({"sim": {"dither": {"omega": 80.0}}}) == pytest.approx(2 * np.pi / 80)
+    assert meta_dither_period({"dither": {}, "sim": None}) is None
 
 
 def test_save_load_round_trip(tmp_path, estimates):

@@ -552,12 +552,11 @@ def dither_period(rec: Recording, estimates: Estimates | None = None) -> float |
     """
     if estimates is not None and estimates.meta.get("dither_period"):
         return float(estimates.meta["dither_period"])
-    for d in (rec.meta.get("dither"), (rec.meta.get("sim") or {}).get("dither")):
-        if isinstance(d, Mapping):
-            if d.get("period"):
-                return float(d["period"])
-            if d.get("omega"):
-                return float(2 * np.pi / float(d["omega"]))
+    from ditherlab.replay import meta_dither_period
+
+    stated = meta_dither_period(rec.meta)
+    if stated is not None:
+        return stated
     on = rec.dither
     if rec.tau_ffw is None or (on is not None and not on.any()):
         return None
@@ -719,11 +718,10 @@ def window_mean(x: np.ndarray, window: int) -> np.ndarray:
 
 def _dither_window_on(rec: Recording, window: int) -> np.ndarray:
     """(N,) bool: the dither flag was on for each of the last ``window`` samples."""
+    from ditherlab.dither import full_window
+
     on = rec.dither if rec.dither is not None else np.ones(len(rec), dtype=bool)
-    off = np.cumsum(np.r_[0, (~on).astype(np.int64)])
-    idx = np.arange(len(on))
-    lo = np.maximum(idx - window + 1, 0)
-    return (off[idx + 1] - off[lo] == 0) & (idx >= window - 1)
+    return full_window(on, window)
 
 
 # ---------------------------------------------------------------------- per force axis
