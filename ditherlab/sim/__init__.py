@@ -20,7 +20,7 @@ from ditherlab.sim.params import load_params
 
 __all__ = ["simulate", "SCENARIOS", "EFFECTS"]
 
-SCENARIOS = ("push-campaign", "lead-through")
+SCENARIOS = ("push-campaign", "lead-through", "excitation")
 
 
 def simulate(
@@ -37,7 +37,8 @@ def simulate(
 
     Parameters
     ----------
-    scenario : ``"push-campaign"`` or ``"lead-through"``
+    scenario : ``"push-campaign"``, ``"lead-through"`` or ``"excitation"`` (smooth strokes
+        through several poses and pushes in each, for identification and diagnosis)
     seed : random seed; the same seed and options give identical output
     dither : dither while standing still
     config : user parameter file (TOML) or dict overriding ``irb140.toml``
@@ -94,6 +95,18 @@ def simulate(
 
     if scenario == "push-campaign":
         cols, sim_meta = sc.push_campaign(
+            engine_for,
+            params,
+            seed=int(seed),
+            dither=bool(dither),
+            hidden=specs,
+            progress=progress,
+            robot=robot,
+        )
+    elif scenario == "excitation":
+        from ditherlab.sim.excitation import excitation
+
+        cols, sim_meta = excitation(
             engine_for,
             params,
             seed=int(seed),

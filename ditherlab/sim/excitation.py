@@ -1,0 +1,187 @@
+"""Excitation: a recording made for identification and diagnosis of the torque model.
+
+The push campaign stands in one pose, so a gravity error (``payload``), an F/T offset
+(``ft_bias``) and anything that depends on load, speed or position cannot be told apart from the
+stick band there. This scenario visits ``poses`` (cycled when ``blocks`` exceeds their number);
+in each block the robot
+
+1. moves smoothly to the block's pose (minimum-jerk, ``move_s``),
+2. sweeps every joint back and forth about it: ``sweeps`` minimum-jerk strokes to
+   ``±sweep_amplitude`` (wrist joints ``wrist_amplitude``) with durations drawn from
+   [``stroke_min_s``, ``stroke_max_s``], so speeds spread from rest up to about
+   1.9 amplitude / duration (Stribeck, viscous, ripple over several periods, load-dependent
+   friction as gravity changes along the stroke),
+3. stands still, ramps the dither on (when ``dither``), receives ``pushes_per_block`` raised-cosine
+   pushes along random base axes and signs (magnitudes in [``magnitude_min``,
+   ``magnitude_max``]), each followed by a rest, and ramps the dither off.
+
+Every reference is a minimum-jerk profile: position, velocity and acceleration are continuous, as
+from a real path planner, so the servo is never asked for a velocity step (a step rings the gear
+springs, a transient no rigid-body model has). The recording is long enough (about
+``blocks`` × 25 s) for a temperature drift of the hidden ``temperature_friction`` to show.
+The plan depends only on the seed and the options, never on ``dither``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ditherlab.sim.engine import Engine, Inputs
+from ditherlab.sim.hidden import HiddenSpec, build_hidden
+
+AXES = ("x", "y", "z")
+
+
+def _min_jerk(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Minimum-jerk profile of progress ``s`` in [0, 1]: (position, d/ds, d²/ds²)."""
+    p = s**3 * (10 - 15 * s + 6 * s**2)
+    dp = 30 * s**2 * (1 - s) ** 2
+    ddp = 60 * s * (1 - s) * (1 - 2 * s)
+    return p, dp, ddp
+
+
+def _plan(ex: dict[str, Any], n: int, rng: np.random.Generator) -> list[dict[str, Any]]:
+    """Segments ``{"kind": "move"|"hold"|"push", "t": duration, ...}`` of the whole run."""
+    poses = np.asarray(ex["poses"], dtype=float)[:, :n]
+    amp = np.full(n, float(ex["sweep_amplitude"]))
+    amp[3:] = float(ex["wrist_amplitude"])
+    segs: list[dict[str, Any]] = []
+    here = poses[0].copy()
+    for b in range(int(ex["blocks"])):
+        pose = poses[b % len(poses)]
+        if b > 0:
+            segs.append({"kind": "move", "t": float(ex["move_s"]), "a": here, "b": pose.copy()})
+            here = pose.copy()
+        for _ in range(int(ex["sweeps"])):
+            for sign in (1.0, -1.0):
+                # each joint its own amplitude share, so joints do not move in lock-step
+                target = pose + sign * amp * rng.uniform(0.6, 1.0, n)
+                dur = float(rng.uniform(ex["stroke_min_s"], ex["stroke_max_s"]))
+                segs.append({"kind": "move", "t": dur, "a": here, "b": target})
+                here = target
+        dur = float(rng.uniform(ex["stroke_min_s"], ex["stroke_max_s"]))
+        segs.append({"kind": "move", "t": dur, "a": here, "b": pose.copy()})
+        here = pose.copy()
+        segs.append({"kind": "hold", "t": float(ex["settle_s"]), "dither": False})
+        segs.append({"kind": "ramp", "t": float(ex["ramp_s"]), "dither": True})
+        for _ in range(int(ex["pushes_per_block"])):
+            segs.append(
+                {
+                    "kind": "push",
+                    "t": float(rng.uniform(ex["duration_min"], ex["duration_max"])),
+                    "rest": float(rng.uniform(ex["rest_min"], ex["rest_max"])),
+                    "axis": AXES[int(rng.integers(3))],
+                    "sign": float(rng.choice([-1.0, 1.0])),
+                    "magnitude": float(rng.uniform(ex["magnitude_min"], ex["magnitude_max"])),
+                }
+            )
+        segs.append({"kind": "ramp", "t": float(ex["ramp_s"]), "dither": False})
+    return segs
+
+
+def excitation(
+    engine_for: Callable[[Any], Engine],
+    params: dict[str, Any],
+    *,
+    seed: int,
+    dither: bool,
+    hidden: list[HiddenSpec],
+    progress: Callable[[int, int], None] | None,
+    robot: Any,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Simulate the excitation scenario; returns (columns, meta["sim"] part).
+
+    Same parameters as :func:`ditherlab.sim.scenarios.push_campaign`. Columns as there
+    (``q, dq, tau, tau_ffw (N, n)``, ``wrench (N, 6)``, ``dither (N,)``, ``temp``), plus the
+    extra integer column ``push`` (index of the push, -1 outside pushes).
+    """
+    ex = params["excitation"]
+    fs_hz = float(params["timing"]["sample_rate_hz"])
+    dt = 1.0 / fs_hz
+    n = robot.n
+    plan_rng, noise_rng, hidden_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3)
+    )
+    segs = _plan(ex, n, plan_rng)
+    t_total = sum(s["t"] + s.get("rest", 0.0) for s in segs) + float(ex["settle_s"])
+    N = int(np.ceil(t_total * fs_hz))
+    tt = np.arange(N) * dt
+    poses = np.asarray(ex["poses"], dtype=float)[:, :n]
+    q_ref = np.tile(poses[0], (N, 1))
+    dq_ref = np.zeros((N, n))
+    push = np.zeros((N, 6))
+    push_id = np.full(N, -1, dtype=np.int64)
+    dcmd = np.zeros(N)
+    pushes: list[dict[str, Any]] = []
+    t0, here, dith = 0.0, poses[0].copy(), False
+    for s in segs:
+        length = s["t"] + s.get("rest", 0.0)
+        m = (tt >= t0) & (tt < t0 + length)
+        if s["kind"] == "move":
+            u = (tt[m] - t0) / s["t"]
+            p, dp, _ = _min_jerk(u)
+            q_ref[m] = s["a"] + p[:, None] * (s["b"] - s["a"])
+            dq_ref[m] = (dp / s["t"])[:, None] * (s["b"] - s["a"])
+            here = s["b"]
+        else:
+            q_ref[m] = here
+            if s["kind"] == "ramp":
+                dith = bool(s["dither"]) and dither
+            dcmd[m] = 1.0 if dith and s["kind"] != "hold" else 0.0
+            if s["kind"] == "push":
+                mp = (tt >= t0) & (tt < t0 + s["t"])
+                shape = 0.5 * (1 - np.cos(2 * np.pi * (tt[mp] - t0) / s["t"]))
+                push[mp, AXES.index(s["axis"])] += s["sign"] * s["magnitude"] * shape
+                push_id[mp] = len(pushes)
+                pushes.append(
+                    {
+                        "t0": t0,
+                        "duration": s["t"],
+                        "rest": s["rest"],
+                        "axis": s["axis"],
+                        "sign": int(s["sign"]),
+                        "magnitude": s["magnitude"],
+                    }
+                )
+        t0 += length
+    q_ref[tt >= t0] = here
+
+    hp = build_hidden(hidden, params, tt, n, hidden_rng)
+    engine = engine_for(hp)
+    noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * engine.fs
+    ft_noise = noise_rng.normal(size=(N, 6)) * np.r_[
+        np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])
+    ]
+    inputs = Inputs(
+        push=hp.arm_push(push, dt),
+        tau_ext=np.zeros((N, n)),
+        q_ref=q_ref,
+        dq_ref=dq_ref,
+        kp_on=np.ones(N),
+        dither_cmd=dcmd,
+        fscale=hp.fscale,
+        noise=noise,
+    )
+    state = engine.initial_state(poses[0])
+    out = engine.run(inputs, state, progress=progress)
+    cols = {
+        "t": tt,
+        "q": out.q_motor,
+        "dq": out.dq_motor,
+        "tau": out.tau,
+        "tau_ffw": out.tau_ffw,
+        "wrench": -push + hp.ft_bias + ft_noise,  # F = wrench the robot exerts = -push
+        "dither": out.dither,
+        "temp": hp.temp,
+        "extra": {"push": push_id},
+    }
+    sim_meta = {
+        "pushes": pushes,
+        "poses": [[float(v) for v in p] for p in poses],
+        "timeline": {"end": float(tt[-1])},
+        "hidden": hp.truth,
+    }
+    return cols, sim_meta
