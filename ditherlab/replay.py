@@ -250,9 +250,7 @@ def dither_period(rec: Recording) -> float:
             pass
     x = rec.tau
     on = rec.dither if rec.dither is not None else np.ones(len(rec), bool)
-    # longest run of dither-on samples
-    edges = np.diff(np.r_[0, on.astype(np.int8), 0])
-    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    starts, ends = runs(on)  # the longest run of dither-on samples
     if len(starts) == 0:
         raise ConfigError(f"{rec.name or 'recording'}: the dither is never on; no period to find")
     k = int(np.argmax(ends - starts))
@@ -619,10 +617,21 @@ def gaussian_profile_intervals(
     return lo, hi
 
 
+def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The runs of True in ``mask`` (N,) bool, as sample indices ``[start, end)``.
+
+    Returns
+    -------
+    starts, ends : (R,) int
+        First sample of each run, and the first sample after it (``N`` for a run at the end).
+    """
+    e = np.diff(np.r_[0, np.asarray(mask, dtype=bool).astype(np.int8), 0])
+    return np.flatnonzero(e == 1), np.flatnonzero(e == -1)
+
+
 def time_spans(t: np.ndarray, mask: np.ndarray) -> list[list[float]]:
     """``[[t_start, t_end], ...]`` [s] of the runs of True in ``mask`` (N,)."""
-    e = np.diff(np.r_[0, np.asarray(mask, dtype=np.int8), 0])
-    s0, s1 = np.flatnonzero(e == 1), np.flatnonzero(e == -1)
+    s0, s1 = runs(mask)
     return [[float(t[a]), float(t[b - 1])] for a, b in zip(s0, s1, strict=True)]
 
 
@@ -654,6 +663,8 @@ __all__ = [
     "parse_components",
     "replay",
     "replay_file",
+    "runs",
+    "time_spans",
     "describe",
     "ModelError",
 ]

@@ -106,9 +106,9 @@ def find_pushes(
     base = float(np.median(mag[mag < threshold])) if np.any(mag < threshold) else 0.0
     hi_thr = base + threshold
     lo_thr = base + 0.5 * threshold
-    above = mag > lo_thr
-    edges = np.diff(np.r_[0, above.astype(np.int8), 0])
-    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    from ditherlab.replay import runs
+
+    starts, ends = runs(mag > lo_thr)
     segs: list[list[int]] = []
     for s, e in zip(starts, ends, strict=True):
         if not np.any(mag[s:e] > hi_thr):

@@ -22,6 +22,7 @@ from ditherlab.replay import (
     extract_dither,
     meta_dither_period,
     replay,
+    runs,
 )
 
 MAGS = (5.0, 15.0, 30.0, 50.0)
@@ -172,6 +173,24 @@ def test_meta_dither_period_reads_period_or_omega():
     assert meta_dither_period({"dither": {"period": 0.05}}) == 0.05
     assert meta_dither_period({"sim": {"dither": {"omega": 80.0}}}) == pytest.approx(2 * np.pi / 80)
     assert meta_dither_period({"dither": {}, "sim": None}) is None
+
+
+def test_runs_against_a_loop():
+    """runs gives [start, end) of every run of True, a run at either end included."""
+    rng = np.random.default_rng(5)
+    for mask in (rng.random(200) > 0.6, np.ones(7, bool), np.zeros(7, bool), np.array([], bool)):
+        ref, k = [], 0
+        while k < len(mask):
+            if mask[k]:
+                e = k
+                while e < len(mask) and mask[e]:
+                    e += 1
+                ref.append((k, e))
+                k = e
+            else:
+                k += 1
+        starts, ends = runs(mask)
+        assert list(zip(starts.tolist(), ends.tolist(), strict=True)) == ref
 
 
 def test_save_load_round_trip(tmp_path, estimates):

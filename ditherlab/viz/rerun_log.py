@@ -212,13 +212,6 @@ def decimate_index(t: np.ndarray, rate: float | None) -> np.ndarray:
     return np.flatnonzero(first)
 
 
-def _edges(flag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rising and falling edges of a boolean series: (indices of first True, first False)."""
-    f = np.asarray(flag, dtype=bool).astype(np.int8)
-    d = np.diff(f, prepend=0)
-    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-
-
 # ---------------------------------------------------------------------- the logger
 @dataclass
 class ViewSummary:
@@ -865,8 +858,11 @@ def _log_events(log: _Logger, rec: Recording, estimates: Estimates | None) -> No
     t = rec.t
     d = rec.dither
     if d is not None:
-        on, off = _edges(d)
-        times = np.concatenate([t[on], t[np.minimum(off, len(t) - 1)]])
+        from ditherlab.replay import runs
+
+        on, off = runs(d)
+        off = off[off < len(t)]  # a run to the end has no falling edge
+        times = np.concatenate([t[on], t[off]])
         texts = ["dither on"] * len(on) + ["dither off"] * len(off)
         order = np.argsort(times, kind="stable")
         log.text_log(
@@ -935,8 +931,9 @@ def merge_spans(t: np.ndarray, flag: np.ndarray, gap: float) -> list[tuple[int, 
     -------
     list of (start, end) sample indices, in time order
     """
-    on, off = _edges(flag)
-    off = np.append(off, len(t))[: len(on)]
+    from ditherlab.replay import runs
+
+    on, off = runs(flag)
     spans: list[list[int]] = []
     for a, b in zip(on, off, strict=True):
         if spans and t[a] - t[spans[-1][1] - 1] < gap:
