@@ -53,14 +53,20 @@ def progress_bar(desc: str, quiet: bool = False) -> Iterator[Callable[[int, int]
         yield lambda done, total: None
         return
     if not sys.stderr.isatty():
-        # A log file or CI: one line at the start and one at the end instead of a redrawn bar.
+        # A log file or CI: a line when the work starts reporting, one when it has finished,
+        # instead of a redrawn bar; nothing at all when the command fails before it starts.
         import time
 
         t0 = time.perf_counter()
-        print(f"{desc} ...", file=sys.stderr, flush=True)
-        try:
-            yield lambda done, total: None
-        finally:
+        started = []
+
+        def note(done: int, total: int) -> None:
+            if not started:
+                started.append(True)
+                print(f"{desc} ...", file=sys.stderr, flush=True)
+
+        yield note
+        if started:
             print(f"{desc}: done in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
         return
     from tqdm import tqdm
