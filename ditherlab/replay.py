@@ -629,6 +629,30 @@ def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(e == 1), np.flatnonzero(e == -1)
 
 
+def merge_runs(
+    t: np.ndarray, starts: Sequence[int], ends: Sequence[int], gap: float
+) -> list[tuple[int, int]]:
+    """Runs ``[start, end)`` (in time order) merged where less than ``gap`` [s] apart.
+
+    Parameters
+    ----------
+    t : (N,) [s]
+    starts, ends : (R,) sample indices, e.g. from :func:`runs`
+    gap : [s] from the last sample of one run to the first of the next
+
+    Returns
+    -------
+    list of (start, end) sample indices, in time order
+    """
+    merged: list[list[int]] = []
+    for a, b in zip(starts, ends, strict=True):
+        if merged and t[a] - t[merged[-1][1] - 1] < gap:
+            merged[-1][1] = int(b)
+        else:
+            merged.append([int(a), int(b)])
+    return [(a, b) for a, b in merged]
+
+
 def time_spans(t: np.ndarray, mask: np.ndarray) -> list[list[float]]:
     """``[[t_start, t_end], ...]`` [s] of the runs of True in ``mask`` (N,)."""
     s0, s1 = runs(mask)
@@ -657,6 +681,7 @@ __all__ = [
     "band_as_noise",
     "dither_on",
     "dither_period",
+    "merge_runs",
     "meta_dither_period",
     "extract_dither",
     "gaussian_profile_intervals",

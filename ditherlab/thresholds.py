@@ -96,6 +96,8 @@ def find_pushes(
     -------
     list of Push, in time order
     """
+    from ditherlab.replay import merge_runs, runs
+
     f = np.asarray(wrench, dtype=float)[:, :3]
     t = np.asarray(t, dtype=float)
     mag = np.linalg.norm(f, axis=1)
@@ -106,17 +108,9 @@ def find_pushes(
     base = float(np.median(mag[mag < threshold])) if np.any(mag < threshold) else 0.0
     hi_thr = base + threshold
     lo_thr = base + 0.5 * threshold
-    from ditherlab.replay import runs
-
     starts, ends = runs(mag > lo_thr)
-    segs: list[list[int]] = []
-    for s, e in zip(starts, ends, strict=True):
-        if not np.any(mag[s:e] > hi_thr):
-            continue
-        if segs and t[s] - t[segs[-1][1] - 1] < merge_gap:
-            segs[-1][1] = e
-        else:
-            segs.append([s, e])
+    peaked = np.array([np.any(mag[s:e] > hi_thr) for s, e in zip(starts, ends, strict=True)], bool)
+    segs = merge_runs(t, starts[peaked], ends[peaked], merge_gap)
     out = []
     for s, e in segs:
         if t[e - 1] - t[s] < min_duration:

@@ -931,16 +931,9 @@ def merge_spans(t: np.ndarray, flag: np.ndarray, gap: float) -> list[tuple[int, 
     -------
     list of (start, end) sample indices, in time order
     """
-    from ditherlab.replay import runs
+    from ditherlab.replay import merge_runs, runs
 
-    on, off = runs(flag)
-    spans: list[list[int]] = []
-    for a, b in zip(on, off, strict=True):
-        if spans and t[a] - t[spans[-1][1] - 1] < gap:
-            spans[-1][1] = int(b)
-        else:
-            spans.append([int(a), int(b)])
-    return [(a, b) for a, b in spans]
+    return merge_runs(t, *runs(flag), gap)
 
 
 def _log_commanded_pushes(log: _Logger, rec: Recording) -> None:
