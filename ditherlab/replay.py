@@ -38,7 +38,7 @@ import pandas as pd
 
 from ditherlab.errors import ConfigError, FormatError, ModelError
 from ditherlab.identify import check_robot
-from ditherlab.model import TorqueModel
+from ditherlab.model import TorqueModel, _plain
 from ditherlab.recording import DITHER, MOVING, WRENCH_COLUMNS, Recording, regimes
 
 SCHEMA = "ditherlab.estimates/1"
@@ -540,7 +540,7 @@ def replay(
     if ext is not None:
         meta["dither_period"] = ext.period
     meta["moving_spans"] = time_spans(rec.t, (reg == MOVING).any(axis=1))
-    return Estimates(pd.DataFrame(cols), _json_safe(meta), name=None)
+    return Estimates(pd.DataFrame(cols), _plain(meta), name=None)
 
 
 def gaussian_profile_intervals(
@@ -657,19 +657,6 @@ def time_spans(t: np.ndarray, mask: np.ndarray) -> list[list[float]]:
     """``[[t_start, t_end], ...]`` [s] of the runs of True in ``mask`` (N,)."""
     s0, s1 = runs(mask)
     return [[float(t[a]), float(t[b - 1])] for a, b in zip(s0, s1, strict=True)]
-
-
-def _json_safe(x: Any) -> Any:
-    """numpy scalars/arrays -> plain Python, so the metadata is JSON."""
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_safe(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 __all__ = [
