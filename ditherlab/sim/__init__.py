@@ -94,39 +94,20 @@ def simulate(
         return Engine(params, robot, plant_robot, sc.plant_extras(hp))
 
     if scenario == "push-campaign":
-        cols, sim_meta = sc.push_campaign(
-            engine_for,
-            params,
-            seed=int(seed),
-            dither=bool(dither),
-            hidden=specs,
-            progress=progress,
-            robot=robot,
-        )
+        run = sc.push_campaign
     elif scenario == "excitation":
-        from ditherlab.sim.excitation import excitation
-
-        cols, sim_meta = excitation(
-            engine_for,
-            params,
-            seed=int(seed),
-            dither=bool(dither),
-            hidden=specs,
-            progress=progress,
-            robot=robot,
-        )
+        from ditherlab.sim.excitation import excitation as run
     else:
-        from ditherlab.sim.leadthrough import lead_through
-
-        cols, sim_meta = lead_through(
-            engine_for,
-            params,
-            seed=int(seed),
-            dither=bool(dither),
-            hidden=specs,
-            progress=progress,
-            robot=robot,
-        )
+        from ditherlab.sim.leadthrough import lead_through as run
+    cols, sim_meta = run(
+        engine_for,
+        params,
+        seed=int(seed),
+        dither=bool(dither),
+        hidden=specs,
+        progress=progress,
+        robot=robot,
+    )
     sim_meta_all = {
         "scenario": scenario,
         "seed": int(seed),
