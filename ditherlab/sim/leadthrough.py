@@ -27,6 +27,7 @@ import numpy as np
 from ditherlab.sim import plant as K
 from ditherlab.sim.engine import Engine, Inputs
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
+from ditherlab.sim.scenarios import scenario_columns, scenario_rngs, wrench_noise
 
 #: (direction in base axes, magnitude [N], flat-top duration [s]); release 2.5 s after each.
 OPERATOR_PLAN = (
@@ -59,8 +60,7 @@ def lead_through(
     fs_hz = float(params["timing"]["sample_rate_hz"])
     dt = 1.0 / fs_hz
     n = robot.n
-    seeds = np.random.SeedSequence(seed).spawn(3)
-    plan_rng, noise_rng, hidden_rng = (np.random.default_rng(s) for s in seeds)
+    plan_rng, noise_rng, hidden_rng = scenario_rngs(seed)
 
     segments = []
     t = START_S
@@ -87,12 +87,7 @@ def lead_through(
     fs = eng.fs
     sigma = params["noise"]["tau_sigma_fraction"] * fs
     noise = noise_rng.normal(size=(N, n)) * sigma
-    ft_noise = (
-        noise_rng.normal(size=(N, 6))
-        * np.r_[
-            np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])
-        ]
-    )
+    ft_noise = wrench_noise(params, noise_rng, N)
     q0 = np.asarray(params["pose"]["q0"], dtype=float)[:n]
     inputs = Inputs(
         push=np.ascontiguousarray(hp.arm_push(push, dt)),
@@ -187,17 +182,8 @@ def lead_through(
     out = eng.run(inputs, state, progress=progress, chunk_callback=control)
 
     wrench = -push + hp.ft_bias + ft_noise
-    cols = {
-        "t": tt,
-        "q": out.q_motor,
-        "dq": out.dq_motor,
-        "tau": out.tau,
-        "tau_ffw": out.tau_ffw,
-        "wrench": wrench,
-        "dither": out.dither,
-        "temp": hp.temp,
-        "extra": {"fhat_x": fhat[:, 0], "fhat_y": fhat[:, 1], "fhat_z": fhat[:, 2]},
-    }
+    extra = {"fhat_x": fhat[:, 0], "fhat_y": fhat[:, 1], "fhat_z": fhat[:, 2]}
+    cols = scenario_columns(tt, out, wrench, hp, extra)
     sim_meta = {
         "operator": segments,
         "timeline": {"end": float(tt[-1])},

@@ -26,6 +26,50 @@ from ditherlab.sim.params import joint_array
 AXES = ("x", "y", "z")
 
 
+def scenario_rngs(
+    seed: int,
+) -> tuple[np.random.Generator, np.random.Generator, np.random.Generator]:
+    """The three independent streams of a scenario: (plan, noise, hidden effects)."""
+    seeds = np.random.SeedSequence(seed).spawn(3)
+    plan_rng, noise_rng, hidden_rng = (np.random.default_rng(s) for s in seeds)
+    return plan_rng, noise_rng, hidden_rng
+
+
+def wrench_noise(params: Mapping[str, Any], rng: np.random.Generator, N: int) -> np.ndarray:
+    """F/T sensor noise (N, 6): forces [N] with ``noise.force_sigma``, moments [N·m] with
+    ``noise.moment_sigma``."""
+    sigma = np.r_[
+        np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])
+    ]
+    return rng.normal(size=(N, 6)) * sigma
+
+
+def scenario_columns(
+    tt: np.ndarray, out: Any, wrench: np.ndarray, hp: Any, extra: dict[str, np.ndarray]
+) -> dict[str, Any]:
+    """The columns for :func:`to_recording` from the engine's outputs.
+
+    Parameters
+    ----------
+    tt : (N,) [s]
+    out : the Engine's outputs (motor-side q, dq, logged tau, tau_ffw, dither flag)
+    wrench : (N, 6) [N, N·m] the F/T sensor
+    hp : the HiddenPlant (its temperature)
+    extra : further columns, each (N,)
+    """
+    return {
+        "t": tt,
+        "q": out.q_motor,
+        "dq": out.dq_motor,
+        "tau": out.tau,
+        "tau_ffw": out.tau_ffw,
+        "wrench": wrench,
+        "dither": out.dither,
+        "temp": hp.temp,
+        "extra": extra,
+    }
+
+
 def _plan_pushes(pc: Mapping[str, Any], rng: np.random.Generator) -> list[dict[str, Any]]:
     per = int(pc["pushes_per_direction"])
     pushes = []
@@ -70,8 +114,7 @@ def push_campaign(
     fs_hz = float(params["timing"]["sample_rate_hz"])
     dt = 1.0 / fs_hz
     n = robot.n
-    seeds = np.random.SeedSequence(seed).spawn(3)
-    plan_rng, noise_rng, hidden_rng = (np.random.default_rng(s) for s in seeds)
+    plan_rng, noise_rng, hidden_rng = scenario_rngs(seed)
     pushes = _plan_pushes(pc, plan_rng)
 
     amp = float(pc["excitation_amplitude"])
@@ -116,12 +159,7 @@ def push_campaign(
     engine = engine_for(hp)
     fs = engine.fs
     noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * fs
-    ft_noise = (
-        noise_rng.normal(size=(N, 6))
-        * np.r_[
-            np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])
-        ]
-    )
+    ft_noise = wrench_noise(params, noise_rng, N)
 
     dcmd = np.zeros(N)
     if dither:
@@ -140,17 +178,7 @@ def push_campaign(
     out = engine.run(inputs, state, progress=progress)
 
     wrench = -push + hp.ft_bias + ft_noise  # F = wrench the robot exerts = -push
-    cols = {
-        "t": tt,
-        "q": out.q_motor,
-        "dq": out.dq_motor,
-        "tau": out.tau,
-        "tau_ffw": out.tau_ffw,
-        "wrench": wrench,
-        "dither": out.dither,
-        "temp": hp.temp,
-        "extra": {"push": push_id},
-    }
+    cols = scenario_columns(tt, out, wrench, hp, {"push": push_id})
     on = out.dither & (tt >= t_dither_on + ramp + settle)
     dsp = joint_array(params, "dither.amplitude_fraction", n) * fs
     mask = np.asarray(params["dither"]["joints"][:n], dtype=bool)
