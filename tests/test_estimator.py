@@ -294,14 +294,7 @@ def _sub(args, rows):
     return out
 
 
-IV_CASES = [
-    "random", "zero_component_row", "rank_deficient", "zero_width_band", "huge_band",
-    "tiny_noise", "one_joint", "seven_joints", "all_inside", "all_outside", "force_only",
-    "per_sample_bands_and_noise", "no_prior_on_forces", "prior_zero_holds", "zero_joint_column",
-]  # fmt: skip
-
-
-@pytest.mark.parametrize("case", IV_CASES)
+@pytest.mark.parametrize("case", CASES)
 def test_set_membership_matches_linprog(case):
     """The numba set-membership LPs give linprog's (HiGHS) bounds, NaN and inf where it does."""
     args = _sub(_case(case), slice(0, 20))  # linprog is slow: 20 samples x 12 LPs
@@ -317,7 +310,7 @@ def test_set_membership_matches_linprog(case):
         assert np.all(np.abs(got[ok] - ref[ok]) <= tol), np.abs(got[ok] - ref[ok]).max()
 
 
-@pytest.mark.parametrize("case", IV_CASES)
+@pytest.mark.parametrize("case", CASES)
 def test_profile_endpoints_are_at_the_threshold(case):
     """At both ends of the profile interval the profiled cost is exactly min cost + chi2_1(0.95)."""
     args = _case(case)
