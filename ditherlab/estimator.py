@@ -336,6 +336,33 @@ def _sides(tb, J, a, b, F, m, n, s):
 
 
 @njit(cache=True)
+def _givens_row(R, u, m, z, beta, rhs):
+    """Add the row ``u`` (m,) to the upper-triangular ``R`` (m, m) by Givens rotations, in place.
+
+    With ``rhs`` the right-hand side ``z`` (m,) is rotated along with the row's own value
+    ``beta``; ``u`` is overwritten. Returns what is left of ``beta`` (the row's residual).
+    """
+    for i in range(m):
+        ui = u[i]
+        if ui == 0.0:
+            continue
+        rii = R[i, i]
+        r = math.sqrt(rii * rii + ui * ui)
+        c = rii / r
+        sn = ui / r
+        R[i, i] = r
+        for k in range(i + 1, m):
+            rik = R[i, k]
+            R[i, k] = c * rik + sn * u[k]
+            u[k] = c * u[k] - sn * rik
+        if rhs:
+            zi = z[i]
+            z[i] = c * zi + sn * beta
+            beta = c * beta - sn * zi
+    return beta
+
+
+@njit(cache=True)
 def _newton_piece(tb, J, a, b, w, p, fb, s, m, n, R, z, u, x):
     """Minimiser x of the quadratic piece of f with active set s (joint j outside on side s_j).
 
@@ -360,22 +387,7 @@ def _newton_piece(tb, J, a, b, w, p, fb, s, m, n, R, z, u, x):
             beta -= J[i, j] * fb[i]
             u[i] = sw * J[i, j]
         beta *= sw
-        for i in range(m):
-            ui = u[i]
-            if ui == 0.0:
-                continue
-            rii = R[i, i]
-            r = math.sqrt(rii * rii + ui * ui)
-            c = rii / r
-            sn = ui / r
-            R[i, i] = r
-            for k in range(i + 1, m):
-                rik = R[i, k]
-                R[i, k] = c * rik + sn * u[k]
-                u[k] = c * u[k] - sn * rik
-            zi = z[i]
-            z[i] = c * zi + sn * beta
-            beta = c * beta - sn * zi
+        _givens_row(R, u, m, z, beta, True)
     for i in range(m - 1, -1, -1):
         v = z[i]
         for k in range(i + 1, m):
@@ -837,19 +849,7 @@ def _qr_factor(J, w, p, s, m, n, R, u):
         sw = math.sqrt(w[j])
         for i in range(m):
             u[i] = sw * J[i, j]
-        for i in range(m):
-            ui = u[i]
-            if ui == 0.0:
-                continue
-            rii = R[i, i]
-            r = math.sqrt(rii * rii + ui * ui)
-            c = rii / r
-            sn = ui / r
-            R[i, i] = r
-            for k in range(i + 1, m):
-                rik = R[i, k]
-                R[i, k] = c * rik + sn * u[k]
-                u[k] = c * u[k] - sn * rik
+        _givens_row(R, u, m, u, 0.0, False)
 
 
 @njit(cache=True)
