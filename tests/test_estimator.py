@@ -96,30 +96,29 @@ CASES = [
 ]  # fmt: skip
 
 
-def _gradient(args, F):
-    """Gradient of f(F) of eq. (3) with tau_f eliminated, written out independently."""
+def _terms(args, F):
+    """Band edges a, b (N, n), weights w = 1/sigma^2, residual r = tau_bar - J^T F, prior weights p."""
     tb, J = args["tau_bar"], args["J"]
     N, n = tb.shape
     a = np.broadcast_to(args["tau_min"], (N, n))
     b = np.broadcast_to(args["tau_max"], (N, n))
     w = 1.0 / np.broadcast_to(args["sigma"], (N, n)) ** 2
     r = tb - np.einsum("kin,ki->kn", J, F)
-    dist = np.where(r > b, r - b, np.where(r < a, r - a, 0.0))
     ps = args["prior_sigma"]
     p = np.where(np.isfinite(ps) & (ps > 0), 1.0 / np.where(ps > 0, ps, 1.0) ** 2, 0.0)
-    return -2 * np.einsum("kin,kn->ki", J, w * dist) + 2 * p * (F - args["prior_mean"])
+    return a, b, w, r, p
+
+
+def _gradient(args, F):
+    """Gradient of f(F) of eq. (3) with tau_f eliminated, written out independently."""
+    a, b, w, r, p = _terms(args, F)
+    dist = np.where(r > b, r - b, np.where(r < a, r - a, 0.0))
+    return -2 * np.einsum("kin,kn->ki", args["J"], w * dist) + 2 * p * (F - args["prior_mean"])
 
 
 def _cost(args, F):
-    tb, J = args["tau_bar"], args["J"]
-    N, n = tb.shape
-    a = np.broadcast_to(args["tau_min"], (N, n))
-    b = np.broadcast_to(args["tau_max"], (N, n))
-    w = 1.0 / np.broadcast_to(args["sigma"], (N, n)) ** 2
-    r = tb - np.einsum("kin,ki->kn", J, F)
+    a, b, w, r, p = _terms(args, F)
     dist = r - np.clip(r, a, b)
-    ps = args["prior_sigma"]
-    p = np.where(np.isfinite(ps) & (ps > 0), 1.0 / np.where(ps > 0, ps, 1.0) ** 2, 0.0)
     return (w * dist**2).sum(1) + (p * (F - args["prior_mean"]) ** 2).sum(1)
 
 

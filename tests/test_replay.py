@@ -281,31 +281,9 @@ def test_closed_form_noband_intervals_match_general_profile(recs, model):
         *(np.broadcast_to(x, (N, 6)) for x in (b.tau_min, b.tau_max, b.sigma))
     )
     for comps in (None, ["f_x", "f_z"]):
-        sol = estimate(tb, J, a_, b_, s_, model.prior_mean, model.prior_sigma, components=comps)
-        fast = gaussian_profile_intervals(
-            tb,
-            J,
-            a_,
-            b_,
-            s_,
-            model.prior_mean,
-            model.prior_sigma,
-            F_hat=sol.F,
-            level=0.9,
-            components=comps,
-        )
-        ref = intervals(
-            tb,
-            J,
-            a_,
-            b_,
-            s_,
-            model.prior_mean,
-            model.prior_sigma,
-            F_hat=sol.F,
-            method="profile",
-            level=0.9,
-            components=comps,
-        )
+        args = (tb, J, a_, b_, s_, model.prior_mean, model.prior_sigma)
+        sol = estimate(*args, components=comps)
+        fast = gaussian_profile_intervals(*args, F_hat=sol.F, level=0.9, components=comps)
+        ref = intervals(*args, F_hat=sol.F, method="profile", level=0.9, components=comps)
         np.testing.assert_allclose(fast[0], ref[0], atol=1e-6)
         np.testing.assert_allclose(fast[1], ref[1], atol=1e-6)
