@@ -523,11 +523,14 @@ def simulated(tmp_path_factory):
     }
 
 
-def test_simulated_campaign_view(simulated, cli):
-    """On the simulator's campaign the CLI writes every series at full rate, the estimates exactly
-    as replay wrote them, the simulated pushes and the Fig. 5 set-point."""
+@pytest.fixture(scope="module")
+def simulated_view(simulated):
+    """``ditherlab view`` of the simulated campaign with its estimates and model, saved once:
+    (the .rrd path, the CLI result)."""
+    from conftest import run_cli
+
     out = simulated["dir"] / "campaign.rrd"
-    r = cli(
+    r = run_cli(
         "view",
         simulated["rec_path"],
         "--estimates",
@@ -538,6 +541,13 @@ def test_simulated_campaign_view(simulated, cli):
         out,
         "-q",
     )
+    return out, r
+
+
+def test_simulated_campaign_view(simulated, simulated_view):
+    """On the simulator's campaign the CLI writes every series at full rate, the estimates exactly
+    as replay wrote them, the simulated pushes and the Fig. 5 set-point."""
+    out, r = simulated_view
     assert r.code == 0, r.err
     assert r.out.strip().endswith(f"open it with: rerun {out}")
     rec, est = simulated["rec"], simulated["est"]
@@ -561,25 +571,14 @@ def test_simulated_campaign_view(simulated, cli):
     assert c["events/dither"]["TextLog:text"] == 2
 
 
-def test_blueprint_points_at_logged_entities(simulated, cli):
+def test_blueprint_points_at_logged_entities(simulated_view):
     """Every view origin and content query of the stored blueprint matches logged entities, except
     those for inputs this campaign lacks (model history, diagnosis)."""
     import fnmatch
 
     from rerun.chunk import RrdReader
 
-    out = simulated["dir"] / "bp.rrd"
-    r = cli(
-        "view",
-        simulated["rec_path"],
-        "--estimates",
-        simulated["est_path"],
-        "--model",
-        simulated["model_path"],
-        "--save",
-        out,
-        "-q",
-    )
+    out, r = simulated_view
     assert r.code == 0, r.err
     entities = set(rl.rrd_contents(out))
     reader = RrdReader(str(out))
@@ -729,7 +728,7 @@ def test_lead_through_online_estimate_and_motion(tmp_path):
     assert np.ptp(p, axis=0).max() > 0.02  # the tool travelled more than 2 cm
 
 
-def test_rerun_cli_verifies_the_file(simulated, cli, tmp_path):
+def test_rerun_cli_verifies_the_file(simulated_view, tmp_path):
     """Rerun's own `rerun rrd verify` loads and interprets the written file without error (and
     rejects a truncated copy, so the check can fail)."""
     import subprocess
@@ -738,18 +737,7 @@ def test_rerun_cli_verifies_the_file(simulated, cli, tmp_path):
     rerun = Path(sys.executable).parent / "rerun"
     if not rerun.exists():
         pytest.skip("the rerun CLI of rerun-sdk is not installed beside this Python")
-    out = tmp_path / "v.rrd"
-    r = cli(
-        "view",
-        simulated["rec_path"],
-        "--estimates",
-        simulated["est_path"],
-        "--model",
-        simulated["model_path"],
-        "--save",
-        out,
-        "-q",
-    )
+    out, r = simulated_view
     assert r.code == 0, r.err
     ok = subprocess.run([rerun, "rrd", "verify", out], capture_output=True, text=True, timeout=120)
     assert ok.returncode == 0 and "verified without error" in ok.stdout + ok.stderr
