@@ -674,9 +674,6 @@ def _available() -> dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]]:
     return out
 
 
-BACKENDS = ("exact", "proxsuite", "quadprog")
-
-
 def available_backends() -> list[str]:
     """Names of the estimator backends usable here (``exact`` always)."""
     return list(_available())

@@ -23,9 +23,6 @@ from ditherlab.io.atomic import atomic_write_text, check_not_input
 from ditherlab.replay import Estimates
 from ditherlab.thresholds import AXES, PAPER, analyse
 
-#: Which condition stands for the paper's "no dither" and "dither" columns.
-MAIN = {"no dither": "nodither_band", "dither": "dither_band"}
-
 
 def _fmt(x: Any, unit: str = "N", nd: int = 1) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):

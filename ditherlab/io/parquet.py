@@ -22,7 +22,6 @@ from ditherlab.io.common import (
 from ditherlab.recording import Recording
 
 META_KEY = b"ditherlab"
-MAGIC = b"PAR1"
 
 
 def read(path: Path, **options: Any) -> Recording:
