@@ -249,7 +249,7 @@ def extract(
     return out
 
 
-def dithered_band(tau_min, tau_max, amplitude) -> tuple[np.ndarray, np.ndarray]:
+def dithered_band(tau_min, tau_max, amplitude, on=None) -> tuple[np.ndarray, np.ndarray]:
     """The friction band shrunk by the dither amplitude on each side (§IV-A, Fig. 4).
 
     ``tau_min' = tau_min + A``, ``tau_max' = tau_max - A``. When ``A >= (tau_max - tau_min) / 2``
@@ -261,6 +261,9 @@ def dithered_band(tau_min, tau_max, amplitude) -> tuple[np.ndarray, np.ndarray]:
     tau_min, tau_max : (n,) or (N, n) [N·m]
     amplitude : (n,) or (N, n) [N·m]
         Dither amplitude (e.g. :attr:`DitherSignal.amplitude`); negative values are treated as 0.
+    on : bool array broadcasting against the band, optional
+        Where the shrink applies (e.g. the dither was on over the whole window); the band is
+        returned unchanged elsewhere. Default: everywhere.
 
     Returns
     -------
@@ -270,7 +273,10 @@ def dithered_band(tau_min, tau_max, amplitude) -> tuple[np.ndarray, np.ndarray]:
     b = np.asarray(tau_max, dtype=float)
     A = np.maximum(np.asarray(amplitude, dtype=float), 0.0)
     mid = 0.5 * (a + b)
-    return np.minimum(a + A, mid), np.maximum(b - A, mid)
+    lo, hi = np.minimum(a + A, mid), np.maximum(b - A, mid)
+    if on is None:
+        return lo, hi
+    return np.where(on, lo, a), np.where(on, hi, b)
 
 
 def band_as_noise(tau_min, tau_max, sigma) -> np.ndarray:

@@ -503,8 +503,7 @@ def replay(
             else:
                 from ditherlab.dither import dithered_band
 
-                sa, sb = dithered_band(lo, hi, ext.amplitude)
-                a, b = np.where(use, sa, lo), np.where(use, sb, hi)
+                a, b = dithered_band(lo, hi, ext.amplitude, on=use)
         if v.endswith("noband"):
             a, b, s = band_as_noise(a, b, s)
         args = (tb, J, a, b, s, model.prior_mean, model.prior_sigma)

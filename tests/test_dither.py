@@ -171,3 +171,16 @@ def test_full_window_against_a_loop():
     for W in (1, 2, 7, 20):
         ref = [k >= W - 1 and bool(on[k - W + 1 : k + 1].all()) for k in range(len(on))]
         np.testing.assert_array_equal(D.full_window(on, W), ref)
+
+
+def test_dithered_band_applies_only_where_on():
+    """With ``on`` the band is shrunk where on holds and unchanged elsewhere."""
+    a, b = np.array([-5.0, -1.0]), np.array([4.0, 1.0])
+    amp = np.array([[1.0, 2.0], [1.0, 2.0], [3.0, 0.5]])
+    on = np.array([True, False, True])
+    lo, hi = D.dithered_band(a, b, amp, on=on[:, None])
+    slo, shi = D.dithered_band(a, b, amp)
+    np.testing.assert_array_equal(lo[on], slo[on])
+    np.testing.assert_array_equal(hi[on], shi[on])
+    np.testing.assert_array_equal(lo[~on], a[None].repeat(1, 0))
+    np.testing.assert_array_equal(hi[~on], b[None].repeat(1, 0))

@@ -676,9 +676,7 @@ def _log_dither(
         if still is not None and (model is None or "dither" not in model.regimes):
             # The paper's rule (Fig. 4): the still band shrunk by the dither amplitude on each
             # side, where the dither was on over the whole window; the still band elsewhere.
-            lo, hi = dithered_band(still.tau_min[j - 1], still.tau_max[j - 1], amp)
-            lo = np.where(on, lo, still.tau_min[j - 1])
-            hi = np.where(on, hi, still.tau_max[j - 1])
+            lo, hi = dithered_band(still.tau_min[j - 1], still.tau_max[j - 1], amp, on=on)
             log.series(
                 f"joints/{j}/band/dither_shrunk",
                 np.column_stack([lo, hi]),
