@@ -364,11 +364,28 @@ def _as_recording(r: Any):
     return read(r)
 
 
+def _gravity_and_sensor_torque(r) -> tuple[np.ndarray, np.ndarray]:
+    """Gravity and ``J^T F`` of the F/T sensor (zero without one), each (N, n) [N·m]."""
+    robot = r.robot()
+    g = robot.gravity(r.q)
+    if not r.has_wrench:
+        return g, np.zeros_like(g)
+    return g, np.einsum("nkj,nk->nj", robot.jacobian(r.q), r.wrench)
+
+
+def _from_first_push(r, length: float) -> np.ndarray:
+    """(N,) bool: ``length`` [s] from 1 s before the first push of the F/T sensor (or the start)."""
+    from ditherlab.thresholds import find_pushes
+
+    ps = find_pushes(r.t, r.wrench) if r.has_wrench else []
+    t0 = ps[0].start - 1.0 if ps else r.t[0]
+    return (r.t >= t0) & (r.t <= t0 + length)
+
+
 def _torque_figures(ests: list[Estimates], recs: list, out: Path, blocks: list[tuple]) -> list[str]:
     """Figs. 2, 4, 5 from the recordings (with the model stored in the estimates)."""
     from ditherlab.model import TorqueModel
     from ditherlab.replay import extract_dither
-    from ditherlab.thresholds import find_pushes
     from ditherlab.viz import figures as figs
 
     model = TorqueModel.from_dict(ests[0].meta["model"])
@@ -382,12 +399,8 @@ def _torque_figures(ests: list[Estimates], recs: list, out: Path, blocks: list[t
     for title, r in (("without dither", plain), ("with dither", dith)):
         if r is None or not r.has_wrench or still is None:
             continue
-        g = r.robot().gravity(r.q)
-        J = r.robot().jacobian(r.q)
-        ext = np.einsum("nkj,nk->nj", J, r.wrench)
-        ps = find_pushes(r.t, r.wrench)
-        t0 = ps[0].start - 1.0 if ps else r.t[0]
-        m = (r.t >= t0) & (r.t <= t0 + 25.0)
+        g, ext = _gravity_and_sensor_torque(r)
+        m = _from_first_push(r, 25.0)
         j = joint - 1
         panels.append(
             (
@@ -412,12 +425,8 @@ def _torque_figures(ests: list[Estimates], recs: list, out: Path, blocks: list[t
     if dith is not None and still is not None:
         ext_sig = extract_dither(dith)
         if ext_sig is not None:
-            g = dith.robot().gravity(dith.q)
-            J = dith.robot().jacobian(dith.q)
-            ext = np.einsum("nkj,nk->nj", J, dith.wrench) if dith.has_wrench else np.zeros_like(g)
-            ps = find_pushes(dith.t, dith.wrench) if dith.has_wrench else []
-            t0 = ps[0].start - 1.0 if ps else dith.t[0]
-            m = (dith.t >= t0) & (dith.t <= t0 + 6.0)
+            g, ext = _gravity_and_sensor_torque(dith)
+            m = _from_first_push(dith, 6.0)
             j = joint - 1
             db = model.regimes.get("dither")
             nb = (float(db.tau_min[j]), float(db.tau_max[j])) if db is not None else (0.0, 0.0)
