@@ -342,8 +342,10 @@ def available_variants(rec: Recording) -> list[str]:
     return out
 
 
-def _effects(model: TorqueModel, rec: Recording) -> np.ndarray:
-    if not model.effects:
+def model_effects(model: TorqueModel | None, rec: Recording) -> np.ndarray:
+    """The model's effects torque (:func:`ditherlab.effects.effects_torque`), (N, n) [N·m];
+    zeros without a model or without effects."""
+    if model is None or not model.effects:
         return np.zeros((len(rec), rec.n))
     from ditherlab.effects import effects_torque
 
@@ -471,7 +473,7 @@ def replay(
     q = rec.q
     g = robot.gravity(q, tol=q_tol)
     J = robot.jacobian(q, tol=q_tol)
-    eff = _effects(model, rec)
+    eff = model_effects(model, rec)
     tau_bar = rec.tau - g - eff
     reg = regimes(rec)
     lo, hi, sig = _base_bands(model, rec, reg)
@@ -669,6 +671,7 @@ __all__ = [
     "dither_period",
     "merge_runs",
     "meta_dither_period",
+    "model_effects",
     "extract_dither",
     "gaussian_profile_intervals",
     "parse_components",

@@ -461,14 +461,6 @@ def _arrows(
 
 
 # ---------------------------------------------------------------------- per joint
-def _model_effects_torque(model: TorqueModel | None, rec: Recording) -> np.ndarray | None:
-    if model is None or not model.effects:
-        return None
-    from ditherlab.effects import effects_torque
-
-    return effects_torque(model, rec)
-
-
 def tau_bar(rec: Recording, gravity: np.ndarray, model: TorqueModel | None = None) -> np.ndarray:
     """Gravity-compensated torque ``tau - gravity(q) - effects_torque`` as replay uses it.
 
@@ -482,9 +474,9 @@ def tau_bar(rec: Recording, gravity: np.ndarray, model: TorqueModel | None = Non
     -------
     (N, n) [N·m]
     """
-    out = rec.tau - gravity
-    eff = _model_effects_torque(model, rec)
-    return out if eff is None else out - eff
+    from ditherlab.replay import model_effects
+
+    return rec.tau - gravity - model_effects(model, rec)
 
 
 def _external_sensor(rec: Recording, robot: Any) -> np.ndarray | None:
