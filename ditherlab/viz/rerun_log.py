@@ -601,6 +601,7 @@ def _log_dither(
     if period is None:
         return
     from ditherlab.dither import dithered_band, extract
+    from ditherlab.identify import causal_mean
 
     d = estimates.data if estimates is not None else None
     have = d is not None and all(f"extract/{s}_1" in d.columns for s in EXTRACT_SIGNALS)
@@ -608,7 +609,7 @@ def _log_dither(
     # ditherlab.dither otherwise. The window is the extraction's: whole periods at this rate.
     window = max(2, int(round(period / float(np.median(np.diff(rec.t)))))) if len(rec) > 1 else 2
     ext = None if have else extract(rec.tau, rec.t, period)
-    centre = window_mean(rec.tau, window) if ext is None else ext.centre  # (N, n) [N·m]
+    centre = causal_mean(rec.tau, window) if ext is None else ext.centre  # (N, n) [N·m]
     still = model.regimes.get("still") if model is not None else None
     # Dither quantities mean something only where the dither was on over the whole window; NaN
     # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
@@ -675,28 +676,6 @@ def _log_dither(
                 names=["shrunk band min", "shrunk band max"],
                 colors=[REGIME_COLORS["dither"]] * 2,
             )
-
-
-def window_mean(x: np.ndarray, window: int) -> np.ndarray:
-    """Causal moving mean over the last ``window`` samples (fewer at the start).
-
-    The paper's dither centre (§III-B): the mean of the samples of the last whole periods; the
-    same definition as :attr:`ditherlab.dither.DitherSignal.centre`, by cumulative sums.
-
-    Parameters
-    ----------
-    x : (N, n)
-    window : samples
-
-    Returns
-    -------
-    (N, n), same unit as ``x``
-    """
-    x = np.asarray(x, dtype=float)
-    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
-    idx = np.arange(len(x))
-    lo = np.maximum(idx - window + 1, 0)
-    return (c[idx + 1] - c[lo]) / (idx + 1 - lo)[:, None]
 
 
 def _dither_window_on(rec: Recording, window: int) -> np.ndarray:
