@@ -1,0 +1,220 @@
+"""Diagnosis on the built-in simulator: each hidden effect of the plant (written in the plant's own
+terms, ``ditherlab/sim/hidden.py``) is ranked first on the ``excitation`` scenario, adding it
+brings the torque residual to the noise floor, clean recordings give no candidate, and of two
+effects the larger comes first.
+
+Workflow under test: the ``inertia`` effect (links and reflected motor inertia, which the plant
+always has) is fitted once on a clean recording; every recording (clean or with a hidden effect,
+the same plan) then gets its bands, noise and sliding friction identified on itself with that
+inertia kept (``identify(base=...)``), and is diagnosed. The recordings are made without dither:
+the dither regime's extracted signal under-reads pushes (the paper's known under-estimate) by
+more than the noise floor, which no model effect describes.
+
+Effects that do not meet every criterion have tests that assert what holds and state why the
+rest cannot (``load_friction``, ``stribeck``, ``attenuation_lag``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ditherlab.diagnose import diagnose, residual_summary
+from ditherlab.effects import add_effect, scored
+from ditherlab.identify import identify
+from ditherlab.sim import simulate
+
+#: scenario options: two pose blocks, three pushes in each (about 65 s of recording)
+OPTS = {"blocks": 2, "pushes_per_block": 3}
+SEED = 3
+
+
+def _sim(hidden=(), seed=SEED):
+    return simulate("excitation", seed=seed, dither=False, hidden=list(hidden), **OPTS)
+
+
+def _baseline(rec):
+    m = identify([rec], n_boot=3)
+    return add_effect(m, [rec], "inertia", joints=list(range(1, 7)))
+
+
+def _refit(base, rec):
+    """Bands, noise and sliding friction identified on ``rec``, the inertia effect kept."""
+    return identify([rec], base=base, n_boot=3)
+
+
+def _add(m, rec, name, joints=None):
+    """``add_effect`` and the bands re-identified with it in place (3 bootstrap replicates
+    instead of add_effect's 20: the standard errors are not under test)."""
+    m2 = add_effect(m, [rec], name, joints=joints, refit=False)
+    out = identify([rec], base=m2, n_boot=3)
+    out.effects = list(m2.effects)
+    return out
+
+
+def _rms(m, rec):
+    return np.array(residual_summary(m, [scored(m, rec)])["torque_rms"])
+
+
+@pytest.fixture(scope="module")
+def clean():
+    """The clean recording, its model (identify + inertia) and the model's diagnosis."""
+    rec = _sim()
+    m = _baseline(rec)
+    return rec, m, diagnose(m, [rec])
+
+
+@pytest.fixture(scope="module")
+def loops(clean):
+    """Per hidden effect: recording, diagnosis (bands identified on it, the clean model's inertia
+    kept), torque RMS after adding the top candidate, and that model."""
+    _, base, _ = clean
+    out = {}
+    for name in HIDDEN:
+        rec = _sim([name])
+        m = _refit(base, rec)
+        d = diagnose(m, [rec])
+        after = m2 = None
+        if d.suggested:
+            c = d.suggested[0]
+            m2 = _add(m, rec, c.effect, c.joints)
+            after = _rms(m2, rec)
+        out[name] = (rec, d, after, m2)
+    return out
+
+
+#: hidden effect (with its size) -> joints (1-based) where the plant's effect shows above the
+#: noise floor, or None for the effects shared by all joints. The plant applies load_friction to
+#: every joint in proportion to its gear torque; only joints 2 and 3 carry enough of it (joint 1
+#: turns about the vertical, the wrist carries little) to stand out of the noise.
+#: temperature_friction: a 40 °C warm-up (default 20 °C) so that the drift within the 70 s
+#: recording is 1.7x the noise floor (with 20 °C it is 1.1x: no 30 % fall is possible).
+HIDDEN = {
+    "load_friction": [2, 3],
+    "temperature_friction:40": [1, 2, 3, 4, 5, 6],
+    "position_ripple": [1, 2, 3, 4, 5, 6],
+    "payload": None,
+    "attenuation_lag": None,
+    "stribeck": [1, 2, 3, 4, 5, 6],
+    "ft_bias": None,
+}
+#: effects that meet every criterion of issue 5 on the simulator (the others: see their tests)
+PASSING = ["temperature_friction:40", "position_ripple", "payload", "ft_bias"]
+
+
+def _top(loops, key):
+    _, d, _, _ = loops[key]
+    assert d.suggested, d.summary()
+    return d, d.suggested[0]
+
+
+def _fall_and_floor(d, after):
+    r0 = np.array(d.residual["torque_rms"])
+    floor = np.array(d.residual["noise_floor"])
+    return r0, np.asarray(after), floor
+
+
+@pytest.mark.parametrize("key", PASSING)
+def test_hidden_effect_ranked_first_on_right_joints(loops, key):
+    """The plant's hidden effect is the first suggested candidate, on the joints where it shows,
+    and explains most of the residual on held-out data."""
+    d, top = _top(loops, key)
+    assert top.effect == key.split(":")[0], d.summary()
+    if HIDDEN[key] is not None:
+        assert top.joints == HIDDEN[key], d.summary()
+    assert top.explained_fraction > 0.4, d.summary()
+
+
+@pytest.mark.parametrize("key", PASSING)
+def test_error_falls_to_noise_floor_after_adding(loops, key):
+    """Adding the top candidate cuts the worst joint's residual RMS by >= 30 % and brings every
+    joint within 25 % of its noise floor."""
+    _, d, after, _ = loops[key]
+    r0, r1, floor = _fall_and_floor(d, after)
+    j = int(np.argmax(r0 / floor))
+    assert r1[j] <= 0.7 * r0[j], (r0, r1)
+    assert np.all(r1 <= 1.25 * floor), (r1, floor)
+
+
+def test_payload_and_ft_bias_values_match_the_plant(loops):
+    """The fitted payload mass and centre of mass, and the fitted F/T offset, are the plant's."""
+    rec, _, _, m2 = loops["payload"]
+    p = m2.effects[-1].params
+    truth = rec.meta["sim"]["hidden"][0]
+    assert abs(p["mass"] - truth["size"]) < 0.15 * truth["size"], p
+    assert abs(p["mass_com"][2] / p["mass"] - truth["com"][2]) < 0.02, p
+    rec, _, _, m2 = loops["ft_bias"]
+    p = m2.effects[-1].params
+    bias = np.array(rec.meta["sim"]["hidden"][0]["bias"][:3])
+    assert np.allclose([p["f_x"], p["f_y"], p["f_z"]], bias, atol=0.3), (p, bias)
+
+
+def test_load_friction_found_but_not_to_the_floor(loops):
+    """load_friction is ranked first on joints 2 and 3 with the plant's slope (band growth 0.15
+    per N·m of gear torque, i.e. Coulomb growth 0.15 * Fc/Fs = 0.1275), and adding it removes
+    more than 70 % of joint 2's residual. Not met: the residual stays at ~2.2x the floor on
+    joint 2 (the plant's friction follows the instantaneous gear-spring torque, including its
+    own output-side friction, the link inertia torque and spring dynamics; the library's load |g + J^T F| misses
+    those; a residual of -0.7..-1 N·m remains at the largest loads)."""
+    d, top = _top(loops, "load_friction")
+    assert top.effect == "load_friction" and top.joints == [2, 3], d.summary()
+    _, _, after, m2 = loops["load_friction"]
+    assert np.allclose(m2.effects[-1].params["k"], 0.1275, atol=0.02), m2.effects[-1].params
+    r0, r1, floor = _fall_and_floor(d, after)
+    assert r1[1] <= 0.3 * r0[1], (r0, r1)
+    assert np.all(r1[[0, 2, 3, 4, 5]] <= 1.25 * floor[[0, 2, 3, 4, 5]]), (r1, floor)
+    assert r1[1] > 1.25 * floor[1]  # the documented shortfall: fix the library, then this test
+
+
+def test_stribeck_found_but_wrist_not_to_the_floor(loops):
+    """stribeck is ranked first on every joint with the plant's Stribeck velocity (0.02 rad/s),
+    and adding it brings joints 1-3 to the floor. Not met: the wrist joints (small motor inertia,
+    soft servo, Kv = 10-20 N·m·s/rad) stay at 1.3-2.5x the floor: with velocity-weakening
+    friction they stick-slip at low speed, a limit cycle that no static friction curve
+    describes."""
+    d, top = _top(loops, "stribeck")
+    assert top.effect == "stribeck" and top.joints == HIDDEN["stribeck"], d.summary()
+    _, _, after, m2 = loops["stribeck"]
+    vs = np.array(m2.effects[-1].params["vs"])
+    assert np.all((vs > 0.013) & (vs < 0.03)), vs
+    r0, r1, floor = _fall_and_floor(d, after)
+    assert np.all(r1[:3] <= 0.75 * r0[:3]) and np.all(r1[:3] <= 1.25 * floor[:3]), (r0, r1)
+    assert np.any(r1[3:] > 1.25 * floor[3:])  # the documented shortfall
+
+
+def test_attenuation_lag_invisible_without_dither(loops):
+    """Not met on the excitation scenario: without dither a push reaches the logged torque only
+    where it leaves the stick band, so the residual of the model without attenuation_lag is
+    already within 25 % of the noise floor and no 30 % fall is possible. (With dither, the
+    push campaign of tests/test_diagnose.py finds it with the plant's gain and delay.)"""
+    _, d, _, _ = loops["attenuation_lag"]
+    r0, _, floor = _fall_and_floor(d, np.zeros(6))
+    assert np.all(r0 <= 1.25 * floor), (r0, floor)
+    # nothing left to explain: whatever is suggested explains under 5 % of the residual
+    assert all(c.explained_fraction < 0.05 for c in d.suggested), d.summary()
+
+
+@pytest.mark.parametrize("seed", [SEED, 4, 5])
+def test_no_candidate_on_clean_recordings(clean, seed):
+    """A clean recording (no hidden effect) gives no suggested candidate and a residual at the
+    noise floor, over several seeds (the bands identified on each recording)."""
+    rec, base, d = clean
+    if seed != SEED:
+        rec = _sim(seed=seed)
+        d = diagnose(_refit(base, rec), [rec])
+    assert not d.suggested, d.summary()
+    r, floor = np.array(d.residual["torque_rms"]), np.array(d.residual["noise_floor"])
+    assert np.all(r <= 1.15 * floor), (r, floor)
+
+
+def test_two_effects_larger_first_then_smaller(clean):
+    """With a 2 kg payload and a 0.5 N·m motor ripple in the plant, the payload is suggested
+    first, and after adding it the ripple."""
+    _, base, _ = clean
+    rec = _sim(["payload", "position_ripple:0.5"])
+    m = _refit(base, rec)
+    d = diagnose(m, [rec])
+    assert d.suggested[0].effect == "payload", d.summary()
+    m2 = _add(m, rec, "payload")
+    d2 = diagnose(m2, [rec])
+    assert d2.suggested and d2.suggested[0].effect == "position_ripple", d2.summary()
