@@ -8,6 +8,11 @@ stderr and exits with status 2; the library never prints.
 from __future__ import annotations
 
 
+def where_prefix(where: object | None) -> str:
+    """``"<where>: "`` for the start of an error message, or ``""`` when the place is unknown."""
+    return f"{where}: " if where else ""
+
+
 class DitherlabError(Exception):
     """Base of all errors caused by bad input or bad options (CLI exit status 2)."""
 

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import RecordingError
+from ditherlab.errors import RecordingError, where_prefix
 
 if TYPE_CHECKING:  # pragma: no cover
     from ditherlab.robot import RobotModel
@@ -39,10 +39,6 @@ _JOINT_COL = re.compile(r"^(q|dq|tau|tau_ffw|temp)_(\d+)$")
 #: Regime codes returned by :func:`regimes`.
 STILL, DITHER, MOVING = 0, 1, 2
 REGIME_NAMES = ("still", "dither", "moving")
-
-
-def _where(name: str | None) -> str:
-    return f"{name}: " if name else ""
 
 
 def _time_span(t: np.ndarray, bad: np.ndarray) -> str:
@@ -270,7 +266,7 @@ class Recording:
             mask &= t < t1
         if not mask.any():
             raise RecordingError(
-                f"{_where(self.name)}no samples with {t0} <= t < {t1} s "
+                f"{where_prefix(self.name)}no samples with {t0} <= t < {t1} s "
                 f"(the recording spans t={t[0]:.3f}..{t[-1]:.3f} s)"
             )
         return self.with_data(self.data.loc[mask].reset_index(drop=True))
@@ -387,7 +383,7 @@ def _urdf_name(urdf: str) -> str | None:
 def _validate(
     data: pd.DataFrame, meta: Mapping[str, Any], name: str | None
 ) -> tuple[pd.DataFrame, dict[str, Any], int]:
-    where = _where(name)
+    where = where_prefix(name)
     if not isinstance(data, pd.DataFrame):
         raise RecordingError(f"{where}expected a pandas DataFrame, got {type(data).__name__}")
     if not isinstance(meta, Mapping):

@@ -52,7 +52,7 @@ import numpy as np
 import pandas as pd
 import pinocchio as pin
 
-from ditherlab.errors import DitherlabWarning, RobotError
+from ditherlab.errors import DitherlabWarning, RobotError, where_prefix
 
 __all__ = [
     "PAPER_POSE",
@@ -127,7 +127,7 @@ def resolve_spec(
     -------
     str or {"urdf": text, "tool_frame": name, "name": robot name}
     """
-    w = _prefix(where)
+    w = where_prefix(where)
     if isinstance(spec, Mapping):
         RobotModel.from_spec(spec, where=where)  # validates
         return dict(spec)
@@ -146,10 +146,6 @@ def resolve_spec(
         robot = RobotModel(text, tool_frame, where=str(path))
         return {"urdf": text, "tool_frame": robot.tool_frame, "name": robot.name}
     raise RobotError(_unknown_robot(spec, w))
-
-
-def _prefix(where: str | None) -> str:
-    return f"{where}: " if where else ""
 
 
 # ---------------------------------------------------------------------- deduplication
@@ -363,7 +359,7 @@ class RobotModel:
         payload: Mapping[str, Any] | None = None,
         where: str | None = None,
     ) -> None:
-        w = _prefix(where)
+        w = where_prefix(where)
         model = _build_model(urdf, w)
         if tool_frame is None:
             tool_frame = _guess_tool_frame(model)
@@ -464,7 +460,7 @@ class RobotModel:
         where : str, optional
             File or recording name for error messages.
         """
-        w = _prefix(where)
+        w = where_prefix(where)
         if isinstance(spec, str | os.PathLike) and spec not in _BUILTIN:
             spec = resolve_spec(spec, where=where)
         if isinstance(spec, str):
@@ -513,7 +509,7 @@ class RobotModel:
         where : str, optional
             File or recording name for error messages.
         """
-        w = _prefix(where)
+        w = where_prefix(where)
         if "robot" not in meta:
             raise RobotError(
                 f"{w}metadata key 'robot' is missing (expected a built-in name such as "
@@ -666,7 +662,7 @@ class RobotModel:
         )
         hint = " as if in degrees" if in_deg else ""
         warnings.warn(
-            f"{_prefix(where)}q_{j + 1} reaches {peak:.4g}, far outside the joint limits "
+            f"{where_prefix(where)}q_{j + 1} reaches {peak:.4g}, far outside the joint limits "
             f"[{self.q_lower[j]:.3g}, {self.q_upper[j]:.3g}] rad{hint} (expected radians)",
             DitherlabWarning,
             stacklevel=2,
@@ -679,7 +675,7 @@ class RobotModel:
             q = q[None, :]
         if q.ndim != 2 or q.shape[1] != self.n:
             raise RobotError(
-                f"{_prefix(where or self._where)}q has shape {q.shape}, expected (N, {self.n}) "
+                f"{where_prefix(where or self._where)}q has shape {q.shape}, expected (N, {self.n}) "
                 f"or ({self.n},) for robot {self.name!r}"
             )
         return q
@@ -1025,7 +1021,7 @@ class RobotModel:
         for name in names:
             if name not in self.link_names:
                 raise RobotError(
-                    f"{_prefix(self._where)}link {name!r} is not in robot {self.name!r} "
+                    f"{where_prefix(self._where)}link {name!r} is not in robot {self.name!r} "
                     f"(expected one of: {', '.join(self.link_names)})"
                 )
         out = self.evaluate(q, ["link_poses"], tol=tol, dedup=dedup, progress=progress)
@@ -1100,7 +1096,7 @@ class RobotModel:
         dq, ddq = self._as_batch(dq), self._as_batch(ddq)
         if not (len(q) == len(dq) == len(ddq)):
             raise RobotError(
-                f"{_prefix(self._where)}q, dq and ddq have {len(q)}, {len(dq)} and {len(ddq)} "
+                f"{where_prefix(self._where)}q, dq and ddq have {len(q)}, {len(dq)} and {len(ddq)} "
                 "samples, expected the same number"
             )
         x = np.concatenate([q, dq, ddq], axis=1)
