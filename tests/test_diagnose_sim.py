@@ -220,3 +220,21 @@ def test_two_effects_larger_first_then_smaller(clean):
     m2 = _add(m, rec, "payload")
     d2 = diagnose(m2, [rec])
     assert d2.suggested and d2.suggested[0].effect == "position_ripple", d2.summary()
+
+
+def test_excitation_scenario_visits_poses_and_pairs_dither(clean):
+    """The excitation scenario pushes in every block's pose (the tool held there within 0.01 rad)
+    and its plan (pushes, wrench) is the same with and without dither."""
+    rec, _, _ = clean
+    sim = rec.meta["sim"]
+    poses = np.array(sim["poses"])
+    pushes = sim["pushes"]
+    assert len(pushes) == OPTS["blocks"] * OPTS["pushes_per_block"]
+    for i, p in enumerate(pushes):
+        k = int(np.searchsorted(rec.t, p["t0"]))
+        pose = poses[i // OPTS["pushes_per_block"] % len(poses)]
+        assert np.max(np.abs(rec.q[k] - pose)) < 0.01, (i, rec.q[k], pose)
+    dith = simulate("excitation", seed=SEED, dither=True, **OPTS)
+    assert dith.meta["sim"]["pushes"] == pushes
+    np.testing.assert_array_equal(dith.wrench, rec.wrench)
+    assert dith.dither.any() and not rec.dither.any()
