@@ -152,9 +152,12 @@ def excitation(
     hp = build_hidden(hidden, params, tt, n, hidden_rng)
     engine = engine_for(hp)
     noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * engine.fs
-    ft_noise = noise_rng.normal(size=(N, 6)) * np.r_[
-        np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])
-    ]
+    ft_noise = (
+        noise_rng.normal(size=(N, 6))
+        * np.r_[
+            np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])
+        ]
+    )
     inputs = Inputs(
         push=hp.arm_push(push, dt),
         tau_ext=np.zeros((N, n)),
