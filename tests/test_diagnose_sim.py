@@ -35,20 +35,19 @@ def _sim(hidden=(), seed=SEED, **options):
 
 
 def _baseline(rec):
-    m = identify([rec], n_boot=3)
-    return add_effect(m, [rec], "inertia", joints=list(range(1, 7)))
+    return _add(identify([rec], n_boot=0), rec, "inertia", list(range(1, 7)))
 
 
 def _refit(base, rec):
     """Bands, noise and sliding friction identified on ``rec``, the inertia effect kept."""
-    return identify([rec], base=base, n_boot=3)
+    return identify([rec], base=base, n_boot=0)
 
 
 def _add(m, rec, name, joints=None):
-    """``add_effect`` and the bands re-identified with it in place (3 bootstrap replicates
-    instead of add_effect's 20: the standard errors are not under test)."""
+    """``add_effect`` and the bands re-identified with it in place (no bootstrap replicates:
+    the standard errors are not under test)."""
     m2 = add_effect(m, [rec], name, joints=joints, refit=False)
-    out = identify([rec], base=m2, n_boot=3)
+    out = identify([rec], base=m2, n_boot=0)
     out.effects = list(m2.effects)
     return out
 
