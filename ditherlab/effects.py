@@ -9,7 +9,8 @@ effect                   torque on joint j (the fitted parameters in bold)     d
 ``viscous``              **c** · dq                                            dq
 ``stribeck``             **(Fs - Fc)** · exp(-(dq / **vs**)²) · sign(dq)        dq (moving)
 ``load_friction``        **k** · (|L| - L_ref) · sign(dq) while moving, and     L = tau_grav + J^T F
-                         the stick band widened by **k** · (|L| - L_ref)
+                         the stick band widened by **k** · (|L| - L_ref)       + M ddq + **c**
+                                                                               sign(dq) (moving)
 ``temperature_friction`` **a** · (x - x_ref) · sign(dq) while moving, and the   temp_j, or
                          band widened by **a** · (x - x_ref); x = temperature   exp(-t / **T**)
                          or exp(-t / T) (time since start, **T** fitted)
@@ -331,35 +332,72 @@ class Stribeck(Effect):
 
 
 class LoadFriction(Effect):
+    """Friction that grows with the torque the gear transmits (the mesh's normal force).
+
+    The gear torque is not logged; it is the torque the links ask of the gear,
+    ``L = |tau_grav + J^T F + M(q) ddq + c·sign(dq)|``: gravity and the external wrench, the
+    links' inertia torque while moving, and the friction on the gear's *output* side (bearings
+    after the gear), which the teeth also carry, in the direction of motion (``c`` [N·m],
+    searched on a grid from 0 to the joint's sliding friction level; 0 while sticking, where the
+    split of the held friction is unknown). All terms are the model's, never the measured torque:
+    a load taken from the measured torque contains the residual itself, and then "explains"
+    any missing effect (a payload, a ripple) through ``k·|tau|``. Measured on the simulator
+    (joint 2, 0.15 N·m of band per N·m of gear torque): the rigid-body load ``|tau_grav + J^T F|``
+    alone leaves a residual of 2.6x the noise floor after fitting, this load 1.03x.
+    """
+
     name = "load_friction"
     physics = "Coulomb friction and the stick band grow with the torque the gear transmits"
-    driven_by = "|tau_grav + J^T F|, sign(dq)"
+    driven_by = "|tau_grav + J^T F + M ddq + c·sign(dq)|, sign(dq)"
     linear = ("k",)
+    hyper = "output_friction"
     shows_in = ("moving", "still", "dither")
 
     def signs(self, h):
         return (1,)  # friction grows with load
 
     @staticmethod
-    def load(sig: Signals, j: int) -> np.ndarray:
+    def load(sig: Signals, j: int, c: float | None = None) -> np.ndarray:
+        """(N,) [N·m]: the gear torque of joint j for output-side friction ``c`` [N·m]."""
         L = sig.gravity[:, j].copy()
         if sig.rec.has_wrench:
             L += sig.jtf(sig.rec.wrench)[:, j]
+        mv = sig.moving[:, j]
+        L[mv] += np.einsum("tk,tk->t", sig.mass[mv, j, :], sig.ddq[mv])
+        if c:
+            L[mv] += c * _sgn(sig.dq[mv, j])
         return np.abs(L)
+
+    def grid(self, sig, j):
+        # the joint's sliding friction level: median |tau - tau_grav - J^T F| while sliding
+        level = []
+        for s in sig:
+            mv = s.moving[:, j]
+            r = s.rec.tau[mv, j] - s.gravity[mv, j]
+            if s.rec.has_wrench:
+                r = r - s.jtf(s.rec.wrench)[mv, j]
+            level.append(np.abs(r))
+        v = np.concatenate(level)
+        fc = float(np.median(v)) if v.size else 0.0
+        return [float(x) for x in fc * np.linspace(0.0, 1.0, 9)]
 
     def reference(self, sig, j):
         return {"load_ref": float(np.mean(np.concatenate([self.load(s, j) for s in sig])))}
 
     def design(self, sig, j, h, ref):
-        x = self.load(sig, j) - ref["load_ref"]
+        x = self.load(sig, j, h) - ref["load_ref"]
         mv = sig.moving[:, j]
         return Design((x * _sgn(sig.dq[:, j]) * mv)[:, None], (x * ~mv)[:, None])
 
     def driver(self, sig, j, p):
-        return self.load(sig, j), f"|load torque| joint {j + 1} [N·m]"
+        return self.load(sig, j, p.get(self.hyper)), f"|gear torque| joint {j + 1} [N·m]"
 
     def term(self, p, j):
-        return f"{_fmt(p['k'])}·load_friction(|L_{j + 1}|, sign dq_{j + 1})"
+        c = _fmt(p.get(self.hyper) or 0.0)
+        return (
+            f"{_fmt(p['k'])}·load_friction(|gravity + J^T F + M ddq + {c}·sign dq|_{j + 1}, "
+            f"sign dq_{j + 1})"
+        )
 
 
 class TemperatureFriction(Effect):

@@ -11,7 +11,7 @@ the dither regime's extracted signal under-reads pushes (the paper's known under
 more than the noise floor, which no model effect describes.
 
 Effects that do not meet every criterion have tests that assert what holds and state why the
-rest cannot (``load_friction``, ``stribeck``, ``attenuation_lag``).
+rest cannot (``stribeck``, ``attenuation_lag``).
 """
 
 from __future__ import annotations
@@ -84,10 +84,10 @@ def loops(clean):
     return out
 
 
-#: hidden effect (with its size) -> joints (1-based) where the plant's effect shows above the
-#: noise floor, or None for the effects shared by all joints. The plant applies load_friction to
-#: every joint in proportion to its gear torque; only joints 2 and 3 carry enough of it (joint 1
-#: turns about the vertical, the wrist carries little) to stand out of the noise.
+#: hidden effect (with its size) -> joints (1-based) that must be named, or None for the effects
+#: shared by all joints. The plant applies load_friction to every joint in proportion to its gear
+#: torque; joints 2 and 3 carry most of it (joint 1 turns about the vertical, the wrist carries
+#: little), so they must be named and the others may be (see LOAD_MAY).
 #: temperature_friction: a 40 °C warm-up (default 20 °C) so that the drift within the 70 s
 #: recording is 1.7x the noise floor (with 20 °C it is 1.1x: no 30 % fall is possible).
 HIDDEN = {
@@ -99,8 +99,10 @@ HIDDEN = {
     "stribeck": [1, 2, 3, 4, 5, 6],
     "ft_bias": None,
 }
+#: load_friction: the joints that may be named besides 2 and 3 (the plant has it on all six)
+LOAD_MAY = {1, 2, 3, 4, 5, 6}
 #: effects that meet every criterion of issue 5 on the simulator (the others: see their tests)
-PASSING = ["temperature_friction:40", "position_ripple", "payload", "ft_bias"]
+PASSING = ["load_friction", "temperature_friction:40", "position_ripple", "payload", "ft_bias"]
 
 
 def _top(loops, key):
@@ -121,7 +123,9 @@ def test_hidden_effect_ranked_first_on_right_joints(loops, key):
     and explains most of the residual on held-out data."""
     d, top = _top(loops, key)
     assert top.effect == key.split(":")[0], d.summary()
-    if HIDDEN[key] is not None:
+    if key == "load_friction":
+        assert set(HIDDEN[key]) <= set(top.joints) <= LOAD_MAY, d.summary()
+    elif HIDDEN[key] is not None:
         assert top.joints == HIDDEN[key], d.summary()
     assert top.explained_fraction > 0.4, d.summary()
 
@@ -150,21 +154,16 @@ def test_payload_and_ft_bias_values_match_the_plant(loops):
     assert np.allclose([p["f_x"], p["f_y"], p["f_z"]], bias, atol=0.3), (p, bias)
 
 
-def test_load_friction_found_but_not_to_the_floor(loops):
-    """load_friction is ranked first on joints 2 and 3 with the plant's slope (band growth 0.15
-    per N·m of gear torque, i.e. Coulomb growth 0.15 * Fc/Fs = 0.1275), and adding it removes
-    more than 70 % of joint 2's residual. Not met: the residual stays at ~2.2x the floor on
-    joint 2 (the plant's friction follows the instantaneous gear-spring torque, including its
-    own output-side friction, the link inertia torque and spring dynamics; the library's load |g + J^T F| misses
-    those; a residual of -0.7..-1 N·m remains at the largest loads)."""
-    d, top = _top(loops, "load_friction")
-    assert top.effect == "load_friction" and top.joints == [2, 3], d.summary()
-    _, _, after, m2 = loops["load_friction"]
-    assert np.allclose(m2.effects[-1].params["k"], 0.1275, atol=0.02), m2.effects[-1].params
-    r0, r1, floor = _fall_and_floor(d, after)
-    assert r1[1] <= 0.3 * r0[1], (r0, r1)
-    assert np.all(r1[[0, 2, 3, 4, 5]] <= 1.25 * floor[[0, 2, 3, 4, 5]]), (r1, floor)
-    assert r1[1] > 1.25 * floor[1]  # the documented shortfall: fix the library, then this test
+def test_load_friction_values_match_the_plant(loops):
+    """The fitted load slope is the plant's Coulomb growth on every joint named (band growth
+    0.15 per N·m of gear torque, i.e. 0.15 · Fc/Fs = 0.1275 on the Coulomb level), and the
+    output-side friction the gear carries on joint 2 is about the plant's (half of the sliding
+    friction Fc = 8.1 N·m, grown by the mean load factor 1 + 0.15 · |L|/Fs ~ 1.5: ~6 N·m)."""
+    _, _, _, m2 = loops["load_friction"]
+    spec = m2.effects[-1]
+    assert np.allclose(spec.params["k"], 0.1275, atol=0.015), spec.params
+    c2 = spec.params["output_friction"][spec.joints.index(2)]
+    assert 4.0 < c2 < 8.0, spec.params
 
 
 def test_stribeck_found_but_wrist_not_to_the_floor(loops):

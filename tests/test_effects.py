@@ -8,6 +8,8 @@ delay), so a fit that only reproduces its own formula would fail.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy.optimize import minimize
@@ -81,8 +83,9 @@ def make_recording(
         if h == "stribeck":  # Lorentzian hump, not the library's Gaussian
             hump = np.array([0, 3.0, 2.5, 0, 0, 0]) / (1 + (dq / 0.05) ** 2)
             tau += s * hump * np.tanh(dq / 0.003)
-        elif h == "load_friction":
-            tau += s * 0.08 * np.abs(g + ext) * np.tanh(dq / 0.003) * np.array([0, 1, 1, 0, 0, 0])
+        elif h == "load_friction":  # grows with the gear torque, links' inertia torque included
+            gear = g + ext + np.einsum("tij,tj->ti", robot.mass_matrix(q), ddq)
+            tau += s * 0.08 * np.abs(gear) * np.tanh(dq / 0.003) * np.array([0, 1, 1, 0, 0, 0])
         elif h == "temperature_friction":  # exponential in temperature, not linear
             T = 25 + 20 * (1 - np.exp(-t / 12.0))[:, None] * np.ones(n)
             fall = np.exp(-0.03 * s * (T - 25)) - 1
@@ -274,7 +277,9 @@ def test_add_effect_round_trip_and_text(recs, tmp_path):
     text = model_text(m3)
     assert str(m3) == text
     assert "tau_2 = gravity + J^T F + band[" in text
-    assert "·load_friction(|L_2|, sign dq_2)" in text
+    assert re.search(
+        r"·load_friction\(\|gravity \+ J\^T F \+ M ddq \+ [0-9.]+·sign dq\|_2, sign dq_2\)", text
+    )
     assert "load_friction" not in text.splitlines()[1]  # joint 1 has none
 
 
