@@ -335,7 +335,12 @@ def identify(
 # ---------------------------------------------------------------- simulate (helper "sim")
 @app.command()
 def simulate(
-    scenario: Annotated[str, typer.Argument(help="push-campaign, lead-through or excitation (for identify and diagnose).")],
+    scenario: Annotated[
+        str,
+        typer.Argument(
+            help="push-campaign, lead-through or excitation (for identify and diagnose)."
+        ),
+    ],
     out: OutPath,
     seed: Seed = 0,
     config: Annotated[

@@ -11,7 +11,7 @@ the dither regime's extracted signal under-reads pushes (the paper's known under
 more than the noise floor, which no model effect describes.
 
 Effects that do not meet every criterion have tests that assert what holds and state why the
-rest cannot (``stribeck``, ``attenuation_lag``).
+rest cannot (``stribeck``).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from ditherlab.effects import add_effect, scored
 from ditherlab.identify import identify
 from ditherlab.sim import simulate
 
-#: scenario options: two pose blocks, three pushes in each (about 65 s of recording)
+#: scenario options: two pose blocks, three pushes in each pose and two during strokes (~65 s)
 OPTS = {"blocks": 2, "pushes_per_block": 3}
 SEED = 3
 
@@ -75,8 +75,7 @@ def loops(clean):
         m = _refit(base, rec)
         d = diagnose(m, [rec])
         after = m2 = None
-        # (attenuation_lag: nothing to add, see its test)
-        if d.suggested and name != "attenuation_lag":
+        if d.suggested:
             c = d.suggested[0]
             m2 = _add(m, rec, c.effect, c.joints)
             after = _rms(m2, rec)
@@ -102,7 +101,14 @@ HIDDEN = {
 #: load_friction: the joints that may be named besides 2 and 3 (the plant has it on all six)
 LOAD_MAY = {1, 2, 3, 4, 5, 6}
 #: effects that meet every criterion of issue 5 on the simulator (the others: see their tests)
-PASSING = ["load_friction", "temperature_friction:40", "position_ripple", "payload", "ft_bias"]
+PASSING = [
+    "load_friction",
+    "temperature_friction:40",
+    "position_ripple",
+    "payload",
+    "attenuation_lag",
+    "ft_bias",
+]
 
 
 def _top(loops, key):
@@ -155,13 +161,16 @@ def test_payload_and_ft_bias_values_match_the_plant(loops):
 
 
 def test_load_friction_values_match_the_plant(loops):
-    """The fitted load slope is the plant's Coulomb growth on every joint named (band growth
-    0.15 per N·m of gear torque, i.e. 0.15 · Fc/Fs = 0.1275 on the Coulomb level), and the
+    """The fitted load slope is the plant's Coulomb growth (band growth 0.15 per N·m of gear
+    torque, i.e. 0.15 · Fc/Fs = 0.1275 on the Coulomb level: within 0.01 on joints 2 and 3, 0.025
+    on the others), and the
     output-side friction the gear carries on joint 2 is about the plant's (half of the sliding
     friction Fc = 8.1 N·m, grown by the mean load factor 1 + 0.15 · |L|/Fs ~ 1.5: ~6 N·m)."""
     _, _, _, m2 = loops["load_friction"]
     spec = m2.effects[-1]
-    assert np.allclose(spec.params["k"], 0.1275, atol=0.015), spec.params
+    k = np.array(spec.params["k"])
+    assert np.allclose(k, 0.1275, atol=0.025), spec.params
+    assert np.allclose(k[[spec.joints.index(2), spec.joints.index(3)]], 0.1275, atol=0.01)
     c2 = spec.params["output_friction"][spec.joints.index(2)]
     assert 4.0 < c2 < 8.0, spec.params
 
@@ -182,16 +191,14 @@ def test_stribeck_found_but_wrist_not_to_the_floor(loops):
     assert np.any(r1[3:] > 1.25 * floor[3:])  # the documented shortfall
 
 
-def test_attenuation_lag_invisible_without_dither(loops):
-    """Not met on the excitation scenario: without dither a push reaches the logged torque only
-    where it leaves the stick band, so the residual of the model without attenuation_lag is
-    already within 25 % of the noise floor and no 30 % fall is possible. (With dither, the
-    push campaign of tests/test_diagnose.py finds it with the plant's gain and delay.)"""
-    _, d, _, _ = loops["attenuation_lag"]
-    r0, _, floor = _fall_and_floor(d, np.zeros(6))
-    assert np.all(r0 <= 1.25 * floor), (r0, floor)
-    # what holds: the little that stands out of the noise is attributed to the right effect
-    assert not d.suggested or d.suggested[0].effect == "attenuation_lag", d.summary()
+def test_attenuation_lag_values_match_the_plant(loops):
+    """The pushes made while the joints slide show the compliant support's physics: 70 % of the
+    push reaches the arm through a 0.15 s first-order lag; the fitted gain is 0.55-0.75 and the
+    fitted pure delay 0.08-0.2 s on every joint named."""
+    rec, _, _, m2 = loops["attenuation_lag"]
+    p = m2.effects[-1].params
+    assert all(0.55 < g < 0.75 for g in p["gain"]), p
+    assert all(0.08 < d / rec.sample_rate < 0.2 for d in p["delay"]), p
 
 
 @pytest.mark.parametrize("seed", [SEED, 4, 5])
@@ -226,13 +233,18 @@ def test_excitation_scenario_visits_poses_and_pairs_dither(clean):
     rec, _, _ = clean
     sim = rec.meta["sim"]
     poses = np.array(sim["poses"])
-    pushes = sim["pushes"]
+    pushes = [p for p in sim["pushes"] if not p["moving"]]
     assert len(pushes) == OPTS["blocks"] * OPTS["pushes_per_block"]
     for i, p in enumerate(pushes):
         k = int(np.searchsorted(rec.t, p["t0"]))
         pose = poses[i // OPTS["pushes_per_block"] % len(poses)]
         assert np.max(np.abs(rec.q[k] - pose)) < 0.01, (i, rec.q[k], pose)
+    moving = [p for p in sim["pushes"] if p["moving"]]
+    assert len(moving) == OPTS["blocks"] * 2  # moving_pushes = 2 per block
+    for p in moving:  # every joint slides through the push
+        m = (rec.t >= p["t0"]) & (rec.t < p["t0"] + p["duration"])
+        assert np.all(np.abs(rec.dq[m]).min(axis=0) > 1e-3), p
     dith = simulate("excitation", seed=SEED, dither=True, **OPTS)
-    assert dith.meta["sim"]["pushes"] == pushes
+    assert dith.meta["sim"]["pushes"] == sim["pushes"]
     np.testing.assert_array_equal(dith.wrench, rec.wrench)
     assert dith.dither.any() and not rec.dither.any()

@@ -320,3 +320,24 @@ def test_temperature_from_logged_column():
     assert f.h is None and f.w[0] < 0
     # truth: d(friction)/dT at the mean temperature ~ -Fc·0.03·exp(-0.03·ΔT) ≈ -0.13 N·m/°C
     assert -0.25 < f.w[0] < -0.06
+
+
+def test_stick_transitions_marks_breakaway_and_short_slips():
+    """Of a motion out of and back into a stick, the first and last 0.2 s are marked; a short
+    slip between two sticks (a pose giving way under a push) is marked whole; a velocity
+    reversal inside a motion (two non-moving samples) is not a stick."""
+    from ditherlab.effects import stick_transitions
+    from ditherlab.recording import MOVING, STILL
+
+    fs = 250.0
+    reg = np.full((1000, 1), STILL, dtype=np.int8)
+    reg[100:400] = MOVING  # 1.2 s motion between sticks
+    reg[500:560] = MOVING  # 0.24 s slip between sticks
+    reg[700:850] = MOVING  # a motion with a reversal (2 samples) in its middle
+    reg[852:1000] = MOVING
+    out = stick_transitions(reg, fs)[:, 0]
+    expect = np.zeros(1000, bool)
+    expect[100:150] = expect[350:400] = True
+    expect[500:560] = True
+    expect[700:750] = True  # the end of the recording is not a stick
+    np.testing.assert_array_equal(out, expect)

@@ -10,7 +10,10 @@ in each block the robot
    ``±sweep_amplitude`` (wrist joints ``wrist_amplitude``) with durations drawn from
    [``stroke_min_s``, ``stroke_max_s``], so speeds spread from rest up to about
    1.9 amplitude / duration (Stribeck, viscous, ripple over several periods, load-dependent
-   friction as gravity changes along the stroke),
+   friction as gravity changes along the stroke); ``moving_pushes`` of these strokes get a
+   raised-cosine push in their middle, while the joints slide (the one place where a push reaches
+   the logged torque whole without dither, so an error in how it reaches the arm —
+   ``attenuation_lag`` — shows),
 3. stands still, ramps the dither on (when ``dither``), receives ``pushes_per_block`` raised-cosine
    pushes along random base axes and signs (magnitudes in [``magnitude_min``,
    ``magnitude_max``]), each followed by a rest, and ramps the dither off.
@@ -55,13 +58,27 @@ def _plan(ex: dict[str, Any], n: int, rng: np.random.Generator) -> list[dict[str
         if b > 0:
             segs.append({"kind": "move", "t": float(ex["move_s"]), "a": here, "b": pose.copy()})
             here = pose.copy()
+        strokes = []
         for _ in range(int(ex["sweeps"])):
             for sign in (1.0, -1.0):
                 # each joint its own amplitude share, so joints do not move in lock-step
                 target = pose + sign * amp * rng.uniform(0.6, 1.0, n)
                 dur = float(rng.uniform(ex["stroke_min_s"], ex["stroke_max_s"]))
-                segs.append({"kind": "move", "t": dur, "a": here, "b": target})
+                strokes.append({"kind": "move", "t": dur, "a": here, "b": target})
                 here = target
+        k = min(int(ex["moving_pushes"]), len(strokes))
+        for i in sorted(rng.choice(len(strokes), size=k, replace=False)):
+            st = strokes[int(i)]
+            # a push in the middle of the stroke, while every joint slides
+            d = float(min(rng.uniform(ex["duration_min"], ex["duration_max"]), 0.4 * st["t"]))
+            st["push"] = {
+                "start": float(rng.uniform(0.25 * st["t"], 0.75 * st["t"] - d)),
+                "t": d,
+                "axis": AXES[int(rng.integers(3))],
+                "sign": float(rng.choice([-1.0, 1.0])),
+                "magnitude": float(rng.uniform(ex["magnitude_min"], ex["magnitude_max"])),
+            }
+        segs.extend(strokes)
         dur = float(rng.uniform(ex["stroke_min_s"], ex["stroke_max_s"]))
         segs.append({"kind": "move", "t": dur, "a": here, "b": pose.copy()})
         here = pose.copy()
@@ -80,6 +97,35 @@ def _plan(ex: dict[str, Any], n: int, rng: np.random.Generator) -> list[dict[str
             )
         segs.append({"kind": "ramp", "t": float(ex["ramp_s"]), "dither": False})
     return segs
+
+
+def _add_push(
+    push: np.ndarray,
+    push_id: np.ndarray,
+    pushes: list[dict[str, Any]],
+    tt: np.ndarray,
+    t0: float,
+    p: dict[str, Any],
+    rest: float,
+    moving: bool,
+) -> None:
+    """Add a raised-cosine push ``p`` (``t``, ``axis``, ``sign``, ``magnitude``) starting at
+    ``t0`` [s] to ``push`` (N, 6) [N], mark its samples in ``push_id`` and list it."""
+    mp = (tt >= t0) & (tt < t0 + p["t"])
+    shape = 0.5 * (1 - np.cos(2 * np.pi * (tt[mp] - t0) / p["t"]))
+    push[mp, AXES.index(p["axis"])] += p["sign"] * p["magnitude"] * shape
+    push_id[mp] = len(pushes)
+    pushes.append(
+        {
+            "t0": t0,
+            "duration": p["t"],
+            "rest": rest,
+            "axis": p["axis"],
+            "sign": int(p["sign"]),
+            "magnitude": p["magnitude"],
+            "moving": moving,
+        }
+    )
 
 
 def excitation(
@@ -126,26 +172,15 @@ def excitation(
             q_ref[m] = s["a"] + p[:, None] * (s["b"] - s["a"])
             dq_ref[m] = (dp / s["t"])[:, None] * (s["b"] - s["a"])
             here = s["b"]
+            if "push" in s:
+                _add_push(push, push_id, pushes, tt, t0 + s["push"]["start"], s["push"], 0.0, True)
         else:
             q_ref[m] = here
             if s["kind"] == "ramp":
                 dith = bool(s["dither"]) and dither
             dcmd[m] = 1.0 if dith and s["kind"] != "hold" else 0.0
             if s["kind"] == "push":
-                mp = (tt >= t0) & (tt < t0 + s["t"])
-                shape = 0.5 * (1 - np.cos(2 * np.pi * (tt[mp] - t0) / s["t"]))
-                push[mp, AXES.index(s["axis"])] += s["sign"] * s["magnitude"] * shape
-                push_id[mp] = len(pushes)
-                pushes.append(
-                    {
-                        "t0": t0,
-                        "duration": s["t"],
-                        "rest": s["rest"],
-                        "axis": s["axis"],
-                        "sign": int(s["sign"]),
-                        "magnitude": s["magnitude"],
-                    }
-                )
+                _add_push(push, push_id, pushes, tt, t0, s, s["rest"], False)
         t0 += length
     q_ref[tt >= t0] = here
 
