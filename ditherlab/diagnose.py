@@ -58,6 +58,7 @@ from ditherlab.effects import (
     Stack,
     effects_torque,
     get_effect,
+    hyper_params,
     model_text,
     scored,
     sensor_wrench,
@@ -508,7 +509,7 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
     n_act = int(active.sum())
     tau = _tau_int(full_resid[active]) if n_act > 10 else 1.0
     n_eff = max(n_act / tau, 1.0)
-    k_par = e.k + (1 if e.hyper else 0)
+    k_par = e.k + (len(e.hyper) if isinstance(e.hyper, tuple) else 1 if e.hyper else 0)
     if L0 > 0 and L1 > 0:
         dbic = n_eff * math.log(L1 / L0) + k_par * math.log(max(n_eff, 2.0))
     else:
@@ -973,8 +974,7 @@ def _params_for_plot(e: Effect, c: Candidate, s: JointScore | None, j: int) -> d
     if s is None:
         return {}
     p = {name: float(v) for name, v in zip(e.linear, s.fit.w, strict=False)}
-    if e.hyper:
-        p[e.hyper] = s.fit.h
+    p.update(hyper_params(e, s.fit.h))
     if e.name == "payload":
         p = {"mass": float(s.fit.w[0]), "mass_com": [float(v) for v in s.fit.w[1:4]]}
     return p

@@ -10,8 +10,7 @@ inertia kept (``identify(base=...)``), and is diagnosed. The recordings are made
 the dither regime's extracted signal under-reads pushes (the paper's known under-estimate) by
 more than the noise floor, which no model effect describes.
 
-Effects that do not meet every criterion have tests that assert what holds and state why the
-rest cannot (``stribeck``).
+Every effect meets every criterion; the fitted parameters are checked against the plant's.
 """
 
 from __future__ import annotations
@@ -107,6 +106,7 @@ PASSING = [
     "position_ripple",
     "payload",
     "attenuation_lag",
+    "stribeck",
     "ft_bias",
 ]
 
@@ -126,14 +126,16 @@ def _fall_and_floor(d, after):
 @pytest.mark.parametrize("key", PASSING)
 def test_hidden_effect_ranked_first_on_right_joints(loops, key):
     """The plant's hidden effect is the first suggested candidate, on the joints where it shows,
-    and explains most of the residual on held-out data."""
+    and explains most of the part of the residual above the noise on held-out data."""
     d, top = _top(loops, key)
     assert top.effect == key.split(":")[0], d.summary()
     if key == "load_friction":
         assert set(HIDDEN[key]) <= set(top.joints) <= LOAD_MAY, d.summary()
     elif HIDDEN[key] is not None:
         assert top.joints == HIDDEN[key], d.summary()
-    assert top.explained_fraction > 0.4, d.summary()
+    # stribeck (0.4 Fc) is small: the residual before is 1.2-1.3x the floor, so at most ~40 %
+    # of it is the effect, the rest noise
+    assert top.explained_fraction > (0.3 if key == "stribeck" else 0.4), d.summary()
 
 
 @pytest.mark.parametrize("key", PASSING)
@@ -175,30 +177,28 @@ def test_load_friction_values_match_the_plant(loops):
     assert 4.0 < c2 < 8.0, spec.params
 
 
-def test_stribeck_found_but_wrist_not_to_the_floor(loops):
-    """stribeck is ranked first on every joint with the plant's Stribeck velocity (0.02 rad/s),
-    and adding it brings joints 1-3 to the floor. Not met: the wrist joints (small motor inertia,
-    soft servo, Kv = 10-20 N·m·s/rad) stay at 1.3-2.5x the floor: with velocity-weakening
-    friction they stick-slip at low speed, a limit cycle that no static friction curve
-    describes."""
-    d, top = _top(loops, "stribeck")
-    assert top.effect == "stribeck" and top.joints == HIDDEN["stribeck"], d.summary()
-    _, _, after, m2 = loops["stribeck"]
-    vs = np.array(m2.effects[-1].params["vs"])
-    assert np.all((vs > 0.013) & (vs < 0.03)), vs
-    r0, r1, floor = _fall_and_floor(d, after)
-    assert np.all(r1[:3] <= 0.75 * r0[:3]) and np.all(r1[:3] <= 1.25 * floor[:3]), (r0, r1)
-    assert np.any(r1[3:] > 1.25 * floor[3:])  # the documented shortfall
+def test_stribeck_values_match_the_plant(loops):
+    """The fitted Stribeck velocity is the plant's (0.02 rad/s) and the hump Fs - Fc is within
+    25 % of the plant's 0.4 · Fc on every joint (Fc = 0.85 Fs from the run's parameters)."""
+    rec, _, _, m2 = loops["stribeck"]
+    p = m2.effects[-1].params
+    fr = rec.meta["sim"]["params"]["friction"]
+    truth = 0.4 * fr["coulomb_ratio"] * np.array(fr["static"])
+    vs = np.array(p["vs"])
+    assert np.all((vs > 0.015) & (vs < 0.027)), vs
+    np.testing.assert_allclose(p["fs_minus_fc"], truth, rtol=0.25)
 
 
 def test_attenuation_lag_values_match_the_plant(loops):
     """The pushes made while the joints slide show the compliant support's physics: 70 % of the
-    push reaches the arm through a 0.15 s first-order lag; the fitted gain is 0.55-0.75 and the
-    fitted pure delay 0.08-0.2 s on every joint named."""
+    push reaches the arm through a 0.15 s first-order lag; of a pure delay and a first-order lag
+    the lag is chosen, with a time constant of 0.1-0.2 s and a gain of 0.6-0.8, on every joint
+    named."""
     rec, _, _, m2 = loops["attenuation_lag"]
     p = m2.effects[-1].params
-    assert all(0.55 < g < 0.75 for g in p["gain"]), p
-    assert all(0.08 < d / rec.sample_rate < 0.2 for d in p["delay"]), p
+    assert all(0.6 < g < 0.8 for g in p["gain"]), p
+    assert all(d == 0 for d in p["delay"]), p
+    assert all(0.1 < lag / rec.sample_rate < 0.2 for lag in p["lag"]), p
 
 
 @pytest.mark.parametrize("seed", [SEED, 4, 5])
