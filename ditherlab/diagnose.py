@@ -975,6 +975,7 @@ def _params_for_plot(e: Effect, c: Candidate, s: JointScore | None, j: int) -> d
         return {}
     p = {name: float(v) for name, v in zip(e.linear, s.fit.w, strict=False)}
     p.update(hyper_params(e, s.fit.h))
+    p.update(s.fit.ref)
     if e.name == "payload":
         p = {"mass": float(s.fit.w[0]), "mass_com": [float(v) for v in s.fit.w[1:4]]}
     return p
