@@ -135,7 +135,8 @@ def detection_curves(analysis: dict, path: Path) -> Path:
         axp.set_xlabel("applied force (peak) [N]")
         axp.set_ylabel("P(response)")
         axp.grid(alpha=0.3)
-        axp.legend(fontsize=6)
+        if axp.get_legend_handles_labels()[1]:  # no fitted curve: nothing to label
+            axp.legend(fontsize=6)
     axs[0, 0].legend(fontsize=6)
     fig.tight_layout()
     return _save(fig, path)
