@@ -13,6 +13,7 @@ from ditherlab.identify import (
     band_noise_logpdf,
     causal_mean,
     fit_band,
+    fit_sliding,
     friction_residual,
     identify,
     sigma_from_differences,
@@ -242,3 +243,22 @@ def test_cli_identify_add_effect(tmp_path, cli):
     m = TorqueModel.load(out)
     assert m.effect_names() == ["payload"] and m.version == 2
     np.testing.assert_allclose(m.prior_sigma, base.prior_sigma)
+
+
+def test_fit_sliding_band_leaves_out_the_transients():
+    """The moving band is fitted on the rows given (not the break-away outliers), the sliding
+    friction on all rows: planted Coulomb 5, viscous 2, band [-0.3, 0.3] (an offset constant
+    over 200 samples), noise 0.05, and 0.5 %
+    of samples off by up to +-10 N·m (break-away transients)."""
+    rng = np.random.default_rng(0)
+    M = 20000
+    dq = rng.choice([-1, 1], M) * rng.uniform(0.05, 0.5, M)
+    u = np.repeat(rng.uniform(-0.3, 0.3, M // 200), 200)  # slowly varying, as friction is
+    x = 5 * np.sign(dq) + 2 * dq + u + rng.normal(0, 0.05, M)
+    bad = rng.random(M) < 0.005
+    x[bad] += rng.uniform(-10, 10, bad.sum())
+    fc, fv, fit, _, _ = fit_sliding(x, dq, n_boot=0, band_rows=~bad)
+    assert abs(fc - 5) < 0.05 and abs(fv - 2) < 0.2, (fc, fv)
+    assert -0.4 < fit.a < -0.2 and 0.2 < fit.b < 0.4, (fit.a, fit.b)
+    _, _, wide, _, _ = fit_sliding(x, dq, n_boot=0)
+    assert wide.b - wide.a > 2 * (fit.b - fit.a), (wide.a, wide.b)
