@@ -986,6 +986,7 @@ def _history_figure(hist: list[dict[str, Any]], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     fig, ax = plt.subplots(figsize=(5, 3.2))
     v = [h["version"] for h in hist]
@@ -995,6 +996,7 @@ def _history_figure(hist: list[dict[str, Any]], path: Path) -> None:
     fl = np.array([h.get("noise_floor", [np.nan] * tr.shape[1]) for h in hist])
     ax.plot(v, _nanmean(fl, axis=1), "k--", label="noise floor (mean)")
     ax.set_xlabel("model version")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_ylabel("torque residual RMS [N·m]")
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -1120,6 +1120,55 @@ class RobotModel:
                     progress(stop, total)
         return out if inverse is None or len(xs) == len(x) else out[inverse]
 
+    def torque_regressor(
+        self,
+        q: np.ndarray,
+        dq: np.ndarray,
+        ddq: np.ndarray,
+        *,
+        dedup: bool = True,
+    ) -> np.ndarray:
+        """Joint torques per unit of the dynamic parameters of a body on the tool link, moving.
+
+        ``torque_regressor(q, dq, ddq) @ theta`` is the torque ``M ddq + C dq + g`` that a body
+        with parameters ``theta`` (as in :meth:`gravity_regressor`, tool frame) adds; at
+        ``dq = ddq = 0`` it equals :meth:`gravity_regressor`. pinocchio's
+        ``computeJointTorqueRegressor`` (the tool link's block), mapped to the tool frame.
+
+        Parameters
+        ----------
+        q, dq, ddq : (N, n) [rad, rad/s, rad/s²]
+        dedup : evaluate each distinct ``(q, dq, ddq)`` once
+
+        Returns
+        -------
+        (N, n, 10) [N·m per unit parameter]
+        """
+        q = self._as_batch(q)
+        dq, ddq = self._as_batch(dq), self._as_batch(ddq)
+        if not (len(q) == len(dq) == len(ddq)):
+            raise RobotError(
+                f"{where_prefix(self._where)}q, dq and ddq have {len(q)}, {len(dq)} and {len(ddq)} "
+                "samples, expected the same number"
+            )
+        n = self.n
+        x = np.concatenate([q, dq, ddq], axis=1)
+        if dedup:
+            u = unique_configurations(x)
+            xs, inverse = u.q, u.inverse
+        else:
+            xs, inverse = x, None
+        qp = self.pin_configuration(xs[:, :n])
+        vs, acc = np.ascontiguousarray(xs[:, n : 2 * n]), np.ascontiguousarray(xs[:, 2 * n :])
+        cols = slice(10 * (self._tool_joint - 1), 10 * self._tool_joint)
+        T = self._tool_to_joint_params()
+        m, d, f = self.model, self._data, pin.computeJointTorqueRegressor
+        out = np.empty((len(xs), n, 10))
+        with self._lock:
+            for i in range(len(xs)):
+                out[i] = f(m, d, qp[i], vs[i], acc[i])[:, cols] @ T
+        return out if inverse is None or len(xs) == len(x) else out[inverse]
+
     def _tool_to_joint_params(self) -> np.ndarray:
         """(10, 10) linear map: dynamic parameters in the tool frame -> parent joint frame."""
         X = self.model.frames[self._tool_frame_id].placement

@@ -98,7 +98,8 @@ def make_recording(
             plant = RobotModel.from_spec(
                 "irb140", payload={"mass": 3.0 * s, "com": [0, 0.02, 0.08]}
             )
-            tau += plant.gravity(q) - g
+            # gravity and the inertia torques of the mass (the arm moves)
+            tau += plant.inverse_dynamics(q, dq, ddq) - robot.inverse_dynamics(q, dq, ddq)
         elif h == "ft_bias":
             sensor = sensor + s * np.array([6.0, -4.0, 5.0, 0.0, 0.0, 0.0])
         elif h == "inertia":

@@ -657,3 +657,21 @@ def test_threads_sharing_a_model_get_correct_results():
         got = list(pool.map(lambda b: robot.jacobian(b), batches))
     for e, g in zip(expected, got, strict=True):
         np.testing.assert_array_equal(g, e)
+
+
+def test_torque_regressor_is_the_payload_inverse_dynamics():
+    """``torque_regressor(q, dq, ddq) @ theta`` equals the RNEA torque difference of the robot
+    with and without a point mass (theta with the point mass's inertia about the tool origin),
+    to 1e-10 N·m, and equals the gravity regressor at rest."""
+    r = RobotModel.from_spec("irb140")
+    rng = np.random.default_rng(0)
+    q, dq, ddq = rng.uniform(-1, 1, (40, 6)), rng.normal(size=(40, 6)), rng.normal(size=(40, 6))
+    m, c = 2.5, np.array([0.01, -0.02, 0.06])
+    plant = r.with_payload({"mass": m, "com": list(c)})
+    inertia = m * (c @ c * np.eye(3) - np.outer(c, c))
+    theta = np.r_[m, m * c, inertia[0, 0], inertia[0, 1], inertia[1, 1], inertia[0, 2],
+                  inertia[1, 2], inertia[2, 2]]  # fmt: skip
+    Y = r.torque_regressor(q, dq, ddq)
+    want = plant.inverse_dynamics(q, dq, ddq) - r.inverse_dynamics(q, dq, ddq)
+    np.testing.assert_allclose(Y @ theta, want, atol=1e-10)
+    np.testing.assert_allclose(r.torque_regressor(q, 0 * dq, 0 * ddq), r.gravity_regressor(q))
