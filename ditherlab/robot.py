@@ -1092,23 +1092,9 @@ class RobotModel:
         -------
         (N, n) [N·m]
         """
-        q = self._as_batch(q)
-        dq, ddq = self._as_batch(dq), self._as_batch(ddq)
-        if not (len(q) == len(dq) == len(ddq)):
-            raise RobotError(
-                f"{where_prefix(self._where)}q, dq and ddq have {len(q)}, {len(dq)} and {len(ddq)} "
-                "samples, expected the same number"
-            )
-        x = np.concatenate([q, dq, ddq], axis=1)
-        if dedup:
-            u = unique_configurations(x)
-            xs, inverse = u.q, u.inverse
-        else:
-            xs, inverse = x, None
+        N, xs, inverse, qp, vs, acc = self._motion_batch(q, dq, ddq, dedup)
         n, total = self.n, len(xs)
         out = np.empty((total, n))
-        qp = self.pin_configuration(xs[:, :n])
-        vs, acc = np.ascontiguousarray(xs[:, n : 2 * n]), np.ascontiguousarray(xs[:, 2 * n :])
         m, d, f = self.model, self._data, pin.rnea
         chunk = max(total if progress is None else -(-total // 100), 256)
         with self._lock:
@@ -1118,7 +1104,30 @@ class RobotModel:
                     out[i] = f(m, d, qp[i], vs[i], acc[i])
                 if progress is not None:
                     progress(stop, total)
-        return out if inverse is None or len(xs) == len(x) else out[inverse]
+        return out if inverse is None or len(xs) == N else out[inverse]
+
+    def _motion_batch(
+        self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, dedup: bool
+    ) -> tuple[int, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray, np.ndarray]:
+        """(N, distinct rows of [q dq ddq], inverse index or None, their pinocchio
+        configurations, velocities, accelerations) of a batch of motion samples."""
+        q = self._as_batch(q)
+        dq, ddq = self._as_batch(dq), self._as_batch(ddq)
+        if not (len(q) == len(dq) == len(ddq)):
+            raise RobotError(
+                f"{where_prefix(self._where)}q, dq and ddq have {len(q)}, {len(dq)} and {len(ddq)} "
+                "samples, expected the same number"
+            )
+        n = self.n
+        x = np.concatenate([q, dq, ddq], axis=1)
+        if dedup:
+            u = unique_configurations(x)
+            xs, inverse = u.q, u.inverse
+        else:
+            xs, inverse = x, None
+        qp = self.pin_configuration(xs[:, :n])
+        vs, acc = np.ascontiguousarray(xs[:, n : 2 * n]), np.ascontiguousarray(xs[:, 2 * n :])
+        return len(x), xs, inverse, qp, vs, acc
 
     def torque_regressor(
         self,
@@ -1144,22 +1153,8 @@ class RobotModel:
         -------
         (N, n, 10) [N·m per unit parameter]
         """
-        q = self._as_batch(q)
-        dq, ddq = self._as_batch(dq), self._as_batch(ddq)
-        if not (len(q) == len(dq) == len(ddq)):
-            raise RobotError(
-                f"{where_prefix(self._where)}q, dq and ddq have {len(q)}, {len(dq)} and {len(ddq)} "
-                "samples, expected the same number"
-            )
+        N, xs, inverse, qp, vs, acc = self._motion_batch(q, dq, ddq, dedup)
         n = self.n
-        x = np.concatenate([q, dq, ddq], axis=1)
-        if dedup:
-            u = unique_configurations(x)
-            xs, inverse = u.q, u.inverse
-        else:
-            xs, inverse = x, None
-        qp = self.pin_configuration(xs[:, :n])
-        vs, acc = np.ascontiguousarray(xs[:, n : 2 * n]), np.ascontiguousarray(xs[:, 2 * n :])
         cols = slice(10 * (self._tool_joint - 1), 10 * self._tool_joint)
         T = self._tool_to_joint_params()
         m, d, f = self.model, self._data, pin.computeJointTorqueRegressor
@@ -1167,7 +1162,7 @@ class RobotModel:
         with self._lock:
             for i in range(len(xs)):
                 out[i] = f(m, d, qp[i], vs[i], acc[i])[:, cols] @ T
-        return out if inverse is None or len(xs) == len(x) else out[inverse]
+        return out if inverse is None or len(xs) == N else out[inverse]
 
     def _tool_to_joint_params(self) -> np.ndarray:
         """(10, 10) linear map: dynamic parameters in the tool frame -> parent joint frame."""
