@@ -249,7 +249,8 @@ def force_error(
         if not rec.has_wrench:
             continue
         reg = sc.sig.regime
-        tau_bar = sc.tau - sc.sig.gravity - effects_torque(model, rec)
+        # the estimator is sensorless: the model's effects without the F/T columns
+        tau_bar = sc.tau - sc.sig.gravity - effects_torque(model, rec, sensor=False)
         lo = np.zeros(tau_bar.shape)
         hi = np.zeros(tau_bar.shape)
         sg = np.ones(tau_bar.shape)

@@ -867,25 +867,52 @@ def _check_model_effects(model: TorqueModel, rec: Recording) -> None:
         get_effect(spec.name).check(sig)
 
 
-def effects_torque(model: TorqueModel, rec: Recording) -> np.ndarray:
+def effects_torque(model: TorqueModel, rec: Recording, *, sensor: bool = True) -> np.ndarray:
     """Sum of the model's torque effects (those driven by q, dq, ddq, temperature or time).
 
     Parameters
     ----------
     model : TorqueModel
     rec : Recording
+    sensor : let effects read the F/T columns (``load_friction``'s load ``J^T F``). False for
+        the force estimator (replay, the diagnosis's force error): a sensorless estimate must not
+        see the sensor, and the load is then the model's ``tau_grav + M ddq`` part alone.
 
     Returns
     -------
     (N, n) [N·m]; zeros when the model has none.
     """
-    sig = signals(rec)
+    full = signals(rec)
+    sig = full if sensor or not rec.has_wrench else _without_sensor(full)
     out = np.zeros((len(rec), rec.n))
     for spec in model.effects:
         e = get_effect(spec.name)
-        e.check(sig)
+        e.check(full)
         if e.kind == "torque":
             out += _shift(e, sig, spec)
+    return out
+
+
+class _NoSensor:
+    """A recording seen without its F/T columns (everything else delegated)."""
+
+    has_wrench = False
+    wrench = None
+
+    def __init__(self, rec: Recording):
+        self._rec = rec
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._rec, name)
+
+
+def _without_sensor(sig: Signals) -> Signals:
+    """``sig`` with the recording's F/T columns hidden; the robot quantities cached in ``sig``
+    (gravity, Jacobian, mass matrix, regressors, ddq: none depends on the wrench) are shared."""
+    out = Signals.__new__(Signals)
+    out.__dict__.update(sig.__dict__)
+    out.rec = _NoSensor(sig.rec)  # type: ignore[assignment]
+    out._cache = {k: v for k, v in sig._cache.items() if k != "wrench_lp"}
     return out
 
 

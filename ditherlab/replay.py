@@ -343,13 +343,14 @@ def available_variants(rec: Recording) -> list[str]:
 
 
 def model_effects(model: TorqueModel | None, rec: Recording) -> np.ndarray:
-    """The model's effects torque (:func:`ditherlab.effects.effects_torque`), (N, n) [N·m];
-    zeros without a model or without effects."""
+    """The model's effects torque (:func:`ditherlab.effects.effects_torque`), (N, n) [N·m],
+    computed without the F/T sensor (the estimator is sensorless); zeros without a model or
+    without effects."""
     if model is None or not model.effects:
         return np.zeros((len(rec), rec.n))
     from ditherlab.effects import effects_torque
 
-    return effects_torque(model, rec)
+    return effects_torque(model, rec, sensor=False)
 
 
 def _base_bands(

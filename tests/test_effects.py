@@ -365,3 +365,17 @@ def test_ripple_period_refined_beyond_the_grid(recs):
         st = stack(e, sc, 1, h, ref)
         losses.append(solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, st.signs(e.signs(h)))[1])
     assert f.loss <= min(losses) + 1e-9
+
+
+def test_effects_torque_without_sensor_is_the_recording_without_ft(recs):
+    """``effects_torque(..., sensor=False)`` (what the sensorless estimator uses) equals the
+    effects of the same recording with its F/T columns removed, and differs from the sensor's
+    version where the load includes ``J^T F``."""
+    rec = recs["load_friction"]
+    m = add_effect(base_model(), [rec], "load_friction", joints=[2, 3], refit=False)
+    bare = Recording.from_arrays(
+        rec.t, rec.q, rec.tau, {"robot": "irb140", "source": "synthetic"}, dq=rec.dq
+    )
+    off = effects_torque(m, rec, sensor=False)
+    np.testing.assert_allclose(off, effects_torque(m, bare), atol=1e-12)
+    assert np.max(np.abs(off - effects_torque(m, rec))) > 0.1
