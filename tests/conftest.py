@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-DATA = SHARED / "data"
+#: real files (ROS 2 bags, UR10e logs): a copy of the team's shared test data, in the repo
+DATA = Path(__file__).resolve().parent / "data"
 
 
 @dataclass
@@ -42,5 +42,5 @@ def cli():
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     if not DATA.is_dir():
-        pytest.skip(f"shared data not found at {DATA}")
+        pytest.skip(f"test data not found at {DATA}")
     return DATA
