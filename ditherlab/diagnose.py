@@ -1013,7 +1013,7 @@ def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Pat
 
     Returns the path of ``report.md``.
     """
-    from ditherlab.io.atomic import atomic_write_text
+    from ditherlab.io.atomic import atomic_write_json, atomic_write_text
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -1105,16 +1105,8 @@ def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Pat
         ]
     for n in d.notes:
         md.append(f"- note: {n}")
-    atomic_write_text(out / "report.json", json.dumps(d.to_dict(), indent=2, default=_json_default))
+    atomic_write_json(out / "report.json", d.to_dict(), indent=2)
     return atomic_write_text(out / "report.md", "\n".join(md) + "\n")
-
-
-def _json_default(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(type(x).__name__)
 
 
 def diagnose_files(

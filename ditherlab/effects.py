@@ -146,6 +146,20 @@ class Signals:
         return self._get("regressor", lambda: self.rec.robot().gravity_regressor(self.q))
 
     @property
+    def rigid_load(self) -> np.ndarray:
+        """(N, n) [N·m]: ``tau_grav + J^T F`` (F from the F/T columns when present), plus
+        ``M(q) ddq`` where the joint moves: the torque the links ask of each gear."""
+
+        def make() -> np.ndarray:
+            L = self.gravity.copy()
+            if self.rec.has_wrench:
+                L += self.jtf(self.rec.wrench)
+            Mddq = np.einsum("tjk,tk->tj", self.mass, self.ddq)
+            return L + np.where(self.moving, Mddq, 0.0)
+
+        return self._get("rigid_load", make)
+
+    @property
     def torque_regressor(self) -> np.ndarray:
         """(N, n, 10): :meth:`ditherlab.robot.RobotModel.torque_regressor` with ``dq`` and
         ``ddq`` of joints that are not moving set to 0 (standing still: the gravity regressor)."""
@@ -384,14 +398,11 @@ class LoadFriction(Effect):
 
     @staticmethod
     def load(sig: Signals, j: int, h: Any = None, fc: float = 1.0) -> np.ndarray:
-        """(N,) [N·m]: the gear torque of joint j for ``h = (c [N·m], g [-])`` (or a bare
-        ``c``; None: no output-side friction) and the friction level ``fc`` [N·m]."""
-        c, g = (h, 0.0) if h is None or np.isscalar(h) else h
-        L = sig.gravity[:, j].copy()
-        if sig.rec.has_wrench:
-            L += sig.jtf(sig.rec.wrench)[:, j]
+        """(N,) [N·m]: the gear torque of joint j for ``h = (c [N·m], g [-])`` (None: no
+        output-side friction) and the friction level ``fc`` [N·m]."""
+        c, g = h if h is not None else (0.0, 0.0)
+        L = sig.rigid_load[:, j].copy()
         mv = sig.moving[:, j]
-        L[mv] += np.einsum("tk,tk->t", sig.mass[mv, j, :], sig.ddq[mv])
         if c:
             grow = 1.0 + (g or 0.0) * np.abs(L[mv]) / max(fc, 1e-9)
             L[mv] += c * grow * _sgn(sig.dq[mv, j])
@@ -629,9 +640,8 @@ class AttenuationLag(Effect):
     @staticmethod
     def delayed(sig: Signals, X: np.ndarray, h: Any) -> np.ndarray:
         """``X`` (N,) delayed by ``h[0]`` samples and low-passed by a first-order lag of time
-        constant ``h[1]`` samples (a bare number: a delay), started at rest at ``X[0]``."""
-        d, lag = (h, 0) if np.isscalar(h) or h is None else h
-        d, lag = int(d or 0), float(lag or 0.0)
+        constant ``h[1]`` samples (None in either: 0), started at rest at ``X[0]``."""
+        d, lag = int(h[0] or 0), float(h[1] or 0.0)
         out = X
         if d > 0:
             out = np.empty_like(X)
@@ -893,6 +903,10 @@ def effects_torque(model: TorqueModel, rec: Recording, *, sensor: bool = True) -
     return out
 
 
+#: Signals cache entries computed from the F/T columns
+SENSOR_KEYS = ("wrench_lp", "rigid_load")
+
+
 class _NoSensor:
     """A recording seen without its F/T columns (everything else delegated)."""
 
@@ -912,7 +926,7 @@ def _without_sensor(sig: Signals) -> Signals:
     out = Signals.__new__(Signals)
     out.__dict__.update(sig.__dict__)
     out.rec = _NoSensor(sig.rec)  # type: ignore[assignment]
-    out._cache = {k: v for k, v in sig._cache.items() if k != "wrench_lp"}
+    out._cache = {k: v for k, v in sig._cache.items() if k not in SENSOR_KEYS}
     return out
 
 

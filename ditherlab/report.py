@@ -11,7 +11,6 @@ fails (no F/T columns, no pushes).
 from __future__ import annotations
 
 import html
-import json
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -19,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.io.atomic import atomic_write_text, check_not_input
+from ditherlab.io.atomic import atomic_write_json, atomic_write_text, check_not_input
 from ditherlab.replay import Estimates
 from ditherlab.thresholds import AXES, PAPER, analyse
 
@@ -288,17 +287,9 @@ def make_report(
     analysis["files"] = written + ["report.md", "report.html", "report.json"]
     atomic_write_text(out / "report.md", render(blocks, "md"))
     atomic_write_text(out / "report.html", render(blocks, "html"))
-    atomic_write_text(out / "report.json", json.dumps(analysis, indent=1, default=_json_default))
+    atomic_write_json(out / "report.json", analysis)
     tick()
     return analysis
-
-
-def _json_default(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(type(x).__name__)
 
 
 def _figures(

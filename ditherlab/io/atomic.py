@@ -6,10 +6,12 @@ A crash never leaves half a file, and no command may write over one of its input
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 from ditherlab.errors import DitherlabError
 
@@ -70,3 +72,20 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
 def atomic_write_text(path: str | Path, text: str) -> Path:
     """Write UTF-8 ``text`` to ``path`` atomically; returns the path."""
     return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def json_default(x: Any) -> Any:
+    """``json.dumps(..., default=json_default)``: numpy scalars as Python numbers, arrays as
+    (nested) lists; anything else is not JSON (TypeError)."""
+    import numpy as np
+
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"{type(x).__name__} is not JSON serialisable")
+
+
+def atomic_write_json(path: str | Path, obj: Any, indent: int = 1) -> Path:
+    """Write ``obj`` as JSON (numpy values converted, :func:`json_default`) atomically."""
+    return atomic_write_text(path, json.dumps(obj, indent=indent, default=json_default))

@@ -21,7 +21,7 @@ in each block the robot
 Every reference is a minimum-jerk profile: position, velocity and acceleration are continuous, as
 from a real path planner, so the servo is never asked for a velocity step (a step rings the gear
 springs, a transient no rigid-body model has). The recording is long enough (about
-``blocks`` × 25 s) for a temperature drift of the hidden ``temperature_friction`` to show.
+``blocks`` × 30 s) for a temperature drift of the hidden ``temperature_friction`` to show.
 The plan depends only on the seed and the options, never on ``dither``.
 """
 
@@ -34,8 +34,7 @@ import numpy as np
 
 from ditherlab.sim.engine import Engine, Inputs
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
-
-AXES = ("x", "y", "z")
+from ditherlab.sim.scenarios import AXES, scenario_columns, scenario_rngs, wrench_noise
 
 
 def _min_jerk(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -148,9 +147,7 @@ def excitation(
     fs_hz = float(params["timing"]["sample_rate_hz"])
     dt = 1.0 / fs_hz
     n = robot.n
-    plan_rng, noise_rng, hidden_rng = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3)
-    )
+    plan_rng, noise_rng, hidden_rng = scenario_rngs(seed)
     segs = _plan(ex, n, plan_rng)
     t_total = sum(s["t"] + s.get("rest", 0.0) for s in segs) + float(ex["settle_s"])
     N = int(np.ceil(t_total * fs_hz))
@@ -187,12 +184,7 @@ def excitation(
     hp = build_hidden(hidden, params, tt, n, hidden_rng)
     engine = engine_for(hp)
     noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * engine.fs
-    ft_noise = (
-        noise_rng.normal(size=(N, 6))
-        * np.r_[
-            np.full(3, params["noise"]["force_sigma"]), np.full(3, params["noise"]["moment_sigma"])
-        ]
-    )
+    ft_noise = wrench_noise(params, noise_rng, N)
     inputs = Inputs(
         push=hp.arm_push(push, dt),
         tau_ext=np.zeros((N, n)),
@@ -205,17 +197,8 @@ def excitation(
     )
     state = engine.initial_state(poses[0])
     out = engine.run(inputs, state, progress=progress)
-    cols = {
-        "t": tt,
-        "q": out.q_motor,
-        "dq": out.dq_motor,
-        "tau": out.tau,
-        "tau_ffw": out.tau_ffw,
-        "wrench": -push + hp.ft_bias + ft_noise,  # F = wrench the robot exerts = -push
-        "dither": out.dither,
-        "temp": hp.temp,
-        "extra": {"push": push_id},
-    }
+    # F = the wrench the robot exerts = -push
+    cols = scenario_columns(tt, out, -push + hp.ft_bias + ft_noise, hp, {"push": push_id})
     sim_meta = {
         "pushes": pushes,
         "poses": [[float(v) for v in p] for p in poses],
