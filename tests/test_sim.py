@@ -268,6 +268,20 @@ def test_bad_options_raise_config_error(kwargs, message):
         simulate(scenario, pushes_per_direction=1, **kwargs)
 
 
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ({"moving_pushes": -1}, "key 'excitation.moving_pushes' = -1; expected values >= 0"),
+        ({"stroke_min_s": 0}, "key 'excitation.stroke_min_s' = 0.0; expected values > 0"),
+    ],
+)
+def test_bad_excitation_config_raises_config_error(table, message):
+    """A negative count or a zero duration in the excitation table is refused by name (they
+    used to end in a numpy traceback or a division by zero)."""
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
+        simulate("excitation", config={"excitation": table})
+
+
 def test_cli_writes_a_readable_recording(cli, tmp_path):
     """`ditherlab simulate` writes a recording that reads back with the same data."""
     out = tmp_path / "sim.parquet"
