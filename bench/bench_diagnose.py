@@ -57,7 +57,9 @@ def _model():
 
 def run(quick: bool = False) -> list[dict]:
     from ditherlab.diagnose import diagnose
-    from ditherlab.effects import EFFECTS, _solve, scored, stack
+    from ditherlab.effects import EFFECTS
+    from ditherlab.fit import _solve, stack
+    from ditherlab.residual import scored
 
     rows = []
     rec = recording(8.0 if quick else 20.0)

@@ -266,7 +266,7 @@ def diagnose(
     """Where the model fails (residual vs noise floor, force error, worst windows) and which effect is missing."""
     import json
 
-    from ditherlab.diagnose import diagnose_files
+    from ditherlab.loop import diagnose_files
 
     with progress_bar("diagnose", quiet or json_out) as progress:
         d = diagnose_files(
@@ -314,7 +314,8 @@ def identify(
     quiet: Quiet = False,
 ) -> None:
     """Fit bands, noise (R_e) and sliding friction per joint and regime by maximum likelihood."""
-    from ditherlab.identify import identify_files, summary
+    from ditherlab.identify import summary
+    from ditherlab.loop import identify_files
 
     with progress_bar("identify", quiet) as progress:
         m = identify_files(

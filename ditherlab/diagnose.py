@@ -54,22 +54,28 @@ from ditherlab.effects import (
     EFFECTS,
     Effect,
     FitResult,
-    Scored,
-    Stack,
+    clean_none,
     effects_torque,
     get_effect,
-    hyper_params,
+    make_spec,
     model_text,
-    scored,
     sensor_wrench,
     signals,
-    solve_signed,
-    stack,
-    white_noise,
 )
 from ditherlab.errors import ModelError
+from ditherlab.estimator import estimate, intervals
+from ditherlab.fit import Stack, solve_signed, stack
 from ditherlab.model import TorqueModel
-from ditherlab.recording import DITHER, MOVING, STILL, Recording
+from ditherlab.recording import (
+    DITHER,
+    MOVING,
+    REGIME_NAMES,
+    STILL,
+    WRENCH_COLUMNS,
+    Recording,
+    Regime,
+)
+from ditherlab.residual import Scored, scored, white_noise
 
 __all__ = [
     "Candidate",
@@ -80,18 +86,16 @@ __all__ = [
     "noise_floor_sq",
     "residual_summary",
     "select_joints",
-    "write_report",
 ]
 
-REGIME_NAMES = {STILL: "still", DITHER: "dither", MOVING: "moving"}
 MIN_FRACTION = 0.05
 #: A regime with fewer samples than this on every joint needs no band (identify's min_samples).
 MIN_REGIME_SAMPLES = 200
 BIC_THRESHOLD = -10.0
-AXES = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
+AXES = WRENCH_COLUMNS
 
 
-def _nanmean(x: np.ndarray, axis: int | None = None) -> np.ndarray:
+def nanmean(x: np.ndarray, axis: int | None = None) -> np.ndarray:
     """Mean over the finite values; NaN (without a warning) where there are none."""
     x = np.asarray(x, dtype=float)
     ok = np.isfinite(x)
@@ -158,11 +162,11 @@ def residual_summary(model: TorqueModel, scs: Sequence[Scored]) -> dict[str, Any
         regs.append(sc.sig.regime)
         sigs.append(sc.sigma)
     ex, fl, reg, sg = (np.concatenate(a) for a in (exs, fls, regs, sigs))
-    rms = np.sqrt(_nanmean(ex**2, axis=0))
-    floor = np.sqrt(_nanmean(fl, axis=0))
+    rms = np.sqrt(nanmean(ex**2, axis=0))
+    floor = np.sqrt(nanmean(fl, axis=0))
     rows = []
     for j in range(n):
-        for code, name in REGIME_NAMES.items():
+        for code, name in ((r, r.label) for r in Regime):
             m = (reg[:, j] == code) & np.isfinite(ex[:, j])
             if not m.any():
                 continue
@@ -200,7 +204,7 @@ def worst_windows(
         while start < t[-1]:
             m = (t >= start) & (t < start + width)
             if m.sum() > 3:
-                per = _nanmean(r[m], axis=0)
+                per = nanmean(r[m], axis=0)
                 if np.isfinite(per).any():
                     j = int(np.nanargmax(per))
                     out.append(
@@ -208,7 +212,7 @@ def worst_windows(
                             "recording": sc.sig.rec.name or "<memory>",
                             "t0": float(start),
                             "t1": float(start + width),
-                            "energy": float(_nanmean(per)),
+                            "energy": float(nanmean(per)),
                             "worst_joint": j + 1,
                             "worst_joint_ratio": float(math.sqrt(per[j])),
                         }
@@ -235,14 +239,10 @@ def force_error(
 ) -> dict[str, Any] | None:
     """Estimate of eq. (3) minus the (bias-corrected) sensor, per axis and regime, and coverage.
 
-    Returns None when no recording has F/T columns or the estimator is unavailable. Otherwise
+    Returns None when no recording has F/T columns. Otherwise
     ``{"rms": (6,) [N, N·m], "bias": (6,), "per_regime": [...], "coverage": (6,) or None,
     "interval": {"method", "level"}}``.
     """
-    try:
-        from ditherlab.estimator import estimate, intervals
-    except ImportError:
-        return None
     errs, regs, covs = [], [], []
     for sc in scs:
         rec = sc.sig.rec
@@ -254,7 +254,7 @@ def force_error(
         lo = np.zeros(tau_bar.shape)
         hi = np.zeros(tau_bar.shape)
         sg = np.ones(tau_bar.shape)
-        for code, name in REGIME_NAMES.items():
+        for code, name in ((r, r.label) for r in Regime):
             if name not in model.regimes:
                 continue
             b = model.regimes[name]
@@ -303,7 +303,7 @@ def force_error(
     reg = np.concatenate(regs)
     cov = np.concatenate(covs).astype(float)
     rows = []
-    for code, name in REGIME_NAMES.items():
+    for code, name in ((r, r.label) for r in Regime):
         m = reg == code
         if m.any():
             rows.append(
@@ -314,7 +314,7 @@ def force_error(
                     "bias": [float(v) for v in np.mean(err[m], axis=0)],
                 }
             )
-    coverage = _nanmean(cov, axis=0) if np.isfinite(cov).any() else None
+    coverage = nanmean(cov, axis=0) if np.isfinite(cov).any() else None
     return {
         "axes": list(AXES),
         "rms": [float(v) for v in np.sqrt(np.mean(err**2, axis=0))],
@@ -571,9 +571,7 @@ def _evaluate(
         ok = s.passes(min_fraction)
         # the shared fit covers every joint: its own held-out baseline is the whole residual
         frac = s.fraction
-        from ditherlab.effects import _make_spec
-
-        spec = _make_spec(e, {-1: s.fit})
+        spec = make_spec(e, {-1: s.fit})
         return Candidate(
             name, list(range(1, model.n + 1)) if ok else [], frac, ok, [s], spec.params
         )
@@ -583,9 +581,7 @@ def _evaluate(
     frac = gain / total_loss if total_loss > 0 else 0.0
     params: dict[str, Any] = {}
     if sel:
-        from ditherlab.effects import _clean_none, _make_spec
-
-        params = _clean_none(_make_spec(e, {s.joint: s.fit for s in sel})).params
+        params = clean_none(make_spec(e, {s.joint: s.fit for s in sel})).params
     joints = [s.joint + 1 for s in sel] if sel else [max(scores, key=lambda s: s.gain).joint + 1]
     return Candidate(name, joints, frac, bool(sel), scores, params)
 
@@ -817,7 +813,7 @@ def diagnose(
     for r in recs:
         # regimes present but absent from the model -> one clear error
         reg = signals(r).regime
-        for code, name in REGIME_NAMES.items():
+        for code, name in ((r, r.label) for r in Regime):
             wanted = regimes is None or name in regimes
             if (
                 wanted
@@ -832,12 +828,12 @@ def diagnose(
                 )
         sc = scored(model, r)
         if regimes is not None:
-            bad = [x for x in regimes if x not in REGIME_NAMES.values()]
+            bad = [x for x in regimes if x not in REGIME_NAMES]
             if bad:
                 raise ModelError(
-                    f"regime {bad[0]!r} is unknown, expected one of: {', '.join(REGIME_NAMES.values())}"
+                    f"regime {bad[0]!r} is unknown, expected one of: {', '.join(REGIME_NAMES)}"
                 )
-            keep = np.isin(sc.sig.regime, [c for c, n in REGIME_NAMES.items() if n in regimes])
+            keep = np.isin(sc.sig.regime, [r for r in Regime if r.label in regimes])
             sc.use = sc.use & keep
             sc.sigma_hf = white_noise(sc.e, sc.use & (sc.sig.regime != DITHER), sc.sig.regime)
         scs.append(sc)
@@ -892,253 +888,3 @@ def append_history(model_path: str | Path, entry: dict[str, Any]) -> TorqueModel
     m.history = [{k: v for k, v in h.items() if v is not None} for h in hist]
     m.save(model_path)
     return m
-
-
-def _history_rows(hist: list[dict[str, Any]]) -> list[str]:
-    rows = [
-        "| version | effects | torque RMS per joint [N·m] | floor | force RMS f_x f_y f_z [N] | coverage |",
-        "|---|---|---|---|---|---|",
-    ]
-    for h in hist:
-        tr = " ".join(f"{v:.3g}" for v in h.get("torque_rms", []))
-        fl = " ".join(f"{v:.3g}" for v in h.get("noise_floor", []))
-        fr = " ".join(f"{v:.3g}" for v in (h.get("force_rms") or [])[:3]) or "–"
-        cov = h.get("coverage")
-        rows.append(
-            f"| {h.get('version')} | {', '.join(h.get('effects', [])) or 'base'} | {tr} | {fl} | {fr} | "
-            f"{'–' if cov is None else f'{cov:.2f}'} |"
-        )
-    return rows
-
-
-def _evidence_figure(d: Diagnosis, c: Candidate, path: Path) -> None:
-    """Residual against the effect's driving variable, per joint, with the fitted effect."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    e = EFFECTS[c.effect]
-    joints = [j - 1 for j in c.joints][:4] or [0]
-    fig, axes = plt.subplots(1, len(joints), figsize=(4.2 * len(joints), 3.4), squeeze=False)
-    for ax, j in zip(axes[0], joints, strict=False):
-        s = next((s for s in c.scores if s.joint in (j, None)), None)
-        xs, ys, ps = [], [], []
-        label = ""
-        for sc in d.scs:
-            p = _params_for_plot(e, c, s, j)
-            x, label = e.driver(sc.sig, j, p)
-            des = e.design(
-                sc.sig, None if e.shared else j, s.fit.h if s else None, s.fit.ref if s else {}
-            )
-            if e.shared:
-                shift = des.centre[:, j, :] @ s.fit.w + (
-                    des.offset[:, j] if des.offset is not None else 0
-                )
-            else:
-                shift = des.centre @ s.fit.w + (des.offset if des.offset is not None else 0)
-            m = sc.use[:, j] & ((sc.sig.regime[:, j] == MOVING) | (np.abs(sc.e[:, j]) > sc.h[:, j]))
-            y = sc.e[:, j] - np.sign(sc.e[:, j]) * np.where(
-                sc.sig.regime[:, j] == MOVING, 0, sc.h[:, j]
-            )
-            if e.name in ("stribeck", "load_friction", "temperature_friction"):
-                mv = sc.sig.regime[:, j] == MOVING
-                sg = np.where(mv, np.sign(sc.sig.dq[:, j]), 1.0)
-                if e.name != "stribeck":
-                    y, shift = y * sg, shift * sg
-            xs.append(x[m])
-            ys.append(y[m])
-            ps.append(np.broadcast_to(shift, x.shape)[m])
-        x, y, p = (np.concatenate(a) for a in (xs, ys, ps))
-        if len(x) > 4000:
-            idx = np.random.default_rng(0).choice(len(x), 4000, replace=False)
-            x, y, p = x[idx], y[idx], p[idx]
-        ax.scatter(x, y, s=2, alpha=0.3, color="0.4", label="residual")
-        o = np.argsort(x)
-        ax.plot(x[o], p[o], ".", ms=2, color="C3", label=f"fitted {c.effect}")
-        ax.set_xlabel(label)
-        signed = e.name in ("load_friction", "temperature_friction")
-        ax.set_ylabel(f"residual{' · sign(dq)' if signed else ''} joint {j + 1} [N·m]")
-        ax.legend(loc="best", fontsize=7, markerscale=4)
-    fig.suptitle(
-        f"{c.effect}: {100 * c.explained_fraction:.1f} % explained (held-out)", fontsize=10
-    )
-    fig.tight_layout()
-    from ditherlab.io.atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
-    plt.close(fig)
-
-
-def _params_for_plot(e: Effect, c: Candidate, s: JointScore | None, j: int) -> dict[str, Any]:
-    if s is None:
-        return {}
-    p = {name: float(v) for name, v in zip(e.linear, s.fit.w, strict=False)}
-    p.update(hyper_params(e, s.fit.h))
-    p.update(s.fit.ref)
-    if e.name == "payload":
-        p = {"mass": float(s.fit.w[0]), "mass_com": [float(v) for v in s.fit.w[1:4]]}
-    return p
-
-
-def _history_figure(hist: list[dict[str, Any]], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import MaxNLocator
-
-    fig, ax = plt.subplots(figsize=(5, 3.2))
-    v = [h["version"] for h in hist]
-    tr = np.array([h["torque_rms"] for h in hist])
-    for j in range(tr.shape[1]):
-        ax.plot(v, tr[:, j], "o-", label=f"joint {j + 1}")
-    fl = np.array([h.get("noise_floor", [np.nan] * tr.shape[1]) for h in hist])
-    ax.plot(v, _nanmean(fl, axis=1), "k--", label="noise floor (mean)")
-    ax.set_xlabel("model version")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.set_ylabel("torque residual RMS [N·m]")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    from ditherlab.io.atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
-    plt.close(fig)
-
-
-def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Path:
-    """Write ``report.md``, ``report.json`` and PNG evidence figures into ``out_dir``.
-
-    Returns the path of ``report.md``.
-    """
-    from ditherlab.io.atomic import atomic_write_json, atomic_write_text
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    figs = d.suggested[:max_figures] or d.candidates[:1]
-    for c in figs:
-        name = f"evidence_{c.effect}.png"
-        _evidence_figure(d, c, out / name)
-        c.figure = name
-    hist = d.model.history
-    if hist:
-        _history_figure(hist, out / "history.png")
-    md = [
-        f"# Diagnosis of model v{d.model.version}",
-        "",
-        "Recordings: " + ", ".join(d.recordings),
-        "",
-    ]
-    md += ["## Model", "", "```", model_text(d.model), "```", ""]
-    md += ["## Torque residual (band-aware) against the noise floor", ""]
-    md += [
-        "| joint | regime | samples | RMS [N·m] | floor [N·m] | outside band | mean excess [σ] |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for r in d.residual["per_regime"]:
-        md.append(
-            f"| {r['joint']} | {r['regime']} | {r['samples']} | {r['rms']:.3g} | {r['floor']:.3g} | "
-            f"{100 * r['outside_fraction']:.0f} % | {r['mean_excess_sigma']:+.2f} |"
-        )
-    md.append("")
-    if d.force is not None:
-        md += [
-            "## Force error (estimate − sensor)",
-            "",
-            "| regime | samples | " + " | ".join(AXES) + " |",
-            "|---|---|" + "---|" * 6,
-        ]
-        for r in d.force["per_regime"]:
-            md.append(
-                f"| {r['regime']} | {r['samples']} | "
-                + " | ".join(f"{v:.3g}" for v in r["rms"])
-                + " |"
-            )
-        if d.force.get("coverage") is not None:
-            md.append(
-                "| coverage (95 % set-membership) | | "
-                + " | ".join(f"{v:.2f}" for v in d.force["coverage"])
-                + " |"
-            )
-        md.append("")
-    if d.windows:
-        md += [
-            "## Worst time windows",
-            "",
-            "| recording | t [s] | energy [floor²] | worst joint (× floor) |",
-            "|---|---|---|---|",
-        ]
-        for w in d.windows:
-            md.append(
-                f"| {w['recording']} | {w['t0']:.1f}–{w['t1']:.1f} | {w['energy']:.3g} | "
-                f"{w['worst_joint']} ({w['worst_joint_ratio']:.2g}) |"
-            )
-        md.append("")
-    md += [
-        "## Candidate effects (held-out explained fraction, best first)",
-        "",
-        "| effect | joints | explained | suggested | ΔBIC (best joint) |",
-        "|---|---|---|---|---|",
-    ]
-    for c in d.candidates:
-        bic = min((s.delta_bic for s in c.scores), default=float("nan"))
-        md.append(
-            f"| {c.effect} | {', '.join(map(str, c.joints))} | {100 * c.explained_fraction:.1f} % | "
-            f"{'yes' if c.suggested else 'no'} | {bic:.1f} |"
-        )
-    md.append("")
-    for c in figs:
-        md += [f"### {c.effect}", "", c.text(), "", f"![{c.effect}]({c.figure})", ""]
-    for n, why in d.skipped.items():
-        md.append(f"- skipped {n}: {why}")
-    if hist:
-        md += [
-            "",
-            "## History: the error falling",
-            "",
-            *_history_rows(hist),
-            "",
-            "![history](history.png)",
-            "",
-        ]
-    for n in d.notes:
-        md.append(f"- note: {n}")
-    atomic_write_json(out / "report.json", d.to_dict(), indent=2)
-    return atomic_write_text(out / "report.md", "\n".join(md) + "\n")
-
-
-def diagnose_files(
-    recordings: Sequence[str | Path],
-    model_path: str | Path,
-    *,
-    out_dir: str | Path | None = None,
-    read_options: dict[str, Any] | None = None,
-    history: bool = True,
-    regimes: Sequence[str] | None = None,
-    progress: Callable[[int, int], None] | None = None,
-) -> Diagnosis:
-    """The ``ditherlab diagnose`` command: read, diagnose, append the history, write the report.
-
-    Parameters
-    ----------
-    recordings : recording files (any format :func:`ditherlab.io.read` knows)
-    model_path : the model TOML; its history gets one row (atomically) unless ``history=False``
-    out_dir : folder for ``report.md``, ``report.json`` and the PNG figures (optional)
-    read_options : passed to :func:`ditherlab.io.read` (``mapping``, ``robot``)
-    """
-    from ditherlab.io import read
-    from ditherlab.io.atomic import check_not_input
-
-    model = TorqueModel.load(model_path)
-    recs = [read(p, **(read_options or {})) for p in recordings]
-    if out_dir is not None:
-        for name in ("report.md", "report.json"):
-            check_not_input(Path(out_dir) / name, [*recordings, model_path])
-    d = diagnose(model, recs, regimes=regimes or None, progress=progress)
-    if history:
-        d.model = append_history(model_path, d.history_entry())
-    if out_dir is not None:
-        write_report(d, out_dir)
-    return d

@@ -13,7 +13,9 @@ torque shifts both sides of the dithered torque, and the mean of the two sides f
 delay of about one window while the square wave itself cancels. With dither the friction band is
 effectively shrunk by the dither amplitude on each side (Fig. 4), see :func:`dithered_band`; the
 variant without the uniform term moves the band's variance into the Gaussian noise (§IV-C), see
-:func:`band_as_noise`.
+:func:`band_as_noise`. For a recording, :func:`extract_dither` finds where the dither is on and
+its period (:func:`dither_period`) and extracts the signal: the one extraction that identify,
+diagnose and replay use (replay writes it to the estimates file, which report and view read).
 
 The window holds ``round(periods * period / dt)`` samples. At 80 rad/s and 250 Hz one period is
 19.63 samples, so a window of 20 samples holds 1.019 periods. Measured in
@@ -25,11 +27,16 @@ period per window, 1.6 % with two and 1.0 % with three (59 samples for 58.9).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from ditherlab.errors import ConfigError
+from ditherlab.recording import Recording
+from ditherlab.signal import runs
 
 
 @dataclass
@@ -298,3 +305,143 @@ def band_as_noise(tau_min, tau_max, sigma) -> np.ndarray:
     b = np.asarray(tau_max, dtype=float)
     s = np.asarray(sigma, dtype=float)
     return np.sqrt(s**2 + (b - a) ** 2 / 12.0)
+
+
+# ------------------------------------------------------------------ a recording's dither
+@dataclass
+class Extraction:
+    """The dither signal extracted from one recording (paper §IV-A).
+
+    Attributes
+    ----------
+    upper, lower, signal, centre, amplitude : (N, n) [N·m]
+        One-period means of the samples above / below the period mean, their average (the new
+        torque signal), the period mean, and half their difference (the dither amplitude).
+    on : (N,) bool
+        Dither active.
+    valid : (N,) bool
+        Dither active over the whole one-period window ending at the sample.
+    period : [s]
+    """
+
+    upper: np.ndarray
+    lower: np.ndarray
+    signal: np.ndarray
+    centre: np.ndarray
+    amplitude: np.ndarray
+    on: np.ndarray
+    valid: np.ndarray
+    period: float
+
+
+def dither_on(rec: Recording) -> np.ndarray | None:
+    """Where the dither is active, (N,) bool: the ``dither`` column, else where the ``tau_ffw``
+    square wave has a non-zero amplitude; None when the recording has neither."""
+    if rec.dither is not None:
+        return rec.dither
+    ffw = rec.tau_ffw
+    if ffw is None:
+        return None
+    period = dither_period(rec)
+    w = max(int(round(period * rec.sample_rate)), 2)
+    hi = pd.DataFrame(ffw).rolling(w, min_periods=1, center=True).max().to_numpy()
+    lo = pd.DataFrame(ffw).rolling(w, min_periods=1, center=True).min().to_numpy()
+    return ((hi - lo) > 1e-6).any(axis=1)
+
+
+def meta_dither_period(meta: Mapping[str, Any]) -> float | None:
+    """The dither period [s] a recording's metadata states, or None.
+
+    ``dither.period`` [s] or ``dither.omega`` [rad/s], at the top level or under ``sim``.
+    """
+    for d in (meta.get("dither"), (meta.get("sim") or {}).get("dither")):
+        if isinstance(d, Mapping):
+            if d.get("period"):
+                return float(d["period"])
+            if d.get("omega"):
+                return float(2 * np.pi / float(d["omega"]))
+    return None
+
+
+def dither_period(rec: Recording) -> float:
+    """The dither period [s].
+
+    From the metadata when it states it (``dither.omega`` [rad/s] or ``dither.period`` [s], also
+    under ``sim``), else from the zero crossings of ``tau_ffw``
+    (:func:`period_from_feedforward`), else the strongest spectral line above
+    2 Hz of ``tau`` over the longest stretch with the dither on.
+    """
+    stated = meta_dither_period(rec.meta)
+    if stated is not None:
+        return stated
+    if rec.tau_ffw is not None:
+        ffw = rec.tau_ffw
+        if rec.dither is not None and rec.dither.sum() > 8:
+            ffw, tt = ffw[rec.dither], rec.t[rec.dither]
+        else:
+            tt = rec.t
+        try:
+            return period_from_feedforward(ffw, tt)
+        except ConfigError:
+            pass
+    x = rec.tau
+    on = rec.dither if rec.dither is not None else np.ones(len(rec), bool)
+    starts, ends = runs(on)  # the longest run of dither-on samples
+    if len(starts) == 0:
+        raise ConfigError(f"{rec.name or 'recording'}: the dither is never on; no period to find")
+    k = int(np.argmax(ends - starts))
+    seg = x[starts[k] : ends[k]]
+    seg = seg[: min(len(seg), 16384)]
+    fs = rec.sample_rate
+    if len(seg) < 32:
+        raise ConfigError(
+            f"{rec.name or 'recording'}: only {len(seg)} samples with the dither on; "
+            "cannot find its period"
+        )
+    seg = seg - seg.mean(axis=0)
+    spec = (np.abs(np.fft.rfft(seg * np.hanning(len(seg))[:, None], axis=0)) ** 2).sum(axis=1)
+    f = np.fft.rfftfreq(len(seg), 1.0 / fs)
+    spec[f < 2.0] = 0.0
+    i = int(np.argmax(spec))
+    if 0 < i < len(spec) - 1:  # parabolic refinement of the peak
+        y0, y1, y2 = np.log(spec[i - 1 : i + 2] + 1e-300)
+        den = y0 - 2 * y1 + y2
+        delta = 0.5 * (y0 - y2) / den if den != 0 else 0.0
+        fpk = f[i] + delta * (f[1] - f[0])
+    else:
+        fpk = f[i]
+    if fpk <= 0:
+        raise ConfigError(f"{rec.name or 'recording'}: no dither line found in the spectrum")
+    return float(1.0 / fpk)
+
+
+def extract_dither(rec: Recording, tau: np.ndarray | None = None) -> Extraction | None:
+    """Extract the torque signal of a dithered recording (paper §IV-A), or None without dither.
+
+    Parameters
+    ----------
+    rec : Recording with a ``dither`` column or ``tau_ffw``
+    tau : (N, n) [N·m], optional — the torque to extract from (default ``rec.tau``)
+
+    Returns
+    -------
+    Extraction, or None when the recording has no dither information or the dither is never on.
+    """
+    on = dither_on(rec)
+    if on is None or not on.any():
+        return None
+    period = dither_period(rec)
+    x = rec.tau if tau is None else tau
+    sig = extract(x, rec.t, period)
+    w = max(int(round(period * rec.sample_rate)), 1)
+    valid = full_window(on, w)  # the dither was on for the whole window (t - period, t]
+    return Extraction(
+        upper=np.asarray(sig.upper),
+        lower=np.asarray(sig.lower),
+        signal=np.asarray(sig.signal),
+        centre=np.asarray(sig.centre),
+        amplitude=np.asarray(sig.amplitude),
+        on=on,
+        valid=valid,
+        period=period,
+    )

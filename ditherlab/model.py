@@ -30,15 +30,32 @@ import copy
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import tomli_w
 
 from ditherlab.errors import ModelError
+from ditherlab.io.atomic import atomic_write_text, plain
+from ditherlab.signal import DITHER, MOVING, REGIME_NAMES, STILL, Regime
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ditherlab.recording import Recording
 
 SCHEMA = "ditherlab.model/1"
-REGIMES = ("still", "dither", "moving")
+#: the regimes a model can have a band for (:class:`ditherlab.signal.Regime`)
+REGIMES = REGIME_NAMES
+__all__ = [
+    "DITHER",
+    "MOVING",
+    "PAPER_PRIOR_SIGMA",
+    "REGIMES",
+    "STILL",
+    "Band",
+    "EffectSpec",
+    "Regime",
+    "TorqueModel",
+]
 #: The paper's prior (§V): F_bar = 0, R_F = diag(20, 20, 20, 0.3, 0.3, 0.3)^2.
 PAPER_PRIOR_SIGMA = (20.0, 20.0, 20.0, 0.3, 0.3, 0.3)
 
@@ -78,6 +95,16 @@ class Band:
     def n(self) -> int:
         return len(self.sigma)
 
+    def sliding(self, dq: np.ndarray) -> np.ndarray:
+        """The sliding friction line ``coulomb·sign(dq) + viscous·dq`` (N, n) [N·m] for ``dq``
+        (N, n) [rad/s]; zeros where the band has neither term."""
+        out = np.zeros(np.shape(dq))
+        if self.coulomb is not None:
+            out += self.coulomb * np.sign(dq)
+        if self.viscous is not None:
+            out += self.viscous * dq
+        return out
+
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {
             "tau_min": self.tau_min.tolist(),
@@ -105,7 +132,7 @@ class EffectSpec:
     params: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "joints": list(self.joints), "params": _plain(self.params)}
+        return {"name": self.name, "joints": list(self.joints), "params": plain(self.params)}
 
 
 @dataclass
@@ -200,11 +227,64 @@ class TorqueModel:
     def copy(self) -> TorqueModel:
         return copy.deepcopy(self)
 
-    def __str__(self) -> str:
-        """One readable equation per joint (:func:`ditherlab.effects.model_text`)."""
-        from ditherlab.effects import model_text
+    def check_robot(self, rec: Recording) -> None:
+        """Raise ModelError when the recording's robot is not the model's (name/URDF or joint
+        count)."""
+        spec_r = rec.meta["robot"]
+        spec_m = self.robot
+        same = self.n == rec.n and (
+            spec_m == spec_r
+            if isinstance(spec_m, str) or isinstance(spec_r, str)
+            else spec_m.get("urdf") == spec_r.get("urdf")
+        )
+        if not same:
+            mlabel = spec_m if isinstance(spec_m, str) else spec_m.get("name", "urdf")
+            where = f"{rec.name}: " if rec.name else ""
+            raise ModelError(
+                f"{where}the recording's robot is {rec.robot_label} with {rec.n} joints but the "
+                f"model {self.source or ''} is for {mlabel} with {self.n} joints".replace("  ", " ")
+            )
 
-        return model_text(self)
+    def sample_bands(
+        self, reg: np.ndarray, dq: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The band and noise of every sample: the one per-sample band assembly.
+
+        The ``still`` band everywhere, and where a joint moves (and the model has a ``moving``
+        band) the moving band about the sliding line ``coulomb·sign(dq) + viscous·dq``. The
+        dither band is the estimator variants' business (:mod:`ditherlab.replay`).
+
+        Parameters
+        ----------
+        reg : (N, n) regime codes (:func:`ditherlab.recording.regimes`)
+        dq : (N, n) [rad/s]
+
+        Returns
+        -------
+        tau_min, tau_max, sigma : each (N, n) [N·m]
+        """
+        N, n = reg.shape
+        still = self.band("still")
+        lo = np.broadcast_to(still.tau_min, (N, n)).copy()
+        hi = np.broadcast_to(still.tau_max, (N, n)).copy()
+        sig = np.broadcast_to(still.sigma, (N, n)).copy()
+        mv = reg == MOVING
+        if mv.any() and "moving" in self.regimes:
+            b = self.regimes["moving"]
+            slide = b.sliding(dq)
+            lo = np.where(mv, b.tau_min + slide, lo)
+            hi = np.where(mv, b.tau_max + slide, hi)
+            sig = np.where(mv, b.sigma, sig)
+        return lo, hi, sig
+
+    def __str__(self) -> str:
+        """A one-line summary; :func:`ditherlab.effects.model_text` prints the equations."""
+        robot = self.robot if isinstance(self.robot, str) else "urdf"
+        eff = ", ".join(f"{s.name}{s.joints or ''}" for s in self.effects) or "none"
+        return (
+            f"model v{self.version} ({robot}, {self.n} joints): regimes "
+            f"{', '.join(self.regimes) or 'none'}; effects {eff}"
+        )
 
     # -------------------------------------------------------------- file I/O
     def to_dict(self) -> dict[str, Any]:
@@ -219,12 +299,12 @@ class TorqueModel:
         if self.tool_offset is not None:
             d["tool_offset"] = list(map(float, self.tool_offset))
         if self.payload is not None:
-            d["payload"] = _plain(self.payload)
+            d["payload"] = plain(self.payload)
         d["prior"] = {"mean": self.prior_mean.tolist(), "sigma": _inf_safe(self.prior_sigma)}
         d["regimes"] = {k: b.to_dict() for k, b in self.regimes.items()}
         d["effects"] = [e.to_dict() for e in self.effects]
         if self.history:
-            d["history"] = _plain(self.history)
+            d["history"] = plain(self.history)
         return d
 
     def dumps(self) -> str:
@@ -233,8 +313,6 @@ class TorqueModel:
 
     def save(self, path: str | Path) -> Path:
         """Write the model as TOML, atomically (temporary file + rename)."""
-        from ditherlab.io.atomic import atomic_write_text
-
         return atomic_write_text(Path(path), self.dumps())
 
     @classmethod
@@ -292,19 +370,6 @@ class TorqueModel:
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ModelError(f"{p}: not a valid TOML file ({exc})") from None
         return cls.from_dict(d, source=str(p))
-
-
-def _plain(x: Any) -> Any:
-    """numpy values -> plain Python (for TOML/JSON)."""
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 def _inf_safe(v: np.ndarray) -> list[float]:

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from ditherlab.errors import RecordingError, where_prefix
+from ditherlab.signal import DITHER, MOVING, REGIME_NAMES, STILL, Regime, smooth_derivative
 
 if TYPE_CHECKING:  # pragma: no cover
     from ditherlab.robot import RobotModel
@@ -36,9 +37,19 @@ JOINT_FAMILIES: dict[str, tuple[bool, str]] = {
 }
 _JOINT_COL = re.compile(r"^(q|dq|tau|tau_ffw|temp)_(\d+)$")
 
-#: Regime codes returned by :func:`regimes`.
-STILL, DITHER, MOVING = 0, 1, 2
-REGIME_NAMES = ("still", "dither", "moving")
+__all__ = [
+    "DITHER",
+    "FORCE_AXES",
+    "MOVING",
+    "REGIME_NAMES",
+    "STILL",
+    "WRENCH_COLUMNS",
+    "Recording",
+    "Regime",
+    "differentiate",
+    "moving_mask",
+    "regimes",
+]
 
 
 def _time_span(t: np.ndarray, bad: np.ndarray) -> str:
@@ -178,8 +189,10 @@ class Recording:
 
     @cached_property
     def ddq(self) -> np.ndarray:
-        """Joint accelerations, (N, n) [rad/s²]: :func:`differentiate` of :attr:`dq`."""
-        return differentiate(self.t, self.dq)
+        """Joint accelerations, (N, n) [rad/s²]: the quadratic Savitzky–Golay derivative of
+        :attr:`dq` over 40 ms (:func:`ditherlab.signal.smooth_derivative`); the one ``ddq`` of
+        identification, diagnosis and every effect."""
+        return smooth_derivative(self.t, self.dq)
 
     @property
     def tau_ffw(self) -> np.ndarray | None:

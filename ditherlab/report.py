@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from ditherlab.estimates import Estimates
 from ditherlab.io.atomic import atomic_write_json, atomic_write_text, check_not_input
-from ditherlab.replay import Estimates
 from ditherlab.thresholds import AXES, PAPER, analyse
 
 
@@ -375,8 +375,8 @@ def _from_first_push(r, length: float) -> np.ndarray:
 
 def _torque_figures(ests: list[Estimates], recs: list, out: Path, blocks: list[tuple]) -> list[str]:
     """Figs. 2, 4, 5 from the recordings (with the model stored in the estimates)."""
+    from ditherlab.dither import extract_dither
     from ditherlab.model import TorqueModel
-    from ditherlab.replay import extract_dither
     from ditherlab.viz import figures as figs
 
     model = TorqueModel.from_dict(ests[0].meta["model"])

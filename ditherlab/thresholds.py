@@ -32,8 +32,10 @@ from typing import Any
 import numpy as np
 
 from ditherlab.errors import DitherlabError
+from ditherlab.recording import FORCE_AXES
+from ditherlab.signal import merge_runs, runs
 
-AXES = ("x", "y", "z")
+AXES = FORCE_AXES
 #: The paper's numbers (§VI-C): smallest force with a response, force needed for > 10 N [N].
 PAPER = {
     "no dither": {
@@ -96,8 +98,6 @@ def find_pushes(
     -------
     list of Push, in time order
     """
-    from ditherlab.replay import merge_runs, runs
-
     f = np.asarray(wrench, dtype=float)[:, :3]
     t = np.asarray(t, dtype=float)
     mag = np.linalg.norm(f, axis=1)

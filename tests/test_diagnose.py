@@ -14,7 +14,8 @@ import pytest
 from test_effects import make_recording
 
 from ditherlab.diagnose import diagnose, noise_floor_sq, residual_summary
-from ditherlab.effects import add_effect, scored
+from ditherlab.loop import add_effect
+from ditherlab.residual import scored
 from ditherlab.identify import identify
 from ditherlab.io import write
 from ditherlab.model import EffectSpec, TorqueModel
@@ -175,7 +176,7 @@ def test_ur10e_free_motion_lacks_inertia(shared_data):
     """On the real UR10e free-motion log, a gravity + Coulomb/viscous model lacks the dynamic
     torque: diagnosis suggests ``inertia`` first (on joints 1 and 2 at least), and adding it cuts
     their residual by more than 40 %."""
-    from ditherlab.identify import fit_sliding
+    from ditherlab.bandfit import fit_sliding
     from ditherlab.io import read
     from ditherlab.model import Band
     from ditherlab.recording import MOVING, regimes

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from ditherlab.diagnose import diagnose, residual_summary
-from ditherlab.effects import add_effect, scored
+from ditherlab.loop import add_effect
+from ditherlab.residual import scored
 from ditherlab.identify import identify
 from ditherlab.sim import simulate
 

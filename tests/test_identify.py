@@ -8,16 +8,15 @@ from scipy import integrate
 from synthetic import moving_recording, push_recording
 
 from ditherlab.errors import RecordingError
-from ditherlab.identify import (
+from ditherlab.bandfit import (
     _nll_mix,
     band_noise_logpdf,
-    causal_mean,
     fit_band,
     fit_sliding,
-    friction_residual,
-    identify,
     sigma_from_differences,
 )
+from ditherlab.identify import friction_residual, identify
+from ditherlab.signal import causal_mean
 from ditherlab.model import PAPER_PRIOR_SIGMA, TorqueModel
 
 

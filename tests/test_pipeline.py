@@ -6,7 +6,7 @@ import numpy as np
 
 from ditherlab.demo import pipeline_text, run_pipeline
 from ditherlab.model import TorqueModel
-from ditherlab.replay import Estimates
+from ditherlab.estimates import Estimates
 
 
 def test_pipeline_small_campaign(tmp_path):

@@ -13,17 +13,10 @@ from ditherlab.errors import ConfigError, ModelError
 from ditherlab.estimator import estimate
 from ditherlab.identify import identify
 from ditherlab.model import Band, TorqueModel
-from ditherlab.replay import (
-    COMPONENTS,
-    SCHEMA,
-    Estimates,
-    available_variants,
-    dither_period,
-    extract_dither,
-    meta_dither_period,
-    replay,
-    runs,
-)
+from ditherlab.dither import dither_period, extract_dither, meta_dither_period
+from ditherlab.estimates import COMPONENTS, SCHEMA, Estimates
+from ditherlab.replay import available_variants, replay
+from ditherlab.signal import runs
 
 MAGS = (5.0, 15.0, 30.0, 50.0)
 

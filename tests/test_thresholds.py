@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from synthetic import push_profile
 
-from ditherlab.replay import COMPONENTS, SCHEMA, Estimates
+from ditherlab.estimates import COMPONENTS, SCHEMA, Estimates
 from ditherlab.thresholds import (
     NoPushesError,
     analyse,

@@ -629,7 +629,7 @@ def test_window_mean_equals_the_extraction_centre(campaign):
     """The fast window mean the view logs as the centre (identify.causal_mean) equals
     ditherlab.dither.extract's centre (the paper's period mean)."""
     from ditherlab.dither import extract
-    from ditherlab.identify import causal_mean
+    from ditherlab.signal import causal_mean
 
     rec = campaign["rec"]
     ext = extract(rec.tau, rec.t, 2 * np.pi / 80)

@@ -13,6 +13,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ditherlab.errors import DitherlabError
 
 
@@ -74,15 +76,25 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def json_default(x: Any) -> Any:
-    """``json.dumps(..., default=json_default)``: numpy scalars as Python numbers, arrays as
-    (nested) lists; anything else is not JSON (TypeError)."""
-    import numpy as np
-
+def plain(x: Any) -> Any:
+    """numpy values -> plain Python, recursively (for TOML and JSON): arrays and tuples as lists,
+    numpy scalars as numbers, dict keys as strings. The one numpy -> JSON/TOML conversion."""
+    if isinstance(x, dict):
+        return {str(k): plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return plain(x.tolist())
     if isinstance(x, np.generic):
         return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
+    return x
+
+
+def json_default(x: Any) -> Any:
+    """``json.dumps(..., default=json_default)``: numpy scalars as Python numbers, arrays as
+    (nested) lists (:func:`plain`); anything else is not JSON (TypeError)."""
+    if isinstance(x, np.generic | np.ndarray):
+        return plain(x)
     raise TypeError(f"{type(x).__name__} is not JSON serialisable")
 
 

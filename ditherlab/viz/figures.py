@@ -19,7 +19,9 @@ AXES = ("x", "y", "z")
 COLOURS = {"sensor": "black", "estimate": "tab:blue", "interval": "tab:blue"}
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (imported on first use: ~0.3 s that commands
+    without figures do not pay)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -31,7 +33,7 @@ def _plt():
 def _save(fig, path: Path) -> Path:
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-    _plt().close(fig)
+    pyplot().close(fig)
     return Path(path)
 
 
@@ -55,7 +57,7 @@ def fig6_estimates(
     path : PNG to write
     max_seconds : longest stretch shown per column [s]
     """
-    plt = _plt()
+    plt = pyplot()
     fig, axs = plt.subplots(
         3, len(panels), figsize=(4.2 * len(panels), 7.5), squeeze=False, sharex="col"
     )
@@ -105,7 +107,7 @@ def fig6_estimates(
 def detection_curves(analysis: dict, path: Path) -> Path:
     """Response (estimate along the axis) against applied force, per direction and condition,
     with the noise level, the 10 N line and the fitted detection probability."""
-    plt = _plt()
+    plt = pyplot()
     conds = list(analysis["conditions"])
     fig, axs = plt.subplots(2, 3, figsize=(13, 7.5), squeeze=False)
     cmap = plt.get_cmap("tab10")
@@ -155,7 +157,7 @@ def fig2_torques(
         J^T F of the sensor, band (a, b) [N·m]) per column
     joint : 1-based joint shown
     """
-    plt = _plt()
+    plt = pyplot()
     fig, axs = plt.subplots(1, len(panels), figsize=(6 * len(panels), 3.8), squeeze=False)
     for c, (title, t, tb, ext, band) in enumerate(panels):
         ax = axs[0, c]
@@ -185,7 +187,7 @@ def fig4_extraction(
     joint: int,
 ) -> Path:
     """Extraction of the torque signal and the shrunk band (paper Fig. 4); all (N,) [N·m]."""
-    plt = _plt()
+    plt = pyplot()
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     a1.plot(t, tau_bar, lw=0.4, color="grey", label=r"$\tau - \tau_{grav}$")
     a1.plot(t, upper, color="tab:red", lw=1.0, label="upper")
@@ -224,7 +226,7 @@ def fig5_dither_control(
 ) -> Path:
     """Dither control of one joint (paper Fig. 5): measured centre and amplitude (five-period
     means), the feedforward, and the torque with the band around gravity; all (N,) [N·m]."""
-    plt = _plt()
+    plt = pyplot()
     fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
     axs[0].plot(t, centre, label="centre (measured)")
     axs[0].plot(t, gravity, ls="--", label="centre reference (gravity)")

@@ -61,8 +61,8 @@ from ditherlab.recording import FORCE_AXES, Recording
 if TYPE_CHECKING:  # pragma: no cover
     import rerun as rr
 
+    from ditherlab.estimates import Estimates
     from ditherlab.model import TorqueModel
-    from ditherlab.replay import Estimates
 
 TIMELINE = "time"
 WEB_PORT = 9090
@@ -91,7 +91,7 @@ def load_estimates(path: str | Path) -> Estimates:
     FormatError
         Missing or unreadable file, not an estimates file, or a listed variant without columns.
     """
-    from ditherlab.replay import VARIANTS, Estimates
+    from ditherlab.estimates import VARIANTS, Estimates
 
     est = Estimates.load(path)
     if "t" not in est.data.columns:
@@ -537,7 +537,7 @@ def dither_period(rec: Recording, estimates: Estimates | None = None) -> float |
     """
     if estimates is not None and estimates.meta.get("dither_period"):
         return float(estimates.meta["dither_period"])
-    from ditherlab.replay import meta_dither_period
+    from ditherlab.dither import meta_dither_period
 
     stated = meta_dither_period(rec.meta)
     if stated is not None:
@@ -601,7 +601,7 @@ def _log_dither(
     if period is None:
         return
     from ditherlab.dither import dithered_band, extract
-    from ditherlab.identify import causal_mean
+    from ditherlab.signal import causal_mean
 
     d = estimates.data if estimates is not None else None
     have = d is not None and all(f"extract/{s}_1" in d.columns for s in EXTRACT_SIGNALS)
@@ -827,7 +827,7 @@ def _log_events(log: _Logger, rec: Recording, estimates: Estimates | None) -> No
     t = rec.t
     d = rec.dither
     if d is not None:
-        from ditherlab.replay import runs
+        from ditherlab.signal import runs
 
         on, off = runs(d)
         off = off[off < len(t)]  # a run to the end has no falling edge
@@ -900,7 +900,7 @@ def merge_spans(t: np.ndarray, flag: np.ndarray, gap: float) -> list[tuple[int, 
     -------
     list of (start, end) sample indices, in time order
     """
-    from ditherlab.replay import merge_runs, runs
+    from ditherlab.signal import merge_runs, runs
 
     return merge_runs(t, *runs(flag), gap)
 
@@ -1265,9 +1265,7 @@ def load_view_request(
         check_estimates_match(rec, est)
     mdl = TorqueModel.load(model) if model is not None else None
     if mdl is not None:
-        from ditherlab.identify import check_robot
-
-        check_robot(mdl, rec)
+        mdl.check_robot(rec)
     diag = load_diagnosis(diagnosis) if diagnosis is not None else None
     inputs = [Path(p) for p in (recording, estimates, model, diagnosis) if p is not None]
     if save is not None:

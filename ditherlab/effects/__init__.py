@@ -1,0 +1,101 @@
+"""The physical effects a torque model is made of: a pure library of named terms.
+
+The base model is ``tau = tau_grav(q) + J(q)^T F + tau_f + e`` (DESIGN.md). Each named effect adds
+a torque with a physical form, driven by logged variables, with a few parameters:
+
+=======================  ====================================================  ==================
+effect                   torque on joint j (the fitted parameters in bold)     driven by
+=======================  ====================================================  ==================
+``viscous``              **c** · dq                                            dq
+``stribeck``             **(Fs - Fc)** · exp(-(dq / **vs**)²) · sign(dq)        dq (moving)
+``load_friction``        **k** · (|L| - L_ref) · sign(dq) while moving, and    L = L0 + **c**(1 +
+                         the stick band widened by **k** · (|L| - L_ref)       **g**|L0|/fc)sign(dq);
+                                                                               L0 = tau_grav +
+                                                                               J^T F (+ M ddq moving)
+``temperature_friction`` **a** · (x - x_ref) · sign(dq) while moving, and the   temp_j, or
+                         band widened by **a** · (x - x_ref); x = temperature   exp(-t / **T**)
+                         or exp(-t / T) (time since start, **T** fitted)
+``position_ripple``      **A** sin(2π q / **P**) + **B** cos(2π q / **P**)        q (P by a spectral
+                                                                               search)
+``payload``              Y(q) · (**m**, **m c**): gravity of a mass at the tool   q (gravity
+                                                                               regressor)
+``attenuation_lag``      the servo shows **g** · lag_L(J^T F(t - **d**))       J^T F
+                         instead of J^T F(t): a delay **d** or a first-order
+                         lag of **L** samples
+``ft_bias``              the sensor reads F + **b**: the true wrench is F - b    F/T columns
+``inertia``              **s** · (M(q) ddq)_j + **Jm** · ddq_j                   ddq
+=======================  ====================================================  ==================
+
+Friction-type effects act as a sliding torque only in the ``moving`` regime; while the joint
+sticks, friction is whatever lies in the band, so there they can only change the band's width.
+Parameters in bold are fitted by least squares on the model's residual (:mod:`ditherlab.fit`;
+nonlinear ones — vs, T, P, d — by a search over a grid), per joint, except ``payload`` and
+``ft_bias`` whose parameters are shared by all joints.
+
+The package, bottom up: ``signals`` (the arrays of a recording effects are driven by, with or
+without the F/T sensor), ``base`` (the :class:`Effect` interface), one module per family
+(``friction``, ``transmission``, ``rigid``, ``sensor``), ``library`` (the registry and the
+conversion to and from the model file), ``apply`` (applying a model's effects for every
+consumer). It imports nothing above the model: the residual, the fit, identification and
+diagnosis are built on it. None of this code is shared with the simulator, whose hidden effects
+are written in the plant's own terms.
+"""
+
+from ditherlab.effects.apply import (
+    check_model_effects,
+    effects_torque,
+    external_torque,
+    model_text,
+    sensor_wrench,
+    widening,
+)
+from ditherlab.effects.base import Design, Effect
+from ditherlab.effects.friction import LoadFriction, Stribeck, TemperatureFriction, Viscous
+from ditherlab.effects.library import (
+    EFFECTS,
+    REF_KEYS,
+    FitResult,
+    clean_none,
+    effect_names,
+    get_effect,
+    hyper_params,
+    joint_params,
+    make_spec,
+    spec_params,
+)
+from ditherlab.effects.rigid import Inertia, Payload
+from ditherlab.effects.sensor import AttenuationLag, FtBias
+from ditherlab.effects.signals import Signals, signals
+from ditherlab.effects.transmission import PositionRipple
+
+__all__ = [
+    "EFFECTS",
+    "REF_KEYS",
+    "AttenuationLag",
+    "Design",
+    "Effect",
+    "FitResult",
+    "FtBias",
+    "Inertia",
+    "LoadFriction",
+    "Payload",
+    "PositionRipple",
+    "Signals",
+    "Stribeck",
+    "TemperatureFriction",
+    "Viscous",
+    "check_model_effects",
+    "clean_none",
+    "effect_names",
+    "effects_torque",
+    "external_torque",
+    "get_effect",
+    "hyper_params",
+    "joint_params",
+    "make_spec",
+    "model_text",
+    "sensor_wrench",
+    "signals",
+    "spec_params",
+    "widening",
+]

@@ -1,0 +1,148 @@
+"""The :class:`Effect` interface: one named physical effect of the torque model.
+
+An effect is one class in one file of this package (``friction.py``, ``transmission.py``,
+``rigid.py``, ``sensor.py``); defining it registers it in the library
+(:mod:`ditherlab.effects.library`) under its ``name``. Everything that applies, fits, scores,
+prints or plots effects goes through the methods below, never through an effect's name: to add an
+effect, write the class and its test (README, "Adding an effect").
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ditherlab.effects.signals import Signals
+from ditherlab.errors import ModelError
+from ditherlab.model import REGIMES
+
+__all__ = ["REGISTRY", "Design", "Effect", "fmt"]
+
+#: every defined effect class by name (filled by :meth:`Effect.__init_subclass__`)
+REGISTRY: dict[str, type[Effect]] = {}
+
+
+@dataclass(frozen=True)
+class Design:
+    """The linear part of an effect on one joint (or all joints, for shared parameters).
+
+    ``shift = centre @ w + offset`` moves the predicted torque; ``widen @ w`` widens the stick
+    band's half-width (still/dither regimes only). Shapes: (N, k) per joint, (N, n, k) shared.
+    """
+
+    centre: np.ndarray
+    widen: np.ndarray | None = None
+    offset: np.ndarray | None = None
+
+
+class Effect(abc.ABC):
+    """One named physical effect: its form, driving variables, parameters, fit and predict.
+
+    Subclasses define :meth:`design` (the torque per unit linear parameter for a given value of
+    the nonlinear parameter ``h``), :meth:`grid` (the values of ``h`` searched), and how
+    parameters are named in the model file.
+    """
+
+    name: str = ""
+    physics: str = ""
+    driven_by: str = ""
+    #: True: one parameter vector shared by all joints (payload, ft_bias).
+    shared: bool = False
+    #: Linear parameter names (per joint when not shared).
+    linear: tuple[str, ...] = ()
+    #: Name of the searched nonlinear parameter, or None; a tuple names the parts of a
+    #: searched tuple (``attenuation_lag``: delay and lag).
+    hyper: str | tuple[str, ...] | None = None
+    #: The searched parameter is a continuous number, refined after the grid search.
+    continuous: bool = False
+    #: Which consumer applies it: "torque" (effects_torque), "external", "sensor".
+    kind: str = "torque"
+    #: Regimes in which the effect can be seen (documentation and diagnosis text).
+    shows_in: tuple[str, ...] = REGIMES
+    #: Where the effect is tried in diagnosis and listed (smaller first; ties by name).
+    order: ClassVar[float] = 100.0
+    #: Evidence plots show the residual times sign(dq) while moving (friction that grows with a
+    #: load or falls with temperature acts against the motion).
+    signed_evidence: ClassVar[bool] = False
+
+    def __init_subclass__(cls, **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        if cls.name:
+            if cls.name in REGISTRY and REGISTRY[cls.name] is not cls:
+                raise TypeError(f"two effects are called {cls.name!r}")
+            REGISTRY[cls.name] = cls
+
+    # -- to implement
+    @abc.abstractmethod
+    def design(self, sig: Signals, j: int | None, h: Any, ref: dict[str, Any]) -> Design:
+        """The effect's :class:`Design` on joint j (None: all joints) for nonlinear value h."""
+
+    def grid(self, sig: Sequence[Signals], j: int | None) -> list[Any]:
+        return [None]
+
+    def reference(self, sig: Sequence[Signals], j: int | None) -> dict[str, Any]:
+        """Fixed reference values of the driving variable (computed from the data, not the
+        residual), e.g. the mean load; stored with the parameters."""
+        return {}
+
+    def check(self, sig: Signals) -> None:
+        """Raise ModelError naming a column the effect needs but the recording lacks."""
+        return None
+
+    def shortlist(
+        self, sc: Sequence[Any], j: int | None, grid: list[Any], masks: list[np.ndarray]
+    ) -> list[list[Any]]:
+        """For each boolean training mask over the stacked samples, the grid values worth a full
+        fit (default: the whole grid). Long grids override this with a fast pre-screen."""
+        return [list(grid) for _ in masks]
+
+    def signs(self, h: Any) -> tuple[int, ...]:
+        """Physical sign of each linear parameter: +1 (>= 0), -1 (<= 0) or 0 (free)."""
+        return (0,) * self.k
+
+    def driver(self, sig: Signals, j: int, p: dict[str, Any]) -> tuple[np.ndarray, str]:
+        """The driving variable of joint j (N,) and its axis label, for evidence plots."""
+        return sig.dq[:, j], f"dq_{j + 1} [rad/s]"
+
+    def term(self, p: dict[str, Any], j: int) -> str:
+        """The effect's term in the printed equation of joint j (0-based)."""
+        return self.name
+
+    # -- parameters <-> the model file (override when the file names differ from `linear`)
+    def weights(self, p: dict[str, Any]) -> np.ndarray:
+        """The linear parameters (k,) from the parameters ``p`` of one joint (or shared)."""
+        return np.array([p[c] for c in self.linear], dtype=float)
+
+    def linear_params(self, w: np.ndarray) -> dict[str, Any]:
+        """The model file's parameters of a shared effect from its linear parameters (k,)."""
+        return {c: float(v) for c, v in zip(self.linear, w, strict=True)}
+
+    # -- kind "external": how the servo shows the external torque
+    def external(self, sig: Signals, X: np.ndarray, w: np.ndarray, h: Any) -> np.ndarray:
+        """(N,) [N·m]: the external torque ``X`` (N,) of one joint as the servo shows it."""
+        raise ModelError(f"effect {self.name!r} does not act on the external torque")
+
+    def external_text(self, p: dict[str, Any], ext: str) -> str:
+        """The printed external-torque term of one joint, given the sensor's term ``ext``."""
+        return ext
+
+    # -- kind "sensor": how the F/T sensor reads the wrench
+    def correct_wrench(self, F: np.ndarray, p: dict[str, Any]) -> np.ndarray:
+        """(N, 6): the true wrench from the sensor's reading ``F`` (N, 6) [N, N·m]."""
+        raise ModelError(f"effect {self.name!r} does not act on the sensor")
+
+    def sensor_text(self, ext: str) -> str:
+        """The printed sensor term, e.g. ``J^T (F - ft_bias)``, given the plain ``ext``."""
+        return ext
+
+    @property
+    def k(self) -> int:
+        return len(self.linear)
+
+
+def fmt(x: float) -> str:
+    return f"{x:.3g}"

@@ -1,0 +1,135 @@
+"""The effect library: the registry of effects by name, and the conversion between fitted
+parameters and the model file's :class:`~ditherlab.model.EffectSpec`.
+
+Importing this module imports every family module, whose classes register themselves
+(:class:`ditherlab.effects.base.Effect`); :data:`EFFECTS` holds one instance of each, in the
+order diagnosis tries them (``Effect.order``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ditherlab.effects import friction, rigid, sensor, transmission  # noqa: F401 (registers)
+from ditherlab.effects.base import REGISTRY, Effect
+from ditherlab.errors import ModelError
+from ditherlab.model import EffectSpec
+
+__all__ = [
+    "EFFECTS",
+    "REF_KEYS",
+    "FitResult",
+    "clean_none",
+    "effect_names",
+    "get_effect",
+    "hyper_params",
+    "joint_params",
+    "make_spec",
+    "spec_params",
+]
+
+#: one instance of every effect, in the order diagnosis tries them
+EFFECTS: dict[str, Effect] = {
+    name: cls() for name, cls in sorted(REGISTRY.items(), key=lambda kv: (kv[1].order, kv[0]))
+}
+
+
+def effect_names() -> list[str]:
+    """The names of the effect library, in the order they are tried."""
+    return list(EFFECTS)
+
+
+def get_effect(name: str) -> Effect:
+    """The :class:`Effect` called ``name``; ModelError listing the names for an unknown one."""
+    if name not in EFFECTS:
+        raise ModelError(f"unknown effect {name!r}, expected one of: {', '.join(EFFECTS)}")
+    return EFFECTS[name]
+
+
+#: data-derived reference values stored with an effect's parameters
+REF_KEYS = ("load_ref", "friction_level", "x_ref")
+
+
+def spec_params(e: Effect, j: int, spec: EffectSpec) -> tuple[np.ndarray, Any, dict]:
+    """(w, h, ref) of joint j (0-based) from a model's EffectSpec."""
+    p = spec.params
+    if e.shared:
+        return e.weights(p), None, {}
+    k = spec.joints.index(j + 1)
+
+    def at(v: Any) -> Any:
+        return v[k] if isinstance(v, list) else v
+
+    w = np.array([at(p[c]) for c in e.linear], dtype=float)
+    if isinstance(e.hyper, tuple):
+        h: Any = tuple(at(p.get(name)) for name in e.hyper)
+    else:
+        h = at(p.get(e.hyper)) if e.hyper else None
+    ref = {key: at(p[key]) for key in REF_KEYS if key in p}
+    return w, h, ref
+
+
+def hyper_params(e: Effect, h: Any) -> dict[str, Any]:
+    """The searched parameter(s) ``h`` of effect ``e`` by name (plain Python numbers)."""
+    if not e.hyper:
+        return {}
+    if isinstance(e.hyper, tuple):
+        return {name: plain_h(v) for name, v in zip(e.hyper, h, strict=True)}
+    return {e.hyper: plain_h(h)}
+
+
+def joint_params(spec: EffectSpec, j: int) -> dict[str, Any]:
+    e = get_effect(spec.name)
+    if e.shared:
+        return dict(spec.params)
+    k = spec.joints.index(j + 1)
+    return {key: (v[k] if isinstance(v, list) else v) for key, v in spec.params.items()}
+
+
+@dataclass
+class FitResult:
+    """Fitted parameters of one effect on one joint (or all joints when shared)."""
+
+    w: np.ndarray
+    h: Any
+    ref: dict[str, Any]
+    loss: float
+
+
+def make_spec(e: Effect, fits: dict[int, FitResult]) -> EffectSpec:
+    """An EffectSpec from per-joint fits (0-based joint -> FitResult), lists per joint."""
+    if e.shared:
+        return EffectSpec(e.name, [], e.linear_params(fits[-1].w))
+    joints = sorted(fits)
+    params = {c: [float(fits[j].w[i]) for j in joints] for i, c in enumerate(e.linear)}
+    if e.hyper:
+        names = e.hyper if isinstance(e.hyper, tuple) else (e.hyper,)
+        for name in names:
+            params[name] = [hyper_params(e, fits[j].h)[name] for j in joints]
+    for key in REF_KEYS:
+        if any(key in fits[j].ref for j in joints):
+            vals = [fits[j].ref.get(key) for j in joints]
+            if all(v is not None for v in vals):
+                params[key] = [float(v) for v in vals]
+    return EffectSpec(e.name, [j + 1 for j in joints], params)
+
+
+def plain_h(h: Any) -> Any:
+    if h is None:
+        return None
+    if isinstance(h, int | np.integer):
+        return int(h)
+    return float(h)
+
+
+def clean_none(spec: EffectSpec) -> EffectSpec:
+    # TOML has no null: drop parameters that are all None (e.g. time_constant with a temp column)
+    p = {
+        k: v
+        for k, v in spec.params.items()
+        if not (v is None or (isinstance(v, list) and all(x is None for x in v)))
+    }
+    return EffectSpec(spec.name, spec.joints, p)

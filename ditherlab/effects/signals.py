@@ -1,0 +1,158 @@
+"""The arrays of one recording that effects are driven by, computed once per recording.
+
+``Signals(rec)`` sees the recording with its F/T sensor; ``Signals(rec, sensor=False)`` without
+it (the force estimator's view: a sensorless estimate must not read the sensor through a model
+effect). The robot quantities (gravity, Jacobian, mass matrix, regressors), the regimes and
+``ddq`` do not depend on the sensor and are shared between the two views of one recording.
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ditherlab.errors import ModelError, where_prefix
+from ditherlab.recording import MOVING, Recording, regimes
+from ditherlab.signal import jtf, smooth_wrench
+
+__all__ = ["Signals", "signals"]
+
+
+class Signals:
+    """Arrays of one recording that effects are driven by, computed once and cached.
+
+    Parameters
+    ----------
+    rec : Recording
+    sensor : see the F/T columns (when the recording has them); False hides them
+
+    Attributes (all time-first, SI)
+    -------------------------------
+    t : (N,) [s] ; ts : (N,) [s] time since the first sample
+    q, dq, ddq : (N, n) [rad, rad/s, rad/s²]; ``ddq`` is :attr:`ditherlab.recording.Recording.ddq`
+    tau : (N, n) [N·m] the logged torque ; temp : (N, n) [°C] or None
+    regime : (N, n) int8 (``STILL``, ``DITHER``, ``MOVING``)
+    gravity : (N, n) [N·m] ; jac : (N, 6, n) ; mass : (N, n, n) ; regressor : (N, n, 10)
+    has_wrench : the F/T columns are seen
+    """
+
+    def __init__(self, rec: Recording, sensor: bool = True, *, _shared: dict | None = None):
+        self.rec = rec
+        self.n = rec.n
+        self.t = rec.t
+        self.ts = self.t - self.t[0]
+        self.q = rec.q
+        self.dq = rec.dq
+        self.tau = rec.tau
+        self.temp = rec.temp
+        self.sample_rate = rec.sample_rate
+        self.has_wrench = bool(sensor) and rec.has_wrench
+        # quantities that do not depend on the sensor: shared by both views of a recording
+        self._shared: dict[str, Any] = {} if _shared is None else _shared
+        self._cache: dict[str, np.ndarray] = {}
+
+    def without_sensor(self) -> Signals:
+        """The same recording with its F/T columns hidden (robot quantities shared)."""
+        return Signals(self.rec, sensor=False, _shared=self._shared)
+
+    def _robot_get(self, key: str, make: Callable[[], Any]) -> Any:
+        if key not in self._shared:
+            self._shared[key] = make()
+        return self._shared[key]
+
+    def _get(self, key: str, make: Callable[[], np.ndarray]) -> np.ndarray:
+        if key not in self._cache:
+            self._cache[key] = make()
+        return self._cache[key]
+
+    @property
+    def regime(self) -> np.ndarray:
+        return self._robot_get("regime", lambda: regimes(self.rec))
+
+    @property
+    def moving(self) -> np.ndarray:
+        """(N, n) bool: the joint slides (regime MOVING)."""
+        return self.regime == MOVING
+
+    @property
+    def ddq(self) -> np.ndarray:
+        return self.rec.ddq
+
+    @property
+    def gravity(self) -> np.ndarray:
+        return self._robot_get("gravity", lambda: self.rec.robot().gravity(self.q))
+
+    @property
+    def jac(self) -> np.ndarray:
+        return self._robot_get("jac", lambda: self.rec.robot().jacobian(self.q))
+
+    @property
+    def mass(self) -> np.ndarray:
+        return self._robot_get("mass", lambda: self.rec.robot().mass_matrix(self.q))
+
+    @property
+    def regressor(self) -> np.ndarray:
+        return self._robot_get("regressor", lambda: self.rec.robot().gravity_regressor(self.q))
+
+    @property
+    def rigid_load(self) -> np.ndarray:
+        """(N, n) [N·m]: ``tau_grav + J^T F`` (F from the F/T columns when seen), plus
+        ``M(q) ddq`` where the joint moves: the torque the links ask of each gear."""
+
+        def make() -> np.ndarray:
+            L = self.gravity.copy()
+            if self.has_wrench:
+                L += self.jtf(self.rec.wrench)
+            Mddq = np.einsum("tjk,tk->tj", self.mass, self.ddq)
+            return L + np.where(self.moving, Mddq, 0.0)
+
+        return self._get("rigid_load", make)
+
+    @property
+    def torque_regressor(self) -> np.ndarray:
+        """(N, n, 10): :meth:`ditherlab.robot.RobotModel.torque_regressor` with ``dq`` and
+        ``ddq`` of joints that are not moving set to 0 (standing still: the gravity regressor)."""
+
+        def make() -> np.ndarray:
+            mv = self.moving
+            return self.rec.robot().torque_regressor(
+                self.q, np.where(mv, self.dq, 0.0), np.where(mv, self.ddq, 0.0)
+            )
+
+        return self._robot_get("torque_regressor", make)
+
+    def wrench(self, what: str) -> np.ndarray:
+        """The raw F/T columns (N, 6); ModelError naming the column when absent (or hidden)."""
+        if not self.has_wrench:
+            raise ModelError(
+                f"{where_prefix(self.rec.name)}effect {what!r} needs the F/T sensor column f_x "
+                "(f_x..m_z), which the recording lacks"
+            )
+        return self.rec.wrench
+
+    def wrench_lp(self, what: str) -> np.ndarray:
+        """The F/T columns low-passed (N, 6): :func:`ditherlab.signal.smooth_wrench`."""
+        w = self.wrench(what)
+        return self._get("wrench_lp", lambda: smooth_wrench(w, self.sample_rate))
+
+    def jtf(self, F: np.ndarray) -> np.ndarray:
+        """``J^T F`` : (N, n) [N·m] for a wrench F : (N, 6) (:func:`ditherlab.signal.jtf`)."""
+        return jtf(self.jac, F)
+
+
+_SIGNALS: weakref.WeakKeyDictionary[Recording, Signals] = weakref.WeakKeyDictionary()
+
+
+def signals(rec: Recording, sensor: bool = True) -> Signals:
+    """The cached :class:`Signals` of a recording (robot quantities computed once per recording,
+    shared by the views with and without the sensor)."""
+    s = _SIGNALS.get(rec)
+    if s is None:
+        s = Signals(rec)
+        _SIGNALS[rec] = s
+    if sensor or not rec.has_wrench:
+        return s
+    return s._robot_get("_no_sensor", s.without_sensor)

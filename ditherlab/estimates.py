@@ -1,0 +1,146 @@
+"""The estimates file: what ``ditherlab replay`` writes and ``report`` and ``view`` read.
+
+Parquet with ``t``, the sensor columns ``f_x..m_z`` and ``dither`` when present, and per variant
+V among :data:`VARIANTS`: ``V/f_x .. V/m_z`` (the estimate), ``V/f_x_lo .. V/m_z_lo`` and
+``V/f_x_hi .. V/m_z_hi`` (the interval), ``V/active`` (bitmask of the joints outside their
+band); dither variants add ``extract/upper_j``, ``extract/lower_j``, ``extract/signal_j`` [N·m]
+(the paper's extraction, written once by replay). Its key-value metadata ``ditherlab`` is JSON:
+``{"schema": "ditherlab.estimates/1", "recording": ..., "model": ..., "variants": [...],
+"interval": {"method": ..., "level": ...}, "components": [...], "moving_spans": ...}``.
+:class:`Estimates` reads, checks and writes it (atomically).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from ditherlab.errors import ConfigError, FormatError
+from ditherlab.io.atomic import atomic_path
+from ditherlab.recording import WRENCH_COLUMNS
+
+__all__ = ["COMPONENTS", "META_KEY", "SCHEMA", "VARIANTS", "Estimates"]
+
+SCHEMA = "ditherlab.estimates/1"
+META_KEY = b"ditherlab"
+#: the estimator variants, in file order
+VARIANTS = ("nodither_band", "nodither_noband", "dither_band", "dither_noband")
+#: the estimated wrench components
+COMPONENTS = WRENCH_COLUMNS
+
+
+@dataclass
+class Estimates:
+    """Estimator output per sample (see the module docstring for the columns).
+
+    Attributes
+    ----------
+    data : DataFrame, one row per sample
+    meta : dict with ``schema``, ``recording``, ``recording_name``, ``model``, ``variants``,
+        ``interval`` (``method``, ``level``), ``components``, and ``moving_spans`` (the time spans
+    in which some joint moved, [s], so that the report can tell rest from motion)
+    name : where it was read from (for messages)
+    """
+
+    data: pd.DataFrame
+    meta: dict[str, Any]
+    name: str | None = field(default=None)
+
+    @property
+    def variants(self) -> list[str]:
+        return list(self.meta.get("variants", []))
+
+    @property
+    def t(self) -> np.ndarray:
+        """(N,) [s]"""
+        return self.data["t"].to_numpy(dtype=float)
+
+    @property
+    def has_wrench(self) -> bool:
+        return "f_x" in self.data.columns
+
+    @property
+    def wrench(self) -> np.ndarray | None:
+        """F/T sensor wrench (N, 6) [N, N·m] or None."""
+        if not self.has_wrench:
+            return None
+        return self.data[list(COMPONENTS)].to_numpy(dtype=float)
+
+    @property
+    def dither(self) -> np.ndarray | None:
+        return self.data["dither"].to_numpy(dtype=bool) if "dither" in self.data.columns else None
+
+    def F(self, variant: str) -> np.ndarray:
+        """Estimated wrench of a variant, (N, 6) [N, N·m]."""
+        self._check_variant(variant)
+        return self.data[[f"{variant}/{c}" for c in COMPONENTS]].to_numpy(dtype=float)
+
+    def interval(self, variant: str) -> tuple[np.ndarray, np.ndarray]:
+        """Interval bounds ``(lo, hi)`` of a variant, each (N, 6) [N, N·m]."""
+        self._check_variant(variant)
+        lo = self.data[[f"{variant}/{c}_lo" for c in COMPONENTS]].to_numpy(dtype=float)
+        hi = self.data[[f"{variant}/{c}_hi" for c in COMPONENTS]].to_numpy(dtype=float)
+        return lo, hi
+
+    def active(self, variant: str) -> np.ndarray:
+        """Joints outside their band, (N, n) bool (decoded from the ``V/active`` bitmask)."""
+        self._check_variant(variant)
+        mask = self.data[f"{variant}/active"].to_numpy(dtype=np.int64)
+        n = int(self.meta.get("n_joints") or _n_from_meta(self.meta))
+        return ((mask[:, None] >> np.arange(n)) & 1).astype(bool)
+
+    def _check_variant(self, variant: str) -> None:
+        if variant not in self.variants:
+            raise ConfigError(
+                f"{self.name or 'estimates'}: variant {variant!r} is not in the file "
+                f"(it has {', '.join(self.variants) or 'none'})"
+            )
+
+    def save(self, path: str | Path) -> Path:
+        """Write the estimates as Parquet atomically (zstd; metadata JSON under ``ditherlab``)."""
+        table = pa.Table.from_pandas(self.data, preserve_index=False)
+        kv = dict(table.schema.metadata or {})
+        kv[META_KEY] = json.dumps(self.meta, sort_keys=True, allow_nan=True).encode("utf-8")
+        table = table.replace_schema_metadata(kv)
+        with atomic_path(path) as tmp:
+            pq.write_table(table, tmp, compression="zstd")
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Estimates:
+        """Read an estimates file; FormatError for anything that is not one."""
+        p = Path(path)
+        if not p.is_file():
+            raise FormatError(f"{p}: no such estimates file")
+        try:
+            table = pq.read_table(p)
+        except (pa.ArrowException, OSError) as exc:
+            raise FormatError(f"{p}: not a readable Parquet file ({exc})") from None
+        kv = table.schema.metadata or {}
+        if META_KEY not in kv:
+            raise FormatError(
+                f"{p}: key-value metadata 'ditherlab' is missing, expected an estimates file "
+                "written by `ditherlab replay`"
+            )
+        try:
+            meta = json.loads(kv[META_KEY].decode("utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise FormatError(f"{p}: metadata 'ditherlab' is not valid JSON ({exc})") from None
+        if meta.get("schema") != SCHEMA:
+            raise FormatError(
+                f"{p}: metadata key 'schema' is {meta.get('schema')!r}, expected {SCHEMA!r} "
+                "(a recording, not estimates? run `ditherlab replay` first)"
+            )
+        return cls(table.to_pandas(), meta, name=str(p))
+
+
+def _n_from_meta(meta: dict[str, Any]) -> int:
+    model = meta.get("model") or {}
+    return int(model.get("n_joints", 0))

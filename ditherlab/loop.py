@@ -1,0 +1,190 @@
+"""The diagnosis loop's workflow: add an effect to a model, re-fit, and the file-level commands.
+
+``identify --add NAME`` and the library call :func:`add_effect`: the joints are chosen by
+diagnosis (:func:`ditherlab.diagnose.select_joints`), the effect is fitted on the band-aware
+residual (:mod:`ditherlab.fit`), refused when the bands could take it
+(:func:`ditherlab.fit.identifiability`), and the bands re-identified with it in place
+(:func:`ditherlab.identify.identify`). This module sits above both identify and diagnose, so
+neither has to know the other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from ditherlab.diagnose import Diagnosis, append_history, diagnose, select_joints
+from ditherlab.effects import clean_none, get_effect, make_spec, signals
+from ditherlab.errors import ModelError
+from ditherlab.fit import MIN_IDENTIFIABILITY, fit_effect, identifiability, stack
+from ditherlab.identify import identify
+from ditherlab.io import read
+from ditherlab.io.atomic import check_not_input
+from ditherlab.model import TorqueModel
+from ditherlab.recording import Recording
+from ditherlab.residual import scored
+from ditherlab.viz.diagnosis import write_report
+
+__all__ = ["add_effect", "diagnose_files", "identify_files"]
+
+
+def add_effect(
+    model: TorqueModel,
+    recs: Sequence[Recording],
+    name: str,
+    joints: Sequence[int] | None = None,
+    *,
+    refit: bool = True,
+) -> TorqueModel:
+    """Fit one more effect on the current residual and return the new model (version + 1).
+
+    Parameters
+    ----------
+    model : TorqueModel
+    recs : recordings to fit on (with an F/T sensor for ``attenuation_lag`` and ``ft_bias``)
+    name : effect name (see :data:`EFFECTS`)
+    joints : 1-based joints for a per-joint effect; None chooses the joints where diagnosis finds
+        the effect (all joints when none passes the test)
+    refit : re-fit the bands and noise with :func:`ditherlab.identify.identify` afterwards
+        (recordings with an F/T sensor)
+
+    Returns
+    -------
+    TorqueModel with the effect appended (an existing one of the same name is replaced).
+
+    Raises
+    ------
+    ModelError
+        Unknown effect name, a joint out of range, or a column the effect needs is missing.
+    """
+    e = get_effect(name)
+    recs = list(recs)
+    if not recs:
+        raise ModelError("add_effect needs at least one recording")
+    for r in recs:
+        e.check(signals(r))
+    if joints is not None:
+        bad = [j for j in joints if not 1 <= int(j) <= model.n]
+        if bad:
+            raise ModelError(
+                f"effect {name!r}: joint {bad[0]} is out of range, expected 1..{model.n}"
+            )
+    base = model.copy()
+    base.effects = [s for s in base.effects if s.name != name]
+    sc = [scored(base, r) for r in recs]
+    if e.shared:
+        fits = {-1: fit_effect(e, sc, None)}
+    else:
+        if joints is None:
+            js = select_joints(base, recs, name, scored_recs=sc)
+        else:
+            js = [int(j) - 1 for j in joints]
+        fits = {j: fit_effect(e, sc, j) for j in js}
+    for j, f in fits.items():
+        st = stack(e, sc, None if j == -1 else j, f.h, f.ref)
+        if identifiability(st) < MIN_IDENTIFIABILITY:
+            where = "these recordings" if j == -1 else f"joint {j + 1} of these recordings"
+            raise ModelError(
+                f"effect {name!r} cannot be told apart from the bands in {where}: its torque "
+                f"barely changes within a regime ({e.driven_by}); record a varying pose, motion "
+                "or force"
+            )
+    spec = clean_none(make_spec(e, fits))
+    new = base.copy()
+    new.effects.append(spec)
+    new.version = model.version + 1
+    if refit:
+        new = _refit(new, recs)
+    return new
+
+
+def _refit(model: TorqueModel, recs: Sequence[Recording], n_boot: int = 20) -> TorqueModel:
+    """Re-fit bands and noise with the effects in place (identify), keeping version/history."""
+    if not all(r.has_wrench for r in recs):
+        return model
+    out = identify(list(recs), base=model, n_boot=n_boot)
+    out.effects = list(model.effects)
+    out.version = model.version
+    out.history = list(model.history)
+    return out
+
+
+def identify_files(
+    paths: Sequence[str | Path],
+    out: str | Path,
+    *,
+    base: str | Path | None = None,
+    add: Sequence[str] = (),
+    assume_no_force: bool = False,
+    n_boot: int = 30,
+    seed: int = 0,
+    read_options: dict | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> TorqueModel:
+    """Read recordings, :func:`~ditherlab.identify.identify`, add effects (:func:`add_effect`),
+    save.
+
+    Parameters
+    ----------
+    paths : recording files
+    out : model file to write (TOML, atomic; never one of the inputs)
+    base : a model file to start from
+    add : effect names to fit after the bands, in order
+    assume_no_force, n_boot, seed, progress : as in :func:`ditherlab.identify.identify`
+    read_options : options for :func:`ditherlab.io.read` (``mapping``, ``robot``)
+
+    Returns
+    -------
+    The written TorqueModel.
+    """
+    inputs = [Path(p) for p in paths] + ([Path(base)] if base is not None else [])
+    check_not_input(out, inputs)
+    recs = [read(p, **(read_options or {})) for p in paths]
+    base_model = TorqueModel.load(base) if base is not None else None
+    model = identify(
+        recs,
+        base=base_model,
+        assume_no_force=assume_no_force,
+        n_boot=n_boot,
+        seed=seed,
+        progress=progress,
+    )
+    if add:
+        for name in add:
+            model = add_effect(model, recs, name)
+    model.source = None
+    model.save(out)
+    return model
+
+
+def diagnose_files(
+    recordings: Sequence[str | Path],
+    model_path: str | Path,
+    *,
+    out_dir: str | Path | None = None,
+    read_options: dict[str, Any] | None = None,
+    history: bool = True,
+    regimes: Sequence[str] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Diagnosis:
+    """The ``ditherlab diagnose`` command: read, diagnose, append the history, write the report.
+
+    Parameters
+    ----------
+    recordings : recording files (any format :func:`ditherlab.io.read` knows)
+    model_path : the model TOML; its history gets one row (atomically) unless ``history=False``
+    out_dir : folder for ``report.md``, ``report.json`` and the PNG figures (optional)
+    read_options : passed to :func:`ditherlab.io.read` (``mapping``, ``robot``)
+    """
+    model = TorqueModel.load(model_path)
+    recs = [read(p, **(read_options or {})) for p in recordings]
+    if out_dir is not None:
+        for name in ("report.md", "report.json"):
+            check_not_input(Path(out_dir) / name, [*recordings, model_path])
+    d = diagnose(model, recs, regimes=regimes or None, progress=progress)
+    if history:
+        d.model = append_history(model_path, d.history_entry())
+    if out_dir is not None:
+        write_report(d, out_dir)
+    return d
