@@ -470,5 +470,3 @@ __all__ = [
     "identify",
     "summary",
 ]
-
-

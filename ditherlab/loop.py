@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from ditherlab.diagnose import Diagnosis, append_history, diagnose, select_joints
+from ditherlab.diagnose import Diagnosis, append_history, diagnose
 from ditherlab.effects import clean_none, get_effect, make_spec, signals
 from ditherlab.errors import ModelError
 from ditherlab.fit import MIN_IDENTIFIABILITY, fit_effect, identifiability, stack
@@ -24,6 +24,7 @@ from ditherlab.io.atomic import check_not_input
 from ditherlab.model import TorqueModel
 from ditherlab.recording import Recording
 from ditherlab.residual import scored
+from ditherlab.scoring import select_joints
 from ditherlab.viz.diagnosis import write_report
 
 __all__ = ["add_effect", "diagnose_files", "identify_files"]

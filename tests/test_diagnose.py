@@ -14,11 +14,11 @@ import pytest
 from test_effects import make_recording
 
 from ditherlab.diagnose import diagnose, noise_floor_sq, residual_summary
-from ditherlab.loop import add_effect
-from ditherlab.residual import scored
 from ditherlab.identify import identify
 from ditherlab.io import write
+from ditherlab.loop import add_effect
 from ditherlab.model import EffectSpec, TorqueModel
+from ditherlab.residual import scored
 
 #: hidden effect -> joints (1-based) where the synthetic plant has it
 HIDDEN = {

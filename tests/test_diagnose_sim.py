@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from ditherlab.diagnose import diagnose, residual_summary
+from ditherlab.identify import identify
 from ditherlab.loop import add_effect
 from ditherlab.residual import scored
-from ditherlab.identify import identify
 from ditherlab.sim import simulate
 
 #: scenario options: two pose blocks, three pushes in each pose and two during strokes (~65 s)

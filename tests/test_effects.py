@@ -24,12 +24,12 @@ from ditherlab.effects import (
     model_text,
     sensor_wrench,
 )
+from ditherlab.errors import ModelError
 from ditherlab.fit import _solve, fit_effect, solve_signed
 from ditherlab.loop import add_effect
-from ditherlab.residual import scored
-from ditherlab.errors import ModelError
 from ditherlab.model import Band, EffectSpec, TorqueModel
 from ditherlab.recording import Recording
+from ditherlab.residual import scored
 from ditherlab.robot import RobotModel
 
 FC = np.array([8.0, 7.5, 6.5, 2.0, 2.0, 1.2])
@@ -329,8 +329,8 @@ def test_stick_transitions_marks_breakaway_and_short_slips():
     """Of a motion out of and back into a stick, the first and last 0.2 s are marked; a short
     slip between two sticks (a pose giving way under a push) is marked whole; a velocity
     reversal inside a motion (two non-moving samples) is not a stick."""
-    from ditherlab.signal import stick_transitions
     from ditherlab.recording import MOVING, STILL
+    from ditherlab.signal import stick_transitions
 
     fs = 250.0
     reg = np.full((1000, 1), STILL, dtype=np.int8)

@@ -7,7 +7,6 @@ import pytest
 from scipy import integrate
 from synthetic import moving_recording, push_recording
 
-from ditherlab.errors import RecordingError
 from ditherlab.bandfit import (
     _nll_mix,
     band_noise_logpdf,
@@ -15,9 +14,10 @@ from ditherlab.bandfit import (
     fit_sliding,
     sigma_from_differences,
 )
+from ditherlab.errors import RecordingError
 from ditherlab.identify import friction_residual, identify
-from ditherlab.signal import causal_mean
 from ditherlab.model import PAPER_PRIOR_SIGMA, TorqueModel
+from ditherlab.signal import causal_mean
 
 
 @pytest.fixture(scope="module")

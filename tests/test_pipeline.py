@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ditherlab.demo import pipeline_text, run_pipeline
-from ditherlab.model import TorqueModel
 from ditherlab.estimates import Estimates
+from ditherlab.model import TorqueModel
 
 
 def test_pipeline_small_campaign(tmp_path):

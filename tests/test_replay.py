@@ -9,12 +9,12 @@ import pyarrow.parquet as pq
 import pytest
 from synthetic import BAND_HI, BAND_LO, SIGMA, push_recording
 
+from ditherlab.dither import dither_period, extract_dither, meta_dither_period
 from ditherlab.errors import ConfigError, ModelError
+from ditherlab.estimates import COMPONENTS, SCHEMA, Estimates
 from ditherlab.estimator import estimate
 from ditherlab.identify import identify
 from ditherlab.model import Band, TorqueModel
-from ditherlab.dither import dither_period, extract_dither, meta_dither_period
-from ditherlab.estimates import COMPONENTS, SCHEMA, Estimates
 from ditherlab.replay import available_variants, replay
 from ditherlab.signal import runs
 

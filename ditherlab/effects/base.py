@@ -20,10 +20,11 @@ from ditherlab.effects.signals import Signals
 from ditherlab.errors import ModelError
 from ditherlab.model import REGIMES
 
-__all__ = ["REGISTRY", "Design", "Effect", "fmt"]
+__all__ = ["EFFECTS", "Design", "Effect", "fmt"]
 
-#: every defined effect class by name (filled by :meth:`Effect.__init_subclass__`)
-REGISTRY: dict[str, type[Effect]] = {}
+#: one instance of every defined effect by name, in the order diagnosis tries them
+#: (``Effect.order``, then the name); filled by :meth:`Effect.__init_subclass__`
+EFFECTS: dict[str, Effect] = {}
 
 
 @dataclass(frozen=True)
@@ -72,9 +73,13 @@ class Effect(abc.ABC):
     def __init_subclass__(cls, **kw: Any) -> None:
         super().__init_subclass__(**kw)
         if cls.name:
-            if cls.name in REGISTRY and REGISTRY[cls.name] is not cls:
+            old = EFFECTS.get(cls.name)
+            if old is not None and type(old).__qualname__ != cls.__qualname__:
                 raise TypeError(f"two effects are called {cls.name!r}")
-            REGISTRY[cls.name] = cls
+            EFFECTS[cls.name] = cls()
+            ordered = sorted(EFFECTS.items(), key=lambda kv: (kv[1].order, kv[0]))
+            EFFECTS.clear()
+            EFFECTS.update(ordered)
 
     # -- to implement
     @abc.abstractmethod

@@ -17,6 +17,7 @@ from ditherlab.errors import ModelError, where_prefix
 
 __all__ = ["LoadFriction", "Stribeck", "TemperatureFriction", "Viscous"]
 
+
 class Viscous(Effect):
     name = "viscous"
     order = 1

@@ -3,7 +3,8 @@ parameters and the model file's :class:`~ditherlab.model.EffectSpec`.
 
 Importing this module imports every family module, whose classes register themselves
 (:class:`ditherlab.effects.base.Effect`); :data:`EFFECTS` holds one instance of each, in the
-order diagnosis tries them (``Effect.order``).
+order diagnosis tries them (``Effect.order``). An effect defined anywhere else (a user's module,
+a test) registers the same way and is tried by diagnosis from then on.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.effects import friction, rigid, sensor, transmission  # noqa: F401 (registers)
-from ditherlab.effects.base import REGISTRY, Effect
+from ditherlab.effects.base import EFFECTS, Effect
 from ditherlab.errors import ModelError
 from ditherlab.model import EffectSpec
 
@@ -30,11 +31,6 @@ __all__ = [
     "make_spec",
     "spec_params",
 ]
-
-#: one instance of every effect, in the order diagnosis tries them
-EFFECTS: dict[str, Effect] = {
-    name: cls() for name, cls in sorted(REGISTRY.items(), key=lambda kv: (kv[1].order, kv[0]))
-}
 
 
 def effect_names() -> list[str]:

@@ -1,5 +1,4 @@
-"""Rigid-body effects: an unmodelled payload, and the links' and motors' inertia.
-"""
+"""Rigid-body effects: an unmodelled payload, and the links' and motors' inertia."""
 
 from __future__ import annotations
 
@@ -8,6 +7,7 @@ import numpy as np
 from ditherlab.effects.base import Design, Effect, fmt
 
 __all__ = ["Inertia", "Payload"]
+
 
 class Payload(Effect):
     """An unmodelled mass at the tool: its gravity torque, and while moving its inertia and

@@ -15,6 +15,7 @@ from ditherlab.recording import WRENCH_COLUMNS
 
 __all__ = ["AttenuationLag", "FtBias"]
 
+
 class AttenuationLag(Effect):
     """The servo shows ``gain`` of the external torque, late: ``J^T F`` delayed by ``delay``
     samples (a transport delay: communication, a filter with a flat group delay) and passed

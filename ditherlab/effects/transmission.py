@@ -1,5 +1,4 @@
-"""Transmission effects: torque ripple periodic in the joint angle (gear teeth, cogging).
-"""
+"""Transmission effects: torque ripple periodic in the joint angle (gear teeth, cogging)."""
 
 from __future__ import annotations
 
@@ -11,6 +10,7 @@ from ditherlab.effects.base import Design, Effect, fmt
 from ditherlab.signal import tmm
 
 __all__ = ["PositionRipple"]
+
 
 class PositionRipple(Effect):
     name = "position_ripple"

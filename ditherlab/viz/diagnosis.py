@@ -8,10 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.diagnose import AXES, Candidate, Diagnosis, JointScore, nanmean
+from ditherlab.diagnose import AXES, Diagnosis, nanmean
 from ditherlab.effects import EFFECTS, Effect, hyper_params, model_text
 from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text
 from ditherlab.recording import MOVING
+from ditherlab.scoring import Candidate, JointScore
 from ditherlab.viz.figures import pyplot
 
 __all__ = ["write_report"]

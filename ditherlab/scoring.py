@@ -1,0 +1,398 @@
+"""Held-out scoring of candidate effects: which library effect the residual lacks, on which joints.
+
+Every library effect not yet in the model is fitted to the residual
+(band-aware least squares) and scored on held-out data with time-blocked folds (K contiguous
+blocks, a guard of ``guard`` seconds removed from the training side of each boundary so
+neighbouring samples cannot leak; nonlinear parameters are searched inside each training
+fold), and by BIC with an effective sample size (the number of scored samples outside the band
+divided by the integrated autocorrelation time of the fitted residual: samples at 250 Hz are
+not independent).
+
+**Decision rule.** An effect is suggested on joint j when all three hold: held-out explained
+fraction ``>= min_fraction`` (default 0.05), the held-out loss falls in at least ``K - 1`` of the
+``K`` folds, and ``ΔBIC <= -10`` (strong evidence on the Kass–Raftery scale). Shared-parameter
+effects (``payload``, ``ft_bias``) are tested once over all joints. Candidates are ranked by the
+share of the residual (all joints, in noise-floor units) they explain on held-out data.
+
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ditherlab.effects import (
+    EFFECTS,
+    Effect,
+    FitResult,
+    clean_none,
+    get_effect,
+    make_spec,
+    signals,
+)
+from ditherlab.errors import ModelError
+from ditherlab.fit import Stack, solve_signed, stack
+from ditherlab.model import TorqueModel
+from ditherlab.recording import Recording
+from ditherlab.residual import Scored, scored
+
+__all__ = [
+    "BIC_THRESHOLD",
+    "MIN_FRACTION",
+    "Candidate",
+    "JointScore",
+    "candidates",
+    "select_joints",
+]
+
+MIN_FRACTION = 0.05
+BIC_THRESHOLD = -10.0
+
+
+@dataclass
+class JointScore:
+    """Held-out and BIC evidence for one effect on one joint (or the shared fit, joint=None)."""
+
+    joint: int | None
+    loss0: float  # baseline held-out loss [floor units]
+    loss1: float  # held-out loss with the effect
+    folds_better: int
+    folds: int
+    delta_bic: float
+    n_eff: float
+    fit: FitResult
+
+    @property
+    def gain(self) -> float:
+        return self.loss0 - self.loss1
+
+    @property
+    def fraction(self) -> float:
+        return self.gain / self.loss0 if self.loss0 > 0 else 0.0
+
+    def passes(self, min_fraction: float) -> bool:
+        return (
+            self.fraction >= min_fraction
+            and self.folds_better >= self.folds - 1
+            and self.delta_bic <= BIC_THRESHOLD
+        )
+
+
+@dataclass
+class Candidate:
+    """One effect's evidence: joints (1-based) where it passes, held-out explained fraction."""
+
+    effect: str
+    joints: list[int]
+    explained_fraction: float
+    suggested: bool
+    scores: list[JointScore] = field(default_factory=list)
+    params: dict[str, Any] = field(default_factory=dict)
+    figure: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        e = EFFECTS[self.effect]
+        return {
+            "effect": self.effect,
+            "joints": self.joints,
+            "explained_fraction": round(float(self.explained_fraction), 6),
+            "suggested": self.suggested,
+            "physics": e.physics,
+            "driven_by": e.driven_by,
+            "per_joint": [
+                {
+                    "joint": s.joint + 1 if s.joint is not None else "all",
+                    "explained_fraction": round(float(s.fraction), 6),
+                    "folds_better": s.folds_better,
+                    "folds": s.folds,
+                    "delta_bic": round(float(s.delta_bic), 3),
+                    "n_eff": round(float(s.n_eff), 1),
+                }
+                for s in self.scores
+            ],
+            "params": self.params,
+            "figure": self.figure,
+            "text": self.text(),
+        }
+
+    def text(self) -> str:
+        e = EFFECTS[self.effect]
+        where = (
+            "all joints"
+            if not self.joints
+            else "joint"
+            + ("s " if len(self.joints) > 1 else " ")
+            + ", ".join(map(str, self.joints))
+        )
+        verdict = "suggested" if self.suggested else "not suggested"
+        return (
+            f"{self.effect} ({e.physics}; driven by {e.driven_by}) on {where}: explains "
+            f"{100 * self.explained_fraction:.1f} % of the residual on held-out data ({verdict})"
+        )
+
+
+def _tau_int(x: np.ndarray, max_lag: int = 1000) -> float:
+    """Integrated autocorrelation time of a series (>= 1), summed until the ACF drops < 0.05."""
+    x = np.asarray(x, dtype=float)
+    x = x - x.mean()
+    n = len(x)
+    if n < 10 or not np.any(x):
+        return 1.0
+    f = np.fft.rfft(x, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[: min(max_lag, n - 1) + 1]
+    ac = ac / ac[0]
+    s = 0.0
+    for k in range(1, len(ac)):
+        if ac[k] < 0.05:
+            break
+        s += ac[k]
+    return 1.0 + 2.0 * s
+
+
+def _folds(st: Stack, total: int, K: int, guard: int) -> list[tuple[np.ndarray, Callable]]:
+    """K contiguous time blocks: (test mask, train-mask function) per fold.
+
+    The block edges split the *informative* samples evenly (moving samples, where the band has
+    collapsed, and samples outside the band), not the time axis: a push campaign has all its
+    motion in the first seconds, and equal time blocks would put it all in one fold, leaving
+    nothing to train on when that fold is held out. Each block stays contiguous in time, and
+    ``guard`` samples on each side of it are removed from training.
+    """
+    info = (st.h == 0) | (np.abs(st.e) > st.h)
+    b = np.sort(st.block[info]) if info.any() else np.sort(st.block)
+    if len(b) >= K:
+        inner = [int(b[int(len(b) * k / K)]) for k in range(1, K)]
+    else:
+        inner = list(np.linspace(0, total, K + 1).astype(int)[1:-1])
+    edges = [0, *inner, total + 1]
+    out = []
+    for k in range(K):
+        lo, hi = int(edges[k]), int(edges[k + 1])
+        test = (st.block >= lo) & (st.block < hi)
+
+        def train(bl: np.ndarray, lo: int = lo, hi: int = hi) -> np.ndarray:
+            return (bl < lo - guard) | (bl >= hi + guard)
+
+        out.append((test, train))
+    return out
+
+
+def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: float) -> JointScore:
+    """Held-out and BIC evidence of effect e on joint j (None: shared fit over all joints)."""
+    sigs = [s.sig for s in scs]
+    ref = e.reference(sigs, j)
+    total = sum(len(s.e) for s in scs)
+    fs = scs[0].sig.rec.sample_rate
+    guard = int(round(guard_s * fs)) if np.isfinite(fs) else 0
+    grid = e.grid(sigs, j)
+    allowed: dict[int, set[int]] | None = None
+    if j is not None and len(grid) > 1:
+        st0 = stack(e, scs, j, grid[0], ref)
+        fl0 = _folds(st0, total, K, guard)
+        masks = [tr(st0.block) for _, tr in fl0] + [np.ones(len(st0.e), dtype=bool)]
+        lists = e.shortlist(scs, j, grid, masks)
+        allowed = {}
+        for k, lst in enumerate(lists):
+            for h in lst:
+                allowed.setdefault(grid.index(h), set()).add(k)
+        grid_idx = sorted(allowed)
+    else:
+        grid_idx = list(range(len(grid)))
+    folds = None
+    best_train = [math.inf] * K
+    test_l1 = [0.0] * K
+    full: FitResult | None = None
+    full_resid = None
+    base_st = None
+    for gi in grid_idx:
+        h = grid[gi]
+        st = stack(e, scs, j, h, ref)
+        sg = st.signs(e.signs(h))
+        if folds is None:
+            folds = _folds(st, total, K, guard)
+            base_st = st
+        for k, (test, train) in enumerate(folds):
+            if allowed is not None and k not in allowed[gi]:
+                continue
+            tr = train(st.block)
+            w, L = solve_signed(st.e[tr], st.h[tr], st.s[tr], st.C[tr], st.W[tr], st.o[tr], sg)
+            if L < best_train[k]:
+                best_train[k] = L
+                test_l1[k] = _loss(st, test, w)
+        if allowed is not None and K not in allowed[gi]:
+            continue
+        w, L = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg)
+        if full is None or L < full.loss:
+            full = FitResult(w[: st.k], h, ref, L)
+            x = st.e - st.o - st.C @ w
+            full_resid = np.sign(x) * np.maximum(np.abs(x) - st.h - st.W @ w, 0) / st.s
+    assert folds is not None and base_st is not None and full is not None
+    test_l0, L0, b0 = _baseline(base_st, folds)
+    L1 = full.loss
+    active = (b0 != 0) | (full_resid != 0)
+    n_act = int(active.sum())
+    tau = _tau_int(full_resid[active]) if n_act > 10 else 1.0
+    n_eff = max(n_act / tau, 1.0)
+    k_par = e.k + (len(e.hyper) if isinstance(e.hyper, tuple) else 1 if e.hyper else 0)
+    if L0 > 0 and L1 > 0:
+        dbic = n_eff * math.log(L1 / L0) + k_par * math.log(max(n_eff, 2.0))
+    else:
+        dbic = 0.0
+    better = sum(1 for a, b in zip(test_l0, test_l1, strict=True) if b < a)
+    return JointScore(j, sum(test_l0), sum(test_l1), better, K, dbic, n_eff, full)
+
+
+def _loss(st: Stack, m: np.ndarray, w: np.ndarray) -> float:
+    """Band-aware loss of the stacked samples ``m`` for the full parameter vector w."""
+    x = st.e[m] - st.o[m] - st.C[m] @ w
+    return float(np.sum((np.maximum(np.abs(x) - st.h[m] - st.W[m] @ w, 0) / st.s[m]) ** 2))
+
+
+def _baseline(st: Stack, folds: list) -> tuple[list[float], float, np.ndarray]:
+    """The effect-free model (intercepts only): held-out loss per fold, full loss, residual."""
+    k = st.k
+    zero = np.zeros(len(st.e))
+    Cn, Wn = st.C[:, k:], st.W[:, k:]
+    free = (0,) * Cn.shape[1]
+    out = []
+    for test, train in folds:
+        tr = train(st.block)
+        w, _ = solve_signed(st.e[tr], st.h[tr], st.s[tr], Cn[tr], Wn[tr], zero[tr], free)
+        x = st.e[test] - Cn[test] @ w
+        out.append(float(np.sum((np.maximum(np.abs(x) - st.h[test], 0) / st.s[test]) ** 2)))
+    w, L = solve_signed(st.e, st.h, st.s, Cn, Wn, zero, free)
+    x = st.e - Cn @ w
+    return out, L, np.sign(x) * np.maximum(np.abs(x) - st.h, 0) / st.s
+
+
+def _baseline_total(scs: Sequence[Scored], n: int, K: int, guard_s: float) -> float:
+    """Held-out loss of the effect-free model summed over all joints (the candidates' share
+    of the residual is measured against this)."""
+    e = EFFECTS["viscous"]  # any per-joint effect: only its intercept columns are used
+    total = sum(len(s.e) for s in scs)
+    fs = scs[0].sig.rec.sample_rate
+    guard = int(round(guard_s * fs)) if np.isfinite(fs) else 0
+    out = 0.0
+    for j in range(n):
+        st = stack(e, scs, j, None, {})
+        out += sum(_baseline(st, _folds(st, total, K, guard))[0])
+    return out
+
+
+def _evaluate(
+    model: TorqueModel,
+    scs: Sequence[Scored],
+    name: str,
+    K: int,
+    guard_s: float,
+    min_fraction: float,
+    total_loss: float,
+) -> Candidate:
+    e = get_effect(name)
+    if e.shared:
+        s = _score(e, scs, None, K, guard_s)
+        ok = s.passes(min_fraction)
+        # the shared fit covers every joint: its own held-out baseline is the whole residual
+        frac = s.fraction
+        spec = make_spec(e, {-1: s.fit})
+        return Candidate(
+            name, list(range(1, model.n + 1)) if ok else [], frac, ok, [s], spec.params
+        )
+    scores = [_score(e, scs, j, K, guard_s) for j in range(model.n)]
+    sel = [s for s in scores if s.passes(min_fraction)]
+    gain = sum(s.gain for s in sel) if sel else max((s.gain for s in scores), default=0.0)
+    frac = gain / total_loss if total_loss > 0 else 0.0
+    params: dict[str, Any] = {}
+    if sel:
+        params = clean_none(make_spec(e, {s.joint: s.fit for s in sel})).params
+    joints = [s.joint + 1 for s in sel] if sel else [max(scores, key=lambda s: s.gain).joint + 1]
+    return Candidate(name, joints, frac, bool(sel), scores, params)
+
+
+def _applicable(name: str, recs: Sequence[Recording]) -> str | None:
+    """Why an effect cannot be tried on these recordings (None when it can)."""
+    e = get_effect(name)
+    try:
+        for r in recs:
+            e.check(signals(r))
+    except ModelError as exc:
+        return str(exc)
+    return None
+
+
+def candidates(
+    model: TorqueModel,
+    recs: Sequence[Recording],
+    *,
+    effects: Sequence[str] | None = None,
+    folds: int = 5,
+    guard: float = 0.25,
+    min_fraction: float = MIN_FRACTION,
+    scored_recs: Sequence[Scored] | None = None,
+    max_samples: int = 4000,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[list[Candidate], dict[str, str]]:
+    """Fit and score every library effect not yet in the model; best first.
+
+    Parameters
+    ----------
+    model : TorqueModel
+    recs : recordings
+    effects : names to try (default: every library effect not in the model)
+    folds : number of time-blocked folds K
+    guard : [s] removed from the training side of every fold boundary
+    min_fraction : smallest held-out explained fraction that may be suggested
+    max_samples : longer recordings are scored on every k-th sample (k = ceil(N / max_samples))
+
+    Returns
+    -------
+    (candidates best first — suggested ones first, by explained fraction —, skipped: name -> why)
+    """
+    scs = list(scored_recs) if scored_recs is not None else [scored(model, r) for r in recs]
+    # every stride-th sample: neighbours at 250 Hz carry little new information, and the folds
+    # and guards stay in the original time index
+    n_all = sum(len(s.e) for s in scs)
+    stride = max(1, -(-n_all // max_samples))
+    if stride > 1:
+        scs = [_thin(s, stride) for s in scs]
+    have = set(model.effect_names())
+    names = [n for n in (effects or EFFECTS) if n not in have]
+    for n in names:
+        get_effect(n)
+    total = _baseline_total(scs, model.n, folds, guard)
+    out, skipped = [], {}
+    for i, n in enumerate(names):
+        why = _applicable(n, recs)
+        if why is not None:
+            skipped[n] = why
+        else:
+            out.append(_evaluate(model, scs, n, folds, guard, min_fraction, total))
+        if progress is not None:
+            progress(i + 1, len(names))
+    out.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
+    return out, skipped
+
+
+def _thin(sc: Scored, stride: int) -> Scored:
+    keep = (np.arange(len(sc.e)) % stride == 0)[:, None]
+    return Scored(
+        sc.sig, sc.e, sc.h, sc.sigma, sc.use & keep, sc.tau, sc.notes, sc.sigma_hf, sc.sliding
+    )
+
+
+def select_joints(
+    model: TorqueModel,
+    recs: Sequence[Recording],
+    name: str,
+    *,
+    scored_recs: Sequence[Scored] | None = None,
+) -> list[int]:
+    """0-based joints on which diagnosis finds effect ``name`` (the best joint when none passes)."""
+    cands, skipped = candidates(model, recs, effects=[name], scored_recs=scored_recs)
+    if name in skipped:
+        raise ModelError(skipped[name])
+    return [j - 1 for j in cands[0].joints]
