@@ -49,7 +49,7 @@ from ditherlab.effects.apply import (
     sensor_wrench,
     widening,
 )
-from ditherlab.effects.base import Design, Effect
+from ditherlab.effects.base import Design, Effect, fmt
 from ditherlab.effects.friction import LoadFriction, Stribeck, TemperatureFriction, Viscous
 from ditherlab.effects.library import (
     EFFECTS,
@@ -98,4 +98,5 @@ __all__ = [
     "signals",
     "spec_params",
     "widening",
+    "fmt",
 ]
