@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import zlib
 
 import numpy as np
@@ -9,6 +10,8 @@ import pytest
 
 from ditherlab import estimator as E
 from ditherlab.errors import ConfigError, ModelError
+from ditherlab.estimator.backends.exact import _solve_exact
+from ditherlab.estimator.intervals.set_membership import _set_membership
 
 PAPER_PRIOR = np.array([20.0, 20.0, 20.0, 0.3, 0.3, 0.3])
 REFERENCES = [b for b in ("proxsuite", "quadprog") if b in E.available_backends()]
@@ -220,8 +223,8 @@ def test_warm_start_does_not_change_the_answer():
     """Warm starting from the previous sample gives the same F as starting at the prior mean."""
     args, _ = random_problem(seed=14, N=300)
     prob = E.problem(**args)
-    F1, _ = E._solve_exact(prob, warm=True)
-    F2, _ = E._solve_exact(prob, warm=False)
+    F1, _ = _solve_exact(prob, warm=True)
+    F2, _ = _solve_exact(prob, warm=False)
     np.testing.assert_allclose(F1, F2, atol=1e-9, rtol=1e-11)
 
 
@@ -431,7 +434,7 @@ def test_set_membership_warm_start_matches_linprog_on_a_time_series(seed):
     args, _ = smooth_series(seed, N=100)
     lo, hi = E.intervals(**args, method="set_membership")
     prob = E.problem(**args)
-    assert (E._set_membership(prob, 0.95)[2] == 4).mean() > 0.5  # mostly the warm path
+    assert (_set_membership(prob, 0.95)[2] == 4).mean() > 0.5  # mostly the warm path
     rlo, rhi = E.set_membership_reference(prob)
     np.testing.assert_allclose(lo, rlo, rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(hi, rhi, rtol=1e-8, atol=1e-8)
@@ -450,7 +453,8 @@ def test_profile_on_a_time_series_matches_sample_by_sample():
 def test_progress_chunks_give_the_same_answer(monkeypatch):
     """With a progress callback the work runs in chunks, reports done/total, and gives the same F."""
     args, _ = smooth_series(3, N=300)
-    monkeypatch.setattr(E, "CHUNK", 64)
+    # the module, not the function problem() that ditherlab.estimator.problem names
+    monkeypatch.setattr(importlib.import_module("ditherlab.estimator.problem"), "CHUNK", 64)
     calls = []
     sol = E.estimate(**args, progress=lambda d, t: calls.append((d, t)))
     assert calls[-1] == (300, 300) and len(calls) == 5
