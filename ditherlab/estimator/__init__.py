@@ -68,6 +68,7 @@ from ditherlab.errors import ConfigError
 from ditherlab.estimator.backends import _available, available_backends
 from ditherlab.estimator.backends.qp import QP_OPTIONS, qp_matrices
 from ditherlab.estimator.intervals import INTERVAL_METHODS, intervals
+from ditherlab.estimator.intervals.gaussian import gaussian_profile_intervals
 from ditherlab.estimator.intervals.profile import UNOBSERVABLE
 from ditherlab.estimator.intervals.set_membership import (
     BIG_BOX,
@@ -97,6 +98,7 @@ __all__ = [
     "available_backends",
     "complete",
     "estimate",
+    "gaussian_profile_intervals",
     "interval_k",
     "intervals",
     "problem",
