@@ -1,7 +1,12 @@
-"""Tests of ditherlab.estimator: the exact solver against the reference QPs, KKT, intervals."""
+"""Tests of ditherlab.estimator: the exact solver against the reference QPs, KKT, intervals.
+
+Every test of a solution takes the ``estimate`` (or ``backend``) fixture, the shared factory that
+runs it once on each available backend: ``exact`` and the installed qpsolvers references.
+"""
 
 from __future__ import annotations
 
+import functools
 import zlib
 
 import numpy as np
@@ -9,9 +14,30 @@ import pytest
 
 from ditherlab import estimator as E
 from ditherlab.errors import ConfigError, ModelError
+from ditherlab.estimator import core as estimator_core
+from ditherlab.estimator.backends.exact import _solve_exact
+from ditherlab.estimator.intervals.set_membership import _set_membership
 
 PAPER_PRIOR = np.array([20.0, 20.0, 20.0, 0.3, 0.3, 0.3])
-REFERENCES = [b for b in ("proxsuite", "quadprog") if b in E.available_backends()]
+#: Every estimator backend usable here: ``exact`` and the installed qpsolvers references.
+BACKENDS = E.available_backends()
+REFERENCES = [b for b in BACKENDS if b != "exact"]
+#: Optimality each backend reaches: (largest Solution.kkt, largest |df/dF_i| relative to the data
+#: information). exact and quadprog (an active-set method) are exact to rounding (3e-16 / 7e-12
+#: measured on CASES); ProxQP stops at its tolerance (1.2e-10 / 7.7e-10 measured).
+OPTIMALITY = {"exact": (1e-12, 1e-9), "quadprog": (1e-12, 1e-9), "proxsuite": (1e-9, 5e-9)}
+
+
+@pytest.fixture(params=BACKENDS)
+def backend(request) -> str:
+    """The shared factory: a test that takes ``backend`` (or ``estimate``) runs on every backend."""
+    return request.param
+
+
+@pytest.fixture
+def estimate(backend):
+    """:func:`ditherlab.estimator.estimate` on the backend under test."""
+    return functools.partial(E.estimate, backend=backend)
 
 
 # ------------------------------------------------------------------------- problem factories
@@ -138,11 +164,12 @@ def test_exact_matches_reference_qp(case, backend):
 
 
 @pytest.mark.parametrize("case", CASES)
-def test_exact_satisfies_kkt(case):
-    """At the exact solution the gradient of the piecewise quadratic vanishes (KKT of eq. 3)."""
+def test_solution_satisfies_kkt(case, backend, estimate):
+    """At the solution the gradient of the piecewise quadratic vanishes (KKT of eq. 3)."""
+    kkt_tol, grad_tol = OPTIMALITY[backend]
     args = _case(case)
-    sol = E.estimate(**args)
-    assert sol.kkt.max() < 1e-12
+    sol = estimate(**args)
+    assert sol.kkt.max() < kkt_tol
     g = _gradient(args, sol.F)
     free = np.ones(6, bool)
     if "components" in args:
@@ -151,7 +178,7 @@ def test_exact_satisfies_kkt(case):
     # the ridge on prior-less components adds ~1e-12 relative; scale by the data information
     J, w = args["J"], 1.0 / np.broadcast_to(args["sigma"], args["tau_bar"].shape) ** 2
     info = np.einsum("kin,kn->ki", np.abs(J), w * (np.abs(args["tau_bar"]) + 1))
-    assert np.all(np.abs(g[:, free]) <= 1e-9 * (info[:, free] + 1)), np.abs(g[:, free]).max()
+    assert np.all(np.abs(g[:, free]) <= grad_tol * (info[:, free] + 1)), np.abs(g[:, free]).max()
     # tau_f is the residual clipped into the band, and active marks the joints outside it
     r = args["tau_bar"] - np.einsum("kin,ki->kn", J, sol.F)
     np.testing.assert_allclose(sol.tau_f, np.clip(r, args["tau_min"], args["tau_max"]))
@@ -165,10 +192,10 @@ def _near_edge(args, r):
     return (np.abs(r - lo) < 1e-9 * (1 + np.abs(r))) | (np.abs(r - hi) < 1e-9 * (1 + np.abs(r)))
 
 
-def test_exact_is_the_minimum_among_perturbations():
-    """No random perturbation of the exact F lowers the cost of eq. (3)."""
+def test_solution_is_the_minimum_among_perturbations(estimate):
+    """No random perturbation of the solution F lowers the cost of eq. (3)."""
     args, _ = random_problem(seed=11, N=200)
-    sol = E.estimate(**args)
+    sol = estimate(**args)
     rng = np.random.default_rng(0)
     for scale in (1e-3, 1e-1, 10.0):
         F2 = sol.F + rng.normal(size=sol.F.shape) * scale
@@ -176,43 +203,43 @@ def test_exact_is_the_minimum_among_perturbations():
     np.testing.assert_allclose(_cost(args, sol.F), sol.cost, rtol=1e-12)
 
 
-def test_held_components_stay_at_prior_mean():
+def test_held_components_stay_at_prior_mean(estimate):
     """Components not estimated (or with prior_sigma 0) are returned at the prior mean exactly."""
     args, _ = random_problem(seed=12)
     args["prior_mean"] = np.array([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
-    sol = E.estimate(**args, components=("f_x", "m_z"))
+    sol = estimate(**args, components=("f_x", "m_z"))
     np.testing.assert_array_equal(sol.F[:, 1:5], np.broadcast_to([2.0, 3.0, 0.1, 0.2], (40, 4)))
     assert np.all(sol.F[:, 0] != 1.0)
     args["prior_sigma"] = np.array([20.0, 20.0, 0.0, 0.3, 0.3, 0.3])
-    sol = E.estimate(**args)
+    sol = estimate(**args)
     np.testing.assert_array_equal(sol.F[:, 2], 3.0)
 
 
-def test_unobservable_component_without_prior_stays_at_mean():
+def test_unobservable_component_without_prior_stays_at_mean(estimate):
     """A component no joint sees and without prior is returned at its prior mean (ridge limit)."""
     args = _case("zero_component_row")
     args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, np.inf, 0.3])
     args["prior_mean"] = np.array([0.0, 0.0, 0.0, 0.0, 0.7, 0.0])
-    sol = E.estimate(**args)
+    sol = estimate(**args)
     np.testing.assert_allclose(sol.F[:, 4], 0.7, atol=1e-9)
 
 
-def test_inside_band_means_prior_estimate():
+def test_inside_band_means_prior_estimate(estimate):
     """When every residual stays inside its band the estimate is the prior mean and nothing is active."""
     args = _case("all_inside")
     args["prior_mean"] = np.array([0.5, -0.5, 0.2, 0.0, 0.01, 0.0])
-    sol = E.estimate(**args)
+    sol = estimate(**args)
     np.testing.assert_allclose(sol.F, np.broadcast_to(args["prior_mean"], sol.F.shape), atol=1e-12)
     assert not sol.active.any()
     np.testing.assert_allclose(sol.cost, 0.0, atol=1e-20)
 
 
-def test_noise_free_large_force_is_recovered():
+def test_noise_free_large_force_is_recovered(estimate):
     """With tiny noise, zero-width bands and no prior, the estimate is the true force."""
     args, F = random_problem(seed=13, band=(0.0, 0.0), noise=(1e-9, 1e-9))
     args["tau_min"] = args["tau_max"] = np.zeros(6)
     args["prior_sigma"] = np.full(6, np.inf)
-    sol = E.estimate(**args)
+    sol = estimate(**args)
     np.testing.assert_allclose(sol.F, F, atol=1e-6)
 
 
@@ -220,18 +247,24 @@ def test_warm_start_does_not_change_the_answer():
     """Warm starting from the previous sample gives the same F as starting at the prior mean."""
     args, _ = random_problem(seed=14, N=300)
     prob = E.problem(**args)
-    F1, _ = E._solve_exact(prob, warm=True)
-    F2, _ = E._solve_exact(prob, warm=False)
+    F1, _ = _solve_exact(prob, warm=True)
+    F2, _ = _solve_exact(prob, warm=False)
     np.testing.assert_allclose(F1, F2, atol=1e-9, rtol=1e-11)
 
 
-def test_problem_save_load_round_trip(tmp_path):
+def test_problem_save_load_round_trip(tmp_path, backend):
     """A saved Problem loads back identical and solves to the same F."""
     args, _ = random_problem(seed=15)
     prob = E.problem(**args)
     prob.save(tmp_path / "p.npz")
     back = E.Problem.load(tmp_path / "p.npz")
-    np.testing.assert_array_equal(E.solve(back).F, E.solve(prob).F)
+    for name in E.Problem.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(back, name), getattr(prob, name), err_msg=name)
+    F0, F1 = E.solve(prob, backend).F, E.solve(back, backend).F
+    if backend == "proxsuite":  # not bit-repeatable: ~1e-14 N from run to run on the same input
+        np.testing.assert_allclose(F1, F0, rtol=1e-12, atol=1e-12)
+    else:
+        np.testing.assert_array_equal(F1, F0)
 
 
 @pytest.mark.parametrize(
@@ -245,12 +278,12 @@ def test_problem_save_load_round_trip(tmp_path):
         (dict(prior_sigma=-np.ones(6)), ModelError, "expected 6 values >= 0"),
     ],
 )
-def test_bad_input_raises_clear_error(change, exc, text):
+def test_bad_input_raises_clear_error(change, exc, text, estimate):
     """Bad shapes, inverted bands and non-positive noise raise one clear DitherlabError."""
     args, _ = random_problem(seed=16)
     args.update(change)
     with pytest.raises(exc, match=None) as info:
-        E.estimate(**args)
+        estimate(**args)
     assert text in str(info.value)
 
 
@@ -260,6 +293,7 @@ def test_unknown_backend_lists_installed():
     with pytest.raises(ConfigError) as info:
         E.estimate(**args, backend="gurobi")
     assert "backend 'gurobi' is not available; installed: exact" in str(info.value)
+    assert f"installed: {', '.join(BACKENDS)} (" in str(info.value)
 
 
 # ----------------------------------------------------------------------------- intervals
@@ -310,8 +344,13 @@ def test_set_membership_matches_linprog(case):
 
 
 @pytest.mark.parametrize("case", CASES)
-def test_profile_endpoints_are_at_the_threshold(case):
-    """At both ends of the profile interval the profiled cost is exactly min cost + chi2_1(0.95)."""
+def test_profile_endpoints_are_at_the_threshold(case, backend, estimate, request):
+    """At both ends of the profile interval the profiled cost is exactly min cost + chi2_1(0.95)
+    (the profiled cost evaluated by every backend)."""
+    if backend == "proxsuite" and case == "no_prior_on_forces":
+        # one component held at the endpoint beside prior-less forces (ridge scale ~5e7 in the
+        # QP's variables): ProxQP at eps_abs = 1e-14 stops at max_iter on every such sample
+        request.applymarker(pytest.mark.xfail(raises=ConfigError, strict=True))
     args = _case(case)
     sol = E.estimate(**args)
     lo, hi = E.intervals(**args, F_hat=sol.F, method="profile")
@@ -335,7 +374,7 @@ def test_profile_endpoints_are_at_the_threshold(case):
                 s1["prior_mean"][i] = end[k, i]
                 s1["prior_sigma"] = ps.copy()
                 s1["prior_sigma"][i] = 0.0
-                c = E.estimate(**s1).cost[0]
+                c = estimate(**s1).cost[0]
                 if np.isfinite(ps[i]) and ps[i] > 0:
                     c += (end[k, i] - args["prior_mean"][i]) ** 2 / ps[i] ** 2
                 costs.append(c)
@@ -377,6 +416,49 @@ def test_gaussian_profile_interval_is_the_posterior_interval():
     sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
     np.testing.assert_allclose(hi - sol.F, 1.959963984540054 * sd, rtol=1e-8)
     np.testing.assert_allclose(sol.F - lo, 1.959963984540054 * sd, rtol=1e-8)
+
+
+#: Positional order of the estimator's arguments (gaussian_profile_intervals takes them so).
+ARGS = ("tau_bar", "J", "tau_min", "tau_max", "sigma", "prior_mean", "prior_sigma")
+
+
+@pytest.mark.parametrize("components", [None, ("f_x", "f_z", "m_y")])
+def test_gaussian_intervals_are_the_closed_form_profile(components, estimate):
+    """With zero-width bands the closed form is F_hat +- z sqrt((J W J^T + R_F^-1)^-1)_ii over the
+    estimated components (held ones at the prior mean), and equals the general profile search."""
+    args, _ = model_data(25, N=60, zero_band=True)
+    sol = estimate(**args, components=components)
+    lo, hi = E.gaussian_profile_intervals(
+        *(args[k] for k in ARGS), F_hat=sol.F, level=0.9, components=components
+    )
+    free = np.isin(E.COMPONENTS, components or E.COMPONENTS)
+    Jf = args["J"][:, free]
+    W = 1.0 / args["sigma"] ** 2
+    H = np.einsum("kin,n,kjn->kij", Jf, W, Jf) + np.diag(1 / PAPER_PRIOR[free] ** 2)
+    sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
+    z = 1.6448536269514722  # sqrt(chi2_1(0.9)) = Phi^-1(0.95)
+    np.testing.assert_allclose(hi[:, free] - sol.F[:, free], z * sd, rtol=1e-9)
+    np.testing.assert_allclose(sol.F[:, free] - lo[:, free], z * sd, rtol=1e-9)
+    held = np.broadcast_to(args["prior_mean"][~free], (60, int((~free).sum())))
+    np.testing.assert_array_equal(lo[:, ~free], held)
+    np.testing.assert_array_equal(hi[:, ~free], held)
+    glo, ghi = E.intervals(**args, F_hat=sol.F, method="profile", level=0.9, components=components)
+    np.testing.assert_allclose(lo, glo, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(hi, ghi, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("change", ["band", "no_prior"])
+def test_gaussian_intervals_fall_back_to_the_profile_search(change):
+    """A band with width, or an estimated component without prior, leaves the closed form: the
+    result is the general profile search's, bit for bit."""
+    args, _ = model_data(26, N=40, zero_band=change == "no_prior")
+    if change == "no_prior":
+        args["prior_sigma"] = np.array([np.inf, 20.0, 20.0, 0.3, 0.3, 0.3])
+    sol = E.estimate(**args)
+    got = E.gaussian_profile_intervals(*(args[k] for k in ARGS), F_hat=sol.F, level=0.9)
+    ref = E.intervals(**args, F_hat=sol.F, method="profile", level=0.9)
+    np.testing.assert_array_equal(got[0], ref[0])
+    np.testing.assert_array_equal(got[1], ref[1])
 
 
 @pytest.mark.parametrize(("zero_band", "method"), [(True, "profile"), (False, "profile"),
@@ -431,7 +513,7 @@ def test_set_membership_warm_start_matches_linprog_on_a_time_series(seed):
     args, _ = smooth_series(seed, N=100)
     lo, hi = E.intervals(**args, method="set_membership")
     prob = E.problem(**args)
-    assert (E._set_membership(prob, 0.95)[2] == 4).mean() > 0.5  # mostly the warm path
+    assert (_set_membership(prob, 0.95)[2] == 4).mean() > 0.5  # mostly the warm path
     rlo, rhi = E.set_membership_reference(prob)
     np.testing.assert_allclose(lo, rlo, rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(hi, rhi, rtol=1e-8, atol=1e-8)
@@ -447,18 +529,31 @@ def test_profile_on_a_time_series_matches_sample_by_sample():
         np.testing.assert_allclose(hi1[0], hi[k], rtol=1e-9, atol=1e-9)
 
 
-def test_progress_chunks_give_the_same_answer(monkeypatch):
-    """With a progress callback the work runs in chunks, reports done/total, and gives the same F."""
+def _small_chunks(monkeypatch):
+    monkeypatch.setattr(estimator_core, "CHUNK", 64)
+
+
+def test_progress_chunks_give_the_same_answer(monkeypatch, backend, estimate):
+    """With a progress callback the work runs in chunks (exact; the references report every 1000
+    samples and at the end), reports done/total, and gives the same F."""
     args, _ = smooth_series(3, N=300)
-    monkeypatch.setattr(E, "CHUNK", 64)
+    _small_chunks(monkeypatch)
     calls = []
-    sol = E.estimate(**args, progress=lambda d, t: calls.append((d, t)))
-    assert calls[-1] == (300, 300) and len(calls) == 5
-    np.testing.assert_allclose(sol.F, E.estimate(**args).F, rtol=1e-10, atol=1e-10)
+    sol = estimate(**args, progress=lambda d, t: calls.append((d, t)))
+    assert calls[-1] == (300, 300) and len(calls) == (5 if backend == "exact" else 1)
+    np.testing.assert_allclose(sol.F, estimate(**args).F, rtol=1e-10, atol=1e-10)
+
+
+def test_interval_progress_chunks_give_the_same_answer(monkeypatch):
+    """With a progress callback the intervals run in chunks, report done/total, and give the same
+    bounds."""
+    args, _ = smooth_series(3, N=300)
+    _small_chunks(monkeypatch)
+    calls = []
     for method in E.INTERVAL_METHODS:
         calls.clear()
         lo, hi = E.intervals(**args, method=method, progress=lambda d, t: calls.append((d, t)))
-        assert calls[-1] == (300, 300)
+        assert calls[-1] == (300, 300) and len(calls) == 5
         lo0, hi0 = E.intervals(**args, method=method)
         np.testing.assert_allclose(lo, lo0, rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(hi, hi0, rtol=1e-9, atol=1e-9)

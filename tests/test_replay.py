@@ -261,8 +261,8 @@ def test_cli_replay_and_bad_inputs(tmp_path, cli, recs, model):
 def test_closed_form_noband_intervals_match_general_profile(recs, model):
     """The closed-form intervals of the no-band variants equal the estimator's general profile
     search to 1e-6 N, for all six components and for a subset."""
-    from ditherlab.estimator import intervals
-    from ditherlab.replay import band_as_noise, gaussian_profile_intervals
+    from ditherlab.estimator import gaussian_profile_intervals, intervals
+    from ditherlab.replay import band_as_noise
 
     dith = recs[1].slice(0, 30.0)
     r = dith.robot()

@@ -1,0 +1,31 @@
+"""The estimator backends: ``exact`` (:mod:`.exact`) and the qpsolvers references (:mod:`.qp`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ditherlab.estimator.backends.exact import _solve_exact
+from ditherlab.estimator.backends.qp import QP_OPTIONS, _solve_reference
+
+
+def _available() -> dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]]:
+    out: dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
+        "exact": lambda prob, progress=None: _solve_exact(prob, progress=progress)
+    }
+    try:
+        import qpsolvers
+    except ImportError:  # pragma: no cover - qpsolvers is a dependency
+        return out
+    for name, (solver, _) in QP_OPTIONS.items():
+        if solver in qpsolvers.available_solvers:
+            out[name] = lambda prob, progress=None, name=name: _solve_reference(
+                prob, name, progress
+            )
+    return out
+
+
+def available_backends() -> list[str]:
+    """Names of the estimator backends usable here (``exact`` always)."""
+    return list(_available())
