@@ -167,22 +167,94 @@ def identify(
     n = first.n
     if base is not None:
         base.check_robot(first)
-    model_for_effects = base
-    # residuals per regime, concatenated over recordings; blocks labelled per recording
-    # residual samples per (regime, joint), concatenated over recordings, with a label per
-    # contiguous run inside a time block (bootstrap unit; differences never cross labels)
-    xs: dict[tuple[int, int], list[np.ndarray]] = {}
-    labels: dict[tuple[int, int], list[np.ndarray]] = {}
-    dqs: dict[tuple[int, int], list[np.ndarray]] = {}
-    slides: dict[tuple[int, int], list[np.ndarray]] = {}
-    lags: dict[int, int] = {STILL: 1, MOVING: 1, DITHER: 1}
-    amps: dict[int, list[np.ndarray]] = {}
+    samples = _Samples(n)
     steps = len(recs) + 3 * n
     done = 0
-    label_offset = 0
     for rec in recs:
+        samples.add(rec, base, assume_no_force=assume_no_force, block=block, max_accel=max_accel)
+        done += 1
+        if progress:
+            progress(done, steps)
+
+    fits: dict[tuple[int, int], dict[str, tuple[float, float]]] = {}
+    for code in (STILL, DITHER, MOVING):
+        for j in range(n):
+            f = samples.fit(code, j, min_samples=min_samples, n_boot=n_boot, seed=seed)
+            if f is not None:
+                fits[(code, j)] = f
+            done += 1
+            if progress:
+                progress(done, steps)
+    if not fits:
+        raise RecordingError(
+            f"{first.name or 'recording'}: no joint has {min_samples} samples in any regime "
+            "(still, dither, moving); record longer"
+        )
+    out_regimes: dict[str, Band] = dict(base.regimes) if base is not None else {}
+    for code in (STILL, DITHER, MOVING):
+        band = _assemble(code, n, fits, out_regimes.get(code.label))
+        if band is not None:
+            out_regimes[code.label] = band
+    capped = _cap_moving(out_regimes, fits)
+    widened = _coulomb_floor(out_regimes, fits)
+    amp = None
+    if (
+        dither_band == "shrunk"
+        and "dither" in out_regimes
+        and "still" in out_regimes
+        and samples.amps
+    ):
+        out_regimes["dither"], amp = _shrunk_dither_band(
+            out_regimes["still"], out_regimes["dither"], samples.amps
+        )
+    notes = _notes(
+        recs, assume_no_force, n_boot, block, seed, amp, bool(samples.amps), capped, widened
+    )
+    return TorqueModel(
+        robot=first.meta["robot"],
+        n=n,
+        regimes=out_regimes,
+        prior_mean=base.prior_mean if base is not None else np.zeros(6),
+        prior_sigma=base.prior_sigma if base is not None else np.array(PAPER_PRIOR_SIGMA),
+        effects=list(base.effects) if base is not None else [],
+        history=list(base.history) if base is not None else [],
+        version=base.version if base is not None else 1,
+        tool_offset=first.meta.get("tool_offset"),
+        payload=first.meta.get("payload"),
+        notes=notes,
+    )
+
+
+class _Samples:
+    """The friction residual's samples per (regime, joint), concatenated over recordings.
+
+    Each sample carries a label: its contiguous run inside a time block of its recording (the
+    bootstrap unit; lagged differences never cross labels), its ``dq``, and whether it is on the
+    sliding line (moving, not a break-away transient, slip or velocity reversal).
+    """
+
+    def __init__(self, n: int):
+        self.n = n
+        self.xs: dict[tuple[int, int], list[np.ndarray]] = {}
+        self.labels: dict[tuple[int, int], list[np.ndarray]] = {}
+        self.dqs: dict[tuple[int, int], list[np.ndarray]] = {}
+        self.slides: dict[tuple[int, int], list[np.ndarray]] = {}
+        self.lags: dict[int, int] = {STILL: 1, MOVING: 1, DITHER: 1}
+        self.amps: dict[int, list[np.ndarray]] = {}
+        self.label_offset = 0
+
+    def add(
+        self,
+        rec: Recording,
+        model: TorqueModel | None,
+        *,
+        assume_no_force: bool,
+        block: float,
+        max_accel: float,
+    ) -> None:
+        """Add one recording's residual samples of every regime (see :func:`identify`)."""
         reg = regimes(rec)
-        rho = friction_residual(rec, model_for_effects, assume_no_force=assume_no_force)
+        rho = friction_residual(rec, model, assume_no_force=assume_no_force)
         t = rec.t
         blk = ((t - t[0]) // block).astype(np.int64)
         dq = rec.dq
@@ -197,82 +269,88 @@ def identify(
         slide = ~stick_transitions(reg, rec.sample_rate) & (np.abs(dq) >= REVERSAL_V)
         sources = [(STILL, rho, reg == STILL), (MOVING, rho, (reg == MOVING) & slow)]
         if (reg == DITHER).any():
-            sig = extract_dither(rec)
-            if sig is not None:
-                # the extracted signal replaces the raw torque; keep samples whose one-period
-                # window lies wholly in the dither
-                # the extracted signal is (for the slow part) a one-period running mean: compare
-                # it with the model torque passed through the same window, so that the
-                # extraction's delay does not count as friction
-                model_tau = rec.tau - rho
-                w = max(int(round(sig.period * rec.sample_rate)), 1)
-                rho_d = sig.signal - causal_mean(model_tau, w)
-                dmask = (reg == DITHER) & sig.valid[:, None]
-                sources.append((DITHER, rho_d, dmask))
-                for j in range(n):
-                    if dmask[:, j].any():
-                        amps.setdefault(j, []).append(sig.amplitude[dmask[:, j], j])
-                lags[DITHER] = max(lags[DITHER], int(round(sig.period * rec.sample_rate)))
+            dith = self._dither_source(rec, rho, reg)
+            if dith is not None:
+                sources.append(dith)
         for code, r, mask in sources:
-            for j in range(n):
+            for j in range(self.n):
                 m = mask[:, j]
                 if not m.any():
                     continue
                 run = np.cumsum(np.r_[True, m[1:] != m[:-1]])
-                lab = label_offset + run * (int(blk.max()) + 1) + blk
-                xs.setdefault((code, j), []).append(r[m, j])
-                labels.setdefault((code, j), []).append(lab[m])
-                dqs.setdefault((code, j), []).append(dq[m, j])
-                slides.setdefault((code, j), []).append(slide[m, j])
-        label_offset += (len(t) + 1) * (int(blk.max()) + 1) + 1
-        done += 1
-        if progress:
-            progress(done, steps)
+                lab = self.label_offset + run * (int(blk.max()) + 1) + blk
+                self.xs.setdefault((code, j), []).append(r[m, j])
+                self.labels.setdefault((code, j), []).append(lab[m])
+                self.dqs.setdefault((code, j), []).append(dq[m, j])
+                self.slides.setdefault((code, j), []).append(slide[m, j])
+        self.label_offset += (len(t) + 1) * (int(blk.max()) + 1) + 1
 
-    fits: dict[tuple[int, int], dict[str, tuple[float, float]]] = {}
-    for code in (STILL, DITHER, MOVING):
-        for j in range(n):
-            key = (code, j)
-            if key in xs and sum(len(v) for v in xs[key]) >= min_samples:
-                x = np.concatenate(xs[key])
-                bl = np.unique(np.concatenate(labels[key]), return_inverse=True)[1]
-                jseed = seed * 1000 + code * 100 + j
-                f: dict[str, tuple[float, float]] = {}
-                if code == MOVING:
-                    d = np.concatenate(dqs[key])
-                    fc, fv, fit, se_c, se_v = fit_sliding(
-                        x,
-                        d,
-                        blocks=bl,
-                        n_boot=n_boot,
-                        seed=jseed,
-                        band_rows=np.concatenate(slides[key]),
-                    )
-                    f["coulomb"], f["viscous"] = (fc, se_c), (fv, se_v)
-                else:
-                    fit = fit_band(x, lag=lags[code], blocks=bl, n_boot=n_boot, seed=jseed)
-                f["tau_min"], f["tau_max"] = (fit.a, fit.se_a), (fit.b, fit.se_b)
-                f["sigma"] = (fit.sigma, fit.se_sigma)
-                fits[key] = f
-            done += 1
-            if progress:
-                progress(done, steps)
-    if not fits:
-        raise RecordingError(
-            f"{first.name or 'recording'}: no joint has {min_samples} samples in any regime "
-            "(still, dither, moving); record longer"
-        )
-    out_regimes: dict[str, Band] = dict(base.regimes) if base is not None else {}
-    for code, name in ((STILL, "still"), (DITHER, "dither"), (MOVING, "moving")):
-        band = _assemble(code, n, fits, out_regimes.get(name))
-        if band is not None:
-            out_regimes[name] = band
-    capped = _cap_moving(out_regimes, fits)
-    widened = _coulomb_floor(out_regimes, fits)
-    if dither_band == "shrunk" and "dither" in out_regimes and "still" in out_regimes and amps:
-        out_regimes["dither"], amp = _shrunk_dither_band(
-            out_regimes["still"], out_regimes["dither"], amps
-        )
+    def _dither_source(
+        self, rec: Recording, rho: np.ndarray, reg: np.ndarray
+    ) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """The dither regime's residual from the extracted signal (paper §IV-A), or None.
+
+        The extracted signal replaces the raw torque, on samples whose one-period window lies
+        wholly in the dither. It is (for the slow part) a one-period running mean: it is compared
+        with the model torque passed through the same window, so that the extraction's delay
+        does not count as friction. Records the dither amplitude per joint and the lag of the
+        noise estimate (one period).
+        """
+        sig = extract_dither(rec)
+        if sig is None:
+            return None
+        model_tau = rec.tau - rho
+        w = max(int(round(sig.period * rec.sample_rate)), 1)
+        rho_d = sig.signal - causal_mean(model_tau, w)
+        dmask = (reg == DITHER) & sig.valid[:, None]
+        for j in range(self.n):
+            if dmask[:, j].any():
+                self.amps.setdefault(j, []).append(sig.amplitude[dmask[:, j], j])
+        self.lags[DITHER] = max(self.lags[DITHER], int(round(sig.period * rec.sample_rate)))
+        return DITHER, rho_d, dmask
+
+    def fit(
+        self, code: int, j: int, *, min_samples: int, n_boot: int, seed: int
+    ) -> dict[str, tuple[float, float]] | None:
+        """(value, standard error) per parameter of one joint-regime, or None (too few samples)."""
+        key = (code, j)
+        if key not in self.xs or sum(len(v) for v in self.xs[key]) < min_samples:
+            return None
+        x = np.concatenate(self.xs[key])
+        bl = np.unique(np.concatenate(self.labels[key]), return_inverse=True)[1]
+        jseed = seed * 1000 + code * 100 + j
+        f: dict[str, tuple[float, float]] = {}
+        if code == MOVING:
+            d = np.concatenate(self.dqs[key])
+            fc, fv, fit, se_c, se_v = fit_sliding(
+                x,
+                d,
+                blocks=bl,
+                n_boot=n_boot,
+                seed=jseed,
+                band_rows=np.concatenate(self.slides[key]),
+            )
+            f["coulomb"], f["viscous"] = (fc, se_c), (fv, se_v)
+        else:
+            fit = fit_band(x, lag=self.lags[code], blocks=bl, n_boot=n_boot, seed=jseed)
+        f["tau_min"], f["tau_max"] = (fit.a, fit.se_a), (fit.b, fit.se_b)
+        f["sigma"] = (fit.sigma, fit.se_sigma)
+        return f
+
+
+def _notes(
+    recs: Sequence[Recording],
+    assume_no_force: bool,
+    n_boot: int,
+    block: float,
+    seed: int,
+    amp: np.ndarray | None,
+    dithered: bool,
+    capped: list[int],
+    widened: list[int],
+) -> str:
+    """The model file's ``notes``: what it was identified from and every rule applied."""
+    if amp is not None:
         dither_note = (
             "; dither band = still band shrunk by the measured dither amplitude "
             + "["
@@ -280,11 +358,8 @@ def identify(
             + "] N·m (paper Fig. 4)"
         )
     else:
-        dither_note = "; dither band fitted on the extracted signal" if amps else ""
-    history = list(base.history) if base is not None else []
-    prior_mean = base.prior_mean if base is not None else np.zeros(6)
-    prior_sigma = base.prior_sigma if base is not None else np.array(PAPER_PRIOR_SIGMA)
-    notes = (
+        dither_note = "; dither band fitted on the extracted signal" if dithered else ""
+    return (
         "identified by ditherlab identify from "
         + ", ".join(r.name or "<memory>" for r in recs)
         + (" assuming no external force (no F/T sensor)" if assume_no_force else "")
@@ -304,20 +379,6 @@ def identify(
             else ""
         )
     )
-    model = TorqueModel(
-        robot=first.meta["robot"],
-        n=n,
-        regimes=out_regimes,
-        prior_mean=prior_mean,
-        prior_sigma=prior_sigma,
-        effects=list(base.effects) if base is not None else [],
-        history=history,
-        version=base.version if base is not None else 1,
-        tool_offset=first.meta.get("tool_offset"),
-        payload=first.meta.get("payload"),
-        notes=notes,
-    )
-    return model
 
 
 def _cap_moving(regs: dict[str, Band], fits: dict) -> list[int]:
