@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ditherlab.dither import Extraction, dithered_band, extract_dither
 from ditherlab.dither import band_as_noise as band_variance_as_noise
-from ditherlab.dither import dithered_band, extract_dither
 from ditherlab.effects import effects_torque
 from ditherlab.errors import ConfigError
 from ditherlab.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates
@@ -151,24 +151,7 @@ def replay(
     model.check_robot(rec)
     model.validate()
     comps = parse_components(components)
-    if interval not in INTERVAL_METHODS:
-        raise ConfigError(
-            f"interval method {interval!r} is unknown; expected one of {', '.join(INTERVAL_METHODS)}"
-        )
-    if not 0.0 < float(level) < 1.0:
-        raise ConfigError(f"interval level is {level!r}, expected a number between 0 and 1")
-    allowed = available_variants(rec)
-    if variants is None:
-        variants = allowed
-    for v in variants:
-        if v not in VARIANTS:
-            raise ConfigError(f"variant {v!r} is unknown; expected one of {', '.join(VARIANTS)}")
-        if v not in allowed:
-            raise ConfigError(
-                f"{rec.name or 'recording'}: variant {v} needs a dither column or tau_ffw, "
-                "and this recording has neither (or the dither is never on)"
-            )
-    variants = [v for v in VARIANTS if v in variants]
+    variants = _check_options(rec, variants, interval, level)
     steps = 2 + 2 * len(variants)
     done = 0
 
@@ -179,18 +162,13 @@ def replay(
             progress(done, steps)
 
     robot = rec.robot()
-    q = rec.q
-    g = robot.gravity(q, tol=q_tol)
-    J = robot.jacobian(q, tol=q_tol)
+    g = robot.gravity(rec.q, tol=q_tol)
+    J = robot.jacobian(rec.q, tol=q_tol)
     eff = model_effects(model, rec)
-    tau_bar = rec.tau - g - eff
     reg = regimes(rec)
-    lo, hi, sig = model.sample_bands(reg, rec.dq)
+    base = (rec.tau - g - eff, *model.sample_bands(reg, rec.dq))
     tick()
-
-    ext = None
-    if any(v.startswith("dither") for v in variants):
-        ext = extract_dither(rec)
+    ext = extract_dither(rec) if any(v.startswith("dither") for v in variants) else None
     tick()
 
     cols: dict[str, np.ndarray] = {"t": rec.t}
@@ -202,26 +180,14 @@ def replay(
         cols["dither"] = rec.dither
     bits = (1 << np.arange(rec.n)).astype(np.int64)
     for v in variants:
-        tb, a, b, s = tau_bar, lo, hi, sig
-        if v.startswith("dither") and ext is not None:
-            use = (reg == DITHER) & ext.valid[:, None]
-            tb = np.where(use, ext.signal - g - eff, tau_bar)
-            if "dither" in model.regimes:
-                db = model.regimes["dither"]
-                a = np.where(use, db.tau_min, lo)
-                b = np.where(use, db.tau_max, hi)
-                s = np.where(use, db.sigma, sig)
-            else:
-                a, b = dithered_band(lo, hi, ext.amplitude, on=use)
-        if v.endswith("noband"):
-            a, b, s = band_as_noise(a, b, s)
-        args = (tb, J, a, b, s, model.prior_mean, model.prior_sigma)
-        sol = estimate(*args, components=comps, backend=backend)
+        tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext)
+        est = (tb, J, a, b, s, model.prior_mean, model.prior_sigma)
+        sol = estimate(*est, components=comps, backend=backend)
         tick()
         if interval == "profile" and v.endswith("noband"):
-            ilo, ihi = gaussian_profile_intervals(*args, F_hat=sol.F, level=level, components=comps)
+            ilo, ihi = gaussian_profile_intervals(*est, F_hat=sol.F, level=level, components=comps)
         else:
-            ilo, ihi = intervals(*args, F_hat=sol.F, method=interval, level=level, components=comps)
+            ilo, ihi = intervals(*est, F_hat=sol.F, method=interval, level=level, components=comps)
         tick()
         for k, c in enumerate(COMPONENTS):
             cols[f"{v}/{c}"] = sol.F[:, k]
@@ -251,6 +217,75 @@ def replay(
     return Estimates(pd.DataFrame(cols), plain(meta), name=None)
 
 
+def _check_options(
+    rec: Recording, variants: Sequence[str] | None, interval: str, level: float
+) -> list[str]:
+    """The variants to run, in file order; ConfigError for an unknown or impossible option."""
+    if interval not in INTERVAL_METHODS:
+        raise ConfigError(
+            f"interval method {interval!r} is unknown; expected one of {', '.join(INTERVAL_METHODS)}"
+        )
+    if not 0.0 < float(level) < 1.0:
+        raise ConfigError(f"interval level is {level!r}, expected a number between 0 and 1")
+    allowed = available_variants(rec)
+    if variants is None:
+        variants = allowed
+    for v in variants:
+        if v not in VARIANTS:
+            raise ConfigError(f"variant {v!r} is unknown; expected one of {', '.join(VARIANTS)}")
+        if v not in allowed:
+            raise ConfigError(
+                f"{rec.name or 'recording'}: variant {v} needs a dither column or tau_ffw, "
+                "and this recording has neither (or the dither is never on)"
+            )
+    return [v for v in VARIANTS if v in variants]
+
+
+def variant_inputs(
+    variant: str,
+    base: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    model: TorqueModel,
+    reg: np.ndarray,
+    g: np.ndarray,
+    eff: np.ndarray,
+    ext: Extraction | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The estimator's inputs of one variant: ``tau_bar``, band edges and noise per sample.
+
+    ``tau_bar = tau - gravity - effects`` with the model's per-sample bands
+    (:meth:`ditherlab.model.TorqueModel.sample_bands`); a dither variant takes the extracted
+    signal and the dither band (or the still band shrunk by the dither amplitude) where a joint
+    stands still with the dither on over a whole window; a no-band variant moves the band into
+    the noise (:func:`band_as_noise`).
+
+    Parameters
+    ----------
+    variant : one of :data:`VARIANTS`
+    base : ``tau - gravity - effects`` and the model's per-sample band and noise, each (N, n)
+    reg : (N, n) regimes ; g, eff : (N, n) [N·m] gravity and the model's effects
+    ext : the recording's dither extraction (None without dither)
+
+    Returns
+    -------
+    tau_bar, tau_min, tau_max, sigma : each (N, n) [N·m]
+    """
+    tau_bar, lo, hi, sig = base
+    tb, a, b, s = base
+    if variant.startswith("dither") and ext is not None:
+        use = (reg == DITHER) & ext.valid[:, None]
+        tb = np.where(use, ext.signal - g - eff, tau_bar)
+        if "dither" in model.regimes:
+            db = model.regimes["dither"]
+            a = np.where(use, db.tau_min, lo)
+            b = np.where(use, db.tau_max, hi)
+            s = np.where(use, db.sigma, sig)
+        else:
+            a, b = dithered_band(lo, hi, ext.amplitude, on=use)
+    if variant.endswith("noband"):
+        a, b, s = band_as_noise(a, b, s)
+    return tb, a, b, s
+
+
 __all__ = [
     "COMPONENTS",
     "Estimates",
@@ -262,6 +297,7 @@ __all__ = [
     "parse_components",
     "replay",
     "replay_file",
+    "variant_inputs",
 ]
 
 
