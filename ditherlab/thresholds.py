@@ -365,87 +365,21 @@ def analyse(
     recs_out = []
     total_pushes = 0
     for est in estimates:
-        where = est.name or "estimates"
-        if not est.has_wrench:
-            raise NoPushesError(
-                f"{where}: no F/T columns f_x..m_z, so no pushes to find; the report needs "
-                "estimates of a recording with a reference sensor"
-            )
-        t = est.t
-        Fs = est.wrench
-        pushes = find_pushes(t, Fs)
+        rec_out, pushes, rest = _pushes_and_rest(est, rest_margin)
+        recs_out.append(rec_out)
         total_pushes += len(pushes)
-        dith = est.dither
-        dithered = bool(dith is not None and dith.any())
-        rest = rest_mask(t, pushes, rest_margin)
-        for t0, t1 in est.meta.get("moving_spans", []):
-            rest &= ~((t >= t0 - 0.5) & (t <= t1 + 0.5))
-        if dithered:
-            rest &= dith
-        recs_out.append(
-            {
-                "file": where,
-                "dithered": dithered,
-                "samples": len(t),
-                "pushes": [asdict(p) for p in pushes],
-                "rest_samples": int(rest.sum()),
-            }
-        )
-        if not pushes:
-            continue
-        for v in est.variants:
-            cond = condition_of(v, dithered)
-            g = groups.setdefault(cond, Group(cond, v, dithered))
-            Fh = est.F(v)
-            lo, hi = est.interval(v)
-            noise = {}
-            for k, a in enumerate(AXES):
-                vals = np.abs(Fh[rest, k])
-                q = float(np.quantile(vals, quantile)) if len(vals) else float("nan")
-                noise[a] = max(q, floor) if np.isfinite(q) else float("nan")
-                g.noise[a].append(noise[a])
-            g.results += push_results(t, Fs, Fh, lo, hi, pushes, noise, lag=lag, big=big)
-            cov = (lo[:, :3] <= Fs[:, :3]) & (Fs[:, :3] <= hi[:, :3])
-            g.all_coverage.append(float(cov.mean()))
-            g.rest_coverage.append(float(cov[rest].mean()) if rest.any() else float("nan"))
-            wr = (hi - lo)[rest, :3]
-            g.rest_width.append(
-                float(np.mean(wr[np.isfinite(wr)])) if np.isfinite(wr).any() else float("nan")
-            )
+        if pushes:
+            _add_variants(groups, est, pushes, rest, rec_out["dithered"], quantile, floor, lag, big)
     if total_pushes == 0:
         names = ", ".join(r["file"] for r in recs_out)
         raise NoPushesError(
             f"{names}: no pushes found (the F/T force never rose above the push threshold); "
             "the report needs push experiments"
         )
-    conditions = {}
-    for ci, (cond, g) in enumerate(sorted(groups.items())):
-        dirs = {}
-        for ai, a in enumerate(AXES):
-            rs = [r for r in g.results if r.push.axis == a]
-            if rs:
-                dirs[a] = direction_stats(rs, n_boot, seed + 100 * ci + ai)
-        conditions[cond] = {
-            "variant": g.variant,
-            "dithered": g.dithered,
-            "noise_level": {a: float(np.nanmax(v)) if v else None for a, v in g.noise.items()},
-            "coverage_all": float(np.nanmean(g.all_coverage)),
-            "coverage_rest": float(np.nanmean(g.rest_coverage)),
-            "width_rest": float(np.nanmean(g.rest_width)),
-            "directions": dirs,
-            "pushes": [
-                {
-                    "start": r.push.start,
-                    "axis": r.push.axis,
-                    "sign": r.push.sign,
-                    "peak": r.push.peak,
-                    "response": r.response,
-                    "detected": r.detected,
-                    "above10": r.above10,
-                }
-                for r in g.results
-            ],
-        }
+    conditions = {
+        cond: _condition_stats(g, n_boot, seed + 100 * ci)
+        for ci, (cond, g) in enumerate(sorted(groups.items()))
+    }
     return {
         "definitions": {
             "noise_level": f"{quantile:.1%} quantile of |F_hat| along the axis at rest, at least "
@@ -463,4 +397,97 @@ def analyse(
         "recordings": recs_out,
         "conditions": conditions,
         "paper": PAPER,
+    }
+
+
+def _pushes_and_rest(est: Any, rest_margin: float) -> tuple[dict[str, Any], list[Push], np.ndarray]:
+    """One estimates file's pushes (from its F/T columns) and rest mask (N,): away from pushes,
+    the robot still, and the dither on where the file has it; with its summary row."""
+    where = est.name or "estimates"
+    if not est.has_wrench:
+        raise NoPushesError(
+            f"{where}: no F/T columns f_x..m_z, so no pushes to find; the report needs "
+            "estimates of a recording with a reference sensor"
+        )
+    t = est.t
+    pushes = find_pushes(t, est.wrench)
+    dith = est.dither
+    dithered = bool(dith is not None and dith.any())
+    rest = rest_mask(t, pushes, rest_margin)
+    for t0, t1 in est.meta.get("moving_spans", []):
+        rest &= ~((t >= t0 - 0.5) & (t <= t1 + 0.5))
+    if dithered:
+        rest &= dith
+    row = {
+        "file": where,
+        "dithered": dithered,
+        "samples": len(t),
+        "pushes": [asdict(p) for p in pushes],
+        "rest_samples": int(rest.sum()),
+    }
+    return row, pushes, rest
+
+
+def _add_variants(
+    groups: dict[str, Group],
+    est: Any,
+    pushes: list[Push],
+    rest: np.ndarray,
+    dithered: bool,
+    quantile: float,
+    floor: float,
+    lag: float,
+    big: float,
+) -> None:
+    """Add every variant of one estimates file to its condition's group: noise level per axis
+    at rest, push results, interval coverage (all samples, at rest) and width at rest."""
+    t, Fs = est.t, est.wrench
+    for v in est.variants:
+        cond = condition_of(v, dithered)
+        g = groups.setdefault(cond, Group(cond, v, dithered))
+        Fh = est.F(v)
+        lo, hi = est.interval(v)
+        noise = {}
+        for k, a in enumerate(AXES):
+            vals = np.abs(Fh[rest, k])
+            q = float(np.quantile(vals, quantile)) if len(vals) else float("nan")
+            noise[a] = max(q, floor) if np.isfinite(q) else float("nan")
+            g.noise[a].append(noise[a])
+        g.results += push_results(t, Fs, Fh, lo, hi, pushes, noise, lag=lag, big=big)
+        cov = (lo[:, :3] <= Fs[:, :3]) & (Fs[:, :3] <= hi[:, :3])
+        g.all_coverage.append(float(cov.mean()))
+        g.rest_coverage.append(float(cov[rest].mean()) if rest.any() else float("nan"))
+        wr = (hi - lo)[rest, :3]
+        g.rest_width.append(
+            float(np.mean(wr[np.isfinite(wr)])) if np.isfinite(wr).any() else float("nan")
+        )
+
+
+def _condition_stats(g: Group, n_boot: int, seed: int) -> dict[str, Any]:
+    """The JSON-ready statistics of one condition (per direction, seeded ``seed + axis``)."""
+    dirs = {}
+    for ai, a in enumerate(AXES):
+        rs = [r for r in g.results if r.push.axis == a]
+        if rs:
+            dirs[a] = direction_stats(rs, n_boot, seed + ai)
+    return {
+        "variant": g.variant,
+        "dithered": g.dithered,
+        "noise_level": {a: float(np.nanmax(v)) if v else None for a, v in g.noise.items()},
+        "coverage_all": float(np.nanmean(g.all_coverage)),
+        "coverage_rest": float(np.nanmean(g.rest_coverage)),
+        "width_rest": float(np.nanmean(g.rest_width)),
+        "directions": dirs,
+        "pushes": [
+            {
+                "start": r.push.start,
+                "axis": r.push.axis,
+                "sign": r.push.sign,
+                "peak": r.push.peak,
+                "response": r.response,
+                "detected": r.detected,
+                "above10": r.above10,
+            }
+            for r in g.results
+        ],
     }
