@@ -63,6 +63,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from ditherlab.estimates import Estimates
     from ditherlab.model import TorqueModel
+    from ditherlab.viz.diagnosis import DiagnosisReport
 
 TIMELINE = "time"
 WEB_PORT = 9090
@@ -932,54 +933,32 @@ def _log_commanded_pushes(log: _Logger, rec: Recording) -> None:
 
 
 # ---------------------------------------------------------------------- diagnosis
-def load_diagnosis(path: str | Path) -> dict[str, Any]:
-    """Read the ``report.json`` that ``ditherlab diagnose -o DIR`` writes (``Diagnosis.to_dict()``).
-
-    Raises
-    ------
-    FormatError
-        Missing file, not JSON, or no ``candidates`` list.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise FormatError(f"{p}: no such diagnosis file")
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{p}: not a JSON diagnosis report ({exc})") from None
-    if not isinstance(d, dict) or not isinstance(d.get("candidates"), list):
-        raise FormatError(
-            f"{p}: key 'candidates' is missing, expected the report.json of `ditherlab diagnose -o`"
-        )
-    return d
-
-
 def _log_diagnosis(log: _Logger, rec: Recording, diagnosis: Any) -> None:
     """Diagnosis at its worst windows: one entry per window naming the worst joint and the
     suggested effects that act on it; the ranked candidates as a document.
 
-    ``diagnosis`` is a :class:`ditherlab.diagnose.Diagnosis` or its ``to_dict()`` (report.json).
-    Windows of other recordings (by name) are skipped.
+    ``diagnosis`` is a :class:`ditherlab.viz.diagnosis.DiagnosisReport` (:func:`load_report` of a
+    report.json), a :class:`ditherlab.diagnose.Diagnosis` or its ``to_dict()``. Windows of other
+    recordings (by name) are skipped.
     """
     import rerun as rr
 
+    from ditherlab.viz.diagnosis import as_report
+
     if diagnosis is None:
         return
-    d = diagnosis.to_dict() if hasattr(diagnosis, "to_dict") else dict(diagnosis)
-    cands = d.get("candidates") or []
-    windows = (d.get("residual") or {}).get("worst_windows") or []
-    recs = d.get("recordings") or []
+    d = as_report(diagnosis)
+    cands = d.candidates
+    recs = d.recordings
     mine = [
         w
-        for w in windows
-        if len(recs) <= 1 or w.get("recording") in (rec.name, Path(rec.name or "").name)
+        for w in d.worst_windows
+        if len(recs) <= 1 or w["recording"] in (rec.name, Path(rec.name or "").name)
     ]
     times, texts = [], []
     for w in mine:
         j = int(w["worst_joint"])
-        sugg = [
-            c for c in cands if c.get("suggested") and (not c.get("joints") or j in c["joints"])
-        ]
+        sugg = [c for c in cands if c["suggested"] and (not c["joints"] or j in c["joints"])]
         text = (
             f"worst window t={w['t0']:.1f}..{w['t1']:.1f} s: joint {j} at "
             f"{w['worst_joint_ratio']:.2g}x the noise floor"
@@ -1216,7 +1195,7 @@ class ViewRequest:
     save: Path | None = None
     mode: str | None = None
     inputs: list[Path] = field(default_factory=list)
-    diagnosis: dict[str, Any] | None = None
+    diagnosis: DiagnosisReport | None = None
 
 
 @dataclass
@@ -1252,6 +1231,7 @@ def load_view_request(
     from ditherlab.errors import ConfigError
     from ditherlab.io import read
     from ditherlab.model import TorqueModel
+    from ditherlab.viz.diagnosis import load_report
 
     if (save is None) == (mode is None):
         raise ConfigError("view needs exactly one output: --save out.rrd, --spawn or --serve")
@@ -1266,7 +1246,7 @@ def load_view_request(
     mdl = TorqueModel.load(model) if model is not None else None
     if mdl is not None:
         mdl.check_robot(rec)
-    diag = load_diagnosis(diagnosis) if diagnosis is not None else None
+    diag = load_report(diagnosis) if diagnosis is not None else None
     inputs = [Path(p) for p in (recording, estimates, model, diagnosis) if p is not None]
     if save is not None:
         from ditherlab.io.atomic import check_not_input
