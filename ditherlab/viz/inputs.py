@@ -5,7 +5,6 @@ diagnosis (:func:`ditherlab.viz.diagnosis.load_report`), and the one output.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +15,7 @@ import numpy as np
 from ditherlab.errors import ConfigError, FormatError, RecordingError
 from ditherlab.estimates import VARIANTS, Estimates
 from ditherlab.io import read
-from ditherlab.io.atomic import check_not_input
+from ditherlab.io.atomic import check_not_input, plain
 from ditherlab.model import TorqueModel
 from ditherlab.recording import Recording
 from ditherlab.viz.diagnosis import DiagnosisReport, load_report
@@ -41,19 +40,6 @@ def load_estimates(path: str | Path) -> Estimates:
         if missing:
             raise FormatError(f"{path}: column {missing[0]} is missing (variant {v} is listed)")
     return est
-
-
-def _plain_json(x: Any) -> Any:
-    """Normalise a metadata object the way a JSON round trip does (tuples -> lists, numpy -> py)."""
-    return json.loads(json.dumps(x, sort_keys=True, default=_json_default))
-
-
-def _json_default(x: Any) -> Any:
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return str(x)
 
 
 def check_estimates_match(rec: Recording, est: Estimates) -> None:
@@ -85,7 +71,9 @@ def check_estimates_match(rec: Recording, est: Estimates) -> None:
     stored = est.meta.get("recording")
     if stored is None:
         raise RecordingError(f"{ename}: metadata key 'recording' is missing")
-    a, b = _plain_json(stored), _plain_json(rec.meta)
+    # both as plain JSON values (tuples as lists, numpy values as Python ones); a recording's
+    # metadata is JSON by contract (Recording.meta_json), so no other conversion is needed
+    a, b = plain(stored), plain(rec.meta)
     if a != b:
         key = next(k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
         raise RecordingError(

@@ -11,20 +11,14 @@ import numpy as np
 import pandas as pd
 import rerun as rr
 
-from ditherlab.dither import (
-    dithered_band,
-    extract,
-    full_window,
-    meta_dither_period,
-    period_from_feedforward,
-)
-from ditherlab.effects import effects_torque, external_torque, sensor_wrench
-from ditherlab.errors import DitherlabError
+from ditherlab import dither
+from ditherlab.dither import Extraction, dither_on, dithered_band, extract_dither, full_window
+from ditherlab.effects import effects_torque, external_torque, sensor_wrench, signals
+from ditherlab.errors import ConfigError
 from ditherlab.estimates import Estimates
 from ditherlab.model import TorqueModel
-from ditherlab.recording import FORCE_AXES, Recording
+from ditherlab.recording import DITHER, FORCE_AXES, STILL, Recording
 from ditherlab.replay import model_effects
-from ditherlab.robot import RobotModel
 from ditherlab.signal import causal_mean
 from ditherlab.viz.stream import REGIME_COLORS, SENSOR_COLOR, VARIANT_COLORS, ColumnLogger
 
@@ -51,11 +45,12 @@ def tau_bar(rec: Recording, gravity: np.ndarray, model: TorqueModel | None = Non
     return rec.tau - gravity - model_effects(model, rec)
 
 
-def external_sensor(rec: Recording, robot: RobotModel) -> np.ndarray | None:
-    """``J(q)^T F_sensor`` (N, n) [N·m]: the joint torque of the sensed wrench, or None."""
+def external_sensor(rec: Recording) -> np.ndarray | None:
+    """``J(q)^T F_sensor`` (N, n) [N·m]: the joint torque of the sensed wrench
+    (:meth:`ditherlab.effects.Signals.jtf`, on the recording's cached Jacobian), or None."""
     if not rec.has_wrench:
         return None
-    return np.einsum("nij,ni->nj", robot.jacobian(rec.q), rec.wrench)
+    return signals(rec).jtf(rec.wrench)
 
 
 def log_joints(
@@ -84,7 +79,7 @@ def log_joints(
         log.series(f"{base}/tau_bar", vals, names=names, colors=colors, widths=1.5, thin=False)
         if model is None:
             continue
-        for regime in ("still", "dither"):
+        for regime in (STILL.label, DITHER.label):
             if regime not in model.regimes:
                 continue
             b = model.regimes[regime]
@@ -101,25 +96,33 @@ def log_joints(
 
 
 def dither_period(rec: Recording, estimates: Estimates | None = None) -> float | None:
-    """The dither period [s] of a recording, or None when it has no dither.
+    """The dither period [s] of a recording, or None when it has no dither (or none is found).
 
-    In order: the estimates file's ``dither_period`` (what replay used), the metadata
-    (``dither.period`` [s] or ``dither.omega`` [rad/s], also under ``sim``), the feedforward's
-    square wave (:func:`ditherlab.dither.period_from_feedforward`).
+    The estimates file's ``dither_period`` (what replay used) when it states one, else
+    :func:`ditherlab.dither.dither_period` (the metadata, the feedforward's square wave, the
+    torque's spectrum) where :func:`ditherlab.dither.dither_on` finds the dither on.
     """
     if estimates is not None and estimates.meta.get("dither_period"):
         return float(estimates.meta["dither_period"])
-    stated = meta_dither_period(rec.meta)
-    if stated is not None:
-        return stated
-    on = rec.dither
-    if rec.tau_ffw is None or (on is not None and not on.any()):
-        return None
     try:
-        # its interpolation divides by zero where the square wave is flat; those entries are unused
+        # the feedforward's interpolation divides by zero where the square wave is flat; those
+        # entries are unused
         with np.errstate(invalid="ignore", divide="ignore"):
-            return float(period_from_feedforward(rec.tau_ffw, rec.t))
-    except DitherlabError:
+            on = dither_on(rec)
+            if on is None or not on.any():
+                return None
+            return dither.dither_period(rec)
+    except ConfigError:
+        return None
+
+
+def _extraction(rec: Recording) -> Extraction | None:
+    """:func:`ditherlab.dither.extract_dither` (the extraction replay writes), or None when the
+    recording has no dither or no period is found."""
+    try:
+        with np.errstate(invalid="ignore", divide="ignore"):  # as in dither_period
+            return extract_dither(rec)
+    except ConfigError:
         return None
 
 
@@ -165,17 +168,19 @@ def log_dither(
         vals = pd.to_numeric(rec.data[col], errors="coerce").to_numpy(dtype=float)
         log.series(f"joints/{j}/dither/{group}/{name}", vals, names=name, colors=[c], step=True)
 
-    period = dither_period(rec, estimates)
-    if period is None:
-        return
     d = estimates.data if estimates is not None else None
     have = d is not None and all(f"extract/{s}_1" in d.columns for s in EXTRACT_SIGNALS)
-    # The estimates file's own columns when present (the numbers replay used); the extraction of
-    # ditherlab.dither otherwise. The window is the extraction's: whole periods at this rate.
+    # The estimates file's own columns when present (the extraction replay did and wrote, read
+    # back rather than redone); without them the same extraction, ditherlab.dither.extract_dither.
+    ext = None if have else _extraction(rec)
+    period = dither_period(rec, estimates) if have else ext.period if ext is not None else None
+    if period is None:
+        return
+    # The window is the extraction's: whole periods at this rate; the centre (not in the file) is
+    # its window mean.
     window = max(2, int(round(period / float(np.median(np.diff(rec.t)))))) if len(rec) > 1 else 2
-    ext = None if have else extract(rec.tau, rec.t, period)
     centre = causal_mean(rec.tau, window) if ext is None else ext.centre  # (N, n) [N·m]
-    still = model.regimes.get("still") if model is not None else None
+    still = model.regimes.get(STILL.label) if model is not None else None
     # Dither quantities mean something only where the dither was on over the whole window; NaN
     # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
     on = _dither_window_on(rec, window)
@@ -231,7 +236,7 @@ def log_dither(
             colors=[[200, 0, 200]],
             widths=2.0,
         )
-        if still is not None and (model is None or "dither" not in model.regimes):
+        if still is not None and (model is None or DITHER.label not in model.regimes):
             # The paper's rule (Fig. 4): the still band shrunk by the dither amplitude on each
             # side, where the dither was on over the whole window; the still band elsewhere.
             lo, hi = dithered_band(still.tau_min[j - 1], still.tau_max[j - 1], amp, on=on)
@@ -239,7 +244,7 @@ def log_dither(
                 f"joints/{j}/band/dither_shrunk",
                 np.column_stack([lo, hi]),
                 names=["shrunk band min", "shrunk band max"],
-                colors=[REGIME_COLORS["dither"]] * 2,
+                colors=[REGIME_COLORS[DITHER.label]] * 2,
             )
 
 

@@ -73,16 +73,16 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from ditherlab.effects import signals
 from ditherlab.errors import DitherlabError
 from ditherlab.estimates import Estimates
-from ditherlab.io.atomic import atomic_path, check_not_input
+from ditherlab.io.atomic import atomic_path, check_not_input, json_default
 from ditherlab.model import TorqueModel
 from ditherlab.recording import Recording
 from ditherlab.viz.blueprint import make_blueprint
 from ditherlab.viz.events import DETECTION_MERGE_GAP, log_diagnosis, log_events, merge_spans
 from ditherlab.viz.inputs import (
     ViewRequest,
-    _plain_json,
     check_estimates_match,
     load_estimates,
     load_view_request,
@@ -202,13 +202,12 @@ def log_view(
             "info/model", rr.TextDocument(model.dumps(), media_type="text/plain"), static=True
         )
 
-    robot = rec.robot()
-    log_robot(log, rec, robot, estimates, rate_3d, force_scale)
+    log_robot(log, rec, rec.robot(), estimates, rate_3d, force_scale)
     tick()
-    g = robot.gravity(rec.q)  # (N, n) [N·m], shared by tau_bar and the residuals
+    # gravity (N, n) [N·m], shared by tau_bar and the residuals: the recording's cached signals
+    g = signals(rec).gravity
     tb = tau_bar(rec, g, model)
-    jtf = external_sensor(rec, robot)
-    log_joints(log, rec, tb, jtf, model)
+    log_joints(log, rec, tb, external_sensor(rec), model)
     tick()
     log_dither(log, rec, estimates, g, tb, model)
     tick()
@@ -263,7 +262,7 @@ def new_stream(
     h.update(rec.meta_json().encode())
     h.update(np.asarray(rec.t).tobytes())
     if estimates is not None:
-        h.update(json.dumps(_plain_json(estimates.meta), sort_keys=True).encode())
+        h.update(json.dumps(estimates.meta, sort_keys=True, default=json_default).encode())
     if model is not None:
         h.update(model.dumps().encode())
     return rr.RecordingStream(application_id, recording_id=h.hexdigest()[:32])

@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from ditherlab.recording import REGIME_NAMES
+
 TIMELINE = "time"
 
 #: Colours (RGB) per variant, sensor and joint-series role; chosen to stay apart in a legend.
@@ -26,7 +28,10 @@ VARIANT_COLORS: dict[str, tuple[int, int, int]] = {
     "dither_noband": (120, 190, 250),
 }
 SENSOR_COLOR = (30, 30, 30)
-REGIME_COLORS = {"still": (200, 60, 60), "dither": (60, 60, 200), "moving": (150, 150, 150)}
+#: Colour per regime name (:data:`ditherlab.recording.REGIME_NAMES`: still, dither, moving).
+REGIME_COLORS: dict[str, tuple[int, int, int]] = dict(
+    zip(REGIME_NAMES, ((200, 60, 60), (60, 60, 200), (150, 150, 150)), strict=True)
+)
 
 
 # ---------------------------------------------------------------------- small helpers
