@@ -25,7 +25,7 @@ from ditherlab.estimates import Estimates
 from ditherlab.io import read
 from ditherlab.io.atomic import atomic_write_json, atomic_write_text, check_not_input
 from ditherlab.model import TorqueModel
-from ditherlab.recording import Recording
+from ditherlab.recording import DITHER, STILL, Recording
 from ditherlab.thresholds import AXES, PAPER, analyse, find_pushes
 from ditherlab.viz import figures as figs
 from ditherlab.viz.inputs import check_estimates_match
@@ -420,7 +420,7 @@ def _torque_figures(
 ) -> list[str]:
     """Figs. 2, 4, 5 from the recordings (with the model stored in the estimates)."""
     model = TorqueModel.from_dict(ests[0].meta["model"])
-    still = model.regimes.get("still")
+    still = model.regimes.get(STILL.label)
     plain = next((r for r in recs if r.dither is None or not r.dither.any()), None)
     dith = next((r for r in recs if r.dither is not None and r.dither.any()), None)
     written = []
@@ -460,7 +460,7 @@ def _torque_figures(
             g, ext = _gravity_and_sensor_torque(dith)
             m = _from_first_push(dith, 6.0)
             j = joint - 1
-            db = model.regimes.get("dither")
+            db = model.regimes.get(DITHER.label)
             nb = (float(db.tau_min[j]), float(db.tau_max[j])) if db is not None else (0.0, 0.0)
             figs.fig4_extraction(
                 dith.t[m],

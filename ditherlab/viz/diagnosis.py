@@ -20,7 +20,7 @@ from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_tex
 from ditherlab.recording import MOVING
 from ditherlab.viz.figures import pyplot
 
-__all__ = ["DiagnosisReport", "as_report", "load_report", "write_report"]
+__all__ = ["DiagnosisLike", "DiagnosisReport", "as_report", "load_report", "write_report"]
 
 
 def _history_rows(hist: list[dict[str, Any]]) -> list[str]:
@@ -351,7 +351,8 @@ def _check_kind(source: str | Path, key: str, value: Any, kinds: tuple[type, ...
     if not ok:
         want = " or ".join(dict.fromkeys(_KIND_NAMES[k] for k in kinds))
         raise FormatError(
-            f"{source}: key {key!r} is {json.dumps(value, default=str)[:40]}, expected {want} ({_EXPECTED})"
+            f"{source}: key {key!r} is {json.dumps(value, default=str)[:40]}, expected {want} "
+            f"({_EXPECTED})"
         )
 
 
@@ -383,7 +384,11 @@ def load_report(path: str | Path) -> DiagnosisReport:
     return DiagnosisReport.from_dict(d, source=p)
 
 
-def as_report(diagnosis: Diagnosis | DiagnosisReport | Mapping[str, Any]) -> DiagnosisReport:
+#: A diagnosis in any of the forms the view takes (see :func:`as_report`).
+DiagnosisLike = Diagnosis | DiagnosisReport | Mapping[str, Any]
+
+
+def as_report(diagnosis: DiagnosisLike) -> DiagnosisReport:
     """A :class:`DiagnosisReport` of a diagnosis in any of its forms: the report itself, a
     :class:`ditherlab.diagnose.Diagnosis` (as its ``report.json`` would hold it) or that dict."""
     if isinstance(diagnosis, DiagnosisReport):

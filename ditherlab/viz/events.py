@@ -5,7 +5,6 @@ windows."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -14,7 +13,7 @@ from ditherlab.estimates import Estimates
 from ditherlab.recording import FORCE_AXES, Recording
 from ditherlab.signal import merge_runs, runs
 from ditherlab.thresholds import find_pushes
-from ditherlab.viz.diagnosis import as_report
+from ditherlab.viz.diagnosis import DiagnosisLike, as_report
 from ditherlab.viz.stream import ColumnLogger
 
 
@@ -121,7 +120,7 @@ def _log_commanded_pushes(log: ColumnLogger, rec: Recording) -> None:
 
 
 # ---------------------------------------------------------------------- diagnosis
-def log_diagnosis(log: ColumnLogger, rec: Recording, diagnosis: Any) -> None:
+def log_diagnosis(log: ColumnLogger, rec: Recording, diagnosis: DiagnosisLike | None) -> None:
     """Diagnosis at its worst windows: one entry per window naming the worst joint and the
     suggested effects that act on it; the ranked candidates as a document.
 

@@ -68,7 +68,6 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -80,6 +79,7 @@ from ditherlab.io.atomic import atomic_path, check_not_input, json_default
 from ditherlab.model import TorqueModel
 from ditherlab.recording import Recording
 from ditherlab.viz.blueprint import make_blueprint
+from ditherlab.viz.diagnosis import DiagnosisLike
 from ditherlab.viz.events import DETECTION_MERGE_GAP, log_diagnosis, log_events, merge_spans
 from ditherlab.viz.inputs import (
     ViewRequest,
@@ -151,7 +151,7 @@ def log_view(
     *,
     estimates: Estimates | None = None,
     model: TorqueModel | None = None,
-    diagnosis: Any = None,
+    diagnosis: DiagnosisLike | None = None,
     rate_3d: float | None = 25.0,
     force_scale: float = 0.005,
     progress: Callable[[int, int], None] | None = None,
@@ -164,7 +164,8 @@ def log_view(
     stream : an open ``rerun.RecordingStream`` (file sink, memory sink, viewer)
     estimates : estimates of this recording (checked with :func:`check_estimates_match`)
     model : torque model; gives the band edges, the effects in ``tau_bar`` and the residuals
-    diagnosis : result of ``ditherlab.diagnose`` (candidates at worst windows), optional
+    diagnosis : a diagnosis (candidates at worst windows), optional: ``load_report`` of the
+        report.json of ``ditherlab diagnose -o``, or a ``ditherlab.diagnose.Diagnosis``
     rate_3d : [Hz] rate of the 3D entities (robot pose, arrows, boxes); None = every sample.
         Time series are always logged at full rate.
     force_scale : [m/N] length of a force arrow per newton in the 3D view
@@ -274,7 +275,7 @@ def save_view(
     *,
     estimates: Estimates | None = None,
     model: TorqueModel | None = None,
-    diagnosis: Any = None,
+    diagnosis: DiagnosisLike | None = None,
     inputs: Sequence[str | Path] = (),
     rate_3d: float | None = 25.0,
     progress: Callable[[int, int], None] | None = None,
@@ -317,7 +318,7 @@ def show_view(
     mode: str = "spawn",
     estimates: Estimates | None = None,
     model: TorqueModel | None = None,
-    diagnosis: Any = None,
+    diagnosis: DiagnosisLike | None = None,
     rate_3d: float | None = 25.0,
     progress: Callable[[int, int], None] | None = None,
 ) -> str | None:
