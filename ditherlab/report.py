@@ -18,9 +18,17 @@ from typing import Any
 
 import numpy as np
 
+from ditherlab.dither import extract, extract_dither
+from ditherlab.effects import signals
+from ditherlab.errors import RecordingError
 from ditherlab.estimates import Estimates
+from ditherlab.io import read
 from ditherlab.io.atomic import atomic_write_json, atomic_write_text, check_not_input
-from ditherlab.thresholds import AXES, PAPER, analyse
+from ditherlab.model import TorqueModel
+from ditherlab.recording import DITHER, STILL, Recording
+from ditherlab.thresholds import AXES, PAPER, analyse, find_pushes
+from ditherlab.viz import figures as figs
+from ditherlab.viz.inputs import check_estimates_match
 
 
 def _fmt(x: Any, unit: str = "N", nd: int = 1) -> str:
@@ -300,8 +308,6 @@ def _figures(
     blocks: list[tuple],
     tick: Callable[[], None],
 ) -> list[str]:
-    from ditherlab.viz import figures as figs
-
     written = []
     blocks.append(("h2", "Figures"))
     panels = []
@@ -345,42 +351,76 @@ def _figures(
     return written
 
 
-def _as_recording(r: Any):
-    from ditherlab.recording import Recording
-
-    if isinstance(r, Recording):
-        return r
-    from ditherlab.io import read
-
-    return read(r)
+def _as_recording(r: Any) -> Recording:
+    return r if isinstance(r, Recording) else read(r)
 
 
-def _gravity_and_sensor_torque(r) -> tuple[np.ndarray, np.ndarray]:
-    """Gravity and ``J^T F`` of the F/T sensor (zero without one), each (N, n) [N·m]."""
-    robot = r.robot()
-    g = robot.gravity(r.q)
+def _gravity_and_sensor_torque(r: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """Gravity and ``J^T F`` of the F/T sensor (zero without one), each (N, n) [N·m]: the
+    recording's cached :func:`ditherlab.effects.signals`."""
+    sig = signals(r)
+    g = sig.gravity
     if not r.has_wrench:
         return g, np.zeros_like(g)
-    return g, np.einsum("nkj,nk->nj", robot.jacobian(r.q), r.wrench)
+    return g, sig.jtf(r.wrench)
 
 
-def _from_first_push(r, length: float) -> np.ndarray:
+def _estimates_of(rec: Recording, ests: Sequence[Estimates]) -> Estimates | None:
+    """The estimates computed from ``rec``, or None: the same time stamps and recording metadata
+    (:func:`ditherlab.viz.inputs.check_estimates_match`) and the same copies of its dither flag
+    and F/T columns (two recordings of one campaign can share time stamps and metadata)."""
+    for e in ests:
+        try:
+            check_estimates_match(rec, e)
+        except RecordingError:
+            continue
+        if _same_or_none(rec.dither, e.dither) and _same_or_none(rec.wrench, e.wrench):
+            return e
+    return None
+
+
+def _same_or_none(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+
+
+def _extraction(
+    rec: Recording, est: Estimates | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """``upper, lower, signal`` (N, n) [N·m] and the period [s] of the dither extraction.
+
+    Read from the estimates file (its ``extract/*_j`` columns and ``dither_period``: what replay
+    extracted and used); only for a recording given without its estimates is the extraction done
+    here (:func:`ditherlab.dither.extract_dither`, the same one). None without dither.
+    """
+    cols = {
+        s: [f"extract/{s}_{j}" for j in range(1, rec.n + 1)] for s in ("upper", "lower", "signal")
+    }
+    if (
+        est is not None
+        and est.meta.get("dither_period")
+        and all(c in est.data.columns for cs in cols.values() for c in cs)
+    ):
+        u, lo, sg = (est.data[cs].to_numpy(dtype=float) for cs in cols.values())
+        return u, lo, sg, float(est.meta["dither_period"])
+    ext = extract_dither(rec)
+    if ext is None:
+        return None
+    return ext.upper, ext.lower, ext.signal, ext.period
+
+
+def _from_first_push(r: Recording, length: float) -> np.ndarray:
     """(N,) bool: ``length`` [s] from 1 s before the first push of the F/T sensor (or the start)."""
-    from ditherlab.thresholds import find_pushes
-
     ps = find_pushes(r.t, r.wrench) if r.has_wrench else []
     t0 = ps[0].start - 1.0 if ps else r.t[0]
     return (r.t >= t0) & (r.t <= t0 + length)
 
 
-def _torque_figures(ests: list[Estimates], recs: list, out: Path, blocks: list[tuple]) -> list[str]:
+def _torque_figures(
+    ests: list[Estimates], recs: list[Recording], out: Path, blocks: list[tuple]
+) -> list[str]:
     """Figs. 2, 4, 5 from the recordings (with the model stored in the estimates)."""
-    from ditherlab.dither import extract_dither
-    from ditherlab.model import TorqueModel
-    from ditherlab.viz import figures as figs
-
     model = TorqueModel.from_dict(ests[0].meta["model"])
-    still = model.regimes.get("still")
+    still = model.regimes.get(STILL.label)
     plain = next((r for r in recs if r.dither is None or not r.dither.any()), None)
     dith = next((r for r in recs if r.dither is not None and r.dither.any()), None)
     written = []
@@ -414,18 +454,19 @@ def _torque_figures(ests: list[Estimates], recs: list, out: Path, blocks: list[t
             )
         )
     if dith is not None and still is not None:
-        ext_sig = extract_dither(dith)
+        ext_sig = _extraction(dith, _estimates_of(dith, ests))
         if ext_sig is not None:
+            upper, lower, signal, period = ext_sig
             g, ext = _gravity_and_sensor_torque(dith)
             m = _from_first_push(dith, 6.0)
             j = joint - 1
-            db = model.regimes.get("dither")
+            db = model.regimes.get(DITHER.label)
             nb = (float(db.tau_min[j]), float(db.tau_max[j])) if db is not None else (0.0, 0.0)
             figs.fig4_extraction(
                 dith.t[m],
-                (ext_sig.upper - g)[m, j],
-                (ext_sig.lower - g)[m, j],
-                (ext_sig.signal - g)[m, j],
+                (upper - g)[m, j],
+                (lower - g)[m, j],
+                (signal - g)[m, j],
                 (dith.tau - g)[m, j],
                 ext[m, j],
                 (float(still.tau_min[j]), float(still.tau_max[j])),
@@ -442,9 +483,8 @@ def _torque_figures(ests: list[Estimates], recs: list, out: Path, blocks: list[t
                     "J^T F of the sensor, the still band and the band used with dither.",
                 )
             )
-            from ditherlab.dither import extract as dextract
-
-            five = dextract(dith.tau, dith.t, ext_sig.period, periods=5)
+            # Fig. 5 shows five-period means, which replay does not write: extracted here.
+            five = extract(dith.tau, dith.t, period, periods=5)
             on = np.flatnonzero(dith.dither)
             t_on = dith.t[on[0]] if len(on) else dith.t[0]
             m = (dith.t >= t_on - 1.0) & (dith.t <= t_on + 6.0)

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from synthetic import push_recording
 
+from ditherlab.estimates import Estimates
 from ditherlab.identify import identify
 from ditherlab.replay import replay
 from ditherlab.report import make_report, paper_table, summary_text
@@ -56,6 +58,30 @@ def test_report_files_and_numbers(tmp_path, pair):
     head, rows = paper_table(a)
     assert [r[0] for r in rows] == ["x", "y", "z"] and len(head) == 6
     assert "22 N / 30 N" in summary_text(a)
+
+
+def test_report_reads_the_extraction_replay_wrote(tmp_path, pair, monkeypatch):
+    """Fig. 4 takes upper, lower and signal from the estimates file (extract/*_j, written by
+    replay) and its period from the file's metadata: the extraction is not redone."""
+    import ditherlab.report as report
+
+    paths, recs = pair
+
+    def no_extraction(*args, **kwargs):
+        raise AssertionError("the report redid the dither extraction")
+
+    monkeypatch.setattr(report, "extract_dither", no_extraction)
+    a = make_report(paths, tmp_path / "rep", recordings=list(recs), n_boot=5)
+    assert "fig4_extraction.png" in a["files"] and "fig5_dither_control.png" in a["files"]
+    est = Estimates.load(paths[1])
+    upper, lower, signal, period = report._extraction(recs[1], report._estimates_of(recs[1], [est]))
+    assert period == est.meta["dither_period"]
+    assert np.array_equal(signal[:, 1], est.data["extract/signal_2"].to_numpy())
+    assert np.array_equal(upper[:, 5], est.data["extract/upper_6"].to_numpy())
+    # both recordings share time stamps and metadata: their own copied columns tell them apart
+    both = [Estimates.load(p) for p in paths]
+    assert [report._estimates_of(r, both).name for r in recs] == [str(p) for p in paths]
+    assert report._estimates_of(recs[0], [est]) is None
 
 
 def test_report_is_deterministic(tmp_path, pair):

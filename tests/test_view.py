@@ -10,9 +10,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from ditherlab.errors import DitherlabError, RecordingError
+from ditherlab.errors import DitherlabError, FormatError, RecordingError
+from ditherlab.io.atomic import plain
 from ditherlab.recording import FORCE_AXES, WRENCH_COLUMNS, Recording
 from ditherlab.viz import rerun_log as rl
+from ditherlab.viz.diagnosis import load_report, write_report
 
 PAPER_POSE = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0])
 FS = 250.0
@@ -406,6 +408,9 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
     from rerun.chunk import RrdReader
 
     report = {
+        "model": ["model v1 (irb140)"],
+        "version": 1,
+        "effects": [],
         "recordings": [campaign["rec"].name],
         "residual": {
             "worst_windows": [
@@ -443,6 +448,10 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
                 "text": "viscous on joint 5: explains 1.0 % (not suggested)",
             },
         ],
+        "force": None,
+        "skipped": {},
+        "history": [],
+        "notes": [],
     }
     path = tmp_path / "report.json"
     path.write_text(json.dumps(report))
@@ -462,7 +471,8 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
     assert "no suggested effect acts on this joint" in rows[0][1]
     (tmp_path / "bad.json").write_text("{}")
     r = cli("view", campaign["rec_path"], "--diagnosis", tmp_path / "bad.json", "--save", out, "-q")
-    assert r.code == 2 and "key 'candidates' is missing" in r.err
+    assert r.code == 2 and "bad.json: key 'model' is missing" in r.err
+    assert r.err.count("\n") == 1
 
 
 def test_fig4_signal_minus_gravity_and_shrunk_band(campaign, tmp_path):
@@ -768,3 +778,99 @@ def test_real_diagnosis_object(simulated, tmp_path):
     c = rl.rrd_contents(out)
     assert c["diagnosis"]["TextLog:text"] == len(d.windows) > 0
     assert c["info/diagnosis"]["static"] == 1
+    # the round trip the view relies on: write_report -> load_report gives the same fields
+    write_report(d, tmp_path / "diag")
+    rep = load_report(tmp_path / "diag" / "report.json")
+    want = plain(d.to_dict())
+    assert list(want) == list(vars(rep))
+    for key, value in want.items():
+        assert json.dumps(getattr(rep, key), sort_keys=True) == json.dumps(value, sort_keys=True)
+    assert rep.version == model.version and rep.recordings == [rec.name]
+    assert rep.worst_windows == d.windows and len(rep.candidates) == len(d.candidates)
+    assert [c["text"] for c in rep.suggested] == [c.text() for c in d.suggested]
+    out2 = tmp_path / "diag2.rrd"
+    rl.save_view(rec, out2, model=model, diagnosis=rep)
+    assert rl.rrd_contents(out2)["diagnosis"] == c["diagnosis"]
+
+
+def _diagnosis_dict() -> dict:
+    """The smallest valid report.json: every key of Diagnosis.to_dict, one window, one candidate."""
+    return {
+        "model": ["model v2 (irb140)"],
+        "version": 2,
+        "effects": [{"name": "viscous"}],
+        "recordings": ["a.parquet"],
+        "residual": {
+            "torque_rms": [1.0],
+            "worst_windows": [
+                {
+                    "recording": "a.parquet",
+                    "t0": 1.0,
+                    "t1": 2.0,
+                    "energy": 3.0,
+                    "worst_joint": 1,
+                    "worst_joint_ratio": 2.0,
+                }
+            ],
+        },
+        "force": None,
+        "candidates": [
+            {
+                "effect": "payload",
+                "joints": [1],
+                "explained_fraction": 0.5,
+                "suggested": True,
+                "text": "payload on joint 1",
+            }
+        ],
+        "skipped": {},
+        "history": [],
+        "notes": [],
+    }
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d.pop("history"), "key 'history' is missing"),
+        (lambda d: d.update(extra=1), "key 'extra' is unknown"),
+        (lambda d: d.update(version="2"), "key 'version' is \"2\", expected an integer"),
+        (lambda d: d.update(version=True), "key 'version' is true, expected an integer"),
+        (lambda d: d.update(force=[]), "key 'force' is [], expected an object or null"),
+        (lambda d: d["residual"].pop("worst_windows"), "key 'residual.worst_windows' is missing"),
+        (
+            lambda d: d["residual"]["worst_windows"][0].pop("t0"),
+            "key 'residual.worst_windows[0].t0' is missing",
+        ),
+        (
+            lambda d: d["candidates"][0].update(suggested="yes"),
+            "key 'candidates[0].suggested' is \"yes\", expected true or false",
+        ),
+    ],
+)
+def test_load_report_refuses_what_is_not_a_diagnosis(tmp_path, edit, message):
+    """load_report: one line naming the file, the key and what was expected."""
+    good = tmp_path / "report.json"
+    good.write_text(json.dumps(_diagnosis_dict()))
+    rep = load_report(good)
+    assert rep.version == 2 and rep.worst_windows[0]["worst_joint"] == 1
+    assert rep.to_dict() == _diagnosis_dict()
+    d = _diagnosis_dict()
+    edit(d)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(d))
+    with pytest.raises(FormatError) as exc:
+        load_report(bad)
+    text = str(exc.value)
+    assert text.startswith(f"{bad}: ") and message in text and "\n" not in text
+
+
+def test_load_report_missing_or_not_json(tmp_path):
+    with pytest.raises(FormatError, match="no such diagnosis file"):
+        load_report(tmp_path / "none.json")
+    (tmp_path / "x.json").write_text("[1, 2]")
+    with pytest.raises(FormatError, match="holds a list, expected the report.json"):
+        load_report(tmp_path / "x.json")
+    (tmp_path / "y.json").write_text("{")
+    with pytest.raises(FormatError, match="not a JSON diagnosis report"):
+        load_report(tmp_path / "y.json")

@@ -1,8 +1,13 @@
 """The diagnosis report: ``report.md``, ``report.json`` and the evidence and history figures
-that ``ditherlab diagnose -o DIR`` writes (the analysis itself is :mod:`ditherlab.diagnose`)."""
+that ``ditherlab diagnose -o DIR`` writes (the analysis itself is :mod:`ditherlab.diagnose`),
+and :func:`load_report`, the one reader of that ``report.json`` (``ditherlab view --diagnosis``).
+"""
 
 from __future__ import annotations
 
+import json
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -10,12 +15,13 @@ import numpy as np
 
 from ditherlab.diagnose import AXES, Diagnosis, nanmean
 from ditherlab.effects import EFFECTS, Effect, hyper_params, model_text
-from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text
+from ditherlab.errors import FormatError
+from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text, plain
 from ditherlab.recording import MOVING
 from ditherlab.scoring import Candidate, JointScore
 from ditherlab.viz.figures import pyplot
 
-__all__ = ["write_report"]
+__all__ = ["DiagnosisLike", "DiagnosisReport", "as_report", "load_report", "write_report"]
 
 
 def _history_rows(hist: list[dict[str, Any]]) -> list[str]:
@@ -214,3 +220,180 @@ def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Pat
         md.append(f"- note: {n}")
     atomic_write_json(out / "report.json", d.to_dict(), indent=2)
     return atomic_write_text(out / "report.md", "\n".join(md) + "\n")
+
+
+# ---------------------------------------------------------------------- reading report.json
+#: What ``report.json`` was expected to be, for error messages.
+_EXPECTED = "the report.json of `ditherlab diagnose -o`"
+
+
+@dataclass
+class DiagnosisReport:
+    """A diagnosis as ``report.json`` holds it: the keys of :meth:`Diagnosis.to_dict`.
+
+    Attributes
+    ----------
+    model : the model's equations, one line each (:func:`ditherlab.effects.model_text`)
+    version : the model's version
+    effects : the model's effects (``EffectSpec.to_dict()`` each)
+    recordings : names of the recordings diagnosed
+    residual : ``torque_rms``, ``noise_floor``, ``ratio`` (n,), ``per_regime`` rows and
+        ``worst_windows`` (each: ``recording``, ``t0``, ``t1`` [s], ``energy``, ``worst_joint``
+        (1-based), ``worst_joint_ratio``)
+    force : force error (``rms``, ``bias``, ``per_regime``, ``coverage``, ...) or None without
+        an F/T sensor
+    candidates : ranked candidate effects (``Candidate.to_dict()`` each: ``effect``, ``joints``,
+        ``explained_fraction``, ``suggested``, ``text``, ...)
+    skipped : effect name -> why it was not tried
+    history : the model's history rows
+    notes : remarks of the diagnosis
+    """
+
+    model: list[str]
+    version: int
+    effects: list[dict[str, Any]]
+    recordings: list[str]
+    residual: dict[str, Any]
+    force: dict[str, Any] | None
+    candidates: list[dict[str, Any]]
+    skipped: dict[str, str]
+    history: list[dict[str, Any]]
+    notes: list[str]
+
+    @property
+    def worst_windows(self) -> list[dict[str, Any]]:
+        return list(self.residual["worst_windows"])
+
+    @property
+    def suggested(self) -> list[dict[str, Any]]:
+        return [c for c in self.candidates if c["suggested"]]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The dict that ``report.json`` holds (equal to ``Diagnosis.to_dict()`` made plain)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Any, source: str | Path = "diagnosis") -> DiagnosisReport:
+        """Check ``d`` (a loaded ``report.json``) and wrap it.
+
+        Raises
+        ------
+        FormatError
+            One line naming ``source``, the key and what was expected: a key missing or unknown,
+            or a value of the wrong kind (top level; ``residual.worst_windows`` and
+            ``candidates`` entries, which the view reads).
+        """
+        if not isinstance(d, Mapping):
+            raise FormatError(f"{source}: holds a {type(d).__name__}, expected {_EXPECTED}")
+        for key, kinds in _TOP_KEYS.items():
+            if key not in d:
+                raise FormatError(f"{source}: key {key!r} is missing, expected {_EXPECTED}")
+            _check_kind(source, key, d[key], kinds)
+        extra = [k for k in d if k not in _TOP_KEYS]
+        if extra:
+            raise FormatError(
+                f"{source}: key {extra[0]!r} is unknown, expected only the keys "
+                f"{', '.join(_TOP_KEYS)} of {_EXPECTED}"
+            )
+        res = d["residual"]
+        if "worst_windows" not in res:
+            raise FormatError(f"{source}: key 'residual.worst_windows' is missing, expected a list")
+        _check_kind(source, "residual.worst_windows", res["worst_windows"], (list,))
+        for k, w in enumerate(res["worst_windows"]):
+            _check_entry(source, f"residual.worst_windows[{k}]", w, _WINDOW_KEYS)
+        for k, c in enumerate(d["candidates"]):
+            _check_entry(source, f"candidates[{k}]", c, _CANDIDATE_KEYS)
+        return cls(**{k: d[k] for k in _TOP_KEYS})
+
+
+#: Top-level keys of ``Diagnosis.to_dict()`` in its order, and the JSON kinds of their values.
+_TOP_KEYS: dict[str, tuple[type, ...]] = {
+    "model": (list,),
+    "version": (int,),
+    "effects": (list,),
+    "recordings": (list,),
+    "residual": (dict,),
+    "force": (dict, type(None)),
+    "candidates": (list,),
+    "skipped": (dict,),
+    "history": (list,),
+    "notes": (list,),
+}
+_NUMBER = (int, float)
+_WINDOW_KEYS: dict[str, tuple[type, ...]] = {
+    "recording": (str,),
+    "t0": _NUMBER,
+    "t1": _NUMBER,
+    "energy": _NUMBER,
+    "worst_joint": (int,),
+    "worst_joint_ratio": _NUMBER,
+}
+_CANDIDATE_KEYS: dict[str, tuple[type, ...]] = {
+    "effect": (str,),
+    "joints": (list,),
+    "explained_fraction": _NUMBER,
+    "suggested": (bool,),
+    "text": (str,),
+}
+_KIND_NAMES = {
+    list: "a list",
+    dict: "an object",
+    int: "an integer",
+    float: "a number",
+    str: "a string",
+    bool: "true or false",
+    type(None): "null",
+}
+
+
+def _check_kind(source: str | Path, key: str, value: Any, kinds: tuple[type, ...]) -> None:
+    # bool is an int in Python, not in JSON: true is no version number
+    ok = isinstance(value, kinds) and not (isinstance(value, bool) and bool not in kinds)
+    if not ok:
+        want = " or ".join(dict.fromkeys(_KIND_NAMES[k] for k in kinds))
+        raise FormatError(
+            f"{source}: key {key!r} is {json.dumps(value, default=str)[:40]}, expected {want} "
+            f"({_EXPECTED})"
+        )
+
+
+def _check_entry(
+    source: str | Path, where: str, entry: Any, keys: dict[str, tuple[type, ...]]
+) -> None:
+    _check_kind(source, where, entry, (dict,))
+    for key, kinds in keys.items():
+        if key not in entry:
+            raise FormatError(f"{source}: key '{where}.{key}' is missing, expected {_EXPECTED}")
+        _check_kind(source, f"{where}.{key}", entry[key], kinds)
+
+
+def load_report(path: str | Path) -> DiagnosisReport:
+    """Read the ``report.json`` that :func:`write_report` wrote (``Diagnosis.to_dict()``).
+
+    Raises
+    ------
+    FormatError
+        Missing file, not JSON, or not a diagnosis report (see :meth:`DiagnosisReport.from_dict`).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FormatError(f"{p}: no such diagnosis file")
+    try:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{p}: not a JSON diagnosis report ({exc})") from None
+    return DiagnosisReport.from_dict(d, source=p)
+
+
+#: A diagnosis in any of the forms the view takes (see :func:`as_report`).
+DiagnosisLike = Diagnosis | DiagnosisReport | Mapping[str, Any]
+
+
+def as_report(diagnosis: DiagnosisLike) -> DiagnosisReport:
+    """A :class:`DiagnosisReport` of a diagnosis in any of its forms: the report itself, a
+    :class:`ditherlab.diagnose.Diagnosis` (as its ``report.json`` would hold it) or that dict."""
+    if isinstance(diagnosis, DiagnosisReport):
+        return diagnosis
+    if isinstance(diagnosis, Diagnosis):
+        return DiagnosisReport.from_dict(plain(diagnosis.to_dict()), source="diagnosis")
+    return DiagnosisReport.from_dict(diagnosis, source="diagnosis")

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from ditherlab.io.atomic import atomic_path
+from ditherlab.recording import FORCE_AXES
 
-AXES = ("x", "y", "z")
 COLOURS = {"sensor": "black", "estimate": "tab:blue", "interval": "tab:blue"}
 
 
@@ -67,7 +67,7 @@ def fig6_estimates(
         F = est.wrench
         Fh = est.F(variant)
         lo, hi = est.interval(variant)
-        for k, a in enumerate(AXES):
+        for k, a in enumerate(FORCE_AXES):
             pushes = [p for p in rinfo["pushes"] if p["axis"] == a]
             t0, t1 = _window(
                 t, sorted(pushes, key=lambda p: p["peak"])[:: max(len(pushes) // 6, 1)]
@@ -111,7 +111,7 @@ def detection_curves(analysis: dict, path: Path) -> Path:
     conds = list(analysis["conditions"])
     fig, axs = plt.subplots(2, 3, figsize=(13, 7.5), squeeze=False)
     cmap = plt.get_cmap("tab10")
-    for k, a in enumerate(AXES):
+    for k, a in enumerate(FORCE_AXES):
         ax, axp = axs[0, k], axs[1, k]
         for i, c in enumerate(conds):
             d = analysis["conditions"][c]
