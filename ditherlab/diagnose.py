@@ -231,23 +231,7 @@ def force_error(
         reg = sc.sig.regime
         # the estimator is sensorless: the model's effects without the F/T columns
         tau_bar = sc.tau - sc.sig.gravity - effects_torque(model, rec, sensor=False)
-        lo = np.zeros(tau_bar.shape)
-        hi = np.zeros(tau_bar.shape)
-        sg = np.ones(tau_bar.shape)
-        for code, name in ((r, r.label) for r in Regime):
-            if name not in model.regimes:
-                continue
-            b = model.regimes[name]
-            cen = np.zeros(tau_bar.shape)
-            if code == MOVING:
-                if b.coulomb is not None:
-                    cen = cen + b.coulomb * np.sign(sc.sig.dq)
-                if b.viscous is not None:
-                    cen = cen + b.viscous * sc.sig.dq
-            m = reg == code
-            lo = np.where(m, b.tau_min + cen, lo)
-            hi = np.where(m, b.tau_max + cen, hi)
-            sg = np.where(m, b.sigma, sg)
+        lo, hi, sg = model.sample_bands(reg, sc.sig.dq, dither=True)
         # joints not scored (e.g. dither without extraction): leave them out with a huge band
         lo = np.where(sc.use, lo, -1e9)
         hi = np.where(sc.use, hi, 1e9)

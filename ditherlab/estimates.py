@@ -22,11 +22,11 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ditherlab.errors import ConfigError, FormatError
-from ditherlab.io.atomic import atomic_path
-from ditherlab.recording import WRENCH_COLUMNS
+from ditherlab.errors import ConfigError, FormatError, RecordingError
+from ditherlab.io.atomic import atomic_path, plain
+from ditherlab.recording import WRENCH_COLUMNS, Recording
 
-__all__ = ["COMPONENTS", "META_KEY", "SCHEMA", "VARIANTS", "Estimates"]
+__all__ = ["COMPONENTS", "META_KEY", "SCHEMA", "VARIANTS", "Estimates", "check_estimates_match"]
 
 SCHEMA = "ditherlab.estimates/1"
 META_KEY = b"ditherlab"
@@ -144,3 +144,48 @@ class Estimates:
 def _n_from_meta(meta: dict[str, Any]) -> int:
     model = meta.get("model") or {}
     return int(model.get("n_joints", 0))
+
+
+def check_estimates_match(rec: Recording, est: Estimates) -> None:
+    """Raise RecordingError unless ``est`` was computed from ``rec``.
+
+    The time stamps must be identical (same count, same values) and the recording metadata stored
+    in the estimates file must equal ``rec.meta``.
+
+    Raises
+    ------
+    RecordingError
+        One sentence naming both files and the first difference.
+    """
+    ename = est.name or "estimates"
+    rname = rec.name or "the recording"
+    t_rec, t_est = rec.t, est.data["t"].to_numpy(dtype=float)
+    if len(t_rec) != len(t_est):
+        raise RecordingError(
+            f"{ename}: the estimates come from another recording: column t has {len(t_est)} "
+            f"samples, {rname} has {len(t_rec)}"
+        )
+    diff = np.flatnonzero(t_rec != t_est)
+    if diff.size:
+        i = int(diff[0])
+        raise RecordingError(
+            f"{ename}: the estimates come from another recording: t in row {i + 1} is "
+            f"{t_est[i]!r} s, {rname} has {t_rec[i]!r} s"
+        )
+    stored = est.meta.get("recording")
+    if stored is None:
+        raise RecordingError(f"{ename}: metadata key 'recording' is missing")
+    # both as plain JSON values (tuples as lists, numpy values as Python ones); a recording's
+    # metadata is JSON by contract (Recording.meta_json), so no other conversion is needed
+    a, b = plain(stored), plain(rec.meta)
+    if a != b:
+        key = next(k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
+        raise RecordingError(
+            f"{ename}: the estimates come from another recording: metadata key {key!r} is "
+            f"{_short(a.get(key))}, {rname} has {_short(b.get(key))}"
+        )
+
+
+def _short(v: Any, width: int = 60) -> str:
+    s = repr(v)
+    return s if len(s) <= width else s[: width - 3] + "..."

@@ -246,28 +246,36 @@ class TorqueModel:
             )
 
     def sample_bands(
-        self, reg: np.ndarray, dq: np.ndarray
+        self, reg: np.ndarray, dq: np.ndarray, *, dither: bool = False
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The band and noise of every sample: the one per-sample band assembly.
 
-        The ``still`` band everywhere, and where a joint moves (and the model has a ``moving``
-        band) the moving band about the sliding line ``coulomb·sign(dq) + viscous·dq``. The
-        dither band is the estimator variants' business (:mod:`ditherlab.replay`).
+        The ``still`` band everywhere; where a joint moves (and the model has a ``moving`` band)
+        the moving band about the sliding line ``coulomb·sign(dq) + viscous·dq``
+        (:meth:`Band.sliding`); with ``dither`` the ``dither`` band where a joint stands still with
+        the dither on (the torque there being the extracted signal). Samples of a regime the model
+        has no band for (and, without a ``still`` band, every sample not covered) get an empty
+        band ``[0, 0]`` with unit noise: callers leave them out.
 
         Parameters
         ----------
         reg : (N, n) regime codes (:func:`ditherlab.recording.regimes`)
         dq : (N, n) [rad/s]
+        dither : use the dither band on DITHER samples (the estimator's dither variants decide
+            this themselves: :func:`ditherlab.replay.variant_inputs`)
 
         Returns
         -------
         tau_min, tau_max, sigma : each (N, n) [N·m]
         """
         N, n = reg.shape
-        still = self.band("still")
-        lo = np.broadcast_to(still.tau_min, (N, n)).copy()
-        hi = np.broadcast_to(still.tau_max, (N, n)).copy()
-        sig = np.broadcast_to(still.sigma, (N, n)).copy()
+        still = self.regimes.get("still")
+        if still is not None:
+            lo = np.broadcast_to(still.tau_min, (N, n)).copy()
+            hi = np.broadcast_to(still.tau_max, (N, n)).copy()
+            sig = np.broadcast_to(still.sigma, (N, n)).copy()
+        else:
+            lo, hi, sig = np.zeros((N, n)), np.zeros((N, n)), np.ones((N, n))
         mv = reg == MOVING
         if mv.any() and "moving" in self.regimes:
             b = self.regimes["moving"]
@@ -275,6 +283,12 @@ class TorqueModel:
             lo = np.where(mv, b.tau_min + slide, lo)
             hi = np.where(mv, b.tau_max + slide, hi)
             sig = np.where(mv, b.sigma, sig)
+        dm = reg == DITHER
+        if dither and dm.any() and "dither" in self.regimes:
+            b = self.regimes["dither"]
+            lo = np.where(dm, b.tau_min, lo)
+            hi = np.where(dm, b.tau_max, hi)
+            sig = np.where(dm, b.sigma, sig)
         return lo, hi, sig
 
     def __str__(self) -> str:

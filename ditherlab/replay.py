@@ -166,6 +166,7 @@ def replay(
     J = robot.jacobian(rec.q, tol=q_tol)
     eff = model_effects(model, rec)
     reg = regimes(rec)
+    model.band("still")  # the estimator needs it: a clear error without
     base = (rec.tau - g - eff, *model.sample_bands(reg, rec.dq))
     tick()
     ext = extract_dither(rec) if any(v.startswith("dither") for v in variants) else None

@@ -21,14 +21,13 @@ import numpy as np
 from ditherlab.dither import extract, extract_dither
 from ditherlab.effects import signals
 from ditherlab.errors import RecordingError
-from ditherlab.estimates import Estimates
+from ditherlab.estimates import Estimates, check_estimates_match
 from ditherlab.io import read
 from ditherlab.io.atomic import atomic_write_json, atomic_write_text, check_not_input
 from ditherlab.model import TorqueModel
 from ditherlab.recording import DITHER, STILL, Recording
 from ditherlab.thresholds import AXES, PAPER, analyse, find_pushes
 from ditherlab.viz import figures as figs
-from ditherlab.viz.inputs import check_estimates_match
 
 
 def _fmt(x: Any, unit: str = "N", nd: int = 1) -> str:
@@ -367,7 +366,7 @@ def _gravity_and_sensor_torque(r: Recording) -> tuple[np.ndarray, np.ndarray]:
 
 def _estimates_of(rec: Recording, ests: Sequence[Estimates]) -> Estimates | None:
     """The estimates computed from ``rec``, or None: the same time stamps and recording metadata
-    (:func:`ditherlab.viz.inputs.check_estimates_match`) and the same copies of its dither flag
+    (:func:`ditherlab.estimates.check_estimates_match`) and the same copies of its dither flag
     and F/T columns (two recordings of one campaign can share time stamps and metadata)."""
     for e in ests:
         try:
