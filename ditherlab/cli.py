@@ -266,6 +266,7 @@ def diagnose(
     """Where the model fails (residual vs noise floor, force error, worst windows) and which effect is missing."""
     import json
 
+    from ditherlab.io.atomic import json_default
     from ditherlab.loop import diagnose_files
 
     with progress_bar("diagnose", quiet or json_out) as progress:
@@ -278,7 +279,7 @@ def diagnose(
             regimes=regime,
             progress=progress,
         )
-    echo(json.dumps(d.to_dict(), indent=1, default=float) if json_out else d.summary())
+    echo(json.dumps(d.to_dict(), indent=1, default=json_default) if json_out else d.summary())
 
 
 # ---------------------------------------------------------------- identify, replay, report (helper "replay")
@@ -464,6 +465,7 @@ def report(
     """Detection thresholds per direction beside the paper's §VI-C numbers, curves, coverage, figures."""
     import json
 
+    from ditherlab.io.atomic import json_default
     from ditherlab.report import make_report, summary_text
 
     with progress_bar("report", quiet or json_out) as progress:
@@ -476,7 +478,7 @@ def report(
             progress=progress,
         )
     echo(
-        json.dumps(a, indent=1, default=float)
+        json.dumps(a, indent=1, default=json_default)
         if json_out
         else summary_text(a) + f"\nwrote {out}/report.md"
     )

@@ -27,7 +27,7 @@ import numpy as np
 import ditherlab.io as dio
 from ditherlab.errors import DitherlabError
 from ditherlab.io.info import describe, format_info
-from ditherlab.recording import WRENCH_COLUMNS, Recording
+from ditherlab.recording import FORCE_AXES, WRENCH_COLUMNS, Recording
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
 SAMPLE = RECORDINGS / "ur10e-static.parquet"
@@ -227,7 +227,7 @@ def pipeline_text(res: PipelineResult) -> str:
         if not c:
             continue
         cells = []
-        for ax in ("x", "y", "z"):
+        for ax in FORCE_AXES:
             d = c["directions"].get(ax)
             if d and d["curve"].get("bound"):
                 cv = d["curve"]

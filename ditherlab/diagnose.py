@@ -29,7 +29,6 @@ motion) and need a varying pose or force to be told apart from the band.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -47,6 +46,7 @@ from ditherlab.effects import (
 )
 from ditherlab.errors import ModelError
 from ditherlab.estimator import estimate, intervals
+from ditherlab.io.atomic import plain
 from ditherlab.model import TorqueModel
 from ditherlab.recording import (
     DITHER,
@@ -334,7 +334,7 @@ class Diagnosis:
             "force": self.force,
             "candidates": [c.to_dict() for c in self.candidates],
             "skipped": self.skipped,
-            "history": _hist_plain(self.model.history),
+            "history": plain(self.model.history),
             "notes": self.notes,
         }
 
@@ -383,10 +383,6 @@ class Diagnosis:
         for n in self.notes:
             lines.append(f"note: {n}")
         return "\n".join(lines)
-
-
-def _hist_plain(h: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    return json.loads(json.dumps(h, default=float))
 
 
 def diagnose(

@@ -11,6 +11,7 @@ from scipy.signal import lfilter
 
 from ditherlab.effects.base import Design, Effect, fmt
 from ditherlab.effects.signals import Signals
+from ditherlab.model import REGIMES
 from ditherlab.recording import WRENCH_COLUMNS
 
 __all__ = ["AttenuationLag", "FtBias"]
@@ -36,7 +37,7 @@ class AttenuationLag(Effect):
     linear = ("gain",)
     hyper = ("delay", "lag")
     kind = "external"
-    shows_in = ("still", "dither", "moving")
+    shows_in = REGIMES
 
     def signs(self, h):
         return (1,)
@@ -106,7 +107,7 @@ class FtBias(Effect):
     shared = True
     linear = WRENCH_COLUMNS
     kind = "sensor"
-    shows_in = ("still", "dither", "moving")
+    shows_in = REGIMES
 
     def check(self, sig):
         sig.wrench(self.name)

@@ -14,9 +14,10 @@ from numba import njit
 
 from ditherlab.errors import ConfigError, ModelError
 from ditherlab.io.atomic import atomic_path
+from ditherlab.recording import WRENCH_COLUMNS
 
 #: Names of the six wrench components, in the order of ``F`` and of the rows of ``J``.
-COMPONENTS = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
+COMPONENTS = WRENCH_COLUMNS
 #: Relative ridge that replaces an infinite prior_sigma (see :mod:`ditherlab.estimator`).
 RIDGE = 1e-12
 #: Samples per kernel call when a progress callback is given.
