@@ -13,15 +13,13 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from ditherlab.errors import RecordingError, where_prefix
-
-if TYPE_CHECKING:  # pragma: no cover
-    from ditherlab.robot import RobotModel
+from ditherlab.robot import RobotModel
 
 SCHEMA = "ditherlab.recording/1"
 WRENCH_COLUMNS = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
@@ -249,8 +247,6 @@ class Recording:
         """
         cached = self.__dict__.get("_robot")
         if cached is None:
-            from ditherlab.robot import RobotModel
-
             cached = RobotModel.from_recording_meta(self.meta, n_expected=self.n, where=self.name)
             object.__setattr__(self, "_robot", cached)
         return cached
