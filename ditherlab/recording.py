@@ -13,16 +13,14 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from ditherlab.errors import RecordingError, where_prefix
+from ditherlab.robot import RobotModel
 from ditherlab.signal import DITHER, MOVING, REGIME_NAMES, STILL, Regime, smooth_derivative
-
-if TYPE_CHECKING:  # pragma: no cover
-    from ditherlab.robot import RobotModel
 
 SCHEMA = "ditherlab.recording/1"
 WRENCH_COLUMNS = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
@@ -262,8 +260,6 @@ class Recording:
         """
         cached = self.__dict__.get("_robot")
         if cached is None:
-            from ditherlab.robot import RobotModel
-
             cached = RobotModel.from_recording_meta(self.meta, n_expected=self.n, where=self.name)
             object.__setattr__(self, "_robot", cached)
         return cached
@@ -396,18 +392,51 @@ def _urdf_name(urdf: str) -> str | None:
 def _validate(
     data: pd.DataFrame, meta: Mapping[str, Any], name: str | None
 ) -> tuple[pd.DataFrame, dict[str, Any], int]:
+    """The checked table (float64 columns, bool ``dither``, a fresh index), a copy of the
+    metadata and the joint count; RecordingError at the first break of the contract."""
     where = where_prefix(name)
     if not isinstance(data, pd.DataFrame):
         raise RecordingError(f"{where}expected a pandas DataFrame, got {type(data).__name__}")
+    meta = _checked_meta(meta, where)
+    cols = list(data.columns)
+    families, n = _joint_columns(cols, where)
+    present_wrench = _wrench_columns(cols, where)
+    numeric = ["t"] + [f"{p}_{j}" for p in JOINT_FAMILIES for j in sorted(families[p])]
+    numeric += present_wrench
+    out = _numeric_table(data, numeric, where)
+    if len(out) == 0:
+        raise RecordingError(f"{where}the table has no rows")
+    t = out["t"].to_numpy()
+    _check_finite(out, numeric, t, where)
+    _check_increasing(t, where)
+    if "dither" in out.columns and out["dither"].dtype != bool:
+        out["dither"] = _dither_flags(out["dither"], where)
+    return out, meta, n
+
+
+def _checked_meta(meta: Any, where: str) -> dict[str, Any]:
+    """A deep copy of the metadata after the schema, robot, tool_offset and payload checks."""
     if not isinstance(meta, Mapping):
         raise RecordingError(f"{where}metadata must be a JSON object, got {type(meta).__name__}")
     meta = copy.deepcopy(dict(meta))
-    schema = meta.get("schema")
+    _check_schema(meta.get("schema"), where)
+    _check_robot_entry(meta.get("robot"), where)
+    if "tool_offset" in meta:
+        _check_tool_offset(meta["tool_offset"], where)
+    if "payload" in meta:
+        _check_payload(meta["payload"], where)
+    return meta
+
+
+def _check_schema(schema: Any, where: str) -> None:
     if schema is None:
         raise RecordingError(f"{where}metadata key 'schema' is missing (expected {SCHEMA!r})")
     if schema != SCHEMA:
         raise RecordingError(f"{where}metadata key 'schema' is {schema!r}, expected {SCHEMA!r}")
-    robot = meta.get("robot")
+
+
+def _check_robot_entry(robot: Any, where: str) -> None:
+    """``robot`` is a name or an object with URDF text and a tool frame (not loaded here)."""
     if robot is None:
         raise RecordingError(
             f"{where}metadata key 'robot' is missing (expected a built-in name such as 'irb140' "
@@ -421,30 +450,30 @@ def _validate(
         raise RecordingError(
             f"{where}metadata key 'robot' is {robot!r}, expected a name or an object with 'urdf'"
         )
-    if "tool_offset" in meta:
-        off = meta["tool_offset"]
-        if not (isinstance(off, list | tuple) and len(off) == 3):
-            raise RecordingError(
-                f"{where}metadata key 'tool_offset' is {off!r}, expected [x, y, z]"
-            )
-    if "payload" in meta:
-        p = meta["payload"]
-        if not (isinstance(p, Mapping) and "mass" in p):
-            raise RecordingError(
-                f"{where}metadata key 'payload' is {p!r}, expected {{'mass': kg, 'com': [x, y, z]}}"
-            )
-        if float(p["mass"]) < 0:
-            raise RecordingError(
-                f"{where}metadata key 'payload.mass' is {p['mass']}, expected >= 0"
-            )
 
-    cols = list(data.columns)
+
+def _check_tool_offset(off: Any, where: str) -> None:
+    if not (isinstance(off, list | tuple) and len(off) == 3):
+        raise RecordingError(f"{where}metadata key 'tool_offset' is {off!r}, expected [x, y, z]")
+
+
+def _check_payload(p: Any, where: str) -> None:
+    if not (isinstance(p, Mapping) and "mass" in p):
+        raise RecordingError(
+            f"{where}metadata key 'payload' is {p!r}, expected {{'mass': kg, 'com': [x, y, z]}}"
+        )
+    if float(p["mass"]) < 0:
+        raise RecordingError(f"{where}metadata key 'payload.mass' is {p['mass']}, expected >= 0")
+
+
+def _joint_columns(cols: list[Any], where: str) -> tuple[dict[str, set[int]], int]:
+    """Joint indices present per family and the joint count n; checks that the column names are
+    unique, that ``t`` and ``q_1`` exist and that every present family has exactly 1..n."""
     if len(set(cols)) != len(cols):
         dup = sorted({c for c in cols if cols.count(c) > 1})
         raise RecordingError(f"{where}column {dup[0]} appears more than once")
     if "t" not in cols:
         raise RecordingError(f"{where}required column t is missing")
-
     families: dict[str, set[int]] = {p: set() for p in JOINT_FAMILIES}
     for c in cols:
         m = _JOINT_COL.match(str(c))
@@ -470,6 +499,11 @@ def _validate(
                 f"{where}column {prefix}_{extra[0]} has no matching q_{extra[0]} "
                 f"(the recording has {n} joints)"
             )
+    return families, n
+
+
+def _wrench_columns(cols: list[Any], where: str) -> list[str]:
+    """The F/T columns present: none or all six."""
     present_wrench = [c for c in WRENCH_COLUMNS if c in cols]
     if present_wrench and len(present_wrench) != 6:
         missing_w = [c for c in WRENCH_COLUMNS if c not in cols]
@@ -477,9 +511,12 @@ def _validate(
             f"{where}column {missing_w[0]} is missing: the F/T sensor needs all of "
             f"{', '.join(WRENCH_COLUMNS)}"
         )
+    return present_wrench
 
-    numeric = ["t"] + [f"{p}_{j}" for p in JOINT_FAMILIES for j in sorted(families[p])]
-    numeric += present_wrench
+
+def _numeric_table(data: pd.DataFrame, numeric: list[str], where: str) -> pd.DataFrame:
+    """A copy of ``data`` with a fresh index and the ``numeric`` columns as float64; a value that
+    is not a number is an error."""
     out = data.copy() if not data.index.equals(pd.RangeIndex(len(data))) else data.copy(deep=False)
     out = out.reset_index(drop=True)
     for c in numeric:
@@ -494,9 +531,11 @@ def _validate(
                     "(expected a number)"
                 )
             out[c] = conv.astype(np.float64)
-    if len(out) == 0:
-        raise RecordingError(f"{where}the table has no rows")
-    t = out["t"].to_numpy()
+    return out
+
+
+def _check_finite(out: pd.DataFrame, numeric: list[str], t: np.ndarray, where: str) -> None:
+    """No NaN or infinite value in a numeric column (reported by time, or by row for ``t``)."""
     for c in numeric:
         v = out[c].to_numpy()
         bad = ~np.isfinite(v)
@@ -505,6 +544,9 @@ def _validate(
             tt = t if c != "t" else np.arange(len(t), dtype=float)
             span = _time_span(tt, bad) if c != "t" else f"in rows {np.flatnonzero(bad)[0] + 1}.."
             raise RecordingError(f"{where}{c} has {int(bad.sum())} {kind} values {span}")
+
+
+def _check_increasing(t: np.ndarray, where: str) -> None:
     dt = np.diff(t)
     if (dt <= 0).any():
         i = int(np.flatnonzero(dt <= 0)[0])
@@ -512,16 +554,16 @@ def _validate(
             f"{where}t is not strictly increasing: t={float(t[i + 1])!r} s in row {i + 2} "
             f"follows t={float(t[i])!r} s (expected increasing sample times)"
         )
-    if "dither" in out.columns:
-        d = out["dither"]
-        if d.dtype != bool:
-            vals = pd.to_numeric(d, errors="coerce")
-            ok = vals.isin([0, 1]) & vals.notna()
-            if not ok.all():
-                i = int(np.flatnonzero(~ok.to_numpy())[0])
-                raise RecordingError(
-                    f"{where}column dither has value {d.iloc[i]!r} in row {i + 1} "
-                    "(expected true/false or 1/0)"
-                )
-            out["dither"] = vals.astype(bool)
-    return out, meta, n
+
+
+def _dither_flags(d: pd.Series, where: str) -> pd.Series:
+    """A non-bool ``dither`` column as bool: 1/0 (or true/false) accepted."""
+    vals = pd.to_numeric(d, errors="coerce")
+    ok = vals.isin([0, 1]) & vals.notna()
+    if not ok.all():
+        i = int(np.flatnonzero(~ok.to_numpy())[0])
+        raise RecordingError(
+            f"{where}column dither has value {d.iloc[i]!r} in row {i + 1} "
+            "(expected true/false or 1/0)"
+        )
+    return vals.astype(bool)

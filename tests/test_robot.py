@@ -385,11 +385,11 @@ def test_progress_reports_done_and_total(irb):
 
 def test_hash_collision_falls_back_to_exact_grouping(monkeypatch):
     """If every row hashed alike, the grouping would still be exact (verified, then sorted)."""
-    import ditherlab.robot as robot_mod
+    import ditherlab.robot.dedup as dedup_mod
 
-    monkeypatch.setattr(robot_mod, "_row_hash", lambda bits: np.zeros(len(bits), np.uint64))
+    monkeypatch.setattr(dedup_mod, "_row_hash", lambda bits: np.zeros(len(bits), np.uint64))
     q = np.array([[0.0, 1.0], [0.0, 2.0], [0.0, 1.0], [-0.0, 2.0], [3.0, 3.0]])
-    u = robot_mod.unique_configurations(q)
+    u = dedup_mod.unique_configurations(q)
     assert len(u.q) == 3
     np.testing.assert_array_equal(u.q[u.inverse], q)
 

@@ -1,4 +1,5 @@
-"""The compiled kernel agrees with the plain numpy reference step, and the friction law holds."""
+"""The compiled kernel agrees with the plain numpy reference step; the pieces both share (friction
+law, window levels, dither mode switch) hold on their own."""
 
 from __future__ import annotations
 
@@ -7,7 +8,22 @@ import numpy as np
 from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.sim.engine import Engine, Inputs, PlantExtras
 from ditherlab.sim.params import load_params
-from ditherlab.sim.plant import _stick_slip
+from ditherlab.sim.plant import (
+    ACT_NONE,
+    ACT_RAMP_DOWN,
+    ACT_UPDATE,
+    EV_NONE,
+    EV_START,
+    EV_STOP,
+    F_CLOCK,
+    F_R,
+    F_RD,
+    I_MODE,
+    _advance_ramps,
+    _stick_slip,
+    _switch_mode,
+    _window_levels,
+)
 
 
 def _short_run(reference: bool):
@@ -61,3 +77,41 @@ def test_stick_slip_sticks_instead_of_reversing():
     h, m = 1e-3, 2.0
     v, stuck = _stick_slip(m, m * 1e-4 - h * 1.0, h, 5.0, 4.0, 0.0, False, 1e-4)
     assert v == 0.0 and stuck
+
+
+def test_window_levels_follow_the_pseudo_code():
+    """Centre = window mean; upper/lower = means of the samples above/below it (the centre when
+    there are none); only the ``fill`` filled samples count."""
+    hist = np.random.default_rng(5).normal(size=(3, 40))
+    hist[2] = 1.5  # flat: no sample above or below the centre
+    for fill in (1, 7, 40):
+        for j in range(3):
+            w = hist[j, :fill]
+            c, up, lo = _window_levels(hist, j, fill)
+            assert np.isclose(c, w.mean())
+            assert np.isclose(up, w[w > c].mean() if (w > c).any() else c)
+            assert np.isclose(lo, w[w < c].mean() if (w < c).any() else c)
+
+
+def test_dither_mode_switch_and_ramps():
+    """Off -> ramp up (clock reset) -> on -> ramp down -> off; updates every ``upd`` samples; a
+    command during the ramp-down restarts the ramp up without resetting the clock."""
+    ist, fst = np.zeros(4, dtype=np.int64), np.zeros(3)
+    fst[F_CLOCK] = 9.0
+    assert _switch_mode(ist, fst, False) == EV_NONE and ist[I_MODE] == 0
+    assert _advance_ramps(ist, fst, 4.0, 2) == ACT_NONE
+    assert _switch_mode(ist, fst, True) == EV_START
+    assert ist[I_MODE] == 1 and fst[F_CLOCK] == 0.0
+    acts = [_advance_ramps(ist, fst, 4.0, 2) for _ in range(6)]
+    assert acts == [ACT_NONE, ACT_UPDATE] * 3
+    assert ist[I_MODE] == 2 and fst[F_R] == 1.0
+    assert _switch_mode(ist, fst, True) == EV_NONE
+    assert _switch_mode(ist, fst, False) == EV_STOP and ist[I_MODE] == 3
+    assert _advance_ramps(ist, fst, 4.0, 2) == ACT_RAMP_DOWN and fst[F_RD] == 0.25
+    fst[F_CLOCK] = 3.0
+    assert _switch_mode(ist, fst, True) == EV_START
+    assert ist[I_MODE] == 1 and fst[F_CLOCK] == 3.0 and fst[F_R] == 0.0
+    _switch_mode(ist, fst, False)
+    for _ in range(4):
+        assert _advance_ramps(ist, fst, 4.0, 2) == ACT_RAMP_DOWN
+    assert ist[I_MODE] == 0 and fst[F_RD] == 1.0

@@ -10,6 +10,7 @@ from typing import Any
 
 from ditherlab.errors import ConfigError, FormatError
 from ditherlab.recording import SCHEMA, Recording
+from ditherlab.robot import RobotModel, resolve_spec
 
 #: Options every reader accepts: they fill in or override the recording's metadata.
 META_OPTIONS = ("robot", "tool_frame", "tool_offset", "payload", "source", "notes")
@@ -35,8 +36,6 @@ def robot_spec(
     -------
     str (built-in name) or dict with ``urdf`` (text), ``tool_frame`` and ``name``.
     """
-    from ditherlab.robot import resolve_spec
-
     if isinstance(value, Mapping):
         return resolve_spec(value, where=where)
     p = Path(str(value)).expanduser()
@@ -47,8 +46,6 @@ def robot_spec(
 
 def urdf_spec(urdf: str, tool_frame: str | None = None, where: str = "URDF") -> dict[str, str]:
     """The metadata ``robot`` entry for URDF text (e.g. a bag's ``/robot_description``)."""
-    from ditherlab.robot import RobotModel
-
     robot = RobotModel(urdf, tool_frame, where=where)
     return {"urdf": urdf, "tool_frame": robot.tool_frame, "name": robot.name}
 

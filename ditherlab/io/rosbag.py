@@ -60,6 +60,7 @@ from ditherlab.io.common import (
     urdf_spec,
 )
 from ditherlab.recording import WRENCH_COLUMNS, Recording
+from ditherlab.robot import RobotModel
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
@@ -192,8 +193,6 @@ def _custom_data(reader: AnyReader) -> dict[str, str]:
 
 
 def _joint_names(meta: dict[str, Any], path: Path) -> list[str]:
-    from ditherlab.robot import RobotModel
-
     return list(RobotModel.from_spec(meta["robot"], where=str(path)).joint_names)
 
 

@@ -15,8 +15,13 @@ from typing import Any
 
 from ditherlab.errors import ConfigError
 from ditherlab.recording import Recording
+from ditherlab.robot import RobotModel
+from ditherlab.sim import scenarios as sc
+from ditherlab.sim.engine import Engine
+from ditherlab.sim.excitation import excitation
 from ditherlab.sim.hidden import EFFECTS, parse_hidden
-from ditherlab.sim.params import load_params
+from ditherlab.sim.leadthrough import lead_through
+from ditherlab.sim.params import joint_array, load_params
 
 __all__ = ["simulate", "SCENARIOS", "EFFECTS"]
 
@@ -60,8 +65,6 @@ def simulate(
     ConfigError
         Unknown scenario, effect, option or config key; negative sizes or magnitudes.
     """
-    from ditherlab.sim import scenarios as sc
-
     if scenario not in SCENARIOS:
         raise ConfigError(
             f"scenario '{scenario}' is unknown; expected one of {', '.join(SCENARIOS)}"
@@ -84,9 +87,6 @@ def simulate(
     if int(seed) < 0:
         raise ConfigError(f"seed {seed} is negative; expected an integer >= 0")
 
-    from ditherlab.robot import RobotModel
-    from ditherlab.sim.engine import Engine
-
     robot = RobotModel.from_spec("irb140")
 
     def engine_for(hp: Any) -> Engine:
@@ -96,9 +96,9 @@ def simulate(
     if scenario == "push-campaign":
         run = sc.push_campaign
     elif scenario == "excitation":
-        from ditherlab.sim.excitation import excitation as run
+        run = excitation
     else:
-        from ditherlab.sim.leadthrough import lead_through as run
+        run = lead_through
     cols, sim_meta = run(
         engine_for,
         params,
@@ -129,8 +129,6 @@ def simulate(
 
 
 def _bands(params: Mapping[str, Any], n: int) -> dict[str, Any]:
-    from ditherlab.sim.params import joint_array
-
     fs = joint_array(params, "friction.static", n)
     return {
         "static": [float(v) for v in fs],

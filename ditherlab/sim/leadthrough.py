@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from ditherlab.estimator import estimate
 from ditherlab.sim import plant as K
 from ditherlab.sim.engine import Engine, Inputs
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
@@ -54,8 +55,6 @@ def lead_through(
     Same parameters as :func:`ditherlab.sim.scenarios.push_campaign`. Extra columns
     ``fhat_x, fhat_y, fhat_z`` [N] hold the push the controller estimated (on the tool).
     """
-    from ditherlab.estimator import estimate
-
     lt = params["lead_through"]
     fs_hz = float(params["timing"]["sample_rate_hz"])
     dt = 1.0 / fs_hz

@@ -39,7 +39,9 @@ the measured centre to the gravity torque, amplitude from 0); at stop ``c`` and 
 
 Two implementations of the same step: :func:`run_kernel` (numba, scalar loops) and
 :func:`run_reference` (plain numpy over joints, many more Gauss-Seidel sweeps); the tests and
-``bench/bench_sim.py`` check they agree.
+``bench/bench_sim.py`` check they agree. Both use the same stick-slip law, gear-spring, Stribeck
+and ripple formulas, window levels and dither mode switch (tested on their own), so the
+comparison checks how the servo, the loops and the coupled link-side solve are put together.
 """
 
 from __future__ import annotations
@@ -120,8 +122,17 @@ F_R, F_RD, F_CLOCK = range(3)
 # rows of the per-sample output ``out`` (shape (N_OUT, N, n))
 (O_TAU, O_QM, O_VM, O_Q, O_FFW, O_CMEAS, O_AMEAS, O_CREF, O_AREF, O_C, O_A, O_DITHER) = range(12)
 N_OUT = 12
+# events of the dither mode switch (:func:`_switch_mode`) and what the loops do on a sample
+# (:func:`_advance_ramps`)
+EV_NONE, EV_START, EV_STOP = range(3)
+ACT_NONE, ACT_UPDATE, ACT_RAMP_DOWN = range(3)
 
 
+# ---------------------------------------------------------------------- shared by both steps
+# The friction law, the plant's small formulas and the dither loops' bookkeeping are written once
+# and used by both implementations: the kernel calls them compiled (inlined), the reference calls
+# the scalar ones compiled and the array formulas as plain numpy (``.py_func``). What the
+# reference still checks is the composition: servo, loops and the coupled link-side solve.
 @njit(cache=True)
 def _stick_slip(m, p, h, fs, fc, fv, stuck, v_old):
     """Implicit rigid stick-slip for one body: momentum ``p`` without friction -> (v, stuck)."""
@@ -159,6 +170,231 @@ def _window_levels(hist, j, fill):
     up = su / nu if nu > 0 else c
     lo = sl / nl if nl > 0 else c
     return c, up, lo
+
+
+@njit(cache=True, inline="always")
+def _gear_torque(kg, cg, qm, q, vm, v):
+    """Torque of the gear spring with damping [N m] (scalars or arrays of joints)."""
+    return kg * (qm - q) + cg * (vm - v)
+
+
+@njit(cache=True, inline="always")
+def _stribeck(v, strib, strib_v):
+    """Factor on the Coulomb level at velocity ``v``: ``1 + strib exp(-(v / strib_v)^2)``."""
+    return 1.0 + strib * np.exp(-((v / strib_v) ** 2))
+
+
+@njit(cache=True, inline="always")
+def _ripple(amp, freq, qm):
+    """Cogging ripple torque [N m] at motor angle ``qm`` (scalars or arrays of joints)."""
+    return amp * np.sin(freq * qm)
+
+
+@njit(cache=True, inline="always")
+def _square_wave(omega, clock):
+    """The dither's square wave at the dither clock: +1 while ``sin(omega clock) >= 0``, else -1."""
+    return 1.0 if math.sin(omega * clock) >= 0.0 else -1.0
+
+
+@njit(cache=True, inline="always")
+def _switch_mode(ist, fst, cmd):
+    """Follow the dither command: start the loops (from off or during the ramp-down) or stop them.
+
+    Updates the mode, counters and ramp progress in ``ist``/``fst``; returns EV_START (the
+    caller stores the measured centre as the ramp's start), EV_STOP (the caller stores ``c``
+    and ``a`` to ramp them down) or EV_NONE.
+    """
+    mode = ist[I_MODE]
+    if mode == 0 and cmd or mode == 3 and cmd:
+        if mode == 0:
+            fst[F_CLOCK] = 0.0
+        ist[I_MODE] = 1
+        ist[I_CNT] = 0
+        fst[F_R] = 0.0
+        return EV_START
+    if (mode == 1 or mode == 2) and not cmd:
+        ist[I_MODE] = 3
+        fst[F_RD] = 0.0
+        return EV_STOP
+    return EV_NONE
+
+
+@njit(cache=True, inline="always")
+def _advance_ramps(ist, fst, ramp, upd):
+    """One sample of the ramps and the loop counter; returns what the loops do on this sample.
+
+    ACT_UPDATE: compare and integrate (every ``upd``-th sample while ramping up or on, with the
+    reference ramp at ``fst[F_R]``); ACT_RAMP_DOWN: scale the stored ``c`` and ``a`` by
+    ``1 - fst[F_RD]``; ACT_NONE otherwise. The mode moves on when a ramp completes.
+    """
+    mode = ist[I_MODE]
+    if mode == 1:
+        fst[F_R] = min(1.0, fst[F_R] + 1.0 / ramp)
+        if fst[F_R] >= 1.0:
+            ist[I_MODE] = 2
+    if mode == 1 or mode == 2:
+        ist[I_CNT] += 1
+        return ACT_UPDATE if ist[I_CNT] % upd == 0 else ACT_NONE
+    if mode == 3:
+        fst[F_RD] = min(1.0, fst[F_RD] + 1.0 / ramp)
+        if fst[F_RD] >= 1.0:
+            ist[I_MODE] = 0
+        return ACT_RAMP_DOWN
+    return ACT_NONE
+
+
+# ---------------------------------------------------------------------- the compiled step
+@njit(cache=True, inline="always")
+def _linear_gravity(g0, G, q_lin, x, row, j):
+    """Gravity of joint j linearised about ``q_lin``: ``g0 + G (x[row] - q_lin)`` [N m]."""
+    g = g0[j]
+    for m in range(g0.shape[0]):
+        g += G[j, m] * (x[row, m] - q_lin[m])
+    return g
+
+
+@njit(cache=True, inline="always")
+def _servo(jp, x, q_ref, dq_ref, kp_on, kk, tau_in, dts, loops_on, sq, gc0, Gc, qc_lin, u, ffw):
+    """One servo tick of every joint (paper Fig. 3) -> torque reference ``u``, feedforward ``ffw``.
+
+    Position loop (off while the joint dithers; bumpless offset when it comes back on), velocity
+    loop with integral, the controller's gravity model and the dither feedforward
+    ``c + a sq``. ``tau_in`` [s] is the time since the sample, for the ramp of ``q_ref``.
+    """
+    for j in range(jp.shape[1]):
+        dith = loops_on and jp[DMASK, j] > 0.5
+        kpe = 0.0 if dith else jp[KP, j] * kp_on[kk]
+        qr = q_ref[kk, j] + dq_ref[kk, j] * tau_in
+        if kpe > 0.0 and x[X_KPE, j] == 0.0:
+            x[X_OFF, j] = x[X_QM, j] - qr
+        x[X_KPE, j] = kpe
+        vref = dq_ref[kk, j] + kpe * (qr + x[X_OFF, j] - x[X_QM, j])
+        ev = vref - x[X_VM, j]
+        x[X_I, j] += jp[KI, j] * ev * dts
+        g = _linear_gravity(gc0, Gc, qc_lin, x, X_QM, j)
+        ffw[j] = (x[X_C, j] + x[X_A, j] * sq) if dith else 0.0
+        u[j] = g + ffw[j] + jp[KV, j] * ev + x[X_I, j]
+
+
+@njit(cache=True, inline="always")
+def _log_sample(out, k, kk, u, ffw, noise, x, ist, hist):
+    """Log sample k (torque reference plus noise, angles, feedforward) and push the logged torque
+    into the ring buffer."""
+    pos = ist[I_POS]
+    L = hist.shape[1]
+    for j in range(u.shape[0]):
+        tl = u[j] + noise[kk, j]
+        out[O_TAU, k, j] = tl
+        out[O_QM, k, j] = x[X_QM, j]
+        out[O_VM, k, j] = x[X_VM, j]
+        out[O_Q, k, j] = x[X_Q, j]
+        out[O_FFW, k, j] = ffw[j]
+        hist[j, pos] = tl
+    ist[I_POS] = (pos + 1) % L
+    ist[I_FILL] = min(ist[I_FILL] + 1, L)
+
+
+@njit(cache=True, inline="always")
+def _integrate_loops(jp, sp, x, hist, fill, r, gc0, Gc, qc_lin, dt_loop):
+    """The loops' update for every dithering joint: the window's centre and amplitude against
+    their references (ramped by ``r``), integrated into ``c`` and ``a`` outside the hold band."""
+    for j in range(jp.shape[1]):
+        if jp[DMASK, j] < 0.5:
+            continue
+        c, up, lo = _window_levels(hist, j, fill)
+        amp = 0.5 * (up - lo)
+        g = _linear_gravity(gc0, Gc, qc_lin, x, X_QM, j)
+        cref = (1.0 - r) * x[X_C0, j] + r * g
+        aref = r * jp[AMP_SP, j]
+        hold = sp[SP_HOLD] * jp[BAND, j]
+        if abs(cref - c) > hold:
+            x[X_C, j] += sp[SP_KC] * (cref - c) * dt_loop
+        if abs(aref - amp) > hold:
+            a = x[X_A, j] + sp[SP_KA] * (aref - amp) * dt_loop
+            x[X_A, j] = min(max(a, 0.0), jp[AMP_CAP, j])
+        x[X_CM, j] = c
+        x[X_AM, j] = amp
+        x[X_CR, j] = cref
+        x[X_AR, j] = aref
+
+
+@njit(cache=True, inline="always")
+def _dither_loops(jp, sp, x, ist, fst, hist, cmd, upd, gc0, Gc, qc_lin, dt_loop):
+    """The dither loops on a logged sample: mode switch, ramps, and the centre/amplitude update."""
+    n = jp.shape[1]
+    fill = ist[I_FILL]
+    event = _switch_mode(ist, fst, cmd)
+    if event == EV_START:
+        for j in range(n):
+            c, up, lo = _window_levels(hist, j, fill)
+            x[X_C0, j] = c
+    elif event == EV_STOP:
+        for j in range(n):
+            x[X_CSTOP, j] = x[X_C, j]
+            x[X_ASTOP, j] = x[X_A, j]
+    action = _advance_ramps(ist, fst, sp[SP_RAMP], upd)
+    if action == ACT_UPDATE:
+        _integrate_loops(jp, sp, x, hist, fill, fst[F_R], gc0, Gc, qc_lin, dt_loop)
+    elif action == ACT_RAMP_DOWN:
+        for j in range(n):
+            x[X_C, j] = x[X_CSTOP, j] * (1.0 - fst[F_RD])
+            x[X_A, j] = x[X_ASTOP, j] * (1.0 - fst[F_RD])
+
+
+@njit(cache=True, inline="always")
+def _log_loops(out, k, x, ist):
+    """Log the loops' measured and reference centre/amplitude, ``c``, ``a`` and the dither flag."""
+    for j in range(x.shape[1]):
+        out[O_CMEAS, k, j] = x[X_CM, j]
+        out[O_AMEAS, k, j] = x[X_AM, j]
+        out[O_CREF, k, j] = x[X_CR, j]
+        out[O_AREF, k, j] = x[X_AR, j]
+        out[O_C, k, j] = x[X_C, j]
+        out[O_A, k, j] = x[X_A, j]
+        out[O_DITHER, k, j] = 1.0 if ist[I_MODE] != 0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def _load_factor(load, band, ts):
+    """Growth of a friction band ``band`` with the gear torque ``ts``: ``1 + load |ts| / band``."""
+    return 1.0 + load * abs(ts) / band if band > 0.0 else 1.0
+
+
+@njit(cache=True, inline="always")
+def _free_link_velocity(h, W, gp0, Gp, qp_lin, JT, push, tau_ext, kk, x, ts, tnet, vstar):
+    """Link velocities after the substep without output-side friction: ``v + h W tnet`` with
+    ``tnet = ts - g(q) + tau_ext + J^T P`` (written to ``tnet`` and ``vstar``)."""
+    n = ts.shape[0]
+    for j in range(n):
+        g = _linear_gravity(gp0, Gp, qp_lin, x, X_Q, j)
+        e = tau_ext[kk, j]
+        for c6 in range(6):
+            e += JT[j, c6] * push[kk, c6]
+        tnet[j] = ts[j] - g + e
+    for j in range(n):
+        acc = 0.0
+        for m in range(n):
+            acc += W[j, m] * tnet[m]
+        vstar[j] = x[X_V, j] + h * acc
+
+
+@njit(cache=True, inline="always")
+def _advance_joints(h, W, x, vstar, stuck, vnew):
+    """End of the substep: link velocity with the output friction (0 when stuck), then both
+    angles advanced with the new velocities (semi-implicit Euler)."""
+    n = vstar.shape[0]
+    for j in range(n):
+        acc = 0.0
+        for m in range(n):
+            acc += W[j, m] * x[X_FO, m]
+        v = vstar[j] - h * acc
+        if stuck[j] > 0.5:
+            v = 0.0
+        x[X_SO, j] = stuck[j]
+        x[X_QM, j] += h * vnew[j]
+        x[X_VM, j] = vnew[j]
+        x[X_Q, j] += h * v
+        x[X_V, j] = v
 
 
 @njit(cache=True)
@@ -210,7 +446,6 @@ def run_kernel(
     nsub = int(sp[SP_NSUB])
     dts = sp[SP_DTS]
     omega = sp[SP_OMEGA]
-    L = hist.shape[1]
     upd = int(sp[SP_UPD])
     dt_loop = upd * nservo * dts
     sweeps = int(sp[SP_SWEEPS])
@@ -224,143 +459,46 @@ def run_kernel(
     for kk in range(K):
         k = k0 + kk
         for i in range(nservo):
+            loops_on = ist[I_MODE] != 0
+            sq = _square_wave(omega, fst[F_CLOCK])
             tau_in = i * dts
-            mode = ist[I_MODE]
-            sq = 1.0 if math.sin(omega * fst[F_CLOCK]) >= 0.0 else -1.0
-            for j in range(n):
-                dith = mode != 0 and jp[DMASK, j] > 0.5
-                kpe = 0.0 if dith else jp[KP, j] * kp_on[kk]
-                qr = q_ref[kk, j] + dq_ref[kk, j] * tau_in
-                if kpe > 0.0 and x[X_KPE, j] == 0.0:
-                    x[X_OFF, j] = x[X_QM, j] - qr
-                x[X_KPE, j] = kpe
-                vref = dq_ref[kk, j] + kpe * (qr + x[X_OFF, j] - x[X_QM, j])
-                ev = vref - x[X_VM, j]
-                x[X_I, j] += jp[KI, j] * ev * dts
-                g = gc0[j]
-                for m in range(n):
-                    g += Gc[j, m] * (x[X_QM, m] - qc_lin[m])
-                ffw[j] = (x[X_C, j] + x[X_A, j] * sq) if dith else 0.0
-                u[j] = g + ffw[j] + jp[KV, j] * ev + x[X_I, j]
+            _servo(
+                jp, x, q_ref, dq_ref, kp_on, kk, tau_in, dts, loops_on, sq, gc0, Gc, qc_lin, u, ffw
+            )
             if i == 0:
-                # ---- log the sample and run the dither loops on the logged torque
-                pos = ist[I_POS]
-                for j in range(n):
-                    tl = u[j] + noise[kk, j]
-                    out[O_TAU, k, j] = tl
-                    out[O_QM, k, j] = x[X_QM, j]
-                    out[O_VM, k, j] = x[X_VM, j]
-                    out[O_Q, k, j] = x[X_Q, j]
-                    out[O_FFW, k, j] = ffw[j]
-                    hist[j, pos] = tl
-                ist[I_POS] = (pos + 1) % L
-                ist[I_FILL] = min(ist[I_FILL] + 1, L)
-                fill = ist[I_FILL]
-                cmd = dcmd[kk] > 0.5
-                if mode == 0 and cmd or mode == 3 and cmd:
-                    if mode == 0:
-                        fst[F_CLOCK] = 0.0
-                    ist[I_MODE] = 1
-                    ist[I_CNT] = 0
-                    fst[F_R] = 0.0
-                    for j in range(n):
-                        c, up, lo = _window_levels(hist, j, fill)
-                        x[X_C0, j] = c
-                elif (mode == 1 or mode == 2) and not cmd:
-                    ist[I_MODE] = 3
-                    fst[F_RD] = 0.0
-                    for j in range(n):
-                        x[X_CSTOP, j] = x[X_C, j]
-                        x[X_ASTOP, j] = x[X_A, j]
-                mode = ist[I_MODE]
-                if mode == 1:
-                    fst[F_R] = min(1.0, fst[F_R] + 1.0 / sp[SP_RAMP])
-                    if fst[F_R] >= 1.0:
-                        ist[I_MODE] = 2
-                if mode == 1 or mode == 2:
-                    ist[I_CNT] += 1
-                    if ist[I_CNT] % upd == 0:
-                        r = fst[F_R]
-                        for j in range(n):
-                            if jp[DMASK, j] < 0.5:
-                                continue
-                            c, up, lo = _window_levels(hist, j, fill)
-                            amp = 0.5 * (up - lo)
-                            g = gc0[j]
-                            for m in range(n):
-                                g += Gc[j, m] * (x[X_QM, m] - qc_lin[m])
-                            cref = (1.0 - r) * x[X_C0, j] + r * g
-                            aref = r * jp[AMP_SP, j]
-                            hold = sp[SP_HOLD] * jp[BAND, j]
-                            if abs(cref - c) > hold:
-                                x[X_C, j] += sp[SP_KC] * (cref - c) * dt_loop
-                            if abs(aref - amp) > hold:
-                                a = x[X_A, j] + sp[SP_KA] * (aref - amp) * dt_loop
-                                x[X_A, j] = min(max(a, 0.0), jp[AMP_CAP, j])
-                            x[X_CM, j] = c
-                            x[X_AM, j] = amp
-                            x[X_CR, j] = cref
-                            x[X_AR, j] = aref
-                elif mode == 3:
-                    fst[F_RD] = min(1.0, fst[F_RD] + 1.0 / sp[SP_RAMP])
-                    for j in range(n):
-                        x[X_C, j] = x[X_CSTOP, j] * (1.0 - fst[F_RD])
-                        x[X_A, j] = x[X_ASTOP, j] * (1.0 - fst[F_RD])
-                    if fst[F_RD] >= 1.0:
-                        ist[I_MODE] = 0
-                for j in range(n):
-                    out[O_CMEAS, k, j] = x[X_CM, j]
-                    out[O_AMEAS, k, j] = x[X_AM, j]
-                    out[O_CREF, k, j] = x[X_CR, j]
-                    out[O_AREF, k, j] = x[X_AR, j]
-                    out[O_C, k, j] = x[X_C, j]
-                    out[O_A, k, j] = x[X_A, j]
-                    out[O_DITHER, k, j] = 1.0 if ist[I_MODE] != 0 else 0.0
+                # log the sample and run the dither loops on the logged torque
+                _log_sample(out, k, kk, u, ffw, noise, x, ist, hist)
+                _dither_loops(
+                    jp, sp, x, ist, fst, hist, dcmd[kk] > 0.5, upd, gc0, Gc, qc_lin, dt_loop
+                )
+                _log_loops(out, k, x, ist)
             if ist[I_MODE] != 0:
                 fst[F_CLOCK] += dts
-            # ---- plant substeps with the torque reference u held
+            # plant substeps with the torque reference u held. The motor side and the
+            # Gauss-Seidel sweeps stay written out here: as inlined helpers they cost 3-10 % of
+            # the kernel's speed (A/B-measured in one process; numba's inlining adds reference
+            # counting of the helpers' array arguments to the compiled loop).
             for _ in range(nsub):
+                # motor side: gear torque, friction factor, implicit stick-slip of the rotor
                 for j in range(n):
-                    ts[j] = jp[KG, j] * (x[X_QM, j] - x[X_Q, j]) + jp[CG, j] * (
-                        x[X_VM, j] - x[X_V, j]
+                    ts[j] = _gear_torque(
+                        jp[KG, j], jp[CG, j], x[X_QM, j], x[X_Q, j], x[X_VM, j], x[X_V, j]
                     )
                     band = jp[FS_M, j] + jp[FS_O, j]
-                    lm = 1.0 + jp[LOAD, j] * abs(ts[j]) / band if band > 0.0 else 1.0
-                    mult[j] = lm * fscale[kk, j]
-                    ripple = jp[RIP_A, j] * math.sin(jp[RIP_F, j] * x[X_QM, j])
+                    mult[j] = _load_factor(jp[LOAD, j], band, ts[j]) * fscale[kk, j]
+                    ripple = _ripple(jp[RIP_A, j], jp[RIP_F, j], x[X_QM, j])
                     vm = x[X_VM, j]
-                    fc = (
-                        jp[FC_M, j]
-                        * mult[j]
-                        * (1.0 + jp[STRIB, j] * math.exp(-((vm / jp[STRIB_V, j]) ** 2)))
-                    )
+                    fc = jp[FC_M, j] * mult[j] * _stribeck(vm, jp[STRIB, j], jp[STRIB_V, j])
                     p = jp[JM, j] * vm + h * (u[j] - ts[j] - ripple)
-                    v, st = _stick_slip(
-                        jp[JM, j],
-                        p,
-                        h,
-                        jp[FS_M, j] * mult[j],
-                        fc,
-                        jp[FV_M, j] * fscale[kk, j],
-                        x[X_SM, j] > 0.5,
-                        vm,
-                    )
-                    vnew[j] = v
+                    fs, fv = jp[FS_M, j] * mult[j], jp[FV_M, j] * fscale[kk, j]
+                    vnew[j], st = _stick_slip(jp[JM, j], p, h, fs, fc, fv, x[X_SM, j] > 0.5, vm)
                     x[X_SM, j] = 1.0 if st else 0.0
-                for j in range(n):
-                    g = gp0[j]
-                    for m in range(n):
-                        g += Gp[j, m] * (x[X_Q, m] - qp_lin[m])
-                    e = tau_ext[kk, j]
-                    for c6 in range(6):
-                        e += JT[j, c6] * push[kk, c6]
-                    tnet[j] = ts[j] - g + e
-                for j in range(n):
-                    acc = 0.0
-                    for m in range(n):
-                        acc += W[j, m] * tnet[m]
-                    vstar[j] = x[X_V, j] + h * acc
-                # projected Gauss-Seidel for the coupled output-side friction
+                _free_link_velocity(
+                    h, W, gp0, Gp, qp_lin, JT, push, tau_ext, kk, x, ts, tnet, vstar
+                )
+                # output side: projected Gauss-Seidel on W = M^-1 for the coupled friction
+                # torques x[X_FO] (warm-started), a stick-slip box problem per joint; tnet is
+                # spent once vstar is formed and holds the new stuck flags
                 for _sw in range(sweeps):
                     for j in range(n):
                         a = vstar[j]
@@ -370,37 +508,15 @@ def run_kernel(
                         me = 1.0 / W[j, j]
                         p = me * a
                         vo = x[X_V, j]
-                        fc = (
-                            jp[FC_O, j]
-                            * mult[j]
-                            * (1.0 + jp[STRIB, j] * math.exp(-((vo / jp[STRIB_V, j]) ** 2)))
-                        )
-                        v, st = _stick_slip(
-                            me,
-                            p,
-                            h,
-                            jp[FS_O, j] * mult[j],
-                            fc,
-                            jp[FV_O, j] * fscale[kk, j],
-                            x[X_SO, j] > 0.5,
-                            vo,
-                        )
+                        fc = jp[FC_O, j] * mult[j] * _stribeck(vo, jp[STRIB, j], jp[STRIB_V, j])
+                        fs, fv = jp[FS_O, j] * mult[j], jp[FV_O, j] * fscale[kk, j]
+                        v, st = _stick_slip(me, p, h, fs, fc, fv, x[X_SO, j] > 0.5, vo)
                         x[X_FO, j] = (p - me * v) / h
-                        tnet[j] = 1.0 if st else 0.0  # reuse as the new stuck flag
-                for j in range(n):
-                    acc = 0.0
-                    for m in range(n):
-                        acc += W[j, m] * x[X_FO, m]
-                    v = vstar[j] - h * acc
-                    if tnet[j] > 0.5:
-                        v = 0.0
-                    x[X_SO, j] = tnet[j]
-                    x[X_QM, j] += h * vnew[j]
-                    x[X_VM, j] = vnew[j]
-                    x[X_Q, j] += h * v
-                    x[X_V, j] = v
+                        tnet[j] = 1.0 if st else 0.0
+                _advance_joints(h, W, x, vstar, tnet, vnew)
 
 
+# ---------------------------------------------------------------------- the numpy reference
 def run_reference(
     jp,
     sp,
@@ -434,89 +550,34 @@ def run_reference(
     benchmark; it runs ``sweeps`` Gauss-Seidel sweeps instead of the kernel's few. Same
     arguments and in-place updates as :func:`run_kernel`.
     """
-    n = jp.shape[1]
     h, dts, omega = sp[SP_H], sp[SP_DTS], sp[SP_OMEGA]
-    nservo, nsub, upd = int(sp[SP_NSERVO]), int(sp[SP_NSUB]), int(sp[SP_UPD])
-    dt_loop = upd * nservo * dts
-    L = hist.shape[1]
-    dm = jp[DMASK] > 0.5
-
-    def levels(fill):
-        # the paper's pseudo-code over the ring buffer's newest `fill` samples
-        w = hist[:, :fill]
-        c = w.mean(axis=1)
-        above, below = w > c[:, None], w < c[:, None]
-        up = np.where(above.any(1), (w * above).sum(1) / np.maximum(above.sum(1), 1), c)
-        lo = np.where(below.any(1), (w * below).sum(1) / np.maximum(below.sum(1), 1), c)
-        return c, up, lo
-
-    def stick_slip(m, p, fs, fc, fv, stuck, v_old):
-        fresh = stuck | (v_old == 0.0)
-        s = np.where(fresh, np.where(p > 0, 1.0, -1.0), np.where(v_old > 0, 1.0, -1.0))
-        v = (p - h * fc * s) / (m + h * fv)
-        hold = (fresh & (np.abs(p) <= h * fs)) | (v * s <= 0.0)
-        return np.where(hold, 0.0, v), hold
-
+    nservo, nsub = int(sp[SP_NSERVO]), int(sp[SP_NSUB])
     for kk in range(push.shape[0]):
         k = k0 + kk
         for i in range(nservo):
-            mode = ist[I_MODE]
-            sq = 1.0 if np.sin(omega * fst[F_CLOCK]) >= 0.0 else -1.0
-            dith = (mode != 0) & dm
-            kpe = np.where(dith, 0.0, jp[KP] * kp_on[kk])
-            qr = q_ref[kk] + dq_ref[kk] * (i * dts)
-            switch_on = (kpe > 0) & (x[X_KPE] == 0)
-            x[X_OFF] = np.where(switch_on, x[X_QM] - qr, x[X_OFF])
-            x[X_KPE] = kpe
-            ev = dq_ref[kk] + kpe * (qr + x[X_OFF] - x[X_QM]) - x[X_VM]
-            x[X_I] += jp[KI] * ev * dts
-            gc = gc0 + Gc @ (x[X_QM] - qc_lin)
-            ffw = np.where(dith, x[X_C] + x[X_A] * sq, 0.0)
-            u = gc + ffw + jp[KV] * ev + x[X_I]
+            loops_on = ist[I_MODE] != 0
+            sq = _square_wave(omega, fst[F_CLOCK])
+            u, ffw = _reference_servo(
+                jp,
+                x,
+                q_ref[kk] + dq_ref[kk] * (i * dts),
+                dq_ref[kk],
+                kp_on[kk],
+                dts,
+                loops_on,
+                sq,
+                gc0,
+                Gc,
+                qc_lin,
+            )
             if i == 0:
                 tl = u + noise[kk]
                 out[O_TAU, k], out[O_QM, k], out[O_VM, k] = tl, x[X_QM], x[X_VM]
                 out[O_Q, k], out[O_FFW, k] = x[X_Q], ffw
                 hist[:, ist[I_POS]] = tl
-                ist[I_POS] = (ist[I_POS] + 1) % L
-                ist[I_FILL] = min(ist[I_FILL] + 1, L)
-                cmd = dcmd[kk] > 0.5
-                if cmd and mode in (0, 3):
-                    if mode == 0:
-                        fst[F_CLOCK] = 0.0
-                    ist[I_MODE], ist[I_CNT], fst[F_R] = 1, 0, 0.0
-                    x[X_C0] = levels(ist[I_FILL])[0]
-                elif not cmd and mode in (1, 2):
-                    ist[I_MODE], fst[F_RD] = 3, 0.0
-                    x[X_CSTOP], x[X_ASTOP] = x[X_C], x[X_A]
-                mode = ist[I_MODE]
-                if mode == 1:
-                    fst[F_R] = min(1.0, fst[F_R] + 1.0 / sp[SP_RAMP])
-                    if fst[F_R] >= 1.0:
-                        ist[I_MODE] = 2
-                if mode in (1, 2):
-                    ist[I_CNT] += 1
-                    if ist[I_CNT] % upd == 0:
-                        r = fst[F_R]
-                        c, up, lo = levels(ist[I_FILL])
-                        amp = 0.5 * (up - lo)
-                        cref = (1 - r) * x[X_C0] + r * (gc0 + Gc @ (x[X_QM] - qc_lin))
-                        aref = r * jp[AMP_SP]
-                        hold = sp[SP_HOLD] * jp[BAND]
-                        dc = np.where(np.abs(cref - c) > hold, sp[SP_KC] * (cref - c) * dt_loop, 0)
-                        da = np.where(
-                            np.abs(aref - amp) > hold, sp[SP_KA] * (aref - amp) * dt_loop, 0
-                        )
-                        x[X_C] = np.where(dm, x[X_C] + dc, x[X_C])
-                        x[X_A] = np.where(dm, np.clip(x[X_A] + da, 0.0, jp[AMP_CAP]), x[X_A])
-                        for row, val in ((X_CM, c), (X_AM, amp), (X_CR, cref), (X_AR, aref)):
-                            x[row] = np.where(dm, val, x[row])
-                elif mode == 3:
-                    fst[F_RD] = min(1.0, fst[F_RD] + 1.0 / sp[SP_RAMP])
-                    x[X_C] = x[X_CSTOP] * (1 - fst[F_RD])
-                    x[X_A] = x[X_ASTOP] * (1 - fst[F_RD])
-                    if fst[F_RD] >= 1.0:
-                        ist[I_MODE] = 0
+                ist[I_POS] = (ist[I_POS] + 1) % hist.shape[1]
+                ist[I_FILL] = min(ist[I_FILL] + 1, hist.shape[1])
+                _reference_dither_loops(jp, sp, x, ist, fst, hist, dcmd[kk] > 0.5, gc0, Gc, qc_lin)
                 out[O_CMEAS, k], out[O_AMEAS, k] = x[X_CM], x[X_AM]
                 out[O_CREF, k], out[O_AREF, k] = x[X_CR], x[X_AR]
                 out[O_C, k], out[O_A, k] = x[X_C], x[X_A]
@@ -524,50 +585,108 @@ def run_reference(
             if ist[I_MODE] != 0:
                 fst[F_CLOCK] += dts
             for _ in range(nsub):
-                ts = jp[KG] * (x[X_QM] - x[X_Q]) + jp[CG] * (x[X_VM] - x[X_V])
-                band = jp[FS_M] + jp[FS_O]
-                mult = (
-                    np.where(band > 0, 1 + jp[LOAD] * np.abs(ts) / np.where(band > 0, band, 1), 1.0)
-                    * fscale[kk]
+                _reference_substep(
+                    jp, h, sweeps, W, gp0, Gp, qp_lin, JT, push[kk], tau_ext[kk], fscale[kk], u, x
                 )
 
-                def strib(v):
-                    return 1 + jp[STRIB] * np.exp(-((v / jp[STRIB_V]) ** 2))
 
-                ripple = jp[RIP_A] * np.sin(jp[RIP_F] * x[X_QM])
-                p = jp[JM] * x[X_VM] + h * (u - ts - ripple)
-                vm, sm = stick_slip(
-                    jp[JM],
-                    p,
-                    jp[FS_M] * mult,
-                    jp[FC_M] * mult * strib(x[X_VM]),
-                    jp[FV_M] * fscale[kk],
-                    x[X_SM] > 0.5,
-                    x[X_VM],
-                )
-                tnet = ts - (gp0 + Gp @ (x[X_Q] - qp_lin)) + JT @ push[kk] + tau_ext[kk]
-                vstar = x[X_V] + h * (W @ tnet)
-                fo = x[X_FO].copy()
-                so = np.zeros(n, dtype=bool)
-                fc_o = jp[FC_O] * mult * strib(x[X_V])
-                for _sw in range(sweeps):
-                    for j in range(n):
-                        a = vstar[j] - h * (W[j] @ fo - W[j, j] * fo[j])
-                        me = 1.0 / W[j, j]
-                        v1, s1 = stick_slip(
-                            np.array([me]),
-                            np.array([me * a]),
-                            np.array([jp[FS_O, j] * mult[j]]),
-                            np.array([fc_o[j]]),
-                            np.array([jp[FV_O, j] * fscale[kk, j]]),
-                            np.array([x[X_SO, j] > 0.5]),
-                            np.array([x[X_V, j]]),
-                        )
-                        fo[j] = (me * a - me * v1[0]) / h
-                        so[j] = s1[0]
-                v = np.where(so, 0.0, vstar - h * (W @ fo))
-                x[X_FO], x[X_SO], x[X_SM] = fo, so.astype(float), sm.astype(float)
-                x[X_QM] += h * vm
-                x[X_VM] = vm
-                x[X_Q] += h * v
-                x[X_V] = v
+def _reference_servo(jp, x, qr, dq_ref, kp_on, dts, loops_on, sq, gc0, Gc, qc_lin):
+    """:func:`_servo` over all joints at once -> (u, ffw); ``qr`` is the ramped position ref."""
+    dith = loops_on & (jp[DMASK] > 0.5)
+    kpe = np.where(dith, 0.0, jp[KP] * kp_on)
+    switch_on = (kpe > 0) & (x[X_KPE] == 0)
+    x[X_OFF] = np.where(switch_on, x[X_QM] - qr, x[X_OFF])
+    x[X_KPE] = kpe
+    ev = dq_ref + kpe * (qr + x[X_OFF] - x[X_QM]) - x[X_VM]
+    x[X_I] += jp[KI] * ev * dts
+    gc = gc0 + Gc @ (x[X_QM] - qc_lin)
+    ffw = np.where(dith, x[X_C] + x[X_A] * sq, 0.0)
+    return gc + ffw + jp[KV] * ev + x[X_I], ffw
+
+
+def _reference_levels(hist, fill):
+    """(centre, upper, lower) of every joint's window: :func:`_window_levels`, stacked."""
+    c, up, lo = np.array([_window_levels(hist, j, fill) for j in range(hist.shape[0])]).T
+    return c, up, lo
+
+
+def _reference_dither_loops(jp, sp, x, ist, fst, hist, cmd, gc0, Gc, qc_lin):
+    """:func:`_dither_loops` with the update written over all joints at once."""
+    dm = jp[DMASK] > 0.5
+    upd = int(sp[SP_UPD])
+    dt_loop = upd * int(sp[SP_NSERVO]) * sp[SP_DTS]
+    fill = ist[I_FILL]
+    event = _switch_mode(ist, fst, cmd)
+    if event == EV_START:
+        x[X_C0] = _reference_levels(hist, fill)[0]
+    elif event == EV_STOP:
+        x[X_CSTOP], x[X_ASTOP] = x[X_C], x[X_A]
+    action = _advance_ramps(ist, fst, sp[SP_RAMP], upd)
+    if action == ACT_UPDATE:
+        r = fst[F_R]
+        c, up, lo = _reference_levels(hist, fill)
+        amp = 0.5 * (up - lo)
+        cref = (1 - r) * x[X_C0] + r * (gc0 + Gc @ (x[X_QM] - qc_lin))
+        aref = r * jp[AMP_SP]
+        hold = sp[SP_HOLD] * jp[BAND]
+        dc = np.where(np.abs(cref - c) > hold, sp[SP_KC] * (cref - c) * dt_loop, 0)
+        da = np.where(np.abs(aref - amp) > hold, sp[SP_KA] * (aref - amp) * dt_loop, 0)
+        x[X_C] = np.where(dm, x[X_C] + dc, x[X_C])
+        x[X_A] = np.where(dm, np.clip(x[X_A] + da, 0.0, jp[AMP_CAP]), x[X_A])
+        for row, val in ((X_CM, c), (X_AM, amp), (X_CR, cref), (X_AR, aref)):
+            x[row] = np.where(dm, val, x[row])
+    elif action == ACT_RAMP_DOWN:
+        x[X_C] = x[X_CSTOP] * (1 - fst[F_RD])
+        x[X_A] = x[X_ASTOP] * (1 - fst[F_RD])
+
+
+def _reference_substep(jp, h, sweeps, W, gp0, Gp, qp_lin, JT, push, tau_ext, fscale, u, x):
+    """One plant substep over all joints: motor side, link side with matrix products, and the
+    output-side friction by ``sweeps`` Gauss-Seidel sweeps; ``push``, ``tau_ext`` and ``fscale``
+    are this sample's rows."""
+    n = jp.shape[1]
+    ts = _gear_torque.py_func(jp[KG], jp[CG], x[X_QM], x[X_Q], x[X_VM], x[X_V])
+    band = jp[FS_M] + jp[FS_O]
+    load = np.where(band > 0, 1 + jp[LOAD] * np.abs(ts) / np.where(band > 0, band, 1), 1.0)
+    mult = load * fscale
+    ripple = _ripple.py_func(jp[RIP_A], jp[RIP_F], x[X_QM])
+    p = jp[JM] * x[X_VM] + h * (u - ts - ripple)
+    fc_m = jp[FC_M] * mult * _stribeck.py_func(x[X_VM], jp[STRIB], jp[STRIB_V])
+    vm, sm = np.zeros(n), np.zeros(n, dtype=bool)
+    for j in range(n):
+        vm[j], sm[j] = _stick_slip(
+            jp[JM, j],
+            p[j],
+            h,
+            jp[FS_M, j] * mult[j],
+            fc_m[j],
+            jp[FV_M, j] * fscale[j],
+            x[X_SM, j] > 0.5,
+            x[X_VM, j],
+        )
+    tnet = ts - (gp0 + Gp @ (x[X_Q] - qp_lin)) + JT @ push + tau_ext
+    vstar = x[X_V] + h * (W @ tnet)
+    fo = x[X_FO].copy()
+    so = np.zeros(n, dtype=bool)
+    fc_o = jp[FC_O] * mult * _stribeck.py_func(x[X_V], jp[STRIB], jp[STRIB_V])
+    for _sw in range(sweeps):
+        for j in range(n):
+            a = vstar[j] - h * (W[j] @ fo - W[j, j] * fo[j])
+            me = 1.0 / W[j, j]
+            v1, so[j] = _stick_slip(
+                me,
+                me * a,
+                h,
+                jp[FS_O, j] * mult[j],
+                fc_o[j],
+                jp[FV_O, j] * fscale[j],
+                x[X_SO, j] > 0.5,
+                x[X_V, j],
+            )
+            fo[j] = (me * a - me * v1) / h
+    v = np.where(so, 0.0, vstar - h * (W @ fo))
+    x[X_FO], x[X_SO], x[X_SM] = fo, so.astype(float), sm.astype(float)
+    x[X_QM] += h * vm
+    x[X_VM] = vm
+    x[X_Q] += h * v
+    x[X_V] = v

@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.recording import Recording
+from ditherlab.recording import FORCE_AXES, Recording
 from ditherlab.sim.engine import Engine, Inputs, PlantExtras
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
 from ditherlab.sim.params import joint_array
 
-AXES = ("x", "y", "z")
+AXES = FORCE_AXES
 
 
 def scenario_rngs(

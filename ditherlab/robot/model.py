@@ -1,110 +1,41 @@
-"""The robot model: kinematics and dynamics over pinocchio, batched over the samples of a log.
-
-A :class:`RobotModel` is built from a URDF (a built-in robot such as ``"irb140"``, or the URDF
-text a recording embeds) plus the recording's ``tool_offset`` and ``payload``. Its methods take
-joint positions ``q : (N, n) [rad]`` (or one configuration ``(n,)``) and return arrays with time
-as the first axis:
-
-- ``gravity(q) -> (N, n) [N·m]``: the joint torques that hold the arm against gravity,
-- ``jacobian(q) -> (N, 6, n)``: the geometric Jacobian of the tool point, linear part first, both
-  parts in base-frame axes (pinocchio's ``LOCAL_WORLD_ALIGNED``),
-- ``gravity_jacobian(q)``: both with one deduplication pass,
-- ``mass_matrix(q) -> (N, n, n) [kg m²]``, ``tool_pose(q) -> (N, 4, 4)``,
-  ``link_poses(q) -> {link: (N, 4, 4)}``, ``gravity_regressor(q) -> (N, n, 10)`` (for a payload's
-  dynamic parameters), ``inverse_dynamics(q, dq, ddq) -> (N, n) [N·m]``.
-
-Robots: :func:`builtin_robots` (``irb140``, ``ur10e``), a URDF file (:func:`resolve_spec` embeds
-its text in the recording's metadata) or ``{"urdf": text, "tool_frame": name}``. Revolute,
-prismatic and continuous joints (the latter take an angle like the others).
-
-A robot that stands still repeats the same configuration thousands of times, so every batched
-method computes each *distinct* configuration once and scatters the result back
-(:func:`unique_configurations`). Exact repeats give bit-identical results to the per-sample loop;
-an optional quantisation ``tol`` [rad] merges configurations that differ by less than the
-encoder resolution, at a bounded error (see :meth:`RobotModel.gravity`).
-
-Conventions (RECORDING.md): the tool point is the origin of the tool frame moved by
-``tool_offset`` (tool-frame axes, [m]); the payload ``{"mass": kg, "com": [x, y, z]}`` (tool
-frame, [m]) is a point mass added to the link that carries the tool frame. Gravity is
-pinocchio's, 9.81 m/s² along -z of the URDF's root link (a wall or ceiling mounting goes into
-the URDF as a fixed joint above the first link).
-
-A RobotModel holds one pinocchio ``Data`` as scratch space, guarded by a lock: it may be shared
-between threads (they take turns); for parallel work give each process its own (it pickles).
+"""The robot model: :class:`RobotModel`, kinematics and dynamics over pinocchio, batched over the
+samples of a log (see :mod:`ditherlab.robot` for the conventions), and :func:`resolve_spec`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
-import tempfile
 import threading
-import warnings
-import xml.etree.ElementTree as ET
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import pinocchio as pin
 
-from ditherlab.errors import DitherlabWarning, RobotError, where_prefix
+from ditherlab.errors import RobotError, where_prefix
+from ditherlab.robot.dedup import unique_configurations
+from ditherlab.robot.describe import describe_robot
+from ditherlab.robot.kernels import quantity_kernels, tool_to_joint_params
+from ditherlab.robot.poses import PAPER_POSE, check_units, parse_pose
+from ditherlab.robot.urdf import (
+    BUILTIN,
+    build_model,
+    builtin_robots,
+    builtin_urdf,
+    guess_tool_frame,
+    parse_payload,
+    robot_name,
+    short_repr,
+    unknown_robot,
+)
 
-__all__ = [
-    "PAPER_POSE",
-    "RobotModel",
-    "UniqueConfigurations",
-    "builtin_robots",
-    "builtin_urdf",
-    "format_description",
-    "resolve_spec",
-    "unique_configurations",
-]
-
-#: The pose of the paper's Fig. 1 for the IRB140, ``(6,) [rad]``: q1 = 0, upper arm vertical,
-#: forearm horizontal along +x, q5 = 90° so the flange points down (flange centre at
-#: (0.450, 0, 0.647) m).
-PAPER_POSE: np.ndarray = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0])
-PAPER_POSE.setflags(write=False)
-
-#: Built-in robots: name -> (URDF file in ditherlab/robots, tool frame).
-_BUILTIN: dict[str, tuple[str, str]] = {
-    "irb140": ("irb140.urdf", "tool0"),
-    "ur10e": ("ur10e.urdf", "tool0"),
-}
-
-#: Link names tried, in order, when a URDF is given without a tool frame.
-_TOOL_FRAME_GUESSES = ("tool0", "flange", "ee_link", "tool", "end_effector")
+__all__ = ["PAPER_POSE", "TOOL_POINT_FRAME", "RobotModel", "resolve_spec"]
 
 #: Name of the frame ditherlab adds at the tool point (tool frame + tool_offset).
 TOOL_POINT_FRAME = "ditherlab_tool_point"
-
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-def builtin_robots() -> list[str]:
-    """Names of the built-in robots, sorted (``["irb140", "ur10e"]``)."""
-    return sorted(_BUILTIN)
-
-
-def builtin_urdf(name: str) -> str:
-    """The URDF text of the built-in robot ``name``; RobotError when there is none."""
-    if name not in _BUILTIN:
-        raise RobotError(_unknown_robot(name, ""))
-    fname = _BUILTIN[name][0]
-    return (Path(__file__).parent / "robots" / fname).read_text(encoding="utf-8")
-
-
-def _unknown_robot(name: Any, where: str) -> str:
-    return (
-        f"{where}robot {_short(name)} is not a built-in robot (expected one of: "
-        f"{', '.join(builtin_robots())}, a path to a .urdf file, or an object "
-        "{'urdf': <URDF text>, 'tool_frame': <frame name>})"
-    )
 
 
 def resolve_spec(
@@ -131,7 +62,7 @@ def resolve_spec(
     if isinstance(spec, Mapping):
         RobotModel.from_spec(spec, where=where)  # validates
         return dict(spec)
-    if isinstance(spec, str) and spec in _BUILTIN:
+    if isinstance(spec, str) and spec in BUILTIN:
         return spec
     if isinstance(spec, str | os.PathLike) and (
         str(spec).lower().endswith(".urdf") or Path(spec).is_file()
@@ -145,183 +76,9 @@ def resolve_spec(
             raise RobotError(f"{w}robot URDF file '{path}' cannot be read ({e})") from None
         robot = RobotModel(text, tool_frame, where=str(path))
         return {"urdf": text, "tool_frame": robot.tool_frame, "name": robot.name}
-    raise RobotError(_unknown_robot(spec, w))
+    raise RobotError(unknown_robot(spec, w))
 
 
-# ---------------------------------------------------------------------- deduplication
-@dataclass(frozen=True)
-class UniqueConfigurations:
-    """Distinct configurations of a batch and the map back to every sample.
-
-    Attributes
-    ----------
-    q : (U, n) [rad]
-        One configuration per group: the exact configuration when ``tol == 0``, the centre of the
-        quantisation cell otherwise.
-    inverse : (N,) int
-        Sample ``i`` belongs to group ``inverse[i]``, so ``values[inverse]`` scatters per-group
-        results back to the samples.
-    tol : float
-        Quantisation step [rad] (0 = exact repeats only).
-    """
-
-    q: np.ndarray
-    inverse: np.ndarray
-    tol: float
-
-    @property
-    def ratio(self) -> float:
-        """Samples per distinct configuration (N / U, ≥ 1)."""
-        return len(self.inverse) / max(len(self.q), 1)
-
-
-def unique_configurations(q: np.ndarray, tol: float = 0.0) -> UniqueConfigurations:
-    """Group the samples of ``q`` into distinct configurations.
-
-    Parameters
-    ----------
-    q : (N, n) [rad]
-        Joint positions.
-    tol : float [rad]
-        0 merges exact repeats only (bit-identical rows; -0.0 counts as 0.0). ``tol > 0`` merges
-        configurations in the same cell of a grid of step ``tol`` on every joint and represents
-        each cell by its centre, so every sample is evaluated at most ``tol / 2`` [rad] away from
-        its own value per joint.
-
-    Returns
-    -------
-    UniqueConfigurations
-        ``q (U, n)`` in order of first appearance, ``inverse (N,)`` with ``q_out[inverse] == q``
-        (exactly when ``tol == 0``).
-
-    Notes
-    -----
-    1. Runs of consecutive identical rows (a robot standing still with a quiet encoder) are
-       collapsed in O(N).
-    2. The run representatives are grouped by a 64-bit hash of their bits (``pandas.factorize``,
-       O(R)), so a configuration that recurs later (encoder flicker between two counts) is also
-       computed once.
-    3. The grouping is verified bit for bit; on a hash collision (never observed) it falls back to
-       sorting the rows (``numpy.unique``), so the result is exact either way.
-    """
-    q = np.ascontiguousarray(q, dtype=np.float64)
-    if q.ndim != 2:
-        raise RobotError(f"q has shape {q.shape}, expected (N, n)")
-    N, n = q.shape
-    if not (np.isfinite(tol) and tol >= 0):
-        raise RobotError(f"quantisation tolerance is {tol!r}, expected a finite value >= 0 [rad]")
-    if N == 0:
-        return UniqueConfigurations(q.copy(), np.zeros(0, dtype=np.intp), float(tol))
-    if tol > 0:
-        key = np.floor(q / tol + 0.5) + 0.0  # cell index (exact integers for |q / tol| < 2**52)
-    else:
-        key = q + 0.0  # + 0.0 maps -0.0 to 0.0
-    bits = key.view(np.uint64)  # (N, n): compare and hash bit patterns (NaN == NaN here)
-    # 1) collapse runs of identical consecutive rows
-    starts = np.empty(N, dtype=bool)
-    starts[0] = True
-    np.any(bits[1:] != bits[:-1], axis=1, out=starts[1:])
-    run_first = np.flatnonzero(starts)
-    run_id = np.cumsum(starts) - 1  # (N,) run of each sample
-    reps = bits[run_first]  # (R, n)
-    # 2) hash the representatives, group equal hashes in order of first appearance
-    codes, _ = pd.factorize(_row_hash(reps))
-    codes = codes.astype(np.intp, copy=False)
-    prev_max = np.maximum.accumulate(np.concatenate(([-1], codes[:-1])))
-    first = np.flatnonzero(codes > prev_max)  # codes appear in increasing order
-    # 3) verify bit for bit (a hash collision would merge different rows)
-    if not np.array_equal(reps[first][codes], reps):  # pragma: no cover - 2**-64 per pair
-        rows = np.ascontiguousarray(reps).view(np.dtype((np.void, 8 * n))).ravel()
-        _, first, codes = np.unique(rows, return_index=True, return_inverse=True)
-        codes = codes.reshape(-1)
-    inverse = codes[run_id]
-    uq = key[run_first[first]] * tol if tol > 0 else q[run_first[first]]
-    return UniqueConfigurations(np.ascontiguousarray(uq), inverse, float(tol))
-
-
-_GOLDEN = 0x9E3779B97F4A7C15
-_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
-_MIX2 = np.uint64(0x94D049BB133111EB)
-
-
-def _row_hash(bits: np.ndarray) -> np.ndarray:
-    """(R,) uint64 hash of the rows of a (R, n) uint64 array (splitmix64 finaliser per column)."""
-    h = np.zeros(len(bits), dtype=np.uint64)
-    for j in range(bits.shape[1]):
-        x = h ^ (bits[:, j] + np.uint64(_GOLDEN * (j + 1) % 2**64))
-        x ^= x >> np.uint64(30)
-        x *= _MIX1
-        x ^= x >> np.uint64(27)
-        x *= _MIX2
-        x ^= x >> np.uint64(31)
-        h = x
-    return h
-
-
-# ---------------------------------------------------------------------- URDF parsing
-@contextlib.contextmanager
-def _captured_stderr_fd():
-    """Capture what C++ code (urdfdom) writes to file descriptor 2, yielding a getter."""
-    buf: list[str] = []
-    try:
-        saved = os.dup(2)
-    except OSError:  # no fd 2 (embedded interpreters): nothing to capture
-        yield lambda: ""
-        return
-    with tempfile.TemporaryFile(mode="w+b") as tmp:
-        try:
-            os.dup2(tmp.fileno(), 2)
-            yield lambda: "".join(buf)
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            tmp.seek(0)
-            buf.append(tmp.read().decode("utf-8", "replace"))
-
-
-def _urdfdom_reason(text: str) -> str:
-    """The first 'Error: ...' line urdfdom printed, without its source location."""
-    for line in text.splitlines():
-        line = line.strip()
-        if line.startswith("Error:"):
-            return " ".join(line[len("Error:") :].split())
-    return ""
-
-
-def _build_model(urdf: str, where: str) -> pin.Model:
-    if not isinstance(urdf, str) or not urdf.strip():
-        raise RobotError(f"{where}robot URDF is empty (expected URDF XML text)")
-    try:
-        root = ET.fromstring(urdf)
-    except ET.ParseError as e:
-        raise RobotError(f"{where}robot URDF does not parse as XML ({e})") from None
-    if root.tag != "robot":
-        raise RobotError(
-            f"{where}robot URDF has root element <{root.tag}>, expected <robot name=...>"
-        )
-    got: Callable[[], str]
-    try:
-        with _captured_stderr_fd() as got:
-            model = pin.buildModelFromXML(urdf)
-    except (ValueError, RuntimeError) as e:
-        reason = _urdfdom_reason(got()) or str(e).strip()
-        raise RobotError(f"{where}robot URDF does not parse: {reason}") from None
-    if model.njoints <= 1:
-        raise RobotError(f"{where}robot URDF has no movable joints (expected at least one)")
-    bad = [
-        f"{model.names[j]} ({model.joints[j].shortname()})"
-        for j in range(1, model.njoints)
-        if not (model.joints[j].nv == 1 and model.joints[j].nq in (1, 2))
-    ]
-    if bad:
-        raise RobotError(
-            f"{where}robot URDF has joints {', '.join(bad)} with several degrees of freedom; "
-            "expected revolute, continuous or prismatic joints"
-        )
-    return model
-
-
-# ---------------------------------------------------------------------- the model
 class RobotModel:
     """A serial robot over pinocchio, with the tool point and payload of a recording.
 
@@ -360,9 +117,9 @@ class RobotModel:
         where: str | None = None,
     ) -> None:
         w = where_prefix(where)
-        model = _build_model(urdf, w)
+        model = build_model(urdf, w)
         if tool_frame is None:
-            tool_frame = _guess_tool_frame(model)
+            tool_frame = guess_tool_frame(model)
         if not isinstance(tool_frame, str) or not model.existFrame(tool_frame):
             links = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
             raise RobotError(
@@ -378,7 +135,7 @@ class RobotModel:
         tf = model.frames[tf_id]
         parent_joint = tf.parentJoint
         if payload is not None:
-            mass, com = _parse_payload(payload, w)
+            mass, com = parse_payload(payload, w)
             if mass > 0:
                 # point mass at `com` in the tool frame, expressed in the parent joint's frame
                 inertia = pin.Inertia(mass, com, np.zeros((3, 3)))
@@ -398,7 +155,7 @@ class RobotModel:
         self.tool_frame = tool_frame
         self.tool_offset = offset
         self.payload = payload
-        self.name = name or _robot_name(urdf) or "urdf"
+        self.name = name or robot_name(urdf) or "urdf"
         self.n = int(model.nv)
         # continuous joints have (cos, sin) coordinates in pinocchio; ditherlab's q is the angle
         self._q_map = [
@@ -461,10 +218,10 @@ class RobotModel:
             File or recording name for error messages.
         """
         w = where_prefix(where)
-        if isinstance(spec, str | os.PathLike) and spec not in _BUILTIN:
+        if isinstance(spec, str | os.PathLike) and spec not in BUILTIN:
             spec = resolve_spec(spec, where=where)
         if isinstance(spec, str):
-            fname, tool = _BUILTIN[spec]
+            fname, tool = BUILTIN[spec]
             return cls(
                 builtin_urdf(spec),
                 tool,
@@ -476,7 +233,7 @@ class RobotModel:
         if isinstance(spec, Mapping):
             urdf, tool = spec.get("urdf"), spec.get("tool_frame")
             if not isinstance(urdf, str) or not urdf.strip():
-                raise RobotError(f"{w}robot key 'urdf' is {_short(urdf)}, expected URDF text")
+                raise RobotError(f"{w}robot key 'urdf' is {short_repr(urdf)}, expected URDF text")
             if not isinstance(tool, str) or not tool:
                 raise RobotError(
                     f"{w}robot key 'tool_frame' is {tool!r}, expected the name of a URDF link"
@@ -489,7 +246,7 @@ class RobotModel:
                 payload=payload,
                 where=where,
             )
-        raise RobotError(_unknown_robot(spec, w))
+        raise RobotError(unknown_robot(spec, w))
 
     @classmethod
     def from_recording_meta(
@@ -546,128 +303,22 @@ class RobotModel:
             f"tool_offset={self.tool_offset.tolist()}{p})"
         )
 
-    # ------------------------------------------------------------------ summary
+    # ------------------------------------------------------------------ poses, summary, checks
     def parse_pose(self, text: str | None, where: str = "--q") -> np.ndarray:
-        """A configuration from text: ``"paper"`` (:data:`PAPER_POSE`, IRB140), ``"zero"``, or
-        ``n`` comma-separated angles in radians.
-
-        Returns
-        -------
-        (n,) [rad]
-        """
-        if text is None or text.strip().lower() in ("", "zero"):
-            return np.zeros(self.n)
-        if text.strip().lower() == "paper":
-            if self.name != "irb140":
-                raise RobotError(
-                    f"{where} is 'paper', which is defined for robot 'irb140' only (this is "
-                    f"{self.name!r}); expected {self.n} comma-separated angles in rad"
-                )
-            return np.array(PAPER_POSE)
-        try:
-            q = np.array([float(x) for x in text.split(",")])
-        except ValueError:
-            q = np.zeros(0)
-        if q.shape != (self.n,) or not np.all(np.isfinite(q)):
-            raise RobotError(
-                f"{where} is {text!r}, expected {self.n} comma-separated angles in rad "
-                "(or 'zero', 'paper')"
-            )
-        return q
+        """A configuration ``(n,) [rad]`` from text: ``"paper"`` (:data:`PAPER_POSE`, IRB140),
+        ``"zero"``, or ``n`` comma-separated angles in radians (:func:`~.poses.parse_pose`)."""
+        return parse_pose(text, self.n, self.name, where)
 
     def describe(self, q: np.ndarray | None = None) -> dict[str, Any]:
-        """A JSON-ready summary: joints and limits, masses, and at pose ``q`` the tool pose,
-        gravity and lever arms.
+        """A JSON-ready summary: joints and limits, masses, and at pose ``q`` (default: zeros)
+        the tool pose, gravity and lever arms (:func:`~.describe.describe_robot`)."""
+        return describe_robot(self, q)
 
-        Parameters
-        ----------
-        q : (n,) [rad], optional
-            Pose for the pose-dependent part (default: zeros).
-
-        Returns
-        -------
-        dict
-            ``name, n, tool_frame, tool_offset [m], payload, moving_mass [kg], joints`` (name,
-            lower/upper [rad], velocity [rad/s], effort [N·m]) and ``pose``: ``q [rad]``,
-            ``tool_position [m]``, ``tool_rotation`` (3×3, columns = tool axes in base axes),
-            ``gravity [N·m]``, ``lever_arms [m]`` (3 × n: |∂tau_j/∂F_axis| for F along base
-            x, y, z at the tool point).
-        """
-        q = np.zeros(self.n) if q is None else np.asarray(q, dtype=float).reshape(self.n)
-        r = self.evaluate(q, ["gravity", "jacobian", "tool_pose"], dedup=False)
-        T = r["tool_pose"][0]
-
-        def finite(x: float) -> float | None:
-            return float(x) if np.isfinite(x) else None
-
-        return {
-            "name": self.name,
-            "n": self.n,
-            "tool_frame": self.tool_frame,
-            "tool_offset": self.tool_offset.tolist(),
-            "payload": self.payload,
-            "moving_mass": float(sum(self.model.inertias[j].mass for j in range(1, self.n + 1))),
-            "joints": [
-                {
-                    "name": name,
-                    "lower": finite(self.q_lower[j]),
-                    "upper": finite(self.q_upper[j]),
-                    "velocity": finite(self.velocity_limit[j]),
-                    "effort": finite(self.effort_limit[j]),
-                }
-                for j, name in enumerate(self.joint_names)
-            ],
-            "pose": {
-                "q": q.tolist(),
-                "tool_position": T[:3, 3].tolist(),
-                "tool_rotation": T[:3, :3].tolist(),
-                "gravity": r["gravity"][0].tolist(),
-                "lever_arms": np.abs(r["jacobian"][0][:3]).tolist(),
-            },
-        }
-
-    # ------------------------------------------------------------------ checks
     def check_units(self, q: np.ndarray, where: str | None = None, margin: float = np.pi) -> bool:
-        """Warn (DitherlabWarning) when joint angles lie far outside the limits, as if in degrees.
-
-        Parameters
-        ----------
-        q : (N, n) or (n,) [rad]
-            Joint positions.
-        where : str, optional
-            File or recording name for the message.
-        margin : float [rad]
-            A joint is suspicious when some sample lies more than ``margin`` outside
-            ``[q_lower, q_upper]`` (NaN samples are ignored).
-
-        Returns
-        -------
-        bool
-            True when a warning was issued (for the joint that is furthest outside).
-        """
-        q2 = self._as_batch(q, where)
-        if q2.shape[0] == 0 or not np.any(np.isfinite(q2)):
-            return False
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
-            lo, hi = np.nanmin(q2, axis=0), np.nanmax(q2, axis=0)
-        excess = np.fmax(self.q_lower - lo, hi - self.q_upper)  # [rad] beyond the limits
-        excess = np.where(np.isfinite(excess), excess, -np.inf)
-        j = int(np.argmax(excess))
-        if excess[j] <= margin:
-            return False
-        peak = hi[j] if hi[j] - self.q_upper[j] >= self.q_lower[j] - lo[j] else lo[j]
-        in_deg = self.q_lower[j] - 0.1 <= np.radians(lo[j]) and np.radians(hi[j]) <= (
-            self.q_upper[j] + 0.1
-        )
-        hint = " as if in degrees" if in_deg else ""
-        warnings.warn(
-            f"{where_prefix(where)}q_{j + 1} reaches {peak:.4g}, far outside the joint limits "
-            f"[{self.q_lower[j]:.3g}, {self.q_upper[j]:.3g}] rad{hint} (expected radians)",
-            DitherlabWarning,
-            stacklevel=2,
-        )
-        return True
+        """Warn (DitherlabWarning) when joint angles ``q (N, n) or (n,) [rad]`` lie more than
+        ``margin`` [rad] outside the limits, as if in degrees; True when it warned
+        (:func:`~.poses.check_units`)."""
+        return check_units(self._as_batch(q, where), self.q_lower, self.q_upper, where, margin)
 
     def _as_batch(self, q: np.ndarray, where: str | None = None) -> np.ndarray:
         q = np.asarray(q, dtype=np.float64)
@@ -700,64 +351,15 @@ class RobotModel:
         return out
 
     def _kernels(self) -> dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]]:
-        """Per-quantity loops over pinocchio: name -> (fill(qs (U, n), out (U, ...)), shape).
-
-        Each ``fill`` is a tight loop with its pinocchio function and arguments bound to local
-        names: the per-sample Python overhead is then about that of one pinocchio call.
-        """
-        m, d, n = self.model, self._data, self.n
-        fid, parent = self._tool_point_id, self._tool_joint
-        tool_placement = m.frames[fid].placement
-        z = np.zeros(n)
-        cols = slice(10 * (parent - 1), 10 * parent)
-        T_params = self._tool_to_joint_params()
-        link_ids = [m.getFrameId(name) for name in self.link_names]
-        oMi, oMf = d.oMi, d.oMf
-
-        def gravity(qs: np.ndarray, out: np.ndarray) -> None:
-            f = pin.computeGeneralizedGravity
-            for i in range(len(qs)):
-                out[i] = f(m, d, qs[i])
-
-        def jacobian(qs: np.ndarray, out: np.ndarray) -> None:
-            f = pin.computeFrameJacobian
-            for i in range(len(qs)):
-                out[i] = f(m, d, qs[i], fid, _LWA)
-
-        def mass(qs: np.ndarray, out: np.ndarray) -> None:
-            f = pin.crba
-            for i in range(len(qs)):
-                out[i] = f(m, d, qs[i])
-            # pinocchio fills the upper triangle only
-            iu = np.tril_indices(n, -1)
-            out[:, iu[0], iu[1]] = out[:, iu[1], iu[0]]
-
-        def tool(qs: np.ndarray, out: np.ndarray) -> None:
-            f = pin.forwardKinematics
-            for i in range(len(qs)):
-                f(m, d, qs[i])
-                out[i] = (oMi[parent] * tool_placement).homogeneous
-
-        def links(qs: np.ndarray, out: np.ndarray) -> None:
-            f = pin.framesForwardKinematics
-            for i in range(len(qs)):
-                f(m, d, qs[i])
-                for k, j in enumerate(link_ids):
-                    out[i, k] = oMf[j].homogeneous
-
-        def regressor(qs: np.ndarray, out: np.ndarray) -> None:
-            f = pin.computeJointTorqueRegressor
-            for i in range(len(qs)):
-                out[i] = f(m, d, qs[i], z, z)[:, cols] @ T_params
-
-        return {
-            "gravity": (gravity, (n,)),
-            "jacobian": (jacobian, (6, n)),
-            "mass_matrix": (mass, (n, n)),
-            "tool_pose": (tool, (4, 4)),
-            "link_poses": (links, (len(link_ids), 4, 4)),
-            "gravity_regressor": (regressor, (n, 10)),
-        }
+        """Per-quantity loops over pinocchio (:func:`ditherlab.robot.kernels.quantity_kernels`)."""
+        return quantity_kernels(
+            self.model,
+            self._data,
+            self._tool_point_id,
+            self._tool_joint,
+            self.link_names,
+            tool_to_joint_params(self.model, self._tool_frame_id),
+        )
 
     def _compute(
         self,
@@ -1156,7 +758,7 @@ class RobotModel:
         N, xs, inverse, qp, vs, acc = self._motion_batch(q, dq, ddq, dedup)
         n = self.n
         cols = slice(10 * (self._tool_joint - 1), 10 * self._tool_joint)
-        T = self._tool_to_joint_params()
+        T = tool_to_joint_params(self.model, self._tool_frame_id)
         m, d, f = self.model, self._data, pin.computeJointTorqueRegressor
         out = np.empty((len(xs), n, 10))
         with self._lock:
@@ -1164,115 +766,12 @@ class RobotModel:
                 out[i] = f(m, d, qp[i], vs[i], acc[i])[:, cols] @ T
         return out if inverse is None or len(xs) == N else out[inverse]
 
-    def _tool_to_joint_params(self) -> np.ndarray:
-        """(10, 10) linear map: dynamic parameters in the tool frame -> parent joint frame."""
-        X = self.model.frames[self._tool_frame_id].placement
-        base = np.array([1.0, 0, 0, 0, 1.0, 0, 1.0, 0, 0, 1.0])  # a valid reference body
-
-        def act(theta: np.ndarray) -> np.ndarray:
-            return X.act(pin.Inertia.FromDynamicParameters(theta)).toDynamicParameters()
-
-        ref = act(base)
-        T = np.empty((10, 10))
-        for k in range(10):
-            e = np.zeros(10)
-            e[k] = 1.0
-            T[:, k] = act(base + e) - ref
-        return T
-
-
-def format_description(d: Mapping[str, Any]) -> str:
-    """Plain-text table of :meth:`RobotModel.describe` (angles in degrees for reading)."""
-
-    def deg(x: float | None) -> str:
-        return "-" if x is None else f"{np.degrees(x):.1f}"
-
-    pay = d["payload"]
-    lines = [
-        f"robot {d['name']}: {d['n']} joints, tool frame {d['tool_frame']}, tool offset "
-        f"{d['tool_offset']} m, payload "
-        + (f"{pay['mass']:g} kg at {pay['com']} m" if pay else "none")
-        + f", moving mass {d['moving_mass']:.1f} kg",
-        f"{'joint':<22}{'lower [deg]':>12}{'upper [deg]':>12}{'vel [deg/s]':>12}"
-        f"{'effort [N·m]':>13}",
-    ]
-    for j in d["joints"]:
-        eff = "-" if j["effort"] is None else f"{j['effort']:.0f}"
-        lines.append(
-            f"{j['name']:<22}{deg(j['lower']):>12}{deg(j['upper']):>12}"
-            f"{deg(j['velocity']):>12}{eff:>13}"
-        )
-    pose = d["pose"]
-    qd = ", ".join(f"{np.degrees(x):.1f}" for x in pose["q"])
-    px = ", ".join(_fixed(x, 3) for x in pose["tool_position"])
-    z = ", ".join(_fixed(row[2], 3) for row in pose["tool_rotation"])
-    lines += [
-        f"at q = ({qd}) deg: tool point ({px}) m, tool z axis ({z})",
-        f"{'joint':<22}{'gravity [N·m]':>14}{'lever Fx [m]':>14}{'lever Fy [m]':>14}"
-        f"{'lever Fz [m]':>14}",
-    ]
-    lev = pose["lever_arms"]
-    for k, j in enumerate(d["joints"]):
-        lines.append(
-            f"{j['name']:<22}{_fixed(pose['gravity'][k], 2):>14}{_fixed(lev[0][k], 3):>14}"
-            f"{_fixed(lev[1][k], 3):>14}{_fixed(lev[2][k], 3):>14}"
-        )
-    return "\n".join(lines)
-
-
-def _fixed(x: float, digits: int) -> str:
-    """``x`` with ``digits`` decimals, never "-0.00"."""
-    return f"{round(float(x), digits) + 0.0:.{digits}f}"
-
 
 def _nbytes(entry: Mapping[str, np.ndarray | None]) -> int:
     return sum(v.nbytes for v in entry.values() if v is not None)
-
-
-def _guess_tool_frame(model: pin.Model) -> str:
-    for name in _TOOL_FRAME_GUESSES:
-        if model.existFrame(name):
-            return name
-    last_joint = model.njoints - 1
-    bodies = [
-        f.name for f in model.frames if f.type == pin.FrameType.BODY and f.parentJoint == last_joint
-    ]
-    return bodies[-1] if bodies else model.frames[-1].name
 
 
 def _rebuild(urdf, tool_frame, name, tool_offset, payload, where) -> RobotModel:
     return RobotModel(
         urdf, tool_frame, name=name, tool_offset=tool_offset, payload=payload, where=where
     )
-
-
-def _parse_payload(payload: Mapping[str, Any], w: str) -> tuple[float, np.ndarray]:
-    if not isinstance(payload, Mapping) or "mass" not in payload:
-        raise RobotError(f"{w}payload is {payload!r}, expected {{'mass': kg, 'com': [x, y, z] m}}")
-    try:
-        mass = float(payload["mass"])
-    except (TypeError, ValueError):
-        mass = float("nan")
-    if not np.isfinite(mass) or mass < 0:
-        raise RobotError(f"{w}payload mass is {payload['mass']!r}, expected a number >= 0 [kg]")
-    try:
-        com = np.asarray(payload.get("com", (0.0, 0.0, 0.0)), dtype=float)
-    except (TypeError, ValueError):
-        com = np.full(1, np.nan)
-    if com.shape != (3,) or not np.all(np.isfinite(com)):
-        raise RobotError(
-            f"{w}payload com is {payload.get('com')!r}, expected [x, y, z] in m (tool frame)"
-        )
-    return mass, com
-
-
-def _robot_name(urdf: str) -> str | None:
-    try:
-        return ET.fromstring(urdf).get("name")
-    except ET.ParseError:
-        return None
-
-
-def _short(value: Any) -> str:
-    r = repr(value)
-    return r if len(r) <= 40 else r[:37] + "..."
