@@ -91,6 +91,14 @@ def _check_inputs(recs: Sequence[Recording], assume_no_force: bool) -> None:
         raise RecordingError("identify needs at least one recording")
     first = recs[0]
     for r in recs:
+        if assume_no_force and r.has_wrench:
+            # refused rather than ignored: the sensor measures the very force the option says is
+            # absent, and ignoring it would put every push into the friction bands
+            raise RecordingError(
+                f"{r.name or 'recording'}: --assume-no-force states that no external force acts, "
+                "but this recording has F/T sensor columns f_x..m_z that measure it; drop the "
+                "option to fit the bands with the sensor"
+            )
         if not assume_no_force and not r.has_wrench:
             raise RecordingError(
                 f"{r.name or 'recording'}: identify needs a reference F/T sensor (columns "
@@ -191,10 +199,13 @@ def identify(
             "(still, dither, moving); record longer"
         )
     out_regimes: dict[str, Band] = dict(base.regimes) if base is not None else {}
+    borrowed: dict[str, list[int]] = {}
     for code in (STILL, DITHER, MOVING):
-        band = _assemble(code, n, fits, out_regimes.get(code.label))
+        band, from_other = _assemble(code, n, fits, out_regimes.get(code.label))
         if band is not None:
             out_regimes[code.label] = band
+            if from_other:
+                borrowed[code.label] = from_other
     capped = _cap_moving(out_regimes, fits)
     widened = _coulomb_floor(out_regimes, fits)
     amp = None
@@ -209,7 +220,7 @@ def identify(
         )
     notes = _notes(
         recs, assume_no_force, n_boot, block, seed, amp, bool(samples.amps), capped, widened
-    )
+    ) + _coverage_notes(samples.all_moving, max_accel, borrowed)
     return TorqueModel(
         robot=first.meta["robot"],
         n=n,
@@ -223,6 +234,10 @@ def identify(
         payload=first.meta.get("payload"),
         notes=notes,
     )
+
+
+#: pseudo-regime of _Samples: every moving sample, whatever its acceleration
+ALL_MOVING = 3
 
 
 class _Samples:
@@ -239,7 +254,9 @@ class _Samples:
         self.labels: dict[tuple[int, int], list[np.ndarray]] = {}
         self.dqs: dict[tuple[int, int], list[np.ndarray]] = {}
         self.slides: dict[tuple[int, int], list[np.ndarray]] = {}
-        self.lags: dict[int, int] = {STILL: 1, MOVING: 1, DITHER: 1}
+        self.lags: dict[int, int] = {STILL: 1, MOVING: 1, DITHER: 1, ALL_MOVING: 1}
+        #: joints whose moving regime was fitted on all moving samples (too few slow ones)
+        self.all_moving: list[int] = []
         self.amps: dict[int, list[np.ndarray]] = {}
         self.label_offset = 0
 
@@ -267,7 +284,11 @@ class _Samples:
         # (their outliers, -6..+13 N·m on a simulated joint 2 whose residual is otherwise within
         # +-0.8, set its edges), the sliding friction with them
         slide = ~stick_transitions(reg, rec.sample_rate) & (np.abs(dq) >= REVERSAL_V)
-        sources = [(STILL, rho, reg == STILL), (MOVING, rho, (reg == MOVING) & slow)]
+        sources = [
+            (STILL, rho, reg == STILL),
+            (MOVING, rho, (reg == MOVING) & slow),
+            (ALL_MOVING, rho, reg == MOVING),
+        ]
         if (reg == DITHER).any():
             dith = self._dither_source(rec, rho, reg)
             if dith is not None:
@@ -314,8 +335,13 @@ class _Samples:
     ) -> dict[str, tuple[float, float]] | None:
         """(value, standard error) per parameter of one joint-regime, or None (too few samples)."""
         key = (code, j)
-        if key not in self.xs or sum(len(v) for v in self.xs[key]) < min_samples:
-            return None
+        if self.count(key) < min_samples:
+            if code != MOVING or self.count((ALL_MOVING, j)) < min_samples:
+                return None
+            # too few low-acceleration samples: the moving regime from all of them (the notes
+            # say so; the dynamic torque then widens the band until `inertia` is added)
+            key = (ALL_MOVING, j)
+            self.all_moving.append(j)
         x = np.concatenate(self.xs[key])
         bl = np.unique(np.concatenate(self.labels[key]), return_inverse=True)[1]
         jseed = seed * 1000 + code * 100 + j
@@ -336,6 +362,29 @@ class _Samples:
         f["tau_min"], f["tau_max"] = (fit.a, fit.se_a), (fit.b, fit.se_b)
         f["sigma"] = (fit.sigma, fit.se_sigma)
         return f
+
+    def count(self, key: tuple[int, int]) -> int:
+        """Samples of one (regime, joint)."""
+        return sum(len(v) for v in self.xs.get(key, ()))
+
+
+def _coverage_notes(all_moving: list[int], max_accel: float, borrowed: dict[str, list[int]]) -> str:
+    """What the model's regimes rest on, where it is not the plain fit: moving regimes fitted on
+    fast samples, and joints whose band stands in for data the recordings do not have."""
+    out = ""
+    if all_moving:
+        out += (
+            "; moving regime fitted on all moving samples on joint(s) "
+            f"{', '.join(str(j + 1) for j in sorted(set(all_moving)))} (too few with |ddq| <= "
+            f"{max_accel:g} rad/s²: the model has no dynamic torque, add it with --add inertia)"
+        )
+    for name, joints in borrowed.items():
+        other = "moving" if name == "still" else "still"
+        out += (
+            f"; {name} band of joint(s) {', '.join(str(j + 1) for j in joints)} not fitted (too "
+            f"few {name} samples): taken from its {other} fit"
+        )
+    return out
 
 
 def _notes(
@@ -455,17 +504,20 @@ def _assemble(
     n: int,
     fits: dict[tuple[int, int], dict[str, tuple[float, float]]],
     old: Band | None,
-) -> Band | None:
-    """One regime's Band from the per-joint fits.
+) -> tuple[Band | None, list[int]]:
+    """One regime's Band from the per-joint fits, and the joints (0-based) whose values were
+    taken from the other regime's fit.
 
     A joint without enough samples in this regime keeps ``old``'s values (a base model) or, for
     the ``still`` regime, takes the static band implied by its sliding friction (``moving``:
-    ``[-coulomb + a, coulomb + b]``) with the moving noise; its standard errors are -1 (not
-    fitted). A regime that cannot be completed that way is left out (None).
+    ``[-coulomb + a, coulomb + b]``) with the moving noise, or, for the ``moving`` regime of a
+    joint that only stands still, its still band with no sliding line; its standard errors are
+    -1 (not fitted). A regime that cannot be completed that way is left out (None).
     """
     keys = ("tau_min", "tau_max", "sigma") + (("coulomb", "viscous") if code == MOVING else ())
     vals = {k: np.full(n, np.nan) for k in keys}
     ses = {k: np.full(n, -1.0) for k in keys}
+    borrowed: list[int] = []
     for j in range(n):
         f = fits.get((code, j))
         if f is not None:
@@ -484,11 +536,21 @@ def _assemble(
             vals["tau_min"][j] = -c + m["tau_min"][0]
             vals["tau_max"][j] = c + m["tau_max"][0]
             vals["sigma"][j] = m["sigma"][0]
+            borrowed.append(j)
+        elif code == MOVING and (STILL, j) in fits:
+            # a joint that does not move in these recordings while others do: its moving band
+            # is never used on them; the still band with no sliding line stands in (not fitted)
+            st = fits[(STILL, j)]
+            for k in ("tau_min", "tau_max", "sigma"):
+                vals[k][j] = st[k][0]
+            vals["coulomb"][j] = 0.0
+            vals["viscous"][j] = 0.0
+            borrowed.append(j)
     if any(np.isnan(v).any() for v in vals.values()):
-        return None
+        return None, []
     if not np.all(vals["sigma"] > 0):
-        return None
-    return Band(
+        return None, []
+    band = Band(
         tau_min=vals["tau_min"],
         tau_max=vals["tau_max"],
         sigma=vals["sigma"],
@@ -496,6 +558,7 @@ def _assemble(
         viscous=vals.get("viscous"),
         stderr=ses,
     )
+    return band, borrowed
 
 
 def summary(model: TorqueModel) -> str:

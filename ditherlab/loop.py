@@ -37,6 +37,7 @@ def add_effect(
     joints: Sequence[int] | None = None,
     *,
     refit: bool = True,
+    assume_no_force: bool = False,
 ) -> TorqueModel:
     """Fit one more effect on the current residual and return the new model (version + 1).
 
@@ -48,7 +49,9 @@ def add_effect(
     joints : 1-based joints for a per-joint effect; None chooses the joints where diagnosis finds
         the effect (all joints when none passes the test)
     refit : re-fit the bands and noise with :func:`ditherlab.identify.identify` afterwards
-        (recordings with an F/T sensor)
+        (recordings with an F/T sensor, or without one with ``assume_no_force``)
+    assume_no_force : the recordings have no sensor and no external force acts (as stated to
+        identify): the re-fit treats the external force as zero
 
     Returns
     -------
@@ -96,15 +99,22 @@ def add_effect(
     new.effects.append(spec)
     new.version = model.version + 1
     if refit:
-        new = _refit(new, recs)
+        new = _refit(new, recs, assume_no_force=assume_no_force)
     return new
 
 
-def _refit(model: TorqueModel, recs: Sequence[Recording], n_boot: int = 20) -> TorqueModel:
-    """Re-fit bands and noise with the effects in place (identify), keeping version/history."""
-    if not all(r.has_wrench for r in recs):
+def _refit(
+    model: TorqueModel,
+    recs: Sequence[Recording],
+    n_boot: int = 20,
+    *,
+    assume_no_force: bool = False,
+) -> TorqueModel:
+    """Re-fit bands and noise with the effects in place (identify), keeping version/history.
+    Without a sensor the bands are re-fitted only when the user stated that no force acts."""
+    if not assume_no_force and not all(r.has_wrench for r in recs):
         return model
-    out = identify(list(recs), base=model, n_boot=n_boot)
+    out = identify(list(recs), base=model, n_boot=n_boot, assume_no_force=assume_no_force)
     out.effects = list(model.effects)
     out.version = model.version
     out.history = list(model.history)
@@ -153,7 +163,7 @@ def identify_files(
     )
     if add:
         for name in add:
-            model = add_effect(model, recs, name)
+            model = add_effect(model, recs, name, assume_no_force=assume_no_force)
     model.source = None
     model.save(out)
     return model
