@@ -13,7 +13,7 @@ as the first axis:
   ``link_poses(q) -> {link: (N, 4, 4)}``, ``gravity_regressor(q) -> (N, n, 10)`` (for a payload's
   dynamic parameters), ``inverse_dynamics(q, dq, ddq) -> (N, n) [N·m]``.
 
-Robots: :func:`builtin_robots` (``irb140``, ``ur10e``), a URDF file (:func:`resolve_spec` embeds
+Robots: :func:`builtin_robots` (``irb140``, ``panda``, ``ur10e``), a URDF file (:func:`resolve_spec` embeds
 its text in the recording's metadata) or ``{"urdf": text, "tool_frame": name}``. Revolute,
 prismatic and continuous joints (the latter take an angle like the others).
 
@@ -74,6 +74,7 @@ PAPER_POSE.setflags(write=False)
 #: Built-in robots: name -> (URDF file in ditherlab/robots, tool frame).
 _BUILTIN: dict[str, tuple[str, str]] = {
     "irb140": ("irb140.urdf", "tool0"),
+    "panda": ("panda.urdf", "panda_hand_tcp"),
     "ur10e": ("ur10e.urdf", "tool0"),
 }
 
@@ -87,7 +88,7 @@ _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 def builtin_robots() -> list[str]:
-    """Names of the built-in robots, sorted (``["irb140", "ur10e"]``)."""
+    """Names of the built-in robots, sorted (``["irb140", "panda", "ur10e"]``)."""
     return sorted(_BUILTIN)
 
 
