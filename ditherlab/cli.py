@@ -209,7 +209,7 @@ def view(
 @app.command()
 def robot(
     spec: Annotated[
-        str, typer.Argument(help="Built-in robot name (irb140, ur10e) or a URDF path.")
+        str, typer.Argument(help="Built-in robot name (irb140, panda, ur10e) or a URDF path.")
     ],
     q: Annotated[
         str | None,

@@ -567,6 +567,24 @@ def test_mapping_errors_name_the_key(tmp_path, shared_data):
             dio.read(csv, mapping=m)
 
 
+def test_mapping_header_name_missing_says_what_was_expected(tmp_path):
+    """A header name the file lacks names the key, the file and the header's names (all of a
+    short header; the closest few of a long one, see test_vendor_mappings)."""
+    data = tmp_path / "log.csv"
+    data.write_text("time,pos,cur\n0.0,0.1,0.2\n0.004,0.1,0.2\n")
+    m = tmp_path / "m.toml"
+    m.write_text(
+        '[input]\nheader = true\n[time]\ncolumn = "time"\n[robot]\nname = "irb140"\n'
+        '[columns.q]\ncolumns = ["pos"]\n[columns.tau]\ncolumns = ["current"]\n'
+    )
+    with pytest.raises(ConfigError) as exc:
+        dio.read(data, mapping=m)
+    assert str(exc.value) == (
+        f"{m}: columns.tau.columns[1] is 'current', but the header of {data} has no such column "
+        "(expected one of: time, pos, cur)"
+    )
+
+
 def test_mapped_non_numeric_cell_is_named(tmp_path):
     """A text cell in a mapped log names the file, column, target and row."""
     rows = [
@@ -584,7 +602,7 @@ def test_mapped_non_numeric_cell_is_named(tmp_path):
 
 def test_builtin_mappings_parse():
     """Every shipped mapping file passes the mapping checks."""
-    assert "ur10e" in builtin_mappings()
+    assert {"franka", "ur10e", "ur_rtde"} <= set(builtin_mappings())
     for name in builtin_mappings():
         spec, path = load_mapping(name)
         assert path.suffix == ".toml" and "q" in spec["columns"]

@@ -38,7 +38,7 @@ def random_q(robot: RobotModel, N: int, seed: int) -> np.ndarray:
 # ---------------------------------------------------------------------- the built-in IRB140
 def test_builtin_list_and_attributes(irb):
     """The IRB140 is built in with six revolute joints named joint_1..6 and the ABB limits."""
-    assert builtin_robots() == ["irb140", "ur10e"]
+    assert builtin_robots() == ["irb140", "panda", "ur10e"]
     assert irb.n == 6 and irb.joint_names == [f"joint_{i}" for i in range(1, 7)]
     lo = np.radians([-180, -90, -230, -200, -115, -400])
     hi = np.radians([180, 110, 50, 200, 115, 400])
@@ -66,6 +66,56 @@ def test_paper_pose_lever_arms_by_hand(irb):
     expected[2, [1, 2]] = [D4, D4]  # Fz: J2 0.380, J3 0.380
     np.testing.assert_allclose(lever, expected, atol=1e-9)
     np.testing.assert_allclose(expected[0, 1], 0.295, atol=1e-12)
+
+
+# ---------------------------------------------------------------------- the built-in Panda
+def _rot_x(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+
+
+def _trans(x: float, y: float, z: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, 3] = x, y, z
+    return T
+
+
+def test_builtin_panda_matches_franka_dh_and_holds_its_weight():
+    """The Panda (7 joints) follows Franka's published modified-DH table to the flange and the
+    hand TCP (0.1034 m, -45° about z); its gravity torques are a few to tens of N·m."""
+    panda = RobotModel.from_spec("panda")
+    assert panda.n == 7 and panda.tool_frame == "panda_hand_tcp"
+    assert panda.joint_names == [f"panda_joint{i}" for i in range(1, 8)]
+    assert 15 < panda.describe()["moving_mass"] < 19  # links 1-7 + hand + fingers: 16.8 kg
+    # Franka's documented DH (Craig's convention): a, d, alpha per joint, then the flange
+    a = [0, 0, 0, 0.0825, -0.0825, 0, 0.088]
+    d = [0.333, 0, 0.316, 0, 0.384, 0, 0]
+    alpha = [0, -np.pi / 2, np.pi / 2, np.pi / 2, -np.pi / 2, np.pi / 2, np.pi / 2]
+    q = random_q(panda, 20, seed=7)
+    flange = panda.link_poses(q, links=["panda_link8"])["panda_link8"]
+    tool = panda.tool_pose(q)
+    for k in range(len(q)):
+        T = np.eye(4)
+        for j in range(7):
+            T = T @ _rot_x(alpha[j]) @ _trans(a[j], 0, 0) @ _rot_z(q[k, j]) @ _trans(0, 0, d[j])
+        T = T @ _trans(0, 0, 0.107)
+        np.testing.assert_allclose(flange[k], T, atol=1e-12)
+        np.testing.assert_allclose(
+            tool[k], T @ _rot_z(-np.pi / 4) @ _trans(0, 0, 0.1034), atol=1e-12
+        )
+    # the "ready" pose of franka_ros: hand TCP at (0.307, 0, 0.487) m pointing down; the elbow
+    # (joint 4) carries ~22 N·m
+    ready = np.array([0, -np.pi / 4, 0, -3 * np.pi / 4, 0, np.pi / 2, np.pi / 4])
+    np.testing.assert_allclose(panda.tool_pose(ready)[0][:3, 3], [0.307, 0, 0.487], atol=1e-3)
+    g = panda.gravity(ready)[0]
+    assert 20 < g[3] < 25 and np.abs(g).max() == g[3]
+    g = np.abs(panda.gravity(q))
+    assert (g <= panda.effort_limit).all() and (g.max(axis=1) > 1).all()
 
 
 # ---------------------------------------------------------------------- against finite differences

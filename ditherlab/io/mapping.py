@@ -42,6 +42,7 @@ in the header raises ConfigError naming the mapping file and the key.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from pathlib import Path
@@ -277,8 +278,8 @@ class _Columns:
                 )
             if ref not in self.raw.columns:
                 raise ConfigError(
-                    f"{self.mp}: {key} is {ref!r}, which is not in the header of {self.path} "
-                    f"(columns: {', '.join(map(str, self.raw.columns))})"
+                    f"{self.mp}: {key} is {ref!r}, but the header of {self.path} has no such "
+                    f"column ({_expected_names(str(ref), [str(c) for c in self.raw.columns])})"
                 )
             col = self.raw[ref]
             label = f"column {ref!r}"
@@ -292,3 +293,14 @@ class _Columns:
                 f"data row {i + 1}, expected a number"
             )
         return values
+
+
+def _expected_names(ref: str, names: list[str], show: int = 12) -> str:
+    """'expected one of ...' for a column name not in a header: all names when there are few,
+    else the closest ones (a vendor header can have a hundred columns)."""
+    if len(names) <= show:
+        return f"expected one of: {', '.join(names)}"
+    close = difflib.get_close_matches(ref, names, n=3, cutoff=0.6)
+    if close:
+        return f"expected one of its {len(names)} names; closest: {', '.join(close)}"
+    return f"expected one of its {len(names)} names: {', '.join(names[:show])}, ..."

@@ -13,7 +13,7 @@ as the first axis:
   ``link_poses(q) -> {link: (N, 4, 4)}``, ``gravity_regressor(q) -> (N, n, 10)`` (for a payload's
   dynamic parameters), ``inverse_dynamics(q, dq, ddq) -> (N, n) [N·m]``.
 
-Robots: :func:`builtin_robots` (``irb140``, ``ur10e``), a URDF file (:func:`resolve_spec` embeds
+Robots: :func:`builtin_robots` (``irb140``, ``panda``, ``ur10e``), a URDF file (:func:`resolve_spec` embeds
 its text in the recording's metadata) or ``{"urdf": text, "tool_frame": name}``. Revolute,
 prismatic and continuous joints (the latter take an angle like the others).
 

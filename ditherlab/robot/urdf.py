@@ -34,6 +34,7 @@ __all__ = [
 #: Built-in robots: name -> (URDF file in ditherlab/robots, tool frame).
 BUILTIN: dict[str, tuple[str, str]] = {
     "irb140": ("irb140.urdf", "tool0"),
+    "panda": ("panda.urdf", "panda_hand_tcp"),
     "ur10e": ("ur10e.urdf", "tool0"),
 }
 
@@ -42,7 +43,7 @@ _TOOL_FRAME_GUESSES = ("tool0", "flange", "ee_link", "tool", "end_effector")
 
 
 def builtin_robots() -> list[str]:
-    """Names of the built-in robots, sorted (``["irb140", "ur10e"]``)."""
+    """Names of the built-in robots, sorted (``["irb140", "panda", "ur10e"]``)."""
     return sorted(BUILTIN)
 
 
