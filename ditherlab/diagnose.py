@@ -146,7 +146,7 @@ def residual_summary(model: TorqueModel, scs: Sequence[Scored]) -> dict[str, Any
     floor = np.sqrt(nanmean(fl, axis=0))
     rows = []
     for j in range(n):
-        for code, name in ((r, r.label) for r in Regime):
+        for code, name in ((g, g.label) for g in Regime):
             m = (reg[:, j] == code) & np.isfinite(ex[:, j])
             if not m.any():
                 continue
@@ -267,7 +267,7 @@ def force_error(
     reg = np.concatenate(regs)
     cov = np.concatenate(covs).astype(float)
     rows = []
-    for code, name in ((r, r.label) for r in Regime):
+    for code, name in ((g, g.label) for g in Regime):
         m = reg == code
         if m.any():
             rows.append(
@@ -303,6 +303,7 @@ class Diagnosis:
     notes: list[str]
     recordings: list[str]
     scs: list[Scored] = field(repr=False, default_factory=list)
+    verdict: dict[str, Any] | None = None
 
     @property
     def suggested(self) -> list[Candidate]:
@@ -336,6 +337,7 @@ class Diagnosis:
             "skipped": self.skipped,
             "history": plain(self.model.history),
             "notes": self.notes,
+            "verdict": self.verdict,
         }
 
     def summary(self) -> str:
@@ -378,8 +380,13 @@ class Diagnosis:
                 "no candidate effect clearly beats the noise"
                 + (f" (best: {best.effect}, {100 * best.explained_fraction:.1f} %)" if best else "")
             )
+        for c in self.candidates:
+            if c.not_identifiable and c.explained_fraction >= MIN_FRACTION:
+                lines.append("  " + c.text())
         for n, why in self.skipped.items():
             lines.append(f"  skipped {n}: {why}")
+        if self.verdict is not None:
+            lines.append(f"verdict: {self.verdict['text']}")
         for n in self.notes:
             lines.append(f"note: {n}")
         return "\n".join(lines)
@@ -427,7 +434,7 @@ def diagnose(
     for r in recs:
         # regimes present but absent from the model -> one clear error
         reg = signals(r).regime
-        for code, name in ((r, r.label) for r in Regime):
+        for code, name in ((g, g.label) for g in Regime):
             wanted = regimes is None or name in regimes
             if (
                 wanted
@@ -480,7 +487,125 @@ def diagnose(
         notes,
         [r.name or "<memory>" for r in recs],
         scs,
+        verdict(residual, cands, scs),
     )
+
+
+# ============================================================== the verdict
+#: a joint-regime whose residual RMS exceeds its noise floor by more than this fails
+FAIL_RATIO = 1.5
+#: what to check when the residual correlates with a driving variable
+CHECKS = {
+    "tau": "the torque's units and drive gains (a scale error grows with the torque itself)",
+    "gravity": "the torque's units and drive gains, the encoder zeros and the URDF's masses "
+    "(an error that grows with gravity)",
+    "ddq": "the robot's dynamics (URDF inertials, a moving base: a leg on a slider or a mobile "
+    "platform is not a fixed base)",
+    "dq": "the friction model (viscous or Stribeck friction, a velocity scale error)",
+    "sign(dq)": "the Coulomb friction per direction (an asymmetric or load-dependent friction)",
+    "q": "the encoder zeros and the URDF's kinematics (an error that varies with the pose)",
+    "J^T F": "the F/T sensor's frame, bias and scale, and where the tool point is",
+    "t": "a drift in time (temperature, a sensor drifting, a log that mixes sessions)",
+}
+
+
+def verdict(
+    residual: dict[str, Any], cands: Sequence[Candidate], scs: Sequence[Scored]
+) -> dict[str, Any] | None:
+    """What the diagnosis concludes where the model fails, and no library effect explains it.
+
+    A joint-regime fails when its residual RMS exceeds :data:`FAIL_RATIO` times its noise floor.
+    None when nothing fails. Otherwise ``{"status", "failing", "correlations", "checks",
+    "text"}``: ``status`` is ``"explained"`` (a suggested effect is the next step),
+    ``"unexplained"`` (no effect of the library explains the residual: the model misses something
+    outside it); ``failing`` lists joint, regime and ratio; ``correlations`` per failing joint the
+    driving variables the residual correlates with most (|r| over the scored samples); ``checks``
+    what to look at for the strongest ones.
+    """
+    failing = [
+        {"joint": r["joint"], "regime": r["regime"], "ratio": r["rms"] / r["floor"]}
+        for r in residual["per_regime"]
+        if r["floor"] > 0 and r["rms"] > FAIL_RATIO * r["floor"]
+    ]
+    if not failing:
+        return None
+    suggested = [c for c in cands if c.suggested]
+    joints = sorted({f["joint"] for f in failing})
+    corr = {j: _correlations(scs, j - 1) for j in joints}
+    strongest = sorted(
+        {(name, abs(v)) for c in corr.values() for name, v in c[:2]}, key=lambda x: -x[1]
+    )
+    checks = list(dict.fromkeys(CHECKS[name] for name, r in strongest if r >= 0.3))
+    worst = max(failing, key=lambda f: f["ratio"])
+    where = ", ".join(f"{f['joint']} ({f['regime']}, {f['ratio']:.1f}×)" for f in failing)
+    if suggested:
+        status = "explained"
+        text = (
+            f"the residual exceeds the noise floor on joint(s) {where}; add the suggested "
+            f"effect ({suggested[0].effect}) and diagnose again"
+        )
+    else:
+        status = "unexplained"
+        lines = [
+            f"the residual stays up to {worst['ratio']:.1f}× the noise floor (joint(s) {where}) "
+            "and no effect of the library explains it: the model misses something outside the "
+            "library."
+        ]
+        for j in joints:
+            if corr[j]:
+                lines.append(
+                    f"joint {j} correlates most with "
+                    + ", ".join(f"{name} (r = {v:+.2f})" for name, v in corr[j][:3])
+                    + "."
+                )
+        if checks:
+            lines.append("Check " + "; ".join(checks) + ".")
+        text = " ".join(lines)
+    return {
+        "status": status,
+        "failing": [{**f, "ratio": round(float(f["ratio"]), 4)} for f in failing],
+        "correlations": {
+            str(j): [[name, round(float(v), 4)] for name, v in c] for j, c in corr.items()
+        },
+        "checks": checks,
+        "text": text,
+    }
+
+
+def _correlations(scs: Sequence[Scored], j: int) -> list[tuple[str, float]]:
+    """Pearson r of joint j's scored residual with its driving variables, strongest first."""
+    parts: dict[str, list[np.ndarray]] = {}
+    for sc in scs:
+        m = sc.use[:, j] & np.isfinite(sc.e[:, j])
+        if not m.any():
+            continue
+        sig = sc.sig
+        drivers = {
+            "residual": sc.e[:, j],
+            "tau": sig.tau[:, j],
+            "gravity": sig.gravity[:, j],
+            "q": sig.q[:, j],
+            "dq": sig.dq[:, j],
+            "sign(dq)": np.sign(sig.dq[:, j]),
+            "ddq": sig.ddq[:, j],
+            "t": sig.ts,
+        }
+        if sig.has_wrench:
+            drivers["J^T F"] = sig.jtf(sig.wrench("verdict"))[:, j]
+        for name, x in drivers.items():
+            parts.setdefault(name, []).append(np.asarray(x, dtype=float)[m])
+    if "residual" not in parts:
+        return []
+    e = np.concatenate(parts.pop("residual"))
+    out = []
+    for name, xs in parts.items():
+        if len(xs) != len(parts["tau"]):  # J^T F where only some recordings have the sensor
+            continue
+        x = np.concatenate(xs)
+        if len(x) != len(e) or len(x) < 10 or np.std(x) == 0 or np.std(e) == 0:
+            continue
+        out.append((name, float(np.corrcoef(e, x)[0, 1])))
+    return sorted(out, key=lambda kv: -abs(kv[1]))
 
 
 # ============================================================== history and report

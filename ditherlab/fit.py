@@ -21,7 +21,15 @@ from ditherlab.recording import MOVING
 from ditherlab.residual import Scored
 from ditherlab.signal import tmm
 
-__all__ = ["MIN_IDENTIFIABILITY", "Stack", "fit_effect", "identifiability", "solve_signed", "stack"]
+__all__ = [
+    "MIN_IDENTIFIABILITY",
+    "Stack",
+    "fit_effect",
+    "identifiability",
+    "not_identifiable",
+    "solve_signed",
+    "stack",
+]
 
 
 def solve_signed(e, h, s, C, W, o, signs: Sequence[int]) -> tuple[np.ndarray, float]:
@@ -285,3 +293,22 @@ def fit_effect(
         if f.loss < best.loss:
             best = f
     return best
+
+
+def not_identifiable(e: Effect, sc: Sequence[Scored], j: int | None, fit: FitResult) -> str | None:
+    """Why effect ``e`` fitted on joint ``j`` (None: shared) cannot be told apart from the bands
+    on these scored recordings, or None when it can: the one rule behind both ``identify --add``
+    (which refuses) and diagnosis (which does not suggest such an effect, and says why).
+
+    The rule: :func:`identifiability` of the fitted effect's design, after the bands and the
+    sliding line have taken what they can, is at least :data:`MIN_IDENTIFIABILITY`.
+    """
+    st = stack(e, sc, j, fit.h, fit.ref)
+    if identifiability(st) >= MIN_IDENTIFIABILITY:
+        return None
+    where = "these recordings" if j is None else f"joint {j + 1} of these recordings"
+    return (
+        f"effect {e.name!r} cannot be told apart from the bands in {where}: its torque "
+        f"barely changes within a regime ({e.driven_by}); record a varying pose, motion "
+        "or force"
+    )

@@ -17,7 +17,7 @@ from typing import Any
 from ditherlab.diagnose import Diagnosis, append_history, diagnose
 from ditherlab.effects import clean_none, get_effect, make_spec, signals
 from ditherlab.errors import ModelError
-from ditherlab.fit import MIN_IDENTIFIABILITY, fit_effect, identifiability, stack
+from ditherlab.fit import fit_effect, not_identifiable
 from ditherlab.identify import identify
 from ditherlab.io import read
 from ditherlab.io.atomic import check_not_input
@@ -86,14 +86,9 @@ def add_effect(
             js = [int(j) - 1 for j in joints]
         fits = {j: fit_effect(e, sc, j) for j in js}
     for j, f in fits.items():
-        st = stack(e, sc, None if j == -1 else j, f.h, f.ref)
-        if identifiability(st) < MIN_IDENTIFIABILITY:
-            where = "these recordings" if j == -1 else f"joint {j + 1} of these recordings"
-            raise ModelError(
-                f"effect {name!r} cannot be told apart from the bands in {where}: its torque "
-                f"barely changes within a regime ({e.driven_by}); record a varying pose, motion "
-                "or force"
-            )
+        why = not_identifiable(e, sc, None if j == -1 else j, f)
+        if why is not None:
+            raise ModelError(why)
     spec = clean_none(make_spec(e, fits))
     new = base.copy()
     new.effects.append(spec)

@@ -35,7 +35,7 @@ from ditherlab.effects import (
     signals,
 )
 from ditherlab.errors import ModelError
-from ditherlab.fit import Stack, solve_signed, stack
+from ditherlab.fit import Stack, not_identifiable, solve_signed, stack
 from ditherlab.model import TorqueModel
 from ditherlab.recording import Recording
 from ditherlab.residual import Scored, scored
@@ -93,6 +93,8 @@ class Candidate:
     scores: list[JointScore] = field(default_factory=list)
     params: dict[str, Any] = field(default_factory=dict)
     figure: str | None = None
+    #: why the evidence is not enough to fit it (the rule of ``identify --add``), or None
+    not_identifiable: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         e = EFFECTS[self.effect]
@@ -115,6 +117,7 @@ class Candidate:
                 for s in self.scores
             ],
             "params": self.params,
+            "not_identifiable": self.not_identifiable,
             "figure": self.figure,
             "text": self.text(),
         }
@@ -129,6 +132,10 @@ class Candidate:
             + ", ".join(map(str, self.joints))
         )
         verdict = "suggested" if self.suggested else "not suggested"
+        if self.not_identifiable:
+            verdict = (
+                "not identifiable on these recordings: " + self.not_identifiable.split(": ", 1)[-1]
+            )
         return (
             f"{self.effect} ({e.physics}; driven by {e.driven_by}) on {where}: explains "
             f"{100 * self.explained_fraction:.1f} % of the residual on held-out data ({verdict})"
@@ -299,10 +306,19 @@ def _evaluate(
         # the shared fit covers every joint: its own held-out baseline is the whole residual
         frac = s.fraction
         spec = make_spec(e, {-1: s.fit})
+        why = not_identifiable(e, scs, None, s.fit) if ok else None
         return Candidate(
-            name, list(range(1, model.n + 1)) if ok else [], frac, ok, [s], spec.params
+            name,
+            list(range(1, model.n + 1)) if ok else [],
+            frac,
+            ok and why is None,
+            [s],
+            spec.params,
+            not_identifiable=why,
         )
     scores = [_score(e, scs, j, K, guard_s) for j in range(model.n)]
+    # joints by each joint's own held-out evidence; the candidate by its share of the whole
+    # residual (the >= min_fraction rule holds for what is suggested, not only per joint)
     sel = [s for s in scores if s.passes(min_fraction)]
     gain = sum(s.gain for s in sel) if sel else max((s.gain for s in scores), default=0.0)
     frac = gain / total_loss if total_loss > 0 else 0.0
@@ -310,7 +326,12 @@ def _evaluate(
     if sel:
         params = clean_none(make_spec(e, {s.joint: s.fit for s in sel})).params
     joints = [s.joint + 1 for s in sel] if sel else [max(scores, key=lambda s: s.gain).joint + 1]
-    return Candidate(name, joints, frac, bool(sel), scores, params)
+    why = None
+    if sel and frac >= min_fraction:
+        whys = [w for w in (not_identifiable(e, scs, s.joint, s.fit) for s in sel) if w]
+        why = whys[0] if whys else None
+    suggested = bool(sel) and frac >= min_fraction and why is None
+    return Candidate(name, joints, frac, suggested, scores, params, not_identifiable=why)
 
 
 def _applicable(name: str, recs: Sequence[Recording]) -> str | None:

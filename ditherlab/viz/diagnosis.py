@@ -259,6 +259,7 @@ class DiagnosisReport:
     skipped: dict[str, str]
     history: list[dict[str, Any]]
     notes: list[str]
+    verdict: dict[str, Any] | None = None
 
     @property
     def worst_windows(self) -> list[dict[str, Any]]:
@@ -287,6 +288,8 @@ class DiagnosisReport:
             raise FormatError(f"{source}: holds a {type(d).__name__}, expected {_EXPECTED}")
         for key, kinds in _TOP_KEYS.items():
             if key not in d:
+                if key in _OPTIONAL_KEYS:
+                    continue
                 raise FormatError(f"{source}: key {key!r} is missing, expected {_EXPECTED}")
             _check_kind(source, key, d[key], kinds)
         extra = [k for k in d if k not in _TOP_KEYS]
@@ -303,7 +306,7 @@ class DiagnosisReport:
             _check_entry(source, f"residual.worst_windows[{k}]", w, _WINDOW_KEYS)
         for k, c in enumerate(d["candidates"]):
             _check_entry(source, f"candidates[{k}]", c, _CANDIDATE_KEYS)
-        return cls(**{k: d[k] for k in _TOP_KEYS})
+        return cls(**{k: d.get(k) for k in _TOP_KEYS})
 
 
 #: Top-level keys of ``Diagnosis.to_dict()`` in its order, and the JSON kinds of their values.
@@ -318,7 +321,10 @@ _TOP_KEYS: dict[str, tuple[type, ...]] = {
     "skipped": (dict,),
     "history": (list,),
     "notes": (list,),
+    "verdict": (dict, type(None)),
 }
+#: keys that reports written before they existed lack
+_OPTIONAL_KEYS = ("verdict",)
 _NUMBER = (int, float)
 _WINDOW_KEYS: dict[str, tuple[type, ...]] = {
     "recording": (str,),
