@@ -452,6 +452,7 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
         "skipped": {},
         "history": [],
         "notes": [],
+        "verdict": None,
     }
     path = tmp_path / "report.json"
     path.write_text(json.dumps(report))
@@ -826,6 +827,7 @@ def _diagnosis_dict() -> dict:
         "skipped": {},
         "history": [],
         "notes": [],
+        "verdict": None,
     }
 
 
@@ -837,6 +839,7 @@ def _diagnosis_dict() -> dict:
         (lambda d: d.update(version="2"), "key 'version' is \"2\", expected an integer"),
         (lambda d: d.update(version=True), "key 'version' is true, expected an integer"),
         (lambda d: d.update(force=[]), "key 'force' is [], expected an object or null"),
+        (lambda d: d.update(verdict="bad"), "key 'verdict' is \"bad\", expected an object or null"),
         (lambda d: d["residual"].pop("worst_windows"), "key 'residual.worst_windows' is missing"),
         (
             lambda d: d["residual"]["worst_windows"][0].pop("t0"),
@@ -874,3 +877,13 @@ def test_load_report_missing_or_not_json(tmp_path):
     (tmp_path / "y.json").write_text("{")
     with pytest.raises(FormatError, match="not a JSON diagnosis report"):
         load_report(tmp_path / "y.json")
+
+
+def test_load_report_of_a_report_without_a_verdict(tmp_path):
+    """A report.json written before the verdict existed still loads (verdict None)."""
+    d = _diagnosis_dict()
+    d.pop("verdict")
+    p = tmp_path / "report.json"
+    p.write_text(json.dumps(d))
+    rep = load_report(p)
+    assert rep.verdict is None and rep.version == 2
