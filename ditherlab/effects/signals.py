@@ -94,6 +94,13 @@ class Signals:
         return self._robot_get("mass", lambda: self.rec.robot().mass_matrix(self.q))
 
     @property
+    def tool_rotation(self) -> np.ndarray:
+        """(N, 3, 3): the tool frame's axes in base axes (:meth:`ditherlab.robot.RobotModel.tool_pose`)."""
+        return self._robot_get(
+            "tool_rotation", lambda: self.rec.robot().tool_pose(self.q)[:, :3, :3].copy()
+        )
+
+    @property
     def regressor(self) -> np.ndarray:
         return self._robot_get("regressor", lambda: self.rec.robot().gravity_regressor(self.q))
 
