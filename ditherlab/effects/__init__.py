@@ -27,6 +27,8 @@ effect                   torque on joint j (the fitted parameters in bold)     d
 ``ft_frame``             the sensor is turned by **θ** and offset by **d** in   F/T columns, tool
                          the tool frame: the true wrench is F = Q F_log,        orientation
                          m = Q m_log + (R d) × F, Q = R exp([θ]×) R^T
+``dynamics``             Y(q, dq, ddq) · **Δπ**: pinocchio's regressor of       q, dq, ddq
+                         every link on a base set chosen by pivoted QR
 =======================  ====================================================  ==================
 
 Friction-type effects act as a sliding torque only in the ``moving`` regime; while the joint
@@ -66,7 +68,7 @@ from ditherlab.effects.library import (
     make_spec,
     spec_params,
 )
-from ditherlab.effects.rigid import Inertia, Payload
+from ditherlab.effects.rigid import Dynamics, Inertia, Payload
 from ditherlab.effects.sensor import AttenuationLag, FtBias, FtFrame
 from ditherlab.effects.signals import Signals, signals
 from ditherlab.effects.transmission import PositionRipple
@@ -76,6 +78,7 @@ __all__ = [
     "REF_KEYS",
     "AttenuationLag",
     "Design",
+    "Dynamics",
     "Effect",
     "FitResult",
     "FtBias",

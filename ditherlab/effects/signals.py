@@ -131,6 +131,20 @@ class Signals:
 
         return self._robot_get("torque_regressor", make)
 
+    @property
+    def link_regressor(self) -> np.ndarray:
+        """(N, n, 10 n): pinocchio's joint-torque regressor of every link
+        (:meth:`ditherlab.robot.RobotModel.torque_regressor` with ``all_links``), ``dq`` and
+        ``ddq`` of joints that are not moving set to 0 as in :attr:`torque_regressor`."""
+
+        def make() -> np.ndarray:
+            mv = self.moving
+            return self.rec.robot().torque_regressor(
+                self.q, np.where(mv, self.dq, 0.0), np.where(mv, self.ddq, 0.0), all_links=True
+            )
+
+        return self._robot_get("link_regressor", make)
+
     def wrench(self, what: str) -> np.ndarray:
         """The raw F/T columns (N, 6); ModelError naming the column when absent (or hidden)."""
         if not self.has_wrench:
