@@ -148,7 +148,10 @@ class Stack:
     k: int  # number of effect columns (the rest are intercepts)
 
     def signs(self, eff: Sequence[int]) -> tuple[int, ...]:
-        return tuple(eff) + (0,) * (self.C.shape[1] - self.k)
+        """The signs of all columns: the effect's (free where it gives fewer, e.g. an effect
+        whose number of columns is chosen from the data), then the free nuisance columns."""
+        eff = tuple(eff)[: self.k]
+        return eff + (0,) * (self.C.shape[1] - len(eff))
 
 
 def stack(e: Effect, sc: Sequence[Scored], j: int | None, h: Any, ref: dict[str, Any]) -> Stack:

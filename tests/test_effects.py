@@ -145,8 +145,9 @@ def recs():
 
 
 def test_names_are_the_library():
-    """The library holds exactly the nine effect names of the design, in that order."""
-    assert effect_names() == NAMES
+    """The library starts with the nine effect names of the design, in that order; effects
+    added later (each tested in its own file) come after them."""
+    assert effect_names()[: len(NAMES)] == NAMES
 
 
 def test_unknown_effect_lists_names():

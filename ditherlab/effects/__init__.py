@@ -24,6 +24,11 @@ effect                   torque on joint j (the fitted parameters in bold)     d
                          lag of **L** samples
 ``ft_bias``              the sensor reads F + **b**: the true wrench is F - b    F/T columns
 ``inertia``              **s** · (M(q) ddq)_j + **Jm** · ddq_j                   ddq
+``ft_frame``             the sensor is turned by **θ** and offset by **d** in   F/T columns, tool
+                         the tool frame: the true wrench is F = Q F_log,        orientation
+                         m = Q m_log + (R d) × F, Q = R exp([θ]×) R^T
+``dynamics``             Y(q, dq, ddq) · **Δπ**: pinocchio's regressor of       q, dq, ddq
+                         every link on a base set chosen by pivoted QR
 =======================  ====================================================  ==================
 
 Friction-type effects act as a sliding torque only in the ``moving`` regime; while the joint
@@ -63,8 +68,8 @@ from ditherlab.effects.library import (
     make_spec,
     spec_params,
 )
-from ditherlab.effects.rigid import Inertia, Payload
-from ditherlab.effects.sensor import AttenuationLag, FtBias
+from ditherlab.effects.rigid import Dynamics, Inertia, Payload
+from ditherlab.effects.sensor import AttenuationLag, FtBias, FtFrame
 from ditherlab.effects.signals import Signals, signals
 from ditherlab.effects.transmission import PositionRipple
 
@@ -73,9 +78,11 @@ __all__ = [
     "REF_KEYS",
     "AttenuationLag",
     "Design",
+    "Dynamics",
     "Effect",
     "FitResult",
     "FtBias",
+    "FtFrame",
     "Inertia",
     "LoadFriction",
     "Payload",

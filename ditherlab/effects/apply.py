@@ -145,7 +145,7 @@ def sensor_wrench(model: TorqueModel, rec: Recording) -> np.ndarray:
     for spec in model.effects:
         e = get_effect(spec.name)
         if e.kind == "sensor":
-            F = e.correct_wrench(F, spec.params)
+            F = e.correct_wrench(F, spec.params, sig)
     return F
 
 

@@ -136,8 +136,9 @@ class Effect(abc.ABC):
         return ext
 
     # -- kind "sensor": how the F/T sensor reads the wrench
-    def correct_wrench(self, F: np.ndarray, p: dict[str, Any]) -> np.ndarray:
-        """(N, 6): the true wrench from the sensor's reading ``F`` (N, 6) [N, N·m]."""
+    def correct_wrench(self, F: np.ndarray, p: dict[str, Any], sig: Signals) -> np.ndarray:
+        """(N, 6): the true wrench from the sensor's reading ``F`` (N, 6) [N, N·m] of the
+        recording seen by ``sig`` (its pose, for a sensor whose error turns with the tool)."""
         raise ModelError(f"effect {self.name!r} does not act on the sensor")
 
     def sensor_text(self, ext: str) -> str:

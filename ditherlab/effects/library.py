@@ -46,14 +46,14 @@ def get_effect(name: str) -> Effect:
 
 
 #: data-derived reference values stored with an effect's parameters
-REF_KEYS = ("load_ref", "friction_level", "x_ref")
+REF_KEYS = ("load_ref", "friction_level", "x_ref", "base_columns")
 
 
 def spec_params(e: Effect, j: int, spec: EffectSpec) -> tuple[np.ndarray, Any, dict]:
     """(w, h, ref) of joint j (0-based) from a model's EffectSpec."""
     p = spec.params
     if e.shared:
-        return e.weights(p), None, {}
+        return e.weights(p), None, {key: p[key] for key in REF_KEYS if key in p}
     k = spec.joints.index(j + 1)
 
     def at(v: Any) -> Any:
@@ -98,7 +98,8 @@ class FitResult:
 def make_spec(e: Effect, fits: dict[int, FitResult]) -> EffectSpec:
     """An EffectSpec from per-joint fits (0-based joint -> FitResult), lists per joint."""
     if e.shared:
-        return EffectSpec(e.name, [], e.linear_params(fits[-1].w))
+        ref = {key: v for key, v in fits[-1].ref.items() if key in REF_KEYS}
+        return EffectSpec(e.name, [], {**e.linear_params(fits[-1].w), **ref})
     joints = sorted(fits)
     params = {c: [float(fits[j].w[i]) for j in joints] for i, c in enumerate(e.linear)}
     if e.hyper:

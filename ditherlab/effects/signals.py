@@ -94,6 +94,13 @@ class Signals:
         return self._robot_get("mass", lambda: self.rec.robot().mass_matrix(self.q))
 
     @property
+    def tool_rotation(self) -> np.ndarray:
+        """(N, 3, 3): the tool frame's axes in base axes (:meth:`ditherlab.robot.RobotModel.tool_pose`)."""
+        return self._robot_get(
+            "tool_rotation", lambda: self.rec.robot().tool_pose(self.q)[:, :3, :3].copy()
+        )
+
+    @property
     def regressor(self) -> np.ndarray:
         return self._robot_get("regressor", lambda: self.rec.robot().gravity_regressor(self.q))
 
@@ -123,6 +130,20 @@ class Signals:
             )
 
         return self._robot_get("torque_regressor", make)
+
+    @property
+    def link_regressor(self) -> np.ndarray:
+        """(N, n, 10 n): pinocchio's joint-torque regressor of every link
+        (:meth:`ditherlab.robot.RobotModel.torque_regressor` with ``all_links``), ``dq`` and
+        ``ddq`` of joints that are not moving set to 0 as in :attr:`torque_regressor`."""
+
+        def make() -> np.ndarray:
+            mv = self.moving
+            return self.rec.robot().torque_regressor(
+                self.q, np.where(mv, self.dq, 0.0), np.where(mv, self.ddq, 0.0), all_links=True
+            )
+
+        return self._robot_get("link_regressor", make)
 
     def wrench(self, what: str) -> np.ndarray:
         """The raw F/T columns (N, 6); ModelError naming the column when absent (or hidden)."""

@@ -738,8 +738,11 @@ class RobotModel:
         ddq: np.ndarray,
         *,
         dedup: bool = True,
+        all_links: bool = False,
     ) -> np.ndarray:
         """Joint torques per unit of the dynamic parameters of a body on the tool link, moving.
+        ``all_links``: pinocchio's whole regressor instead, (N, n, 10 n), per unit of every
+        link's parameters in its joint frame (``link_parameters`` order).
 
         ``torque_regressor(q, dq, ddq) @ theta`` is the torque ``M ddq + C dq + g`` that a body
         with parameters ``theta`` (as in :meth:`gravity_regressor`, tool frame) adds; at
@@ -760,11 +763,19 @@ class RobotModel:
         cols = slice(10 * (self._tool_joint - 1), 10 * self._tool_joint)
         T = tool_to_joint_params(self.model, self._tool_frame_id)
         m, d, f = self.model, self._data, pin.computeJointTorqueRegressor
-        out = np.empty((len(xs), n, 10))
+        if all_links:
+            cols, T = slice(None), np.eye(10 * (m.njoints - 1))
+        out = np.empty((len(xs), n, T.shape[1]))
         with self._lock:
             for i in range(len(xs)):
                 out[i] = f(m, d, qp[i], vs[i], acc[i])[:, cols] @ T
         return out if inverse is None or len(xs) == N else out[inverse]
+
+    def link_parameters(self) -> np.ndarray:
+        """(10 n,): every link's (m, m c, I) in its joint frame (pinocchio's order), payload in."""
+        return np.concatenate(
+            [self.model.inertias[i].toDynamicParameters() for i in range(1, self.model.njoints)]
+        )
 
 
 def _nbytes(entry: Mapping[str, np.ndarray | None]) -> int:

@@ -90,8 +90,7 @@ def simulate(
     robot = RobotModel.from_spec("irb140")
 
     def engine_for(hp: Any) -> Engine:
-        plant_robot = robot.with_payload(hp.payload) if hp.payload else robot
-        return Engine(params, robot, plant_robot, sc.plant_extras(hp))
+        return Engine(params, robot, hp.plant_robot(robot), sc.plant_extras(hp))
 
     if scenario == "push-campaign":
         run = sc.push_campaign

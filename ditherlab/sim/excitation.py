@@ -198,7 +198,8 @@ def excitation(
     state = engine.initial_state(poses[0])
     out = engine.run(inputs, state, progress=progress)
     # F = the wrench the robot exerts = -push
-    cols = scenario_columns(tt, out, -push + hp.ft_bias + ft_noise, hp, {"push": push_id})
+    wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
+    cols = scenario_columns(tt, out, wrench, hp, {"push": push_id})
     sim_meta = {
         "pushes": pushes,
         "poses": [[float(v) for v in p] for p in poses],

@@ -15,6 +15,8 @@ The truth of every injected effect goes into ``meta["sim"]["hidden"]``.
 | ``attenuation_lag`` | [-] share | a compliant support carries ``SIZE`` of the push; the rest reaches the arm through a tool mount with a first-order lag ``time_constant``; the F/T sensor sees the whole push |
 | ``stribeck`` | [-] | slipping friction ``Fc (1 + SIZE exp(-(v/vs)^2))`` |
 | ``ft_bias`` | [N] | the F/T sensor's force channels carry a constant offset of this magnitude, direction drawn from the seed |
+| ``dynamics`` | [-] | link ``link``'s mass is ``(1 + SIZE)`` times the URDF's (its rotational inertia too) and its centre of mass shifted by ``com_shift`` (link frame): the plant's dynamics differ from the model the controller and diagnosis use |
+| ``ft_frame`` | [deg] | the F/T sensor is mounted turned by SIZE degrees about an axis of the tool frame drawn from the seed; its reading, in its own axes, is logged as if in the tool's axes (the arm feels the true push) |
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ EFFECTS: dict[str, str] = {
     "attenuation_lag": "share",
     "stribeck": "share of Fc",
     "ft_bias": "N",
+    "ft_frame": "deg",
+    "dynamics": "share of the link's mass",
 }
 
 
@@ -98,6 +102,8 @@ class HiddenPlant:
     arm_share: float = 1.0  # share of the push reaching the arm
     lag: float = 0.0  # [s] first-order lag of that share
     ft_bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    ft_mount: np.ndarray | None = None  # (3, 3) the F/T sensor's axes in tool axes
+    link_change: dict[str, Any] | None = None  # a link's inertial parameters changed
     truth: list[dict[str, Any]] = field(default_factory=list)
 
     def arm_push(self, push: np.ndarray, dt: float) -> np.ndarray:
@@ -111,6 +117,35 @@ class HiddenPlant:
                 y = y + alpha * (out[k] - y)
                 out[k] = y
         return out
+
+    def plant_robot(self, robot: Any) -> Any:
+        """The plant's RobotModel: the controller's ``robot`` with the hidden payload and the
+        changed link inertial (a new model; ``robot`` is left as it is)."""
+        if self.payload is None and self.link_change is None:
+            return robot
+        plant = robot.with_payload(self.payload)
+        if self.link_change is not None:
+            c = self.link_change
+            body = plant.model.inertias[c["link"]]  # the link's inertial, its joint frame
+            body.mass = body.mass * c["mass_factor"]
+            body.inertia = body.inertia * c["mass_factor"]
+            body.lever = body.lever + np.asarray(c["com_shift"], dtype=float)
+            plant.model.inertias[c["link"]] = body
+        return plant
+
+    def logged_wrench(self, wrench: np.ndarray, robot: Any, q_link: np.ndarray) -> np.ndarray:
+        """The F/T columns (N, 6), base axes, for the wrench (N, 6) the robot exerts at the tool
+        point: the sensor reads it in its own axes (turned by ``ft_mount`` in the tool frame,
+        the tool's axes from the plant's link angles ``q_link`` (N, n)), the log turns that
+        reading back with the tool's axes; then ``ft_bias`` is added. Noise not included."""
+        out = np.array(wrench, dtype=float)
+        if self.ft_mount is not None:
+            tool_axes = robot.tool_pose(q_link)[:, :3, :3]  # in base axes
+            sensor_axes = tool_axes @ self.ft_mount
+            for a in (slice(0, 3), slice(3, 6)):
+                reading = np.einsum("tba,tb->ta", sensor_axes, out[:, a])  # sensor components
+                out[:, a] = np.einsum("tab,tb->ta", tool_axes, reading)  # taken as tool's
+        return out + self.ft_bias
 
 
 def build_hidden(
@@ -167,6 +202,19 @@ def build_hidden(
             d /= np.linalg.norm(d)
             hp.ft_bias = np.concatenate([size * d, np.zeros(3)])
             truth["bias"] = [float(v) for v in hp.ft_bias]
+        elif spec.name == "ft_frame":
+            axis = rng.normal(size=3)
+            axis /= np.linalg.norm(axis)
+            a = np.radians(size)
+            X = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+            hp.ft_mount = np.eye(3) + np.sin(a) * X + (1 - np.cos(a)) * X @ X  # Rodrigues
+            truth["axis"] = [float(v) for v in axis]
+            truth["rotation"] = [float(v) for v in a * axis]
+        elif spec.name == "dynamics":
+            link = int(cfg["link"])
+            shift = [float(c) for c in cfg["com_shift"]]
+            hp.link_change = {"link": link, "mass_factor": 1.0 + size, "com_shift": shift}
+            truth.update({"link": link, "mass_factor": 1.0 + size, "com_shift": shift})
         hp.truth.append(truth)
     if hp.fscale is None:
         hp.fscale = np.ones((N, n))

@@ -180,7 +180,7 @@ def lead_through(
         inputs.dither_cmd[int(1.0 * fs_hz) :] = 1.0
     out = eng.run(inputs, state, progress=progress, chunk_callback=control)
 
-    wrench = -push + hp.ft_bias + ft_noise
+    wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
     extra = {"fhat_x": fhat[:, 0], "fhat_y": fhat[:, 1], "fhat_z": fhat[:, 2]}
     cols = scenario_columns(tt, out, wrench, hp, extra)
     sim_meta = {

@@ -177,7 +177,8 @@ def push_campaign(
     state = engine.initial_state(q0)
     out = engine.run(inputs, state, progress=progress)
 
-    wrench = -push + hp.ft_bias + ft_noise  # F = wrench the robot exerts = -push
+    # F = wrench the robot exerts = -push
+    wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
     cols = scenario_columns(tt, out, wrench, hp, {"push": push_id})
     on = out.dither & (tt >= t_dither_on + ramp + settle)
     dsp = joint_array(params, "dither.amplitude_fraction", n) * fs
