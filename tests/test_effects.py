@@ -37,7 +37,7 @@ FV = 0.3 * FC
 SIGMA = np.array([0.25, 0.25, 0.2, 0.05, 0.05, 0.04])
 NAMES = (
     "viscous stribeck load_friction temperature_friction position_ripple payload "
-    "attenuation_lag ft_bias inertia"
+    "attenuation_lag ft_bias inertia drive_gain joint_offset"
 ).split()
 
 
@@ -145,7 +145,7 @@ def recs():
 
 
 def test_names_are_the_library():
-    """The library holds exactly the nine effect names of the design, in that order."""
+    """The library holds exactly the eleven effect names of the design, in that order."""
     assert effect_names() == NAMES
 
 
