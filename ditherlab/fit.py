@@ -219,16 +219,22 @@ def identifiability(st: Stack) -> float:
     their least-squares projection on the intercept and sliding-friction columns, relative to
     their own norm: 1 = fully distinct, 0 = the bands and the sliding line can take it all (e.g.
     ``ft_bias`` or ``payload`` in one fixed pose), and then its parameters are arbitrary.
+    Effect columns that are zero on every sample (a parameter that does not act on these
+    recordings at all, e.g. the offset of a joint gravity does not depend on) are left out;
+    all zero gives 0.
     """
     if st.k == 0 or len(st.e) == 0:
         return 0.0
     w = 1.0 / st.s[:, None]
-    Ce = st.C[:, : st.k] * w
+    acts = np.any(st.C[:, : st.k] != 0, axis=0)
+    if not acts.any():
+        return 0.0
+    Ce = st.C[:, : st.k][:, acts] * w
     N = st.C[:, st.k :] * w
     if N.shape[1]:
         coef, *_ = np.linalg.lstsq(N, Ce, rcond=None)
         Ce = Ce - N @ coef
-    norms = np.linalg.norm(st.C[:, : st.k] * w, axis=0)
+    norms = np.linalg.norm(st.C[:, : st.k][:, acts] * w, axis=0)
     if not np.all(norms > 0):
         return 0.0
     return float(np.linalg.svd(Ce / norms, compute_uv=False).min())

@@ -244,7 +244,10 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
     n_act = int(active.sum())
     tau = _tau_int(full_resid[active]) if n_act > 10 else 1.0
     n_eff = max(n_act / tau, 1.0)
-    k_par = len(full.w) + (len(e.hyper) if isinstance(e.hyper, tuple) else 1 if e.hyper else 0)
+    # parameters: the design's columns that act on these samples (an effect's count may follow
+    # the robot, e.g. one offset per joint), plus the searched ones
+    k_lin = int(np.any(base_st.C[:, : base_st.k] != 0, axis=0).sum())
+    k_par = k_lin + (len(e.hyper) if isinstance(e.hyper, tuple) else 1 if e.hyper else 0)
     if L0 > 0 and L1 > 0:
         dbic = n_eff * math.log(L1 / L0) + k_par * math.log(max(n_eff, 2.0))
     else:

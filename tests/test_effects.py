@@ -39,6 +39,9 @@ NAMES = (
     "viscous stribeck load_friction temperature_friction position_ripple payload "
     "attenuation_lag ft_bias inertia"
 ).split()
+#: effects for real robots, each tested in its own file (test_effects_real.py,
+#: test_effects_frame_dynamics.py), tried after the first nine
+LATER = {"drive_gain", "joint_offset", "ft_frame", "dynamics"}
 
 
 def make_recording(
@@ -148,6 +151,7 @@ def test_names_are_the_library():
     """The library starts with the nine effect names of the design, in that order; effects
     added later (each tested in its own file) come after them."""
     assert effect_names()[: len(NAMES)] == NAMES
+    assert LATER <= set(effect_names()[len(NAMES) :])
 
 
 def test_unknown_effect_lists_names():

@@ -24,6 +24,10 @@ effect                   torque on joint j (the fitted parameters in bold)     d
                          lag of **L** samples
 ``ft_bias``              the sensor reads F + **b**: the true wrench is F - b    F/T columns
 ``inertia``              **s** · (M(q) ddq)_j + **Jm** · ddq_j                   ddq
+``drive_gain``           the log reads **k** · tau: (**k** - 1) · (tau_grav +     tau_grav + J^T F
+                         J^T F + M ddq)_j                                      (+ M ddq moving)
+``joint_offset``         the arm is at q + **δ**: (∂(tau_grav + J^T F)/∂q ·     q (gravity and
+                         **δ**)_j (linearised; one δ per joint, shared)         J^T F derivative)
 ``ft_frame``             the sensor is turned by **θ** and offset by **d** in   F/T columns, tool
                          the tool frame: the true wrench is F = Q F_log,        orientation
                          m = Q m_log + (R d) × F, Q = R exp([θ]×) R^T
@@ -34,12 +38,12 @@ effect                   torque on joint j (the fitted parameters in bold)     d
 Friction-type effects act as a sliding torque only in the ``moving`` regime; while the joint
 sticks, friction is whatever lies in the band, so there they can only change the band's width.
 Parameters in bold are fitted by least squares on the model's residual (:mod:`ditherlab.fit`;
-nonlinear ones — vs, T, P, d — by a search over a grid), per joint, except ``payload`` and
-``ft_bias`` whose parameters are shared by all joints.
+nonlinear ones — vs, T, P, d — by a search over a grid), per joint, except ``payload``,
+``ft_bias`` and ``joint_offset`` whose parameters are shared by all joints.
 
 The package, bottom up: ``signals`` (the arrays of a recording effects are driven by, with or
 without the F/T sensor), ``base`` (the :class:`Effect` interface), one module per family
-(``friction``, ``transmission``, ``rigid``, ``sensor``), ``library`` (the registry and the
+(``friction``, ``transmission``, ``rigid``, ``sensor``, ``drive``), ``library`` (the registry and the
 conversion to and from the model file), ``apply`` (applying a model's effects for every
 consumer). It imports nothing above the model: the residual, the fit, identification and
 diagnosis are built on it. None of this code is shared with the simulator, whose hidden effects
@@ -55,6 +59,7 @@ from ditherlab.effects.apply import (
     widening,
 )
 from ditherlab.effects.base import Design, Effect, fmt
+from ditherlab.effects.drive import DriveGain, JointOffset
 from ditherlab.effects.friction import LoadFriction, Stribeck, TemperatureFriction, Viscous
 from ditherlab.effects.library import (
     EFFECTS,
@@ -78,12 +83,14 @@ __all__ = [
     "REF_KEYS",
     "AttenuationLag",
     "Design",
+    "DriveGain",
     "Dynamics",
     "Effect",
     "FitResult",
     "FtBias",
     "FtFrame",
     "Inertia",
+    "JointOffset",
     "LoadFriction",
     "Payload",
     "PositionRipple",

@@ -9,6 +9,8 @@ The truth of every injected effect goes into ``meta["sim"]["hidden"]``.
 | name | SIZE | plant physics |
 |---|---|---|
 | ``load_friction`` | [-] N·m of band per N·m of gear torque | band and Coulomb level grow with the torque the gear transmits (mesh normal force) |
+| ``drive_gain`` | [-] scale | the drives log their torque with a wrong current scale: the logged torque column of joint j is ``1 + share_j (SIZE - 1)`` times the torque the motor delivers (the plant's physics and its servo unchanged) |
+| ``joint_offset`` | [rad] | the encoders read ``q - share_j SIZE``: the logged ``q`` carries the offset, the physics and the servo use the true angle |
 | ``temperature_friction`` | [°C] warm-up rise | joints warm as ``T = T0 + SIZE (1 - exp(-t/tau))``; friction (band, Coulomb, viscous) falls by ``coefficient`` per °C; ``temp_j`` logged unless ``log_temperature`` is false |
 | ``position_ripple`` | [N·m] amplitude | cogging torque ``SIZE sin(Z qm)`` on the motor rotor, ``Z = periods_per_rev`` |
 | ``payload`` | [kg] | a point mass at ``com`` in the tool frame that the controller's model lacks |
@@ -32,6 +34,8 @@ from ditherlab.errors import ConfigError
 #: Name -> unit of SIZE.
 EFFECTS: dict[str, str] = {
     "load_friction": "N·m per N·m",
+    "drive_gain": "logged / true torque",
+    "joint_offset": "rad",
     "temperature_friction": "°C",
     "position_ripple": "N·m",
     "payload": "kg",
@@ -41,6 +45,10 @@ EFFECTS: dict[str, str] = {
     "ft_frame": "deg",
     "dynamics": "share of the link's mass",
 }
+
+
+#: largest encoder zero offset the simulator plants [rad] (~5.7°)
+MAX_OFFSET = 0.1
 
 
 @dataclass(frozen=True)
@@ -81,6 +89,16 @@ def parse_hidden(items: Iterable[Any]) -> list[HiddenSpec]:
             raise ConfigError(
                 f"--hidden {name}:{size:g}: negative size; expected a size >= 0 [{EFFECTS[name]}]"
             )
+        if size is not None and name == "drive_gain" and size == 0:
+            raise ConfigError(
+                f"--hidden {name}:0: a drive logging no torque; expected a scale > 0 "
+                f"[{EFFECTS[name]}], e.g. 1.1"
+            )
+        if size is not None and name == "joint_offset" and size > MAX_OFFSET:
+            raise ConfigError(
+                f"--hidden {name}:{size:g}: an encoder offset above {MAX_OFFSET:g} rad is a wrong "
+                "pose, not a zero error; expected a size in [0, 0.1] [rad]"
+            )
         if any(s.name == name for s in specs):
             raise ConfigError(f"--hidden {name}: given twice; expected each effect once")
         specs.append(HiddenSpec(name, size))
@@ -104,7 +122,18 @@ class HiddenPlant:
     ft_bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
     ft_mount: np.ndarray | None = None  # (3, 3) the F/T sensor's axes in tool axes
     link_change: dict[str, Any] | None = None  # a link's inertial parameters changed
+    tau_scale: np.ndarray | None = None  # (n,) logged / true torque of each drive
+    q_offset: np.ndarray | None = None  # (n,) [rad] true angle - encoder reading
     truth: list[dict[str, Any]] = field(default_factory=list)
+
+    def logged(self, q: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The logged ``q`` and ``tau`` (N, n) from the true angle and the drive's torque: the
+        encoders read ``q - q_offset``, the drives log ``tau_scale`` times their torque."""
+        if self.q_offset is not None:
+            q = q - self.q_offset
+        if self.tau_scale is not None:
+            tau = tau * self.tau_scale
+        return q, tau
 
     def arm_push(self, push: np.ndarray, dt: float) -> np.ndarray:
         """The wrench that reaches the arm, (N, 6), from the push on the tool (N, 6)."""
@@ -173,6 +202,16 @@ def build_hidden(
         }
         if spec.name == "load_friction":
             hp.load = np.full(n, size)
+        elif spec.name == "drive_gain":
+            share = _share(cfg, spec.name, n)
+            hp.tau_scale = 1.0 + share * (size - 1.0)
+            truth["joints"] = [int(j) + 1 for j in np.flatnonzero(share)]
+            truth["scale"] = [float(v) for v in hp.tau_scale]
+        elif spec.name == "joint_offset":
+            share = _share(cfg, spec.name, n)
+            hp.q_offset = share * size
+            truth["joints"] = [int(j) + 1 for j in np.flatnonzero(share)]
+            truth["offset"] = [float(v) for v in hp.q_offset]
         elif spec.name == "temperature_friction":
             temp = cfg["ambient"] + size * (1.0 - np.exp(-(t - t[0]) / cfg["time_constant"]))
             temp = np.tile(temp[:, None], (1, n))
@@ -219,3 +258,13 @@ def build_hidden(
     if hp.fscale is None:
         hp.fscale = np.ones((N, n))
     return hp
+
+
+def _share(cfg: Mapping[str, Any], name: str, n: int) -> np.ndarray:
+    """(n,) the per-joint ``share`` of a hidden effect's SIZE (0: the joint is not affected)."""
+    share = np.asarray(cfg["share"], dtype=float)[:n]
+    if len(share) < n or not np.all(np.isfinite(share)) or not np.any(share):
+        raise ConfigError(
+            f"hidden.{name}.share = {cfg['share']!r}: expected {n} finite values, one non-zero"
+        )
+    return share

@@ -57,11 +57,12 @@ def scenario_columns(
     hp : the HiddenPlant (its temperature)
     extra : further columns, each (N,)
     """
+    q, tau = hp.logged(out.q_motor, out.tau)  # encoder offsets, drive torque scales
     return {
         "t": tt,
-        "q": out.q_motor,
+        "q": q,
         "dq": out.dq_motor,
-        "tau": out.tau,
+        "tau": tau,
         "tau_ffw": out.tau_ffw,
         "wrench": wrench,
         "dither": out.dither,
