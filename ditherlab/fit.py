@@ -312,6 +312,9 @@ def not_identifiable(e: Effect, sc: Sequence[Scored], j: int | None, fit: FitRes
     The rule: :func:`identifiability` of the fitted effect's design, after the bands and the
     sliding line have taken what they can, is at least :data:`MIN_IDENTIFIABILITY`.
     """
+    why = e.unsupported([s.sig for s in sc], j, fit.h)
+    if why is not None:
+        return why
     st = stack(e, sc, j, fit.h, fit.ref)
     if identifiability(st) >= MIN_IDENTIFIABILITY:
         return None

@@ -94,6 +94,13 @@ class Effect(abc.ABC):
         residual), e.g. the mean load; stored with the parameters."""
         return {}
 
+    def unsupported(self, sig: Sequence[Signals], j: int | None, h: Any) -> str | None:
+        """Why the data cannot support this effect at the searched value ``h`` on joint ``j``
+        (None: they can), beyond what :func:`ditherlab.fit.identifiability` measures; e.g. a
+        periodic effect seen over too few of its periods. Part of the one rule that decides
+        both diagnosis's suggestions and ``identify --add``."""
+        return None
+
     def check(self, sig: Signals) -> None:
         """Raise ModelError naming a column the effect needs but the recording lacks."""
         return None

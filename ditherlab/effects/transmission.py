@@ -27,6 +27,22 @@ class PositionRipple(Effect):
         ph = 2 * np.pi * sig.q[:, j] / h
         return Design(np.column_stack([np.sin(ph), np.cos(ph), np.sin(2 * ph), np.cos(2 * ph)]))
 
+    #: periods of its ripple a joint's moving range must cover for a periodic fit to mean
+    #: anything (fewer: any smooth trend over the range is "periodic")
+    MIN_PERIODS = 3.0
+
+    def unsupported(self, sig, j, h):
+        q = np.concatenate([s.q[s.moving[:, j], j] for s in sig])
+        span = float(q.max() - q.min()) if q.size else 0.0
+        periods = span / float(h) if h else 0.0
+        if periods >= self.MIN_PERIODS:
+            return None
+        return (
+            f"effect {self.name!r} on joint {j + 1}: the joint's motion covers {periods:.1f} periods "
+            f"of {fmt(float(h))} rad (at least {self.MIN_PERIODS:g} needed to tell a ripple from a "
+            "trend); record motions over a wider range"
+        )
+
     def grid(self, sig, j):
         q = np.concatenate([s.q[s.moving[:, j], j] for s in sig])
         if q.size < 10:
