@@ -68,7 +68,8 @@ def run(quick: bool = False) -> list[dict]:
     d = diagnose(m, [rec])
     dt = time.perf_counter() - t0
     top = d.suggested[0].effect if d.suggested else "none"
-    rows.append(dict(name=f"diagnose, {len(rec)} samples x 6 joints, 9 candidates (found: {top})",
+    n_cand = len(d.candidates) + len(d.skipped)
+    rows.append(dict(name=f"diagnose, {len(rec)} samples x 6 joints, {n_cand} candidates (found: {top})",
                      value=len(rec) / dt, unit="samples/s"))  # fmt: skip
     e = EFFECTS["position_ripple"]
     sc = [scored(m, rec)]
