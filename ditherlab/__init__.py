@@ -11,13 +11,25 @@ Public entry points::
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ditherlab.errors import DitherlabError, DitherlabWarning
-from ditherlab.recording import Recording
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ditherlab.recording import Recording
 
 __version__ = "0.1.0"
 __all__ = ["DitherlabError", "DitherlabWarning", "Recording", "read", "write", "__version__"]
+
+
+def __getattr__(name: str) -> Any:
+    # ``ditherlab.Recording`` on first use: importing the package (``ditherlab --help``, every
+    # ``from ditherlab.errors import ...``) then does not load pandas and pinocchio (~0.7 s)
+    if name == "Recording":
+        from ditherlab.recording import Recording
+
+        return Recording
+    raise AttributeError(f"module 'ditherlab' has no attribute {name!r}")
 
 
 def read(path: Any, **options: Any) -> Recording:
