@@ -72,6 +72,8 @@ __all__ = [
 
 #: A regime with fewer samples than this on every joint needs no band (identify's min_samples).
 MIN_REGIME_SAMPLES = 200
+#: a candidate whose joints' residual RMS is below this share of their noise floor is noise
+FLOOR_SHARE = 0.5
 AXES = WRENCH_COLUMNS
 
 
@@ -508,8 +510,6 @@ def diagnose(
 
 
 # ============================================================== the verdict
-#: a candidate whose joints' residual RMS is below this share of their noise floor is noise
-FLOOR_SHARE = 0.5
 #: a joint-regime whose residual RMS exceeds its noise floor by more than this fails
 FAIL_RATIO = 1.5
 #: what to check when the residual correlates with a driving variable

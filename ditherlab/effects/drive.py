@@ -78,7 +78,7 @@ def gravity_derivative(sig: Signals) -> np.ndarray:
         return D
 
     # cached with the robot quantities shared by both views of the recording
-    return sig._robot_get("gravity_derivative", make)
+    return sig.cached("gravity_derivative", make)
 
 
 def load_derivative(sig: Signals) -> np.ndarray:

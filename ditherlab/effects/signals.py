@@ -58,7 +58,10 @@ class Signals:
         """The same recording with its F/T columns hidden (robot quantities shared)."""
         return Signals(self.rec, sensor=False, _shared=self._shared)
 
-    def _robot_get(self, key: str, make: Callable[[], Any]) -> Any:
+    def cached(self, key: str, make: Callable[[], Any]) -> Any:
+        """``make()`` computed once per recording and shared by both sensor views: for an
+        effect's own quantities that do not depend on the F/T columns (e.g. gravity
+        derivatives); anything computed from the sensor belongs in the per-view cache."""
         if key not in self._shared:
             self._shared[key] = make()
         return self._shared[key]
@@ -70,7 +73,7 @@ class Signals:
 
     @property
     def regime(self) -> np.ndarray:
-        return self._robot_get("regime", lambda: regimes(self.rec))
+        return self.cached("regime", lambda: regimes(self.rec))
 
     @property
     def moving(self) -> np.ndarray:
@@ -83,26 +86,26 @@ class Signals:
 
     @property
     def gravity(self) -> np.ndarray:
-        return self._robot_get("gravity", lambda: self.rec.robot().gravity(self.q))
+        return self.cached("gravity", lambda: self.rec.robot().gravity(self.q))
 
     @property
     def jac(self) -> np.ndarray:
-        return self._robot_get("jac", lambda: self.rec.robot().jacobian(self.q))
+        return self.cached("jac", lambda: self.rec.robot().jacobian(self.q))
 
     @property
     def mass(self) -> np.ndarray:
-        return self._robot_get("mass", lambda: self.rec.robot().mass_matrix(self.q))
+        return self.cached("mass", lambda: self.rec.robot().mass_matrix(self.q))
 
     @property
     def tool_rotation(self) -> np.ndarray:
         """(N, 3, 3): the tool frame's axes in base axes (:meth:`ditherlab.robot.RobotModel.tool_pose`)."""
-        return self._robot_get(
+        return self.cached(
             "tool_rotation", lambda: self.rec.robot().tool_pose(self.q)[:, :3, :3].copy()
         )
 
     @property
     def regressor(self) -> np.ndarray:
-        return self._robot_get("regressor", lambda: self.rec.robot().gravity_regressor(self.q))
+        return self.cached("regressor", lambda: self.rec.robot().gravity_regressor(self.q))
 
     @property
     def rigid_load(self) -> np.ndarray:
@@ -129,7 +132,7 @@ class Signals:
                 self.q, np.where(mv, self.dq, 0.0), np.where(mv, self.ddq, 0.0)
             )
 
-        return self._robot_get("torque_regressor", make)
+        return self.cached("torque_regressor", make)
 
     @property
     def link_regressor(self) -> np.ndarray:
@@ -143,7 +146,7 @@ class Signals:
                 self.q, np.where(mv, self.dq, 0.0), np.where(mv, self.ddq, 0.0), all_links=True
             )
 
-        return self._robot_get("link_regressor", make)
+        return self.cached("link_regressor", make)
 
     def wrench(self, what: str) -> np.ndarray:
         """The raw F/T columns (N, 6); ModelError naming the column when absent (or hidden)."""
@@ -176,4 +179,4 @@ def signals(rec: Recording, sensor: bool = True) -> Signals:
         _SIGNALS[rec] = s
     if sensor or not rec.has_wrench:
         return s
-    return s._robot_get("_no_sensor", s.without_sensor)
+    return s.cached("_no_sensor", s.without_sensor)
