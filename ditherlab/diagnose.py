@@ -40,6 +40,7 @@ from scipy.stats import norm
 
 from ditherlab.effects import (
     effects_torque,
+    force_gain,
     model_text,
     sensor_wrench,
     signals,
@@ -237,7 +238,7 @@ def force_error(
         # joints not scored (e.g. dither without extraction): leave them out with a huge band
         lo = np.where(sc.use, lo, -1e9)
         hi = np.where(sc.use, hi, 1e9)
-        J = sc.sig.jac
+        J = sc.sig.jac * force_gain(model)[None, None, :]
         sol = estimate(tau_bar, J, lo, hi, sg, model.prior_mean, model.prior_sigma)
         Fs = sensor_wrench(model, rec)
         errs.append(sol.F - Fs)

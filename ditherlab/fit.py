@@ -154,13 +154,27 @@ class Stack:
         return eff + (0,) * (self.C.shape[1] - len(eff))
 
 
-def stack(e: Effect, sc: Sequence[Scored], j: int | None, h: Any, ref: dict[str, Any]) -> Stack:
-    """Flatten the scored samples of joint j (or all joints when the effect is shared)."""
+def stack(
+    e: Effect,
+    sc: Sequence[Scored],
+    j: int | None,
+    h: Any,
+    ref: dict[str, Any],
+    lags: Sequence[int] | None = None,
+) -> Stack:
+    """Flatten the scored samples of joint j (or all joints when the effect is shared).
+
+    ``lags`` (one per recording, samples): the effect's design circularly shifted in time by
+    this much against the residual, a surrogate whose driving variable carries no information
+    about the residual (the bands and the sliding line stay where they are).
+    """
     es, hs, ss, Cs, Ws, os_, bs, gs = [], [], [], [], [], [], [], []
     ns: list[tuple[int, np.ndarray]] = []
     t0 = 0
-    for s in sc:
+    for i, s in enumerate(sc):
         d = e.design(s.sig, j, h, ref)
+        if lags is not None and lags[i]:
+            d = d.rolled(int(lags[i]))
         N = len(s.e)
         joints = range(s.sig.n) if j is None else [j]
         for jj in joints:

@@ -36,7 +36,7 @@ import pandas as pd
 
 from ditherlab.dither import Extraction, dithered_band, extract_dither
 from ditherlab.dither import band_as_noise as band_variance_as_noise
-from ditherlab.effects import effects_torque
+from ditherlab.effects import effects_torque, force_gain
 from ditherlab.errors import ConfigError
 from ditherlab.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates
 from ditherlab.estimator import estimate, gaussian_profile_intervals, intervals
@@ -163,7 +163,8 @@ def replay(
 
     robot = rec.robot()
     g = robot.gravity(rec.q, tol=q_tol)
-    J = robot.jacobian(rec.q, tol=q_tol)
+    # the log's drive gains scale the pushes' torque too (drive_gain): J^T row j times k_j
+    J = robot.jacobian(rec.q, tol=q_tol) * force_gain(model)[None, None, :]
     eff = model_effects(model, rec)
     reg = regimes(rec)
     model.band("still")  # the estimator needs it: a clear error without

@@ -8,11 +8,17 @@ fold), and by BIC with an effective sample size (the number of scored samples ou
 divided by the integrated autocorrelation time of the fitted residual: samples at 250 Hz are
 not independent).
 
-**Decision rule.** An effect is suggested on joint j when all three hold: held-out explained
+**Decision rule.** An effect is suggested on joint j when all four hold: held-out explained
 fraction ``>= min_fraction`` (default 0.05), the held-out loss falls in at least ``K - 1`` of the
-``K`` folds, and ``ΔBIC <= -10`` (strong evidence on the Kass–Raftery scale). Shared-parameter
-effects (``payload``, ``ft_bias``) are tested once over all joints. Candidates are ranked by the
-share of the residual (all joints, in noise-floor units) they explain on held-out data.
+``K`` folds, ``ΔBIC <= -10`` (strong evidence on the Kass–Raftery scale), and the effect beats
+its surrogates: fitted and scored the same way (same folds, same search of its nonlinear
+parameter) to its own design circularly shifted in time — the lags where the design is least
+correlated with itself, so the shifted driver carries no information about the residual — its
+held-out gain is at least :data:`SURROGATE_RATIO` times the best surrogate's. A flexible effect
+that fits any structured residual (a ripple whose period is searched, a drift) explains as much
+with a shifted driver and is not suggested. Shared-parameter effects (``payload``,
+``ft_bias``) are tested once over all joints. Candidates are ranked by the share of the residual
+(all joints, in noise-floor units) they explain on held-out data.
 
 """
 
@@ -43,6 +49,7 @@ from ditherlab.residual import Scored, scored
 __all__ = [
     "BIC_THRESHOLD",
     "MIN_FRACTION",
+    "SURROGATE_RATIO",
     "Candidate",
     "JointScore",
     "candidates",
@@ -51,6 +58,10 @@ __all__ = [
 
 MIN_FRACTION = 0.05
 BIC_THRESHOLD = -10.0
+#: an effect's held-out gain must be at least this times its best surrogate's
+SURROGATE_RATIO = 2.0
+#: surrogates per candidate joint (lags of the design, each fitted like the effect)
+SURROGATES = 3
 
 
 @dataclass
@@ -65,6 +76,8 @@ class JointScore:
     delta_bic: float
     n_eff: float
     fit: FitResult
+    #: held-out gain of the best surrogate (None: not computed, the other criteria failed)
+    surrogate: float | None = None
 
     @property
     def gain(self) -> float:
@@ -74,7 +87,20 @@ class JointScore:
     def fraction(self) -> float:
         return self.gain / self.loss0 if self.loss0 > 0 else 0.0
 
+    @property
+    def surrogate_fraction(self) -> float | None:
+        """The best surrogate's held-out explained fraction (None: not computed)."""
+        if self.surrogate is None:
+            return None
+        return self.surrogate / self.loss0 if self.loss0 > 0 else 0.0
+
     def passes(self, min_fraction: float) -> bool:
+        return self.evidence(min_fraction) and (
+            self.surrogate is None or self.gain >= SURROGATE_RATIO * self.surrogate
+        )
+
+    def evidence(self, min_fraction: float) -> bool:
+        """The held-out, fold and BIC criteria (the surrogates are tested only after these)."""
         return (
             self.fraction >= min_fraction
             and self.folds_better >= self.folds - 1
@@ -113,6 +139,11 @@ class Candidate:
                     "folds": s.folds,
                     "delta_bic": round(float(s.delta_bic), 3),
                     "n_eff": round(float(s.n_eff), 1),
+                    "surrogate_fraction": (
+                        None
+                        if s.surrogate_fraction is None
+                        else round(float(s.surrogate_fraction), 6)
+                    ),
                 }
                 for s in self.scores
             ],
@@ -188,8 +219,16 @@ def _folds(st: Stack, total: int, K: int, guard: int) -> list[tuple[np.ndarray, 
     return out
 
 
-def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: float) -> JointScore:
-    """Held-out and BIC evidence of effect e on joint j (None: shared fit over all joints)."""
+def _score(
+    e: Effect,
+    scs: Sequence[Scored],
+    j: int | None,
+    K: int,
+    guard_s: float,
+    lags: Sequence[int] | None = None,
+) -> JointScore:
+    """Held-out and BIC evidence of effect e on joint j (None: shared fit over all joints);
+    ``lags`` (one per recording): of the surrogate whose design is shifted by that much."""
     sigs = [s.sig for s in scs]
     ref = e.reference(sigs, j)
     total = sum(len(s.e) for s in scs)
@@ -198,10 +237,10 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
     grid = e.grid(sigs, j)
     allowed: dict[int, set[int]] | None = None
     if j is not None and len(grid) > 1:
-        st0 = stack(e, scs, j, grid[0], ref)
+        st0 = stack(e, scs, j, grid[0], ref, lags)
         fl0 = _folds(st0, total, K, guard)
         masks = [tr(st0.block) for _, tr in fl0] + [np.ones(len(st0.e), dtype=bool)]
-        lists = e.shortlist(scs, j, grid, masks)
+        lists = e.shortlist(scs, j, grid, masks, lags)
         allowed = {}
         for k, lst in enumerate(lists):
             for h in lst:
@@ -217,7 +256,7 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
     base_st = None
     for gi in grid_idx:
         h = grid[gi]
-        st = stack(e, scs, j, h, ref)
+        st = stack(e, scs, j, h, ref, lags)
         sg = st.signs(e.signs(h))
         if folds is None:
             folds = _folds(st, total, K, guard)
@@ -254,6 +293,52 @@ def _score(e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: flo
         dbic = 0.0
     better = sum(1 for a, b in zip(test_l0, test_l1, strict=True) if b < a)
     return JointScore(j, sum(test_l0), sum(test_l1), better, K, dbic, n_eff, full)
+
+
+def _surrogate_lags(e: Effect, scs: Sequence[Scored], j: int | None, fit: FitResult) -> list:
+    """:data:`SURROGATES` lag vectors (one lag per recording, samples) at which the effect's
+    fitted design is least correlated with itself (circular autocorrelation of its
+    mean-removed, unit-norm columns over the scored samples, summed in absolute value), between
+    15 % and 85 % of each recording and at least 10 % of it apart."""
+    per_rec = []
+    for s in scs:
+        d = e.design(s.sig, j, fit.h, fit.ref)
+        N = len(s.e)
+        use = s.use.any(axis=1) if j is None else s.use[:, j]
+        cols = [a.reshape(N, -1) for a in (d.centre, d.widen) if a is not None]
+        X = np.hstack(cols)
+        X = np.where(use[:, None], X - X[use].mean(axis=0) if use.any() else X, 0.0)
+        nrm = np.linalg.norm(X, axis=0)
+        X = X[:, nrm > 0] / nrm[nrm > 0]
+        lo, hi, gap = int(0.15 * N), int(0.85 * N), max(int(0.1 * N), 1)
+        if X.shape[1] == 0 or hi <= lo:
+            per_rec.append([int(N * f) for f in np.linspace(0.3, 0.7, SURROGATES)])
+            continue
+        F = np.fft.rfft(X, axis=0)
+        acf = np.abs(np.fft.irfft(np.abs(F) ** 2, n=N, axis=0)).sum(axis=1)
+        cand = np.arange(lo, hi)
+        score = acf[cand]
+        picked: list[int] = []
+        for _ in range(SURROGATES):
+            ok = np.ones(len(cand), dtype=bool)
+            for p in picked:
+                ok &= np.abs(cand - p) >= gap
+            if not ok.any():
+                break
+            picked.append(int(cand[ok][np.argmin(score[ok])]))
+        per_rec.append(picked)
+    k = min(len(p) for p in per_rec)
+    return [[p[i] for p in per_rec] for i in range(k)]
+
+
+def _surrogate_gain(
+    e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: float, fit: FitResult
+) -> float:
+    """The largest held-out gain of the effect fitted to its own shifted design."""
+    return max(
+        (_score(e, scs, j, K, guard_s, lags).gain for lags in _surrogate_lags(e, scs, j, fit)),
+        default=0.0,
+    )
 
 
 def _loss(st: Stack, m: np.ndarray, w: np.ndarray) -> float:
@@ -305,6 +390,8 @@ def _evaluate(
     e = get_effect(name)
     if e.shared:
         s = _score(e, scs, None, K, guard_s)
+        if s.evidence(min_fraction):
+            s.surrogate = _surrogate_gain(e, scs, None, K, guard_s, s.fit)
         ok = s.passes(min_fraction)
         # the shared fit covers every joint: its own held-out baseline is the whole residual
         frac = s.fraction
@@ -320,6 +407,9 @@ def _evaluate(
             not_identifiable=why,
         )
     scores = [_score(e, scs, j, K, guard_s) for j in range(model.n)]
+    for s in scores:
+        if s.evidence(min_fraction):
+            s.surrogate = _surrogate_gain(e, scs, s.joint, K, guard_s, s.fit)
     # joints by each joint's own held-out evidence; the candidate by its share of the whole
     # residual (the >= min_fraction rule holds for what is suggested, not only per joint)
     sel = [s for s in scores if s.passes(min_fraction)]

@@ -386,3 +386,42 @@ def test_cli_no_log_temperature(cli, tmp_path):
 
     rec = read(out)
     assert rec.temp is None and rec.meta["sim"]["hidden"][0]["log_temperature"] is False
+
+
+def test_cli_cable_pull_is_carried_and_measured(cli, tmp_path):
+    """``environment.cable_force`` pulls the tool with a constant force: the F/T columns read
+    the force the robot exerts (minus the pull) between pushes, and the standing joints carry
+    it: the logged torque minus gravity is ``J^T F`` within the friction band of the still
+    regime (here the mean over the rest after the last push, against ``J^T F`` per joint,
+    within the band ±Fs)."""
+    from ditherlab.io import read
+    from ditherlab.signal import jtf
+
+    cfg = tmp_path / "cable.toml"
+    cfg.write_text("[environment]\ncable_force = [0.0, 12.0, -20.0]\n")
+    out = tmp_path / "c.parquet"
+    r = cli(
+        "simulate",
+        "push-campaign",
+        "-o",
+        out,
+        "--config",
+        cfg,
+        "--no-dither",
+        "--pushes-per-direction",
+        "1",
+        "--seed",
+        "5",
+        "-q",
+    )
+    assert r.code == 0, r.err
+    rec = read(out)
+    assert rec.meta["sim"]["params"]["environment"]["cable_force"] == [0.0, 12.0, -20.0]
+    rest = rec.data["push"].to_numpy() < 0
+    rest &= rec.t > rec.meta["sim"]["timeline"]["first_push"]
+    np.testing.assert_allclose(rec.wrench[rest, :3].mean(axis=0), [0.0, -12.0, 20.0], atol=0.1)
+    robot = rec.robot()
+    ext = jtf(robot.jacobian(rec.q[rest]), rec.wrench[rest])
+    fric = rec.tau[rest] - robot.gravity(rec.q[rest]) - ext
+    fs = np.array(rec.meta["sim"]["params"]["friction"]["static"])
+    assert np.all(np.abs(fric.mean(axis=0)) <= fs), fric.mean(axis=0)

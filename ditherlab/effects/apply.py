@@ -20,6 +20,7 @@ __all__ = [
     "check_model_effects",
     "effects_torque",
     "external_torque",
+    "force_gain",
     "model_text",
     "sensor_wrench",
     "widening",
@@ -130,6 +131,21 @@ def external_torque(model: TorqueModel, rec: Recording, F: np.ndarray) -> np.nda
             j = jj - 1
             w, h, _ = spec_params(e, j, spec)
             out[:, j] = e.external(sig, X[:, j], w, h)
+    return out
+
+
+def force_gain(model: TorqueModel) -> np.ndarray:
+    """(n,) [-]: how the model's torque effects scale each joint's external torque ``J^T F`` in
+    the logged torque (``drive_gain``'s k; 1 without such an effect). The sensorless estimator
+    uses ``J^T`` with row j multiplied by it: ``J * force_gain(model)[None, None, :]``."""
+    out = np.ones(model.n)
+    for spec in model.effects:
+        e = get_effect(spec.name)
+        if e.shared or e.kind != "torque":
+            continue
+        for jj in spec.joints:
+            if jj - 1 < model.n:
+                out[jj - 1] *= e.force_gain(joint_params(spec, jj - 1))
     return out
 
 

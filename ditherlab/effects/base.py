@@ -39,6 +39,14 @@ class Design:
     widen: np.ndarray | None = None
     offset: np.ndarray | None = None
 
+    def rolled(self, lag: int) -> Design:
+        """The design circularly shifted by ``lag`` samples along time (a surrogate)."""
+
+        def r(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else np.roll(a, lag, axis=0)
+
+        return Design(r(self.centre), r(self.widen), r(self.offset))
+
 
 class Effect(abc.ABC):
     """One named physical effect: its form, driving variables, parameters, fit and predict.
@@ -106,10 +114,17 @@ class Effect(abc.ABC):
         return None
 
     def shortlist(
-        self, sc: Sequence[Any], j: int | None, grid: list[Any], masks: list[np.ndarray]
+        self,
+        sc: Sequence[Any],
+        j: int | None,
+        grid: list[Any],
+        masks: list[np.ndarray],
+        lags: Sequence[int] | None = None,
     ) -> list[list[Any]]:
         """For each boolean training mask over the stacked samples, the grid values worth a full
-        fit (default: the whole grid). Long grids override this with a fast pre-screen."""
+        fit (default: the whole grid). Long grids override this with a fast pre-screen, which
+        must shift its driving variable by ``lags`` (one per recording, samples; see
+        :meth:`Design.rolled`) when they are given."""
         return [list(grid) for _ in masks]
 
     def signs(self, h: Any) -> tuple[int, ...]:
@@ -132,6 +147,12 @@ class Effect(abc.ABC):
     def linear_params(self, w: np.ndarray) -> dict[str, Any]:
         """The model file's parameters of a shared effect from its linear parameters (k,)."""
         return {c: float(v) for c, v in zip(self.linear, w, strict=True)}
+
+    def force_gain(self, p: dict[str, Any]) -> float:
+        """How a torque effect of one joint (parameters ``p``) scales the external torque
+        ``J^T F`` in the logged torque (1: it does not); the force estimator's ``J^T`` row of
+        the joint is multiplied by it."""
+        return 1.0
 
     # -- kind "external": how the servo shows the external torque
     def external(self, sig: Signals, X: np.ndarray, w: np.ndarray, h: Any) -> np.ndarray:

@@ -44,6 +44,10 @@ class DriveGain(Effect):
     def design(self, sig, j, h, ref):
         return Design(sig.rigid_load[:, j : j + 1])
 
+    def force_gain(self, p):
+        # the log scales the push's torque too: the sensorless estimate reads k·J^T F
+        return 1.0 + float(p["gain_error"])
+
     def driver(self, sig, j, p):
         return sig.rigid_load[:, j], f"tau_grav + J^T F + M ddq, joint {j + 1} [N·m]"
 

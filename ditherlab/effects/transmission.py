@@ -55,13 +55,16 @@ class PositionRipple(Effect):
         n = int(min(600, max(16, 4 * span / lo)))
         return list(1.0 / np.geomspace(1 / lo, 1 / hi, n))
 
-    def shortlist(self, sc, j, grid, masks, keep: int = 3):
+    def shortlist(self, sc, j, grid, masks, lags=None, keep: int = 3):
         """Least-squares periodogram (Lomb–Scargle without offset) of the moving samples of each
         training set; the ``keep`` periods with the largest weighted variance reduction."""
         if len(grid) <= keep:
             return [list(grid) for _ in masks]
+        lags = lags if lags is not None else [0] * len(sc)
         e = np.concatenate([s.e[s.use[:, j], j] for s in sc])
-        q = np.concatenate([s.sig.q[s.use[:, j], j] for s in sc])
+        q = np.concatenate(
+            [np.roll(s.sig.q[:, j], g)[s.use[:, j]] for s, g in zip(sc, lags, strict=True)]
+        )
         hh = np.concatenate([s.h[s.use[:, j], j] for s in sc])
         wt = 1.0 / np.concatenate([s.sigma[s.use[:, j], j] for s in sc]) ** 2
         lin = hh == 0  # moving samples: plain least squares

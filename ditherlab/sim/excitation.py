@@ -34,7 +34,13 @@ import numpy as np
 
 from ditherlab.sim.engine import Engine, Inputs
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
-from ditherlab.sim.scenarios import AXES, scenario_columns, scenario_rngs, wrench_noise
+from ditherlab.sim.scenarios import (
+    AXES,
+    cable_force,
+    scenario_columns,
+    scenario_rngs,
+    wrench_noise,
+)
 
 
 def _min_jerk(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -181,6 +187,7 @@ def excitation(
         t0 += length
     q_ref[tt >= t0] = here
 
+    push[:, :3] += cable_force(params)
     hp = build_hidden(hidden, params, tt, n, hidden_rng)
     engine = engine_for(hp)
     noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * engine.fs

@@ -35,6 +35,12 @@ def scenario_rngs(
     return plan_rng, noise_rng, hidden_rng
 
 
+def cable_force(params: Mapping[str, Any]) -> np.ndarray:
+    """The environment's constant force on the tool point (3,) [N, base axes]
+    (``environment.cable_force``): carried by the arm and measured by the F/T sensor."""
+    return np.asarray(params["environment"]["cable_force"], dtype=float)
+
+
 def wrench_noise(params: Mapping[str, Any], rng: np.random.Generator, N: int) -> np.ndarray:
     """F/T sensor noise (N, 6): forces [N] with ``noise.force_sigma``, moments [N·m] with
     ``noise.moment_sigma``."""
@@ -156,6 +162,7 @@ def push_campaign(
         push[m, AXES.index(p["axis"])] += p["sign"] * p["magnitude"] * shape
         push_id[m] = i
 
+    push[:, :3] += cable_force(params)
     hp = build_hidden(hidden, params, tt, n, hidden_rng)
     engine = engine_for(hp)
     fs = engine.fs
