@@ -252,19 +252,21 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=50)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, required=True, help="folder for study.csv and the runs")
-    ap.add_argument("--only", help="comma-separated recording ids to run")
+    ap.add_argument(
+        "--only",
+        type=lambda v: {int(x) for x in v.split(",")},
+        help="comma-separated recording ids to run (e.g. 4,6)",
+    )
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     if a.only:
-        ids = {int(x) for x in a.only.split(",")}
+        ids = a.only
         specs = [s for s in plan(max(ids) + 1) if s["id"] in ids]
         rows = [one(s, a.out) for s in specs]
     else:
         rows, wall = study(a.n, a.out, a.workers)
         print(f"wall time {wall:.0f} s", file=sys.stderr)
-    keys = sorted(
-        {k for r in rows for k in r}, key=lambda k: list(rows[0]).index(k) if k in rows[0] else 99
-    )
+    keys = list(dict.fromkeys(k for r in rows for k in r))  # every column, first-seen order
     with open(a.out / "study.csv", "w", newline="") as f:
         w = csv.DictWriter(f, keys)
         w.writeheader()

@@ -295,12 +295,24 @@ def _score(
     return JointScore(j, sum(test_l0), sum(test_l1), better, K, dbic, n_eff, full)
 
 
-def _surrogate_lags(e: Effect, scs: Sequence[Scored], j: int | None, fit: FitResult) -> list:
+def _judged(
+    e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: float, min_fraction: float
+) -> JointScore:
+    """:func:`_score`, and where its evidence passes, the best surrogate's gain beside it."""
+    s = _score(e, scs, j, K, guard_s)
+    if s.evidence(min_fraction):
+        s.surrogate = _surrogate_gain(e, scs, j, K, guard_s, s.fit)
+    return s
+
+
+def _surrogate_lags(
+    e: Effect, scs: Sequence[Scored], j: int | None, fit: FitResult
+) -> list[list[int]]:
     """:data:`SURROGATES` lag vectors (one lag per recording, samples) at which the effect's
     fitted design is least correlated with itself (circular autocorrelation of its
     mean-removed, unit-norm columns over the scored samples, summed in absolute value), between
     15 % and 85 % of each recording and at least 10 % of it apart."""
-    per_rec = []
+    per_rec: list[list[int]] = []
     for s in scs:
         d = e.design(s.sig, j, fit.h, fit.ref)
         N = len(s.e)
@@ -389,9 +401,7 @@ def _evaluate(
 ) -> Candidate:
     e = get_effect(name)
     if e.shared:
-        s = _score(e, scs, None, K, guard_s)
-        if s.evidence(min_fraction):
-            s.surrogate = _surrogate_gain(e, scs, None, K, guard_s, s.fit)
+        s = _judged(e, scs, None, K, guard_s, min_fraction)
         ok = s.passes(min_fraction)
         # the shared fit covers every joint: its own held-out baseline is the whole residual
         frac = s.fraction
@@ -406,10 +416,7 @@ def _evaluate(
             spec.params,
             not_identifiable=why,
         )
-    scores = [_score(e, scs, j, K, guard_s) for j in range(model.n)]
-    for s in scores:
-        if s.evidence(min_fraction):
-            s.surrogate = _surrogate_gain(e, scs, s.joint, K, guard_s, s.fit)
+    scores = [_judged(e, scs, j, K, guard_s, min_fraction) for j in range(model.n)]
     # joints by each joint's own held-out evidence; the candidate by its share of the whole
     # residual (the >= min_fraction rule holds for what is suggested, not only per joint)
     sel = [s for s in scores if s.passes(min_fraction)]
