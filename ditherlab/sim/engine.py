@@ -178,14 +178,17 @@ class Engine:
         # dedup=False: the plain evaluation path, without the robot model's result cache
         qs = np.vstack([q_link, q_link + eps * np.eye(n)])
         pl = self.plant_robot.evaluate(qs, ["gravity", "mass_matrix", "jacobian"], dedup=False)
-        W = np.linalg.inv(pl["mass_matrix"][0] + np.diag(self.output_inertia))
+        M = pl["mass_matrix"]
+        W = np.linalg.inv(M[0] + np.diag(self.output_inertia))
         gp = pl["gravity"]
         Gp = ((gp[1:] - gp[0]) / eps).T  # dg_i/dq_k at [i, k]
+        dM = np.moveaxis((M[1:] - M[0]) / eps, 0, 2)  # dM_ij/dq_k at [i, j, k]
+        Gam = 0.5 * (dM + np.swapaxes(dM, 1, 2) - np.moveaxis(dM, 2, 0))
         qs = np.vstack([q_motor, q_motor + eps * np.eye(n)])
         gc = self.robot.evaluate(qs, ["gravity"], dedup=False)["gravity"]
         Gc = ((gc[1:] - gc[0]) / eps).T
         JT = pl["jacobian"][0].T.copy()
-        return W, gp[0].copy(), Gp, q_link.copy(), gc[0].copy(), Gc, q_motor.copy(), JT
+        return W, gp[0].copy(), Gp, q_link.copy(), gc[0].copy(), Gc, q_motor.copy(), JT, Gam
 
     # ------------------------------------------------------------------ run
     def run(

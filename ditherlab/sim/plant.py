@@ -361,16 +361,23 @@ def _load_factor(load, band, ts):
 
 
 @njit(cache=True, inline="always")
-def _free_link_velocity(h, W, gp0, Gp, qp_lin, JT, push, tau_ext, kk, x, ts, tnet, vstar):
+def _free_link_velocity(h, W, gp0, Gp, qp_lin, JT, Gam, push, tau_ext, kk, x, ts, tnet, vstar):
     """Link velocities after the substep without output-side friction: ``v + h W tnet`` with
-    ``tnet = ts - g(q) + tau_ext + J^T P`` (written to ``tnet`` and ``vstar``)."""
+    ``tnet = ts - g(q) - c(q, v) + tau_ext + J^T P`` (written to ``tnet`` and ``vstar``), the
+    Coriolis and centrifugal torque ``c_j = sum_ab Gam[j, a, b] v_a v_b``."""
     n = ts.shape[0]
     for j in range(n):
         g = _linear_gravity(gp0, Gp, qp_lin, x, X_Q, j)
         e = tau_ext[kk, j]
         for c6 in range(6):
             e += JT[j, c6] * push[kk, c6]
-        tnet[j] = ts[j] - g + e
+        c = 0.0
+        for a in range(n):
+            va = x[X_V, a]
+            if va != 0.0:
+                for b in range(n):
+                    c += Gam[j, a, b] * va * x[X_V, b]
+        tnet[j] = ts[j] - g - c + e
     for j in range(n):
         acc = 0.0
         for m in range(n):
@@ -409,6 +416,7 @@ def run_kernel(
     Gc,
     qc_lin,
     JT,
+    Gam,
     push,
     tau_ext,
     q_ref,
@@ -433,6 +441,9 @@ def run_kernel(
     gp0, Gp, qp_lin : plant gravity g(q) ~ gp0 + Gp (q - qp_lin) [N m], (n,), (n, n), (n,)
     gc0, Gc, qc_lin : the controller's gravity model, linearised likewise in the motor angle
     JT : (n, 6) [m or 1] transposed tool Jacobian
+    Gam : (n, n, n) [kg m^2] Christoffel symbols of the link mass matrix for this chunk,
+        ``Gam[j, a, b] = (dM_ja/dq_b + dM_jb/dq_a - dM_ab/dq_j) / 2``: the Coriolis and
+        centrifugal torque is ``c_j = sum_ab Gam[j, a, b] v_a v_b``
     push, tau_ext, q_ref, dq_ref, kp_on, dcmd, noise, fscale : per-sample inputs (K, 6) [N, N m]
         push on the tool, (K, n) [N m] external joint torque, (K, n) [rad], (K, n) [rad/s],
         (K,), (K,), (K, n) [N m], (K, n) friction factor
@@ -494,7 +505,7 @@ def run_kernel(
                     vnew[j], st = _stick_slip(jp[JM, j], p, h, fs, fc, fv, x[X_SM, j] > 0.5, vm)
                     x[X_SM, j] = 1.0 if st else 0.0
                 _free_link_velocity(
-                    h, W, gp0, Gp, qp_lin, JT, push, tau_ext, kk, x, ts, tnet, vstar
+                    h, W, gp0, Gp, qp_lin, JT, Gam, push, tau_ext, kk, x, ts, tnet, vstar
                 )
                 # output side: projected Gauss-Seidel on W = M^-1 for the coupled friction
                 # torques x[X_FO] (warm-started), a stick-slip box problem per joint; tnet is
@@ -528,6 +539,7 @@ def run_reference(
     Gc,
     qc_lin,
     JT,
+    Gam,
     push,
     tau_ext,
     q_ref,
@@ -586,7 +598,20 @@ def run_reference(
                 fst[F_CLOCK] += dts
             for _ in range(nsub):
                 _reference_substep(
-                    jp, h, sweeps, W, gp0, Gp, qp_lin, JT, push[kk], tau_ext[kk], fscale[kk], u, x
+                    jp,
+                    h,
+                    sweeps,
+                    W,
+                    gp0,
+                    Gp,
+                    qp_lin,
+                    JT,
+                    Gam,
+                    push[kk],
+                    tau_ext[kk],
+                    fscale[kk],
+                    u,
+                    x,
                 )
 
 
@@ -640,7 +665,7 @@ def _reference_dither_loops(jp, sp, x, ist, fst, hist, cmd, gc0, Gc, qc_lin):
         x[X_A] = x[X_ASTOP] * (1 - fst[F_RD])
 
 
-def _reference_substep(jp, h, sweeps, W, gp0, Gp, qp_lin, JT, push, tau_ext, fscale, u, x):
+def _reference_substep(jp, h, sweeps, W, gp0, Gp, qp_lin, JT, Gam, push, tau_ext, fscale, u, x):
     """One plant substep over all joints: motor side, link side with matrix products, and the
     output-side friction by ``sweeps`` Gauss-Seidel sweeps; ``push``, ``tau_ext`` and ``fscale``
     are this sample's rows."""
@@ -664,7 +689,8 @@ def _reference_substep(jp, h, sweeps, W, gp0, Gp, qp_lin, JT, push, tau_ext, fsc
             x[X_SM, j] > 0.5,
             x[X_VM, j],
         )
-    tnet = ts - (gp0 + Gp @ (x[X_Q] - qp_lin)) + JT @ push + tau_ext
+    coriolis = np.einsum("jab,a,b->j", Gam, x[X_V], x[X_V])
+    tnet = ts - (gp0 + Gp @ (x[X_Q] - qp_lin)) - coriolis + JT @ push + tau_ext
     vstar = x[X_V] + h * (W @ tnet)
     fo = x[X_FO].copy()
     so = np.zeros(n, dtype=bool)
