@@ -431,8 +431,9 @@ def _notes(
 
 
 def _cap_moving(regs: dict[str, Band], fits: dict) -> list[int]:
-    """Keep the moving band physical: no wider than the still band (sliding friction is better
-    known than static friction, the paper's §VI-D), and viscous friction not negative. A wider
+    """Keep the moving band physical: no wider than the still band, about its own centre
+    (sliding friction is better known than static friction, the paper's §VI-D), and viscous
+    friction not negative. A wider
     ML band means the moving samples hold torques the model lacks (a servo transient at the end
     of the simulator's start-up excitation reached -195 N·m on joint 1). Returns the joints
     (0-based) changed."""
@@ -446,7 +447,16 @@ def _cap_moving(regs: dict[str, Band], fits: dict) -> list[int]:
         changed = False
         hs = 0.5 * (st.tau_max[j] - st.tau_min[j])
         if mv.tau_max[j] - mv.tau_min[j] > 2 * hs:
-            mv.tau_min[j], mv.tau_max[j] = -hs, hs
+            # the width is capped; the centre is kept where a stuck joint could hold it too
+            # (inside the still band): an effect's constant part, e.g. a link's gravity that
+            # hardly changes with the pose (the hopper's thigh under `dynamics`), stays in the
+            # band. Outside it the ML centre is the slips' transients, not friction (-90 N·m
+            # on joint 2 of a simulated push campaign, whose moving samples are a few slips
+            # under pushes): the band is then centred on the sliding line as before
+            c = 0.5 * (mv.tau_max[j] + mv.tau_min[j])
+            if not st.tau_min[j] <= c <= st.tau_max[j]:
+                c = 0.0
+            mv.tau_min[j], mv.tau_max[j] = c - hs, c + hs
             changed = True
         if mv.viscous is not None and mv.viscous[j] < 0:
             mv.viscous[j] = 0.0

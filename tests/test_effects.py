@@ -86,7 +86,7 @@ def make_recording(
             hump = np.array([0, 3.0, 2.5, 0, 0, 0]) / (1 + (dq / 0.05) ** 2)
             tau += s * hump * np.tanh(dq / 0.003)
         elif h == "load_friction":  # grows with the gear torque, links' inertia torque included
-            gear = g + ext + np.einsum("tij,tj->ti", robot.mass_matrix(q), ddq)
+            gear = ext + robot.inverse_dynamics(q, dq, ddq)
             tau += s * 0.08 * np.abs(gear) * np.tanh(dq / 0.003) * np.array([0, 1, 1, 0, 0, 0])
         elif h == "temperature_friction":  # exponential in temperature, not linear
             T = 25 + 20 * (1 - np.exp(-t / 12.0))[:, None] * np.ones(n)
@@ -103,10 +103,9 @@ def make_recording(
             tau += plant.inverse_dynamics(q, dq, ddq) - robot.inverse_dynamics(q, dq, ddq)
         elif h == "ft_bias":
             sensor = sensor + s * np.array([6.0, -4.0, 5.0, 0.0, 0.0, 0.0])
-        elif h == "inertia":
-            M = robot.mass_matrix(q)
+        elif h == "inertia":  # the links' M ddq + C dq (pinocchio's RNEA less gravity) + rotors
             Jm = np.array([1.3, 1.3, 0.6, 0.08, 0.08, 0.04])
-            tau += s * (np.einsum("tij,tj->ti", M, ddq) + Jm * ddq)
+            tau += s * (robot.inverse_dynamics(q, dq, ddq) - g + Jm * ddq)
         elif h == "viscous":
             tau += s * 2.0 * dq * np.array([0, 1, 1, 0, 0, 0])
     if "attenuation_lag" in hidden:  # two 25 ms first-order lags in series (50 ms), gain 0.7

@@ -11,7 +11,8 @@ effect                   torque on joint j (the fitted parameters in bold)     d
 ``load_friction``        **k** · (|L| - L_ref) · sign(dq) while moving, and    L = L0 + **c**(1 +
                          the stick band widened by **k** · (|L| - L_ref)       **g**|L0|/fc)sign(dq);
                                                                                L0 = tau_grav +
-                                                                               J^T F (+ M ddq moving)
+                                                                               J^T F (+ M ddq +
+                                                                               C dq moving)
 ``temperature_friction`` **a** · (x - x_ref) · sign(dq) while moving, and the   temp_j, or
                          band widened by **a** · (x - x_ref); x = temperature   exp(-t / **T**)
                          or exp(-t / T) (time since start, **T** fitted)
@@ -23,9 +24,10 @@ effect                   torque on joint j (the fitted parameters in bold)     d
                          instead of J^T F(t): a delay **d** or a first-order
                          lag of **L** samples
 ``ft_bias``              the sensor reads F + **b**: the true wrench is F - b    F/T columns
-``inertia``              **s** · (M(q) ddq)_j + **Jm** · ddq_j                   ddq
+``inertia``              **s** · (M(q) ddq + C(q, dq) dq)_j + **Jm** · ddq_j     ddq, dq
 ``drive_gain``           the log reads **k** · tau: (**k** - 1) · (tau_grav +     tau_grav + J^T F
-                         J^T F + M ddq)_j                                      (+ M ddq moving)
+                         J^T F + M ddq + C dq)_j                               (+ M ddq +
+                                                                               C dq moving)
 ``joint_offset``         the arm is at q + **δ**: (∂(tau_grav + J^T F)/∂q ·     q (gravity and
                          **δ**)_j (linearised; one δ per joint, shared)         J^T F derivative)
 ``ft_frame``             the sensor is turned by **θ** and offset by **d** in   F/T columns, tool

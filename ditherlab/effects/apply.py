@@ -63,7 +63,7 @@ def effects_torque(model: TorqueModel, rec: Recording, *, sensor: bool = True) -
     rec : Recording
     sensor : let effects read the F/T columns (``load_friction``'s load ``J^T F``). False for
         the force estimator (replay, the diagnosis's force error): a sensorless estimate must not
-        see the sensor, and the load is then the model's ``tau_grav + M ddq`` part alone.
+        see the sensor, and the load is then the model's ``tau_grav + M ddq + C dq`` part alone.
 
     Returns
     -------

@@ -24,7 +24,7 @@ class DriveGain(Effect):
     scale or gear ratio wrong in the log's mapping): ``tau_logged = k · tau_true``.
 
     The residual is then ``(k - 1) · tau_true``. Fitted linearly as ``(k - 1)`` times the
-    model's rigid torque of the joint, ``tau_grav + J^T F`` plus ``M(q) ddq`` while it moves
+    model's rigid torque of the joint, ``tau_grav + J^T F`` plus ``M(q) ddq + C(q, dq) dq`` while it moves
     (:attr:`Signals.rigid_load`): the friction part ``(k - 1) · friction`` is constant within a
     regime or proportional to ``sign(dq)`` / ``dq``, so the re-identified bands and sliding line
     take it (they are the logged friction, scaled by k). Linear in the one parameter, so no
@@ -37,7 +37,7 @@ class DriveGain(Effect):
     name = "drive_gain"
     order = 10
     physics = "the logged torque is k times the true torque (motor constant or gear ratio wrong)"
-    driven_by = "the model's rigid torque tau_grav + J^T F (+ M ddq moving)"
+    driven_by = "the model's rigid torque tau_grav + J^T F (+ M ddq + C dq moving)"
     linear = ("gain_error",)
     shows_in = REGIMES
 
@@ -49,11 +49,11 @@ class DriveGain(Effect):
         return 1.0 + float(p["gain_error"])
 
     def driver(self, sig, j, p):
-        return sig.rigid_load[:, j], f"tau_grav + J^T F + M ddq, joint {j + 1} [N·m]"
+        return sig.rigid_load[:, j], f"tau_grav + J^T F + M ddq + C dq, joint {j + 1} [N·m]"
 
     def term(self, p, j):
         g = p["gain_error"]
-        return f"drive_gain(k={fmt(1.0 + g)}: {fmt(g)}·(tau_grav + J^T F + M ddq)_{j + 1})"
+        return f"drive_gain(k={fmt(1.0 + g)}: {fmt(g)}·(tau_grav + J^T F + M ddq + C dq)_{j + 1})"
 
 
 #: central-difference step for the gravity derivative [rad] (rounding error ~1e-10 relative)

@@ -67,7 +67,7 @@ class LoadFriction(Effect):
     """Friction that grows with the torque the gear transmits (the mesh's normal force).
 
     The gear torque is not logged; it is the torque the links ask of the gear,
-    ``L = |L0 + c·(1 + g·|L0|/fc)·sign(dq)|`` with ``L0 = tau_grav + J^T F + M(q) ddq``:
+    ``L = |L0 + c·(1 + g·|L0|/fc)·sign(dq)|`` with ``L0 = tau_grav + J^T F + M(q) ddq + C(q, dq) dq``:
     gravity and the external wrench, the links' inertia torque while moving, and the friction
     on the gear's *output* side (bearings after the gear), which the teeth also carry in the
     direction of motion: ``c`` [N·m] at no load, growing by the relative rate ``g / fc`` per
@@ -88,7 +88,7 @@ class LoadFriction(Effect):
     order = 3
     signed_evidence = True
     physics = "Coulomb friction and the stick band grow with the torque the gear transmits"
-    driven_by = "|L0 + c·(1 + g·|L0|/fc)·sign(dq)|, L0 = tau_grav + J^T F + M ddq; sign(dq)"
+    driven_by = "|L0 + c·(1 + g·|L0|/fc)·sign(dq)|, L0 = tau_grav + J^T F + M ddq + C dq; sign(dq)"
     linear = ("k",)
     hyper = ("output_friction", "output_growth")
     shows_in = ("moving", "still", "dither")
