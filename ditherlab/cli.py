@@ -25,7 +25,7 @@ from ditherlab.errors import DitherlabError, DitherlabWarning
 app = typer.Typer(
     name="ditherlab",
     help="Sensorless force estimation with dithering: identify, replay, report, diagnose, "
-    "simulate, view, info, convert.",
+    "simulate, view, info, convert, fleet.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -482,3 +482,95 @@ def report(
         if json_out
         else summary_text(a) + f"\nwrote {out}/report.md"
     )
+
+
+# ---------------------------------------------------------------- fleet (helper "fleet")
+@app.command()
+def fleet(
+    recordings: Annotated[
+        list[str] | None,
+        typer.Argument(help="Recordings, folders or quoted glob patterns ('logs/**/*.parquet')."),
+    ] = None,
+    out: Annotated[
+        Path,
+        typer.Option(
+            "-o", "--out", help="Output folder: fleet.parquet, fleet.md, fleet.json, models/."
+        ),
+    ] = Path("fleet-out"),
+    manifest: Annotated[
+        Path | None,
+        typer.Option("--manifest", help="CSV with columns file, robot, date, notes."),
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler",
+            help="Dask scheduler address (tcp://HOST:8786); default: a LocalCluster here; "
+            "'serial' runs a plain loop.",
+        ),
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option("--workers", help="LocalCluster workers (default: one per core).")
+    ] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option("--model", help="Base model every recording starts from (its effects kept)."),
+    ] = None,
+    assume_no_force: Annotated[
+        bool,
+        typer.Option("--assume-no-force", help="No F/T sensor and no external force (identify)."),
+    ] = False,
+    bootstrap: Annotated[
+        int, typer.Option("--bootstrap", help="Bootstrap replicates per recording.")
+    ] = 0,
+    thresholds: Annotated[
+        bool,
+        typer.Option(
+            "--thresholds/--no-thresholds",
+            help="Replay the estimator on push recordings for F50 / F90 per axis.",
+        ),
+    ] = True,
+    seed: Seed = 0,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Write into an existing non-empty folder.")
+    ] = False,
+    quiet: Quiet = False,
+) -> None:
+    """Identify and diagnose many recordings as Dask tasks -> one table and a fleet report."""
+    from ditherlab.fleet import run_fleet
+
+    s = run_fleet(
+        recordings or [],
+        out,
+        manifest=manifest,
+        scheduler=scheduler,
+        workers=workers,
+        base=model,
+        assume_no_force=assume_no_force,
+        n_boot=bootstrap,
+        thresholds=thresholds,
+        seed=seed,
+        read_options=_read_options(mapping, robot),
+        force=force,
+        progress=not quiet,
+    )
+    echo(f"{s['recordings']} recordings of {len(s['robots'])} robots, {len(s['failures'])} failed")
+    for f in s["failures"]:
+        msg = f["error"] if f["error"].startswith(f["file"]) else f"{f['file']}: {f['error']}"
+        echo(f"  failed: {msg}")
+    for e, robots in s["effects"].items():
+        echo(f"  {e}: {', '.join(robots)}")
+    grow = [d for d in s["drift"] if d["growing"]]
+    for d in grow:
+        echo(
+            f"  growing: {d['robot']} joint {d['joint']} {d['regime']} {d['quantity']} "
+            f"{d['slope_per_30d']:+.3g} N·m per 30 days"
+        )
+    for o in s["outliers"]:
+        echo(
+            f"  outlier: {o['robot']} joint {o['joint']} {o['regime']} {o['quantity']} "
+            f"{o['value']:.3g} (fleet median {o['fleet_median']:.3g}, z {o['z']:+.1f})"
+        )
+    echo(f"wrote {s['table']}, {out / 'fleet.md'}")

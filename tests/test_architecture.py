@@ -29,7 +29,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("ditherlab.scoring", "ditherlab.identify", "ditherlab.replay", "ditherlab.thresholds"),
     ("ditherlab.diagnose",),
     ("ditherlab.report", "ditherlab.viz"),
-    ("ditherlab.loop",),
+    ("ditherlab.loop", "ditherlab.fleet"),
     ("ditherlab.cli", "ditherlab.demo", "ditherlab.__main__", "ditherlab"),
 ]
 #: where imports inside functions are allowed (start-up time of the CLI; the package's lazy
