@@ -35,6 +35,10 @@ SUFFIXES = (".parquet", ".pq", ".csv", ".mcap", ".db3")
 
 
 def _is_bag(p: Path) -> bool:
+    """A ROS 2 bag folder (``metadata.yaml`` or ``.db3`` storage inside). Narrower than
+    :func:`ditherlab.io.detect_format`, which also takes a folder holding ``.mcap`` files for a
+    bag: here such a folder is searched and each ``.mcap`` read on its own (a folder of
+    recordings)."""
     return p.is_dir() and ((p / "metadata.yaml").is_file() or any(p.glob("*.db3")))
 
 

@@ -18,7 +18,7 @@ from ditherlab.diagnose import diagnose
 from ditherlab.identify import identify
 from ditherlab.io import read
 from ditherlab.model import TorqueModel
-from ditherlab.replay import replay
+from ditherlab.replay import available_variants, replay
 from ditherlab.thresholds import AXES, NoPushesError, analyse
 
 __all__ = ["COLUMNS", "analyse_recording"]
@@ -63,8 +63,7 @@ def _thresholds(rec: Any, model: TorqueModel, n_boot: int, seed: int) -> dict[st
     empty when the log has no sensor or no pushes."""
     if not rec.has_wrench:
         return {}
-    dithered = "dither" in rec.data.columns and bool(rec.data["dither"].any())
-    variant = "dither_band" if dithered else "nodither_band"
+    variant = "dither_band" if "dither_band" in available_variants(rec) else "nodither_band"
     try:
         est = replay(rec, model, variants=[variant], components="fxyz")
         a = analyse([est], n_boot=n_boot, seed=seed)
