@@ -56,8 +56,14 @@ def make_fleet(folder: Path, n: int, seed: int = 20261124) -> tuple[Path, Path]:
         )
         f = folder / f"robot{i:03d}.parquet"
         write(rec, f)
-        rows.append({"file": f.name, "robot": f"robot{i:03d}", "date": "2026-11-24",
-                     "notes": ",".join(hidden) or "clean"})
+        rows.append(
+            {
+                "file": f.name,
+                "robot": f"robot{i:03d}",
+                "date": "2026-11-24",
+                "notes": ",".join(hidden) or "clean",
+            }
+        )
         print(f"\r   simulated {i + 1}/{n}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     manifest = folder / "manifest.csv"
@@ -71,8 +77,9 @@ def run(quick: bool = False, n: int | None = None) -> list[dict]:
         d = Path(tmp)
         manifest, base = make_fleet(d, n)
         t0 = time.perf_counter()
-        run_fleet([], d / "serial", manifest=manifest, base=base, scheduler="serial",
-                  thresholds=False)
+        run_fleet(
+            [], d / "serial", manifest=manifest, base=base, scheduler="serial", thresholds=False
+        )
         t_serial = time.perf_counter() - t0
         t0 = time.perf_counter()
         run_fleet([], d / "cluster", manifest=manifest, base=base, thresholds=False)

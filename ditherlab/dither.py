@@ -27,16 +27,19 @@ period per window, 1.6 % with two and 1.0 % with three (59 samples for 58.9).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from ditherlab.errors import ConfigError
-from ditherlab.recording import Recording
-from ditherlab.signal import runs
+from ditherlab.recording import Recording, meta_dither_period
+from ditherlab.signal import (
+    PERIOD_SAMPLES,
+    period_from_feedforward,
+    period_from_spectrum,
+    runs,
+)
 
 
 @dataclass
@@ -92,50 +95,6 @@ def square_wave(t, omega: float, amplitude, phase: float = 0.0) -> np.ndarray:
     return s * amp if amp.ndim == 0 else s[:, None] * amp[None, :]
 
 
-def period_from_feedforward(tau_ffw, t) -> float:
-    """The dither period [s] from the zero crossings of the dither feedforward.
-
-    Half-periods are the intervals between sign changes of ``tau_ffw - median``; those within
-    25 % of their median are averaged (gaps where the dither is off are ignored).
-
-    Parameters
-    ----------
-    tau_ffw : (N,) or (N, n) [N·m]
-        The dither feedforward; with several joints the one with the most crossings is used.
-    t : (N,) [s]
-
-    Raises
-    ------
-    ConfigError
-        Fewer than four sign changes (no dither in the feedforward).
-    """
-    f = np.asarray(tau_ffw, dtype=float)
-    t = np.asarray(t, dtype=float)
-    if f.ndim == 1:
-        f = f[:, None]
-    best = None
-    for j in range(f.shape[1]):
-        x = f[:, j] - np.median(f[:, j])
-        sgn = np.signbit(x)
-        idx = np.flatnonzero(sgn[1:] != sgn[:-1])
-        if best is None or len(idx) > len(best[1]):
-            best = (j, idx, x)
-    j, idx, x = best
-    if len(idx) < 4:
-        raise ConfigError(
-            f"dither: tau_ffw has {len(idx)} sign changes; expected a dither square wave "
-            "(give the period instead)"
-        )
-    # crossing times, linearly interpolated between the samples around each sign change
-    x0, x1 = x[idx], x[idx + 1]
-    frac = np.where(x1 != x0, x0 / (x0 - x1), 0.5)
-    tc = t[idx] + frac * (t[idx + 1] - t[idx])
-    half = np.diff(tc)
-    med = np.median(half)
-    good = np.abs(half - med) <= 0.25 * med
-    return float(2.0 * half[good].mean())
-
-
 def full_window(on: np.ndarray, window: int) -> np.ndarray:
     """Where ``on`` held for each of the last ``window`` samples, the current one included.
 
@@ -159,33 +118,33 @@ def full_window(on: np.ndarray, window: int) -> np.ndarray:
 
 
 def _window_stats(x: np.ndarray, W: int, chunk: int = 65536):
-    """Causal window mean, and means above / below it, of every column of x (N, n)."""
+    """Causal window mean, and means above / below it, of every column of x (N, n).
+
+    Each sample's values come from its own window alone (no running sum), so a piece of a
+    recording with ``W - 1`` samples of history gives exactly the whole recording's values.
+    """
     N, n = x.shape
-    # centre by a cumulative sum (offset by the first sample to keep the sums small)
-    off = x[0] if N else np.zeros(n)
-    cs = np.cumsum(np.vstack([np.zeros((1, n)), x - off]), axis=0)
-    k = np.arange(N)
-    start = np.maximum(0, k - W + 1)
-    count = (k - start + 1).astype(float)
-    centre = (cs[k + 1] - cs[start]) / count[:, None] + off
-    # upper / lower: per window a different threshold, so compare the window itself with it.
-    # Pad the start with NaN (comparisons false) so that every sample has a window of W values.
+    # Pad the start with NaN (comparisons false, sums skip it) so that every sample has a
+    # window of W values; the first W - 1 windows hold fewer real samples.
     pad = np.vstack([np.full((W - 1, n), np.nan), x])
+    centre = np.empty((N, n))
     upper = np.empty((N, n))
     lower = np.empty((N, n))
     for c0 in range(0, N, chunk):
         c1 = min(N, c0 + chunk)
         win = np.lib.stride_tricks.sliding_window_view(pad[c0 : c1 + W - 1], W, axis=0)  # (c, n, W)
-        ctr = centre[c0:c1, :, None]
-        above = win > ctr
-        below = win < ctr
+        count = np.minimum(np.arange(c0, c1) + 1, W).astype(float)
+        ctr = np.nansum(win, axis=2) / count[:, None]
+        centre[c0:c1] = ctr
+        above = win > ctr[:, :, None]
+        below = win < ctr[:, :, None]
         na = above.sum(axis=2)
         nb = below.sum(axis=2)
         sa = np.where(above, win, 0.0).sum(axis=2)
         sb = np.where(below, win, 0.0).sum(axis=2)
         # no sample above (or below) the centre: a constant window; its level is the centre
-        upper[c0:c1] = np.where(na > 0, sa / np.maximum(na, 1), centre[c0:c1])
-        lower[c0:c1] = np.where(nb > 0, sb / np.maximum(nb, 1), centre[c0:c1])
+        upper[c0:c1] = np.where(na > 0, sa / np.maximum(na, 1), ctr)
+        lower[c0:c1] = np.where(nb > 0, sb / np.maximum(nb, 1), ctr)
     return centre, upper, lower
 
 
@@ -195,6 +154,7 @@ def extract(
     period: float | None = None,
     tau_ffw=None,
     periods: int = 1,
+    dt: float | None = None,
 ) -> DitherSignal:
     """Extract the torque signal from a dithered torque (the paper's CALCDITHERSIGNALPARS).
 
@@ -211,6 +171,9 @@ def extract(
         The dither feedforward, used to find the period (:func:`period_from_feedforward`).
     periods : int
         Whole dither periods per window (the paper: an integer number of periods).
+    dt : float [s], optional
+        The sample step (default: the median step of ``t``; a piece of a longer recording
+        passes the whole recording's, :attr:`ditherlab.recording.Recording.dt`).
 
     Returns
     -------
@@ -237,7 +200,8 @@ def extract(
         period = period_from_feedforward(tau_ffw, t)
     if not (np.isfinite(period) and period > 0):
         raise ConfigError(f"dither: period is {period!r}; expected a positive time [s]")
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    if dt is None:
+        dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     W = max(2, int(round(periods * period / dt)))
     centre, upper, lower = _window_stats(x, W)
     out = DitherSignal(
@@ -349,28 +313,28 @@ def dither_on(rec: Recording) -> np.ndarray | None:
     return ((hi - lo) > 1e-6).any(axis=1)
 
 
-def meta_dither_period(meta: Mapping[str, Any]) -> float | None:
-    """The dither period [s] a recording's metadata states, or None.
-
-    ``dither.period`` [s] or ``dither.omega`` [rad/s], at the top level or under ``sim``.
-    """
-    for d in (meta.get("dither"), (meta.get("sim") or {}).get("dither")):
-        if isinstance(d, Mapping):
-            if d.get("period"):
-                return float(d["period"])
-            if d.get("omega"):
-                return float(2 * np.pi / float(d["omega"]))
-    return None
+def has_dither(rec: Recording) -> bool:
+    """True when the recording has dither information and the dither is on somewhere
+    (:func:`dither_on`); for a piece of a longer recording, when the whole recording does (its
+    TimeBase has a dither period)."""
+    if rec.timebase is not None:
+        return rec.timebase.dither_period is not None
+    on = dither_on(rec)
+    return on is not None and bool(on.any())
 
 
 def dither_period(rec: Recording) -> float:
     """The dither period [s].
 
     From the metadata when it states it (``dither.omega`` [rad/s] or ``dither.period`` [s], also
-    under ``sim``), else from the zero crossings of ``tau_ffw``
-    (:func:`period_from_feedforward`), else the strongest spectral line above
-    2 Hz of ``tau`` over the longest stretch with the dither on.
+    under ``sim``), else from the zero crossings of ``tau_ffw`` over the first
+    :data:`PERIOD_SAMPLES` dithered samples (:func:`period_from_feedforward`), else the strongest
+    spectral line above 2 Hz of ``tau`` over the longest stretch with the dither on
+    (:func:`period_from_spectrum`). A piece of a longer recording
+    (:class:`ditherlab.recording.TimeBase`) takes the whole recording's.
     """
+    if rec.timebase is not None and rec.timebase.dither_period is not None:
+        return rec.timebase.dither_period
     stated = meta_dither_period(rec.meta)
     if stated is not None:
         return stated
@@ -381,7 +345,7 @@ def dither_period(rec: Recording) -> float:
         else:
             tt = rec.t
         try:
-            return period_from_feedforward(ffw, tt)
+            return period_from_feedforward(ffw[:PERIOD_SAMPLES], tt[:PERIOD_SAMPLES])
         except ConfigError:
             pass
     x = rec.tau
@@ -390,29 +354,7 @@ def dither_period(rec: Recording) -> float:
     if len(starts) == 0:
         raise ConfigError(f"{rec.name or 'recording'}: the dither is never on; no period to find")
     k = int(np.argmax(ends - starts))
-    seg = x[starts[k] : ends[k]]
-    seg = seg[: min(len(seg), 16384)]
-    fs = rec.sample_rate
-    if len(seg) < 32:
-        raise ConfigError(
-            f"{rec.name or 'recording'}: only {len(seg)} samples with the dither on; "
-            "cannot find its period"
-        )
-    seg = seg - seg.mean(axis=0)
-    spec = (np.abs(np.fft.rfft(seg * np.hanning(len(seg))[:, None], axis=0)) ** 2).sum(axis=1)
-    f = np.fft.rfftfreq(len(seg), 1.0 / fs)
-    spec[f < 2.0] = 0.0
-    i = int(np.argmax(spec))
-    if 0 < i < len(spec) - 1:  # parabolic refinement of the peak
-        y0, y1, y2 = np.log(spec[i - 1 : i + 2] + 1e-300)
-        den = y0 - 2 * y1 + y2
-        delta = 0.5 * (y0 - y2) / den if den != 0 else 0.0
-        fpk = f[i] + delta * (f[1] - f[0])
-    else:
-        fpk = f[i]
-    if fpk <= 0:
-        raise ConfigError(f"{rec.name or 'recording'}: no dither line found in the spectrum")
-    return float(1.0 / fpk)
+    return period_from_spectrum(x[starts[k] : ends[k]][:16384], rec.sample_rate, rec.name)
 
 
 def extract_dither(rec: Recording, tau: np.ndarray | None = None) -> Extraction | None:
@@ -425,14 +367,16 @@ def extract_dither(rec: Recording, tau: np.ndarray | None = None) -> Extraction 
 
     Returns
     -------
-    Extraction, or None when the recording has no dither information or the dither is never on.
+    Extraction, or None when the recording has no dither information or the dither is never on
+    (:func:`has_dither`; a piece of a dithered recording is extracted even where its own rows
+    have the dither off, as the whole recording is).
     """
-    on = dither_on(rec)
-    if on is None or not on.any():
+    if not has_dither(rec):
         return None
+    on = dither_on(rec)
     period = dither_period(rec)
     x = rec.tau if tau is None else tau
-    sig = extract(x, rec.t, period)
+    sig = extract(x, rec.t, period, dt=rec.dt if len(rec) > 1 else None)
     w = max(int(round(period * rec.sample_rate)), 1)
     valid = full_window(on, w)  # the dither was on for the whole window (t - period, t]
     return Extraction(

@@ -12,7 +12,9 @@ band); dither variants add ``extract/upper_j``, ``extract/lower_j``, ``extract/s
 
 from __future__ import annotations
 
+import contextlib
 import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,7 +28,15 @@ from ditherlab.errors import ConfigError, FormatError, RecordingError
 from ditherlab.io.atomic import atomic_path, plain
 from ditherlab.recording import WRENCH_COLUMNS, Recording
 
-__all__ = ["COMPONENTS", "META_KEY", "SCHEMA", "VARIANTS", "Estimates", "check_estimates_match"]
+__all__ = [
+    "COMPONENTS",
+    "META_KEY",
+    "SCHEMA",
+    "VARIANTS",
+    "Estimates",
+    "EstimatesWriter",
+    "check_estimates_match",
+]
 
 SCHEMA = "ditherlab.estimates/1"
 META_KEY = b"ditherlab"
@@ -120,10 +130,13 @@ class Estimates:
         if not p.is_file():
             raise FormatError(f"{p}: no such estimates file")
         try:
-            table = pq.read_table(p)
+            pf = pq.ParquetFile(p)
+            table = pf.read()
         except (pa.ArrowException, OSError) as exc:
             raise FormatError(f"{p}: not a readable Parquet file ({exc})") from None
-        kv = table.schema.metadata or {}
+        # the footer's key-value metadata: a file written piece by piece (EstimatesWriter)
+        # stores it there only, not in the Arrow schema
+        kv = {**(table.schema.metadata or {}), **(pf.metadata.metadata or {})}
         if META_KEY not in kv:
             raise FormatError(
                 f"{p}: key-value metadata 'ditherlab' is missing, expected an estimates file "
@@ -139,6 +152,53 @@ class Estimates:
                 "(a recording, not estimates? run `ditherlab replay` first)"
             )
         return cls(table.to_pandas(), meta, name=str(p))
+
+
+class EstimatesWriter:
+    """An estimates file written piece by piece (:func:`ditherlab.replay.replay_stream`): each
+    :meth:`write` appends row groups, :meth:`close` stores the metadata in the footer and
+    renames the temporary file onto ``path`` (atomic: an exception leaves nothing). The file is
+    the one :meth:`Estimates.save` writes for the concatenated rows.
+
+    Use as a context manager: ``with EstimatesWriter(path) as w: w.write(df); w.meta = {...}``.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.meta: dict[str, Any] | None = None
+        self.rows = 0
+        self._stack = contextlib.ExitStack()
+        self._writer: pq.ParquetWriter | None = None
+        self._schema: pa.Schema | None = None
+
+    def __enter__(self) -> EstimatesWriter:
+        self._tmp = self._stack.enter_context(atomic_path(self.path))
+        return self
+
+    def write(self, data: pd.DataFrame) -> None:
+        """Append rows (the same columns and dtypes every time)."""
+        if self._writer is None:
+            table = pa.Table.from_pandas(data, preserve_index=False)
+            self._schema = table.schema
+            self._writer = pq.ParquetWriter(self._tmp, self._schema, compression="zstd")
+        else:
+            table = pa.Table.from_pandas(data, schema=self._schema, preserve_index=False)
+        self._writer.write_table(table)
+        self.rows += len(data)
+
+    def __exit__(self, kind, exc, tb) -> bool:  # noqa: ANN001
+        try:
+            if kind is None:
+                if self._writer is None or self.meta is None:
+                    raise FormatError(f"{self.path}: no rows or no metadata to write")
+                text = json.dumps(self.meta, sort_keys=True, allow_nan=True)
+                self._writer.add_key_value_metadata({META_KEY: text.encode("utf-8")})
+            if self._writer is not None:
+                self._writer.close()
+        except BaseException:
+            self._stack.__exit__(*sys.exc_info())
+            raise
+        return bool(self._stack.__exit__(kind, exc, tb))
 
 
 def _n_from_meta(meta: dict[str, Any]) -> int:

@@ -44,7 +44,9 @@ __all__ = [
     "WRENCH_COLUMNS",
     "Recording",
     "Regime",
+    "TimeBase",
     "differentiate",
+    "meta_dither_period",
     "moving_mask",
     "regimes",
 ]
@@ -55,6 +57,37 @@ def _time_span(t: np.ndarray, bad: np.ndarray) -> str:
     if t[idx[0]] == t[idx[-1]]:
         return f"at t={t[idx[0]]:.2f} s"
     return f"between t={t[idx[0]]:.2f} s and t={t[idx[-1]]:.2f} s"
+
+
+@dataclass(frozen=True)
+class TimeBase:
+    """What a recording's time stamps say as a whole, fixed when a recording is processed in
+    pieces (:mod:`ditherlab.io.stream`) so that every piece sees the same values.
+
+    Attributes
+    ----------
+    t0 : [s] the first sample's time (``time since start`` counts from it)
+    dt : [s] the median sample step
+    uniform : every step within 1e-6 of ``dt`` (:func:`ditherlab.signal.smooth_derivative`
+        takes its Savitzky–Golay path)
+    dither_period : [s] the dither period (:func:`ditherlab.dither.dither_period`), None when
+        the recording has no dither
+    """
+
+    t0: float
+    dt: float
+    uniform: bool
+    dither_period: float | None = None
+
+    @classmethod
+    def of(cls, t: np.ndarray, dither_period: float | None = None) -> TimeBase:
+        """The time base of the time stamps ``t`` (N,) [s] of a whole recording."""
+        t = np.asarray(t, dtype=float)
+        if len(t) < 2:
+            return cls(float(t[0]) if len(t) else 0.0, float("nan"), True, dither_period)
+        steps = np.diff(t)
+        dt = float(np.median(steps))
+        return cls(float(t[0]), dt, bool(np.max(np.abs(steps - dt)) <= 1e-6 * dt), dither_period)
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +103,9 @@ class Recording:
         Metadata; ``schema`` and ``robot`` are required.
     name : str, optional
         Where the recording came from (a file path), used in error messages.
+    timebase : TimeBase, optional
+        Set on a piece of a longer recording (:mod:`ditherlab.io.stream`): the whole
+        recording's start, step and dither period, used instead of the piece's own.
 
     Raises
     ------
@@ -81,6 +117,7 @@ class Recording:
     data: pd.DataFrame
     meta: dict[str, Any]
     name: str | None = None
+    timebase: TimeBase | None = None
     n: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -190,7 +227,10 @@ class Recording:
         """Joint accelerations, (N, n) [rad/s²]: the quadratic Savitzky–Golay derivative of
         :attr:`dq` over 40 ms (:func:`ditherlab.signal.smooth_derivative`); the one ``ddq`` of
         identification, diagnosis and every effect."""
-        return smooth_derivative(self.t, self.dq)
+        tb = self.timebase
+        if tb is None:
+            return smooth_derivative(self.t, self.dq)
+        return smooth_derivative(self.t, self.dq, dt=tb.dt, uniform=tb.uniform)
 
     @property
     def tau_ffw(self) -> np.ndarray | None:
@@ -226,12 +266,27 @@ class Recording:
 
     @property
     def sample_rate(self) -> float:
-        """Nominal sample rate [Hz]: metadata ``sample_rate_hz`` or 1 / median(diff(t))."""
+        """Nominal sample rate [Hz]: metadata ``sample_rate_hz`` or 1 / :attr:`dt`."""
         if "sample_rate_hz" in self.meta:
             return float(self.meta["sample_rate_hz"])
+        return 1.0 / self.dt
+
+    @property
+    def dt(self) -> float:
+        """Median sample step [s] (of the whole recording for a piece; NaN below 2 samples)."""
+        if self.timebase is not None:
+            return self.timebase.dt
         if len(self) < 2:
             return float("nan")
-        return float(1.0 / np.median(np.diff(self.t)))
+        return float(np.median(np.diff(self.t)))
+
+    @property
+    def t0(self) -> float:
+        """The recording's first time stamp [s] (of the whole recording for a piece)."""
+        if self.timebase is not None:
+            return self.timebase.t0
+        t = self.t
+        return float(t[0]) if len(t) else 0.0
 
     @property
     def duration(self) -> float:
@@ -284,7 +339,7 @@ class Recording:
         """A new Recording with another table (and optionally updated metadata)."""
         meta = copy.deepcopy(self.meta)
         meta.update(meta_updates)
-        return Recording(data, meta, name=self.name)
+        return Recording(data, meta, name=self.name, timebase=self.timebase)
 
     def with_columns(self, **cols: np.ndarray) -> Recording:
         """A new Recording with columns added or replaced."""
@@ -355,7 +410,7 @@ def moving_mask(rec: Recording, threshold: float = 5e-3, window: float = 0.1) ->
     dq = rec.dq
     if len(rec) < 2:
         return np.zeros(dq.shape, dtype=bool)
-    dt = float(np.median(np.diff(rec.t)))
+    dt = rec.dt
     w = max(1, int(round(window / dt)))
     kernel = np.ones(w) / w
     smooth = np.empty_like(dq)
@@ -381,6 +436,20 @@ def regimes(rec: Recording, threshold: float = 5e-3, window: float = 0.1) -> np.
         out[d, :] = DITHER
     out[moving] = MOVING
     return out
+
+
+def meta_dither_period(meta: Mapping[str, Any]) -> float | None:
+    """The dither period [s] a recording's metadata states, or None.
+
+    ``dither.period`` [s] or ``dither.omega`` [rad/s], at the top level or under ``sim``.
+    """
+    for d in (meta.get("dither"), (meta.get("sim") or {}).get("dither")):
+        if isinstance(d, Mapping):
+            if d.get("period"):
+                return float(d["period"])
+            if d.get("omega"):
+                return float(2 * np.pi / float(d["omega"]))
+    return None
 
 
 # ---------------------------------------------------------------------- validation

@@ -28,6 +28,7 @@ the sensor columns and ``dither`` copied, per variant ``V/f_x .. V/m_z``, ``V/<c
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,10 +39,10 @@ from ditherlab.dither import Extraction, dithered_band, extract_dither
 from ditherlab.dither import band_as_noise as band_variance_as_noise
 from ditherlab.effects import effects_torque, force_gain
 from ditherlab.errors import ConfigError
-from ditherlab.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates
+from ditherlab.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates, EstimatesWriter
 from ditherlab.estimator import estimate, gaussian_profile_intervals, intervals
-from ditherlab.io import read
 from ditherlab.io.atomic import check_not_input, plain
+from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.model import TorqueModel
 from ditherlab.recording import DITHER, MOVING, Recording, regimes
 from ditherlab.signal import time_spans
@@ -74,7 +75,10 @@ def parse_components(spec: str | Sequence[str] | None) -> list[str]:
 def available_variants(rec: Recording) -> list[str]:
     """The variants a recording allows: dither variants need a dither flag or ``tau_ffw``."""
     out = ["nodither_band", "nodither_noband"]
-    on = rec.dither if rec.dither is not None else (None if rec.tau_ffw is None else True)
+    if rec.timebase is not None:  # a piece: what the whole recording allows
+        on = rec.timebase.dither_period is not None
+    else:
+        on = rec.dither if rec.dither is not None else (None if rec.tau_ffw is None else True)
     if on is not None and np.any(on):
         out += ["dither_band", "dither_noband"]
     return out
@@ -291,6 +295,8 @@ def variant_inputs(
 __all__ = [
     "COMPONENTS",
     "Estimates",
+    "Replayed",
+    "Tally",
     "VARIANTS",
     "available_variants",
     "band_as_noise",
@@ -299,6 +305,7 @@ __all__ = [
     "parse_components",
     "replay",
     "replay_file",
+    "replay_stream",
     "variant_inputs",
 ]
 
@@ -309,35 +316,137 @@ def replay_file(
     out: str | Path,
     *,
     read_options: dict | None = None,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Callable[[int, int], None] | None = None,
     **options: Any,
-) -> Estimates:
-    """Read a recording and a model, :func:`replay`, and save the estimates (atomic, never over
-    an input). ``options`` are those of :func:`replay`."""
+) -> Replayed:
+    """Read a recording and a model, :func:`replay` it piece by piece (:func:`replay_stream`),
+    and save the estimates (atomic, never over an input). ``options`` are those of
+    :func:`replay`."""
     check_not_input(out, [path, model_path])
     model = TorqueModel.load(model_path)
-    rec = read(path, **(read_options or {}))
-    est = replay(rec, model, **options)
-    est.save(out)
-    est.name = str(out)
-    return est
+    src = open_source(path, **(read_options or {}))
+    return replay_stream(src, model, out, chunk_rows=chunk_rows, progress=progress, **options)
 
 
-def describe(est: Estimates) -> str:
-    """A few lines: samples, variants, interval method, and per variant the force RMS error and
-    interval coverage against the F/T sensor when it is there."""
-    lines = [
-        f"{len(est.data)} samples, variants: {', '.join(est.variants)}; intervals "
-        f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
-    ]
-    if est.has_wrench:
+def replay_stream(
+    src: Source,
+    model: TorqueModel,
+    out: str | Path,
+    *,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Callable[[int, int], None] | None = None,
+    **options: Any,
+) -> Replayed:
+    """:func:`replay` over a recording read in pieces (:class:`ditherlab.io.stream.Source`),
+    writing the estimates file as it goes: memory holds one piece, whatever the length.
+
+    Every piece is replayed with its 2 s of context on either side and keeps the rows it owns;
+    the file equals ``replay(src.read(), model, **options).save(out)`` (tested on logs cut inside
+    a dither period, a push and a stick). ``moving_spans`` are joined across pieces.
+
+    Parameters
+    ----------
+    src : the recording ; model : as for :func:`replay` ; out : the estimates file to write
+    chunk_rows : rows per piece (:data:`ditherlab.io.stream.CHUNK_ROWS`)
+    progress : ``progress(done, total)`` over the pieces
+    **options : those of :func:`replay` (not ``progress``)
+
+    Returns
+    -------
+    Replayed: the file, its metadata and the force error / coverage tally
+    """
+    spans: list[list[float]] = []
+    meta: dict[str, Any] | None = None
+    last = None
+    tally = Tally()
+    with EstimatesWriter(out) as writer:
+        for piece in src.pieces(chunk_rows):
+            est = replay(piece.rec, model, **options)
+            rows = est.data.iloc[piece.keep].reset_index(drop=True)
+            writer.write(rows)
+            tally.add(Estimates(rows, est.meta))
+            t = rows["t"].to_numpy(dtype=float)
+            for a, b in est.meta["moving_spans"]:
+                a, b = max(a, t[0]), min(b, t[-1])
+                if a > b:
+                    continue
+                if spans and a == t[0] and spans[-1][1] == last:
+                    spans[-1][1] = b  # a motion across the cut continues
+                else:
+                    spans.append([a, b])
+            last = float(t[-1])
+            if meta is None:
+                meta = est.meta
+            if progress:
+                progress(piece.index + 1, piece.count)
+        assert meta is not None
+        meta = {**meta, "recording": plain(src.meta), "recording_name": src.name}
+        meta["moving_spans"] = spans
+        writer.meta = meta
+    return Replayed(Path(out), meta, tally)
+
+
+@dataclass
+class Replayed:
+    """What :func:`replay_stream` wrote: the estimates file, its metadata, and the running
+    force error / coverage over all its rows (:class:`Tally`)."""
+
+    path: Path
+    meta: dict[str, Any]
+    tally: Tally
+
+    @property
+    def variants(self) -> list[str]:
+        return list(self.meta["variants"])
+
+
+class Tally:
+    """Running force error and interval coverage against the F/T sensor, per variant, over
+    pieces of estimates (what :func:`describe` prints)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.variants: list[str] = []
+        self.sse: dict[str, np.ndarray] = {}
+        self.covered: dict[str, int] = {}
+
+    def add(self, est: Estimates) -> None:
+        """Count the rows of ``est`` (a whole file or one piece of it)."""
+        self.variants = est.variants
+        self.n += len(est.data)
+        if not est.has_wrench:
+            return
         F = est.wrench[:, :3]
         for v in est.variants:
             Fh = est.F(v)[:, :3]
             lo, hi = est.interval(v)
-            cov = ((lo[:, :3] <= F) & (F <= hi[:, :3])).mean()
-            rms = np.sqrt(((Fh - F) ** 2).mean(axis=0))
-            lines.append(
-                f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
-                f" interval coverage {cov:.1%}"
+            self.sse[v] = self.sse.get(v, 0.0) + ((Fh - F) ** 2).sum(axis=0)
+            self.covered[v] = self.covered.get(v, 0) + int(
+                ((lo[:, :3] <= F) & (F <= hi[:, :3])).sum()
             )
+
+
+def describe(est: Estimates | Replayed) -> str:
+    """A few lines: samples, variants, interval method, and per variant the force RMS error and
+    interval coverage against the F/T sensor when it is there (over the whole file for what
+    :func:`replay_stream` wrote)."""
+    if isinstance(est, Replayed):
+        tally = est.tally
+    else:
+        tally = Tally()
+        tally.add(est)
+    lines = [
+        f"{tally.n} samples, variants: {', '.join(est.variants)}; intervals "
+        f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
+    ]
+    for v in est.variants:
+        if v not in tally.sse:
+            continue
+        rms = np.sqrt(tally.sse[v] / max(tally.n, 1))
+        cov = tally.covered[v] / max(3 * tally.n, 1)
+        lines.append(
+            f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
+            f" interval coverage {cov:.1%}"
+        )
     return "\n".join(lines)

@@ -13,6 +13,8 @@ from enum import IntEnum
 import numpy as np
 from scipy.signal import savgol_filter
 
+from ditherlab.errors import ConfigError
+
 
 class Regime(IntEnum):
     """The regime of a joint at a sample (:func:`ditherlab.recording.regimes`): the one
@@ -57,7 +59,12 @@ def jtf(J: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 
 def smooth_derivative(
-    t: np.ndarray, x: np.ndarray, window_s: float = DERIVATIVE_WINDOW_S
+    t: np.ndarray,
+    x: np.ndarray,
+    window_s: float = DERIVATIVE_WINDOW_S,
+    *,
+    dt: float | None = None,
+    uniform: bool | None = None,
 ) -> np.ndarray:
     """Time derivative of sampled signals by a local quadratic least-squares fit over
     ``window_s`` (a Savitzky–Golay derivative on the actual time stamps).
@@ -76,6 +83,8 @@ def smooth_derivative(
     t : (N,) [s], increasing
     x : (N, n) any unit u
     window_s : [s]
+    dt, uniform : the median step [s] and whether the time base is uniform, when ``t`` is a
+        piece of a longer recording (:class:`ditherlab.recording.TimeBase`); default: from ``t``
 
     Returns
     -------
@@ -87,16 +96,19 @@ def smooth_derivative(
     if N < 7:
         return np.zeros_like(x)
     steps = np.diff(t)
-    dt = float(np.median(steps))
+    if dt is None:
+        dt = float(np.median(steps))
+    if uniform is None:
+        uniform = bool(np.max(np.abs(steps - dt)) <= 1e-6 * dt)
     w = max(5, int(round(window_s / dt)) | 1)
     w = min(w, N - (1 - N % 2))
-    if np.max(np.abs(steps - dt)) <= 1e-6 * dt:
+    if uniform:
         return savgol_filter(x, w, 2, deriv=1, delta=dt, axis=0)
-    return local_quadratic_derivative(t, x, w)
+    return local_quadratic_derivative(t, x, w, span=dt * max(w // 2, 1))
 
 
 def local_quadratic_derivative(
-    t: np.ndarray, x: np.ndarray, w: int, chunk: int = 32768
+    t: np.ndarray, x: np.ndarray, w: int, chunk: int = 32768, span: float | None = None
 ) -> np.ndarray:
     """Derivative at every sample of the quadratic fitted by least squares to the ``w`` samples
     around it (odd ``w``; the first/last ``w`` samples near the ends), on the time stamps ``t``.
@@ -106,6 +118,7 @@ def local_quadratic_derivative(
     Parameters
     ----------
     t : (N,) [s] ; x : (N,) or (N, n) any unit u ; w : window [samples], 3 <= w <= N
+    span : [s] the time scale of the fit's normal equations (default: median step × w // 2)
 
     Returns
     -------
@@ -118,7 +131,8 @@ def local_quadratic_derivative(
     h = w // 2
     start = np.clip(np.arange(N) - h, 0, N - w)
     out = np.empty_like(X)
-    span = float(np.median(np.diff(t))) * max(h, 1)  # scale: the normal equations stay O(1)
+    if span is None:  # scale: the normal equations stay O(1)
+        span = float(np.median(np.diff(t))) * max(h, 1)
     for a in range(0, N, chunk):
         b = min(a + chunk, N)
         idx = start[a:b, None] + np.arange(w)[None, :]
@@ -273,3 +287,78 @@ def tmm(W: np.ndarray, X: np.ndarray) -> np.ndarray:
     """``W.T @ X`` for tall skinny matrices without BLAS threads (which oversubscribe a shared
     two-core machine and run ~10x slower than this single-threaded loop)."""
     return np.einsum("mf,mp->fp", W, X)
+
+
+# ------------------------------------------------------------------ the dither's period
+#: samples of feedforward the dither period is measured on (about 9 min at 250 Hz): enough for
+#: thousands of crossings, and a long log is not read whole for it
+PERIOD_SAMPLES = 131_072
+
+
+def period_from_feedforward(tau_ffw, t) -> float:
+    """The dither period [s] from the zero crossings of the dither feedforward.
+
+    Half-periods are the intervals between sign changes of ``tau_ffw - median``; those within
+    25 % of their median are averaged (gaps where the dither is off are ignored).
+
+    Parameters
+    ----------
+    tau_ffw : (N,) or (N, n) [N·m]
+        The dither feedforward; with several joints the one with the most crossings is used.
+    t : (N,) [s]
+
+    Raises
+    ------
+    ConfigError
+        Fewer than four sign changes (no dither in the feedforward).
+    """
+    f = np.asarray(tau_ffw, dtype=float)
+    t = np.asarray(t, dtype=float)
+    if f.ndim == 1:
+        f = f[:, None]
+    best = None
+    for j in range(f.shape[1]):
+        x = f[:, j] - np.median(f[:, j])
+        sgn = np.signbit(x)
+        idx = np.flatnonzero(sgn[1:] != sgn[:-1])
+        if best is None or len(idx) > len(best[1]):
+            best = (j, idx, x)
+    j, idx, x = best
+    if len(idx) < 4:
+        raise ConfigError(
+            f"dither: tau_ffw has {len(idx)} sign changes; expected a dither square wave "
+            "(give the period instead)"
+        )
+    # crossing times, linearly interpolated between the samples around each sign change
+    x0, x1 = x[idx], x[idx + 1]
+    frac = np.where(x1 != x0, x0 / (x0 - x1), 0.5)
+    tc = t[idx] + frac * (t[idx + 1] - t[idx])
+    half = np.diff(tc)
+    med = np.median(half)
+    good = np.abs(half - med) <= 0.25 * med
+    return float(2.0 * half[good].mean())
+
+
+def period_from_spectrum(seg: np.ndarray, fs: float, name: str | None = None) -> float:
+    """The dither period [s]: the strongest spectral line above 2 Hz of a dithered stretch of
+    torque ``seg`` (M, n) [N·m] sampled at ``fs`` [Hz] (parabolic peak refinement)."""
+    if len(seg) < 32:
+        raise ConfigError(
+            f"{name or 'recording'}: only {len(seg)} samples with the dither on; "
+            "cannot find its period"
+        )
+    seg = seg - seg.mean(axis=0)
+    spec = (np.abs(np.fft.rfft(seg * np.hanning(len(seg))[:, None], axis=0)) ** 2).sum(axis=1)
+    f = np.fft.rfftfreq(len(seg), 1.0 / fs)
+    spec[f < 2.0] = 0.0
+    i = int(np.argmax(spec))
+    if 0 < i < len(spec) - 1:  # parabolic refinement of the peak
+        y0, y1, y2 = np.log(spec[i - 1 : i + 2] + 1e-300)
+        den = y0 - 2 * y1 + y2
+        delta = 0.5 * (y0 - y2) / den if den != 0 else 0.0
+        fpk = f[i] + delta * (f[1] - f[0])
+    else:
+        fpk = f[i]
+    if fpk <= 0:
+        raise ConfigError(f"{name or 'recording'}: no dither line found in the spectrum")
+    return float(1.0 / fpk)

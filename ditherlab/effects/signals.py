@@ -31,7 +31,7 @@ class Signals:
 
     Attributes (all time-first, SI)
     -------------------------------
-    t : (N,) [s] ; ts : (N,) [s] time since the first sample
+    t : (N,) [s] ; ts : (N,) [s] time since the recording's first sample (:attr:`Recording.t0`)
     q, dq, ddq : (N, n) [rad, rad/s, rad/s²]; ``ddq`` is :attr:`ditherlab.recording.Recording.ddq`
     tau : (N, n) [N·m] the logged torque ; temp : (N, n) [°C] or None
     regime : (N, n) int8 (``STILL``, ``DITHER``, ``MOVING``)
@@ -43,7 +43,7 @@ class Signals:
         self.rec = rec
         self.n = rec.n
         self.t = rec.t
-        self.ts = self.t - self.t[0]
+        self.ts = self.t - rec.t0
         self.q = rec.q
         self.dq = rec.dq
         self.tau = rec.tau

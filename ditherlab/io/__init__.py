@@ -152,11 +152,13 @@ def write(rec: Recording, path: str | Path, *, format: str | None = None, **opti
         raise FormatError(f"{p}: cannot write the {format} file ({exc.strerror or exc})") from None
 
 
-def convert(src: str | Path, dst: str | Path, **options: Any) -> Path:
+def convert(src: str | Path, dst: str | Path, *, rows: int | None = None, **options: Any) -> Path:
     """Read ``src`` (with reader ``options``, e.g. ``mapping=``, ``robot=``) and write ``dst``.
 
     Refuses to write over the input (or over a CSV input's sidecar); the output is written
-    atomically, so a failure leaves no partial file. Returns the path written.
+    atomically, so a failure leaves no partial file. Parquet and CSV are read and written
+    ``rows`` at a time (:func:`ditherlab.io.stream.write_stream`; default
+    :data:`ditherlab.io.stream.CHUNK_ROWS`). Returns the path written.
     """
     src, dst = Path(src), Path(dst)
     inputs = [src]
@@ -167,8 +169,9 @@ def convert(src: str | Path, dst: str | Path, **options: Any) -> Path:
     check_not_input(dst, inputs)
     if dst.suffix.lower() == ".csv":
         check_not_input(csv.sidecar_path(dst), inputs)
-    rec = read(src, **options)
-    return write(rec, dst)
+    from ditherlab.io.stream import open_source, write_stream  # it builds on this module
+
+    return write_stream(open_source(src, **options), dst, **({"rows": rows} if rows else {}))
 
 
 def _module(kind: str) -> Any:

@@ -46,29 +46,42 @@ def read(path: Path, **options: Any) -> Recording:
     """
     path = Path(path)
     check_options(options, OPTIONS, "CSV", str(path))
+    meta = read_meta(path, options)
+    try:
+        data = pd.read_csv(path, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{path}: not a readable CSV file ({str(exc).strip()})") from None
+    check_numeric(data, path, header_lines=1)
+    parse_dither(data)
+    return Recording(data, meta, name=str(path))
+
+
+def read_meta(path: Path, options: dict[str, Any]) -> dict[str, Any]:
+    """The metadata of a CSV file: its sidecar when there is one, then the reader options."""
     stored: dict[str, Any] | None = None
     side = sidecar_path(path)
     if side.is_file():
         stored = loads_meta(side.read_bytes(), str(side))
     if options.get("meta"):
         stored = {**(stored or {}), **options["meta"]}
-    meta = meta_from_options(stored, options, base_dir=path.parent, where=str(path))
-    try:
-        data = pd.read_csv(path, skipinitialspace=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: not a readable CSV file ({str(exc).strip()})") from None
-    check_numeric(data, path, header_lines=1)
+    return meta_from_options(stored, options, base_dir=path.parent, where=str(path))
+
+
+def parse_dither(data: pd.DataFrame) -> None:
+    """A ``dither`` column of the words True / False (any case) becomes bool, in place."""
     if "dither" in data.columns and data["dither"].dtype == object:
         low = data["dither"].astype(str).str.strip().str.lower()
         if low.isin(["true", "false"]).all():
             data["dither"] = low == "true"
-    return Recording(data, meta, name=str(path))
 
 
-def check_numeric(data: pd.DataFrame, path: Path | str, header_lines: int = 1) -> None:
+def check_numeric(
+    data: pd.DataFrame, path: Path | str, header_lines: int = 1, row_offset: int = 0
+) -> None:
     """FormatError for the first non-numeric cell of a numeric recording column.
 
-    The message names the file, the column, the data row (1-based), the file line and the value.
+    The message names the file, the column, the data row (1-based), the file line and the value;
+    ``row_offset`` is the file row of ``data``'s first row (a block of a longer file).
     """
     for c in data.columns:
         if not (_NUMERIC.match(str(c)) or c in WRENCH_COLUMNS):
@@ -79,9 +92,10 @@ def check_numeric(data: pd.DataFrame, path: Path | str, header_lines: int = 1) -
         conv = pd.to_numeric(col, errors="coerce")
         bad = conv.isna().to_numpy() & col.notna().to_numpy()
         if bad.any():
-            i = int(np.flatnonzero(bad)[0])
+            k = int(np.flatnonzero(bad)[0])
+            i = k + row_offset
             raise FormatError(
-                f"{path}: column {c} has a non-numeric value {col.iloc[i]!r} in row {i + 1} "
+                f"{path}: column {c} has a non-numeric value {col.iloc[k]!r} in row {i + 1} "
                 f"(line {i + 1 + header_lines}), expected a number"
             )
 
@@ -89,16 +103,19 @@ def check_numeric(data: pd.DataFrame, path: Path | str, header_lines: int = 1) -
 def write(rec: Recording, path: Path) -> Path:
     """Write ``rec`` atomically to ``path`` and its metadata to the sidecar ``<stem>.json``."""
     path = Path(path)
-    text = rec.data.to_csv(index=False, lineterminator="\n", float_format=_repr_float)
+    text = rec.data.to_csv(index=False, lineterminator="\n", float_format=repr_float)
     side = sidecar_path(path)
     with atomic_path(side) as tmp_side, atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
-        tmp_side.write_text(
-            json.dumps(json.loads(dumps_meta(rec.meta)), indent=1) + "\n", encoding="utf-8"
-        )
+        tmp_side.write_text(sidecar_text(rec.meta), encoding="utf-8")
     return path
 
 
-def _repr_float(x: float) -> str:
+def sidecar_text(meta: dict[str, Any]) -> str:
+    """The sidecar JSON of a recording's metadata (indented, sorted keys)."""
+    return json.dumps(json.loads(dumps_meta(meta)), indent=1) + "\n"
+
+
+def repr_float(x: float) -> str:
     """Shortest text that reads back to the same float64."""
     return repr(float(x))

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from ditherlab.io.stream import CHUNK_ROWS, Piece, Source
 from ditherlab.recording import (
     DITHER,
     JOINT_FAMILIES,
@@ -18,7 +19,7 @@ from ditherlab.recording import (
 )
 
 
-def regime_fractions(rec: Recording) -> dict[str, float]:
+def regime_fractions(rec: Recording, keep: slice = slice(None)) -> dict[str, float]:
     """Fractions of the recording's time spent still, dithering and moving.
 
     A sample counts as ``moving`` when any joint moves (:func:`ditherlab.recording.regimes`),
@@ -29,65 +30,107 @@ def regime_fractions(rec: Recording) -> dict[str, float]:
     -------
     {"still": f, "dither": f, "moving": f}, summing to 1
     """
+    w = _regime_time(rec, keep)
+    total = float(sum(w.values()))
+    return {k: v / total for k, v in w.items()}
+
+
+def _regime_time(rec: Recording, keep: slice = slice(None)) -> dict[str, float]:
+    """Seconds of the rows ``keep`` of ``rec`` spent still, dithering and moving."""
     r = regimes(rec)
     per_sample = np.where(
         (r == MOVING).any(axis=1), MOVING, np.where((r == DITHER).any(axis=1), DITHER, STILL)
-    )
+    )[keep]
     t = rec.t
-    w = np.gradient(t) if len(t) > 1 else np.ones(1)
-    total = float(w.sum())
+    w = (np.gradient(t) if len(t) > 1 else np.ones(1))[keep]
     return {
-        name: float(w[per_sample == code].sum() / total)
+        name: float(w[per_sample == code].sum())
         for name, code in (("still", STILL), ("dither", DITHER), ("moving", MOVING))
     }
 
 
-def describe(rec: Recording) -> dict[str, Any]:
-    """A JSON-ready summary of ``rec``.
+def describe(rec: Recording | Source, chunk_rows: int | None = None) -> dict[str, Any]:
+    """A JSON-ready summary of a recording, in memory or read in pieces (a :class:`Source`:
+    memory does not grow with the log's length).
 
     Keys: ``file``, ``samples``, ``duration_s``, ``t_start_s``, ``sample_rate_hz`` (1 / median
     interval), ``dt_median_ms``, ``dt_jitter_ms`` (standard deviation of the interval),
     ``dt_min_ms``, ``dt_max_ms``, ``robot``, ``joints`` (count), ``joint_names``, ``columns``
     (which optional families exist), ``extra_columns``, ``regimes`` (:func:`regime_fractions`),
     ``q_range_rad`` and ``tau_range_nm`` (per joint ``[min, max]``), and the metadata keys
-    ``source``, ``notes``, ``tool_offset``, ``payload`` when present.
+    ``source``, ``notes``, ``tool_offset``, ``payload`` when present. ``chunk_rows``: rows
+    per piece of a Source (default :data:`ditherlab.io.stream.CHUNK_ROWS`).
     """
-    t = rec.t
-    dt = np.diff(t) * 1e3 if len(t) > 1 else np.array([np.nan])  # [ms]
-    robot = rec.robot()
-    cols = set(rec.data.columns)
+    pieces = (
+        iter([Piece(rec, 0, slice(0, len(rec)), 0, 1)])
+        if isinstance(rec, Recording)
+        else rec.pieces(chunk_rows or CHUNK_ROWS)
+    )
+    t_all = rec.t if isinstance(rec, Recording) else None
+    time = {"still": 0.0, "dither": 0.0, "moving": 0.0}
+    qr = tr = None
+    first = None
+    for p in pieces:
+        first = first or p.rec
+        for k, v in _regime_time(p.rec, p.keep).items():
+            time[k] += v
+        q, tau = p.rec.q[p.keep], p.rec.tau[p.keep]
+        lo_hi = np.stack([q.min(axis=0), q.max(axis=0)], axis=1)
+        qr = (
+            lo_hi
+            if qr is None
+            else np.stack(
+                [np.minimum(qr[:, 0], lo_hi[:, 0]), np.maximum(qr[:, 1], lo_hi[:, 1])], axis=1
+            )
+        )
+        lo_hi = np.stack([tau.min(axis=0), tau.max(axis=0)], axis=1)
+        tr = (
+            lo_hi
+            if tr is None
+            else np.stack(
+                [np.minimum(tr[:, 0], lo_hi[:, 0]), np.maximum(tr[:, 1], lo_hi[:, 1])], axis=1
+            )
+        )
+    assert first is not None and qr is not None and tr is not None
+    if t_all is None:
+        t_all = rec.column("t").astype(float)
+    dt = np.diff(t_all) * 1e3 if len(t_all) > 1 else np.array([np.nan])  # [ms]
+    robot = first.robot()
+    cols = set(rec.columns if isinstance(rec, Source) else rec.data.columns)
+    order = rec.columns if isinstance(rec, Source) else list(rec.data.columns)
     optional = {
         "dq": "dq_1" in cols,
         "tau_ffw": "tau_ffw_1" in cols,
         "temp": "temp_1" in cols,
-        "wrench": rec.has_wrench,
+        "wrench": first.has_wrench,
         "dither": "dither" in cols,
     }
     known = {"t", "dither", *WRENCH_COLUMNS}
-    known |= {f"{p}_{j + 1}" for p in JOINT_FAMILIES for j in range(rec.n)}
-    q, tau = rec.q, rec.tau
+    known |= {f"{p}_{j + 1}" for p in JOINT_FAMILIES for j in range(first.n)}
+    total = sum(time.values())
+    meta = rec.meta
     out: dict[str, Any] = {
         "file": rec.name,
-        "samples": len(rec),
-        "duration_s": rec.duration,
-        "t_start_s": float(t[0]),
+        "samples": len(t_all),
+        "duration_s": float(t_all[-1] - t_all[0]),
+        "t_start_s": float(t_all[0]),
         "sample_rate_hz": float(1e3 / np.median(dt)),
         "dt_median_ms": float(np.median(dt)),
         "dt_jitter_ms": float(np.std(dt)),
         "dt_min_ms": float(np.min(dt)),
         "dt_max_ms": float(np.max(dt)),
-        "robot": rec.robot_label,
-        "joints": rec.n,
+        "robot": first.robot_label,
+        "joints": first.n,
         "joint_names": list(robot.joint_names),
         "columns": optional,
-        "extra_columns": [str(c) for c in rec.data.columns if c not in known],
-        "regimes": regime_fractions(rec),
-        "q_range_rad": np.stack([q.min(axis=0), q.max(axis=0)], axis=1).tolist(),
-        "tau_range_nm": np.stack([tau.min(axis=0), tau.max(axis=0)], axis=1).tolist(),
+        "extra_columns": [str(c) for c in order if c not in known],
+        "regimes": {k: v / total for k, v in time.items()},
+        "q_range_rad": qr.tolist(),
+        "tau_range_nm": tr.tolist(),
     }
     for key in ("source", "notes", "tool_offset", "payload"):
-        if key in rec.meta:
-            out[key] = rec.meta[key]
+        if key in meta:
+            out[key] = meta[key]
     return out
 
 

@@ -22,6 +22,8 @@ from ditherlab.io.common import (
 from ditherlab.recording import Recording
 
 META_KEY = b"ditherlab"
+#: rows per row group: a reader of pieces (:mod:`ditherlab.io.stream`) decodes one at a time
+ROW_GROUP = 131_072
 
 
 def read(path: Path, **options: Any) -> Recording:
@@ -33,15 +35,22 @@ def read(path: Path, **options: Any) -> Recording:
     """
     check_options(options, META_OPTIONS, "Parquet", str(path))
     try:
-        table = pq.read_table(path, page_checksum_verification=True)
+        pf = pq.ParquetFile(path, page_checksum_verification=True)
+        table = pf.read()
     except (pa.ArrowException, OSError) as exc:
         raise FormatError(
             f"{path}: not a readable Parquet file, truncated or corrupt ({exc})"
         ) from None
-    kv = table.schema.metadata or {}
+    kv = file_metadata(pf)
     stored = loads_meta(kv[META_KEY], str(path)) if META_KEY in kv else None
     meta = meta_from_options(stored, options, where=str(path))
     return Recording(table.to_pandas(), meta, name=str(path))
+
+
+def file_metadata(pf: pq.ParquetFile) -> dict[bytes, bytes]:
+    """A Parquet file's key-value metadata: the Arrow schema's and the footer's (a file written
+    piece by piece, :class:`RecordingWriter`, stores ``ditherlab`` in the footer only)."""
+    return {**(pf.schema_arrow.metadata or {}), **(pf.metadata.metadata or {})}
 
 
 def write(rec: Recording, path: Path) -> Path:
@@ -51,5 +60,7 @@ def write(rec: Recording, path: Path) -> Path:
     kv[META_KEY] = dumps_meta(rec.meta).encode("utf-8")
     table = table.replace_schema_metadata(kv)
     with atomic_path(path) as tmp:
-        pq.write_table(table, tmp, compression="zstd", write_page_checksum=True)
+        pq.write_table(
+            table, tmp, compression="zstd", write_page_checksum=True, row_group_size=ROW_GROUP
+        )
     return Path(path)

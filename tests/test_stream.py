@@ -1,0 +1,169 @@
+"""Recordings processed in pieces (ditherlab.io.stream): the pieces tile the recording, and every
+command that reads in pieces gives exactly the whole-recording result, with the cuts placed
+inside a dither period, a push and a stick."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ditherlab.dither import extract_dither
+from ditherlab.estimates import Estimates
+from ditherlab.io import read, write
+from ditherlab.io.stream import open_source
+from ditherlab.recording import Recording, regimes
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    """A dithered push campaign and a model, both made through the CLI."""
+    from conftest import run_cli
+
+    d = tmp_path_factory.mktemp("stream")
+    rec = d / "rec.parquet"
+    r = run_cli(
+        "simulate", "push-campaign", "--seed", "23", "--pushes-per-direction", "2", "-o", rec, "-q"
+    )
+    assert r.code == 0, r.err
+    ident = d / "ident.parquet"
+    r = run_cli(
+        "simulate",
+        "push-campaign",
+        "--seed",
+        "24",
+        "--pushes-per-direction",
+        "2",
+        "-o",
+        ident,
+        "-q",
+    )
+    assert r.code == 0, r.err
+    model = d / "model.toml"
+    r = run_cli("identify", ident, "-o", model, "--bootstrap", "0", "-q")
+    assert r.code == 0, r.err
+    return d, rec, model
+
+
+def _awkward_cuts(rec: Recording) -> dict[str, int]:
+    """Row counts whose first cut falls inside a push, inside a dither period (mid-period, the
+    dither on) and inside a stick (a joint that stopped moving a moment ago)."""
+    F = np.abs(rec.wrench[:, :3]).max(axis=1)
+    push = np.flatnonzero(F > 5.0)
+    on = np.flatnonzero(rec.dither)
+    reg = regimes(rec)
+    stopped = np.flatnonzero((reg[:-1, 1] == 2) & (reg[1:, 1] != 2)) + 1
+    rate = rec.sample_rate
+    cuts = {
+        "push": int(push[len(push) // 2]),
+        "dither": int(on[len(on) // 3]) + int(0.03 * rate),
+        "stick": int(stopped[len(stopped) // 2]) + 3 if len(stopped) else 3000,
+    }
+    return {k: max(v, 2100) for k, v in cuts.items()}
+
+
+def test_pieces_tile_the_recording_and_see_its_whole_time_base(campaign):
+    d, path, _ = campaign
+    rec = read(path)
+    # a jittered CSV without logged velocities: the derivative and period paths of the pieces
+    jit = rec.data.drop(columns=[f"dq_{j}" for j in range(1, 7)]).copy()
+    jit["t"] = jit["t"] + np.random.default_rng(1).uniform(0, 4e-4, len(jit))
+    whole = Recording(jit, rec.meta)
+    csv = write(whole, d / "jitter.csv")
+    whole = read(csv)
+    src = open_source(csv)
+    assert src.n_rows == len(whole) and src.bounded
+    pieces = list(src.pieces(rows=2345))
+    assert [p.index for p in pieces] == list(range(len(pieces))) and pieces[0].count == len(pieces)
+    owned = np.concatenate([p.rec.t[p.keep] for p in pieces])
+    assert np.array_equal(owned, whole.t)
+    ref_reg, ref_ext = regimes(whole), extract_dither(whole)
+    for p in pieces:
+        a, b = p.owned
+        assert np.array_equal(regimes(p.rec)[p.keep], ref_reg[a:b])
+        assert np.array_equal(p.rec.ddq[p.keep], whole.ddq[a:b])
+        ext = extract_dither(p.rec)
+        assert ext.period == ref_ext.period
+        assert np.array_equal(ext.signal[p.keep], ref_ext.signal[a:b])
+        assert np.array_equal(ext.valid[p.keep], ref_ext.valid[a:b])
+
+
+@pytest.mark.parametrize("where", ["push", "dither", "stick"])
+def test_cli_replay_in_pieces_equals_the_whole(campaign, cli, where):
+    d, path, model = campaign
+    rec = read(path)
+    rows = _awkward_cuts(rec)[where]
+    whole, cut = d / f"whole_{where}.parquet", d / f"cut_{where}.parquet"
+    r = cli("replay", path, "--model", model, "-o", whole, "-q", "--chunk", str(len(rec)))
+    assert r.code == 0, r.err
+    r2 = cli("replay", path, "--model", model, "-o", cut, "-q", "--chunk", str(rows))
+    assert r2.code == 0, r2.err
+    # the summary (force error, coverage) is over the whole file
+    assert r.out.splitlines()[:-1] == r2.out.splitlines()[:-1]
+    a, b = Estimates.load(whole), Estimates.load(cut)
+    assert len(rec) > rows  # two pieces at least, the first cut where asked
+    pd.testing.assert_frame_equal(a.data, b.data, check_exact=True)
+    assert a.meta == b.meta
+    assert len(a.meta["moving_spans"]) > 3
+
+
+def test_chunk_below_its_context_is_one_line(campaign, cli):
+    d, path, model = campaign
+    out = d / "tiny.parquet"
+    r = cli("replay", path, "--model", model, "-o", out, "-q", "--chunk", "100")
+    assert r.code == 2
+    assert r.err.count("\n") == 1
+    assert "chunk size 100 rows is below four times the 501-row context" in r.err
+    assert not out.exists()
+
+
+def test_cli_info_in_pieces_equals_the_whole(campaign, cli):
+    import json
+
+    _, path, _ = campaign
+    n = len(read(path))
+    whole = json.loads(cli("info", path, "--json", "--chunk", str(n)).out)
+    cut = json.loads(cli("info", path, "--json", "--chunk", "2222").out)
+    fr_w, fr_c = whole.pop("regimes"), cut.pop("regimes")
+    assert whole == cut
+    # fractions are sums over the pieces: equal to the last bits
+    assert fr_w == pytest.approx(fr_c, abs=1e-12) and fr_w["dither"] > 0.1
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".csv"])
+def test_cli_convert_in_pieces_equals_the_whole(campaign, cli, suffix):
+    d, path, _ = campaign
+    whole, cut = d / f"whole{suffix}", d / f"cut{suffix}"
+    n = len(read(path))
+    assert cli("convert", path, whole, "--chunk", str(n)).code == 0
+    r = cli("convert", path, cut, "--chunk", "2222")
+    assert r.code == 0, r.err
+    assert read(cut).equals(read(whole)) and read(cut).equals(read(path))
+    if suffix == ".csv":
+        assert cut.read_bytes() == whole.read_bytes()
+    else:
+        import pyarrow.parquet as pq
+
+        assert pq.ParquetFile(cut).metadata.num_row_groups == -(-n // 2222)
+
+
+def test_a_piece_that_breaks_the_contract_is_named(campaign, cli):
+    """Time stamps that go back across a cut are caught (the pieces overlap)."""
+    d, path, _ = campaign
+    rec = read(path)
+    data = rec.data.copy()
+    t = data["t"].to_numpy().copy()
+    t[3000:] -= 0.5  # back in time at row 3001, inside the second piece's context
+    data["t"] = t
+    bad = d / "bad.parquet"
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(data, preserve_index=False)
+    table = table.replace_schema_metadata({b"ditherlab": rec.meta_json().encode()})
+    pq.write_table(table, bad)
+    out = d / "bad_out.parquet"
+    r = cli("convert", bad, out, "--chunk", "2600")
+    assert r.code == 2 and r.err.count("\n") == 1, r.err
+    assert "t" in r.err and "increasing" in r.err, r.err
+    assert not out.exists()
