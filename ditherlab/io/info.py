@@ -66,7 +66,7 @@ def describe(rec: Recording | Source, chunk_rows: int | None = None) -> dict[str
         if isinstance(rec, Recording)
         else rec.pieces(chunk_rows or CHUNK_ROWS)
     )
-    t_all = rec.t if isinstance(rec, Recording) else None
+    t_all = rec.t if isinstance(rec, Recording) else rec.times()
     time = {"still": 0.0, "dither": 0.0, "moving": 0.0}
     qr = tr = None
     first = None
@@ -74,26 +74,9 @@ def describe(rec: Recording | Source, chunk_rows: int | None = None) -> dict[str
         first = first or p.rec
         for k, v in _regime_time(p.rec, p.keep).items():
             time[k] += v
-        q, tau = p.rec.q[p.keep], p.rec.tau[p.keep]
-        lo_hi = np.stack([q.min(axis=0), q.max(axis=0)], axis=1)
-        qr = (
-            lo_hi
-            if qr is None
-            else np.stack(
-                [np.minimum(qr[:, 0], lo_hi[:, 0]), np.maximum(qr[:, 1], lo_hi[:, 1])], axis=1
-            )
-        )
-        lo_hi = np.stack([tau.min(axis=0), tau.max(axis=0)], axis=1)
-        tr = (
-            lo_hi
-            if tr is None
-            else np.stack(
-                [np.minimum(tr[:, 0], lo_hi[:, 0]), np.maximum(tr[:, 1], lo_hi[:, 1])], axis=1
-            )
-        )
+        qr = _widen(qr, p.rec.q[p.keep])
+        tr = _widen(tr, p.rec.tau[p.keep])
     assert first is not None and qr is not None and tr is not None
-    if t_all is None:
-        t_all = rec.column("t").astype(float)
     dt = np.diff(t_all) * 1e3 if len(t_all) > 1 else np.array([np.nan])  # [ms]
     robot = first.robot()
     cols = set(rec.columns if isinstance(rec, Source) else rec.data.columns)
@@ -132,6 +115,14 @@ def describe(rec: Recording | Source, chunk_rows: int | None = None) -> dict[str
         if key in meta:
             out[key] = meta[key]
     return out
+
+
+def _widen(span: np.ndarray | None, x: np.ndarray) -> np.ndarray:
+    """Per-column ``[min, max]`` (n, 2) of ``x`` (M, n), widened by an earlier ``span``."""
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    if span is not None:
+        lo, hi = np.minimum(span[:, 0], lo), np.maximum(span[:, 1], hi)
+    return np.stack([lo, hi], axis=1)
 
 
 def format_info(d: dict[str, Any]) -> str:

@@ -97,6 +97,7 @@ class Source:
         self.path = Path(path)
         self.name = str(self.path)
         self._rec: Recording | None = None
+        self._t: np.ndarray | None = None
         mapping = options.get("mapping")
         kind = None if mapping is not None else detect_format(self.path)
         self.kind = kind
@@ -136,11 +137,14 @@ class Source:
             self.columns = [
                 str(c) for c in pd.read_csv(self.path, skipinitialspace=True, nrows=0).columns
             ]
-            self.n_rows = int(len(pd.read_csv(self.path, skipinitialspace=True, usecols=[0])))
+            if "t" not in self.columns:  # counted here; Recording names the missing column
+                self.n_rows = len(pd.read_csv(self.path, skipinitialspace=True, usecols=[0]))
         except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
             raise FormatError(
                 f"{self.name}: not a readable CSV file ({str(exc).strip()})"
             ) from None
+        if "t" in self.columns:
+            self.n_rows = len(self.times())  # one pass: the rows counted as t is read
 
     # ------------------------------------------------------------------ reading
     def frames(self, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
@@ -181,6 +185,14 @@ class Source:
         parts = [f[name].to_numpy() for f in self.frames(CHUNK_ROWS, [name])]
         return np.concatenate(parts) if parts else np.zeros(0)
 
+    def times(self) -> np.ndarray:
+        """The whole ``t`` column, (N,) [s], read once and kept (8 bytes per sample)."""
+        if self._t is None:
+            if "t" not in self.columns:
+                raise RecordingError(f"{self.name}: column 't' is missing")
+            self._t = pd.to_numeric(pd.Series(self.column("t")), errors="coerce").to_numpy(float)
+        return self._t
+
     def read(self) -> Recording:
         """The whole recording in memory (what :func:`ditherlab.io.read` returns)."""
         if self._rec is not None:
@@ -194,9 +206,7 @@ class Source:
     def timebase(self) -> TimeBase:
         """The whole recording's :class:`~ditherlab.recording.TimeBase` (read once)."""
         if self._timebase is None:
-            if "t" not in self.columns:
-                raise RecordingError(f"{self.name}: column 't' is missing")
-            t = pd.to_numeric(pd.Series(self.column("t")), errors="coerce").to_numpy(float)
+            t = self.times()
             self._timebase = TimeBase.of(t, self._dither_period(t))
         return self._timebase
 
