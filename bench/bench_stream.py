@@ -7,7 +7,8 @@ fresh process) and its peak resident memory is read from the kernel (``ru_maxrss
 child). The target of the scale issue: peak memory independent of the log's length, under
 2 GB for ten hours.
 
-``python -m bench.bench_stream --hours 10 --keep DIR`` keeps the logs.
+``python -m bench.bench_stream --hours 10 --keep DIR`` keeps the logs; ``--only identify`` runs
+one command.
 """
 
 from __future__ import annotations
@@ -68,7 +69,9 @@ def _peak(args: list[str]) -> tuple[float, float]:
     return time.perf_counter() - t0, usage.ru_maxrss / 1024.0
 
 
-def run(quick: bool = False, hours: float = 10.0, keep: Path | None = None) -> list[dict]:
+def run(
+    quick: bool = False, hours: float = 10.0, keep: Path | None = None, only: str | None = None
+) -> list[dict]:
     from ditherlab.identify import identify
     from ditherlab.sim import simulate
 
@@ -97,7 +100,10 @@ def run(quick: bool = False, hours: float = 10.0, keep: Path | None = None) -> l
                 "replay, four variants",
                 ["replay", "{rec}", "--model", str(model), "-o", "{out}.est.parquet", "-q"],
             ),
+            ("identify, 30 bootstrap replicates", ["identify", "{rec}", "-o", "{out}.toml", "-q"]),
         ):
+            if only is not None and not name.startswith(only):
+                continue
             res = {}
             for label, rec in (("short", one), ("long", many)):
                 slug = name.split()[0].strip(",")
@@ -134,7 +140,8 @@ if __name__ == "__main__":
     ap.add_argument("--hours", type=float, default=10.0)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--keep", type=Path)
+    ap.add_argument("--only", help="run the commands whose name starts with this (e.g. identify)")
     a = ap.parse_args()
-    for row in run(quick=a.quick, hours=a.hours, keep=a.keep):
+    for row in run(quick=a.quick, hours=a.hours, keep=a.keep, only=a.only):
         ref = f" (1 h: {row['reference']:.4g})" if row.get("reference") is not None else ""
         print(f"{row['name']:<70} {row['value']:>10.4g} {row['unit']}{ref}")

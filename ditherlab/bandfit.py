@@ -32,7 +32,14 @@ from ditherlab.errors import RecordingError
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 N_BINS = 4096
 
-__all__ = ["BandFit", "band_noise_logpdf", "fit_band", "fit_sliding", "sigma_from_differences"]
+__all__ = [
+    "BandFit",
+    "band_noise_logpdf",
+    "block_members",
+    "fit_band",
+    "fit_sliding",
+    "sigma_from_differences",
+]
 
 
 # ---------------------------------------------------------------------------- the density
@@ -134,6 +141,15 @@ def _histogram(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
     idx = np.clip(((x - lo) / (hi - lo) * nb).astype(np.int64), 0, nb - 1)
     centres = 0.5 * (edges[:-1] + edges[1:])
     return idx, centres
+
+
+def block_members(inv: np.ndarray, nb: int) -> list[np.ndarray]:
+    """The sample indices of each block, ascending: ``[flatnonzero(inv == k) for k < nb]`` by
+    one stable sort (that comprehension scans all samples once per block: quadratic in the
+    length of a log, hours for ten hours of samples in 2 s blocks)."""
+    order = np.argsort(inv, kind="stable")
+    ends = np.cumsum(np.bincount(inv, minlength=nb))
+    return np.split(order, ends[:-1])
 
 
 def sigma_from_differences(x: np.ndarray, lag: int = 1, blocks: np.ndarray | None = None) -> float:
@@ -378,19 +394,19 @@ def fit_band(
     if n_boot > 0:
         labels, inv = np.unique(blocks, return_inverse=True)
         nb = len(labels)
-        block_hist = np.zeros((nb, nbins))
-        np.add.at(block_hist, (inv, idx), 1.0)
         members = None
         rng = np.random.default_rng(seed)
         reps = np.empty((n_boot, 3))
         for r in range(n_boot):
             pick = rng.integers(0, nb, nb)
             mult = np.bincount(pick, minlength=nb).astype(float)
-            wts = mult @ block_hist
+            # the replicate's histogram: every sample counted as often as its block was drawn
+            # (sums of whole numbers: exact, in any order)
+            wts = np.bincount(idx, weights=mult[inv], minlength=nbins)
             rs0 = s
             if fixed and isinstance(sigma, str):
                 if members is None:
-                    members = [np.flatnonzero(inv == k) for k in range(nb)]
+                    members = block_members(inv, nb)
                 xs = np.concatenate([x[members[k]] for k in pick])
                 bl = np.concatenate([np.full(len(members[k]), i) for i, k in enumerate(pick)])
                 rs0 = max(sigma_from_differences(xs, lag, bl), s_floor)
@@ -453,7 +469,7 @@ def fit_sliding(
         if blocks is None:
             blocks = np.arange(len(x)) // 500
         labels, inv = np.unique(np.asarray(blocks), return_inverse=True)
-        members = [np.flatnonzero(inv == k) for k in range(len(labels))]
+        members = block_members(inv, len(labels))
         rng = np.random.default_rng(seed + 1)
         reps = np.empty((n_boot, 2))
         for r in range(n_boot):

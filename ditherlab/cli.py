@@ -323,6 +323,7 @@ def identify(
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    chunk: Chunk = None,
     quiet: Quiet = False,
 ) -> None:
     """Fit bands, noise (R_e) and sliding friction per joint and regime by maximum likelihood."""
@@ -340,6 +341,7 @@ def identify(
             seed=seed,
             read_options=_read_options(mapping, robot),
             progress=progress,
+            **({"chunk_rows": chunk} if chunk else {}),
         )
     echo(summary(m))
     echo(f"wrote {out}")

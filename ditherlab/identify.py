@@ -31,7 +31,7 @@ The band-plus-noise fits themselves are :mod:`ditherlab.bandfit`.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -39,6 +39,8 @@ from ditherlab.bandfit import BandFit, band_noise_logpdf, fit_band, fit_sliding
 from ditherlab.dither import dithered_band, extract_dither
 from ditherlab.effects import effects_torque, external_torque, sensor_wrench
 from ditherlab.errors import ConfigError, RecordingError
+from ditherlab.io.spill import SPILL_BYTES, Spill
+from ditherlab.io.stream import CHUNK_ROWS, Piece, Source
 from ditherlab.model import PAPER_PRIOR_SIGMA, Band, TorqueModel
 from ditherlab.recording import DITHER, MOVING, STILL, Recording, regimes
 from ditherlab.signal import REVERSAL_V, causal_mean, jtf, stick_transitions
@@ -86,30 +88,54 @@ def _tau_minus_model(tau: np.ndarray, rec: Recording, model: TorqueModel | None)
 
 
 # ---------------------------------------------------------------------------- identification
-def _check_inputs(recs: Sequence[Recording], assume_no_force: bool) -> None:
-    if not recs:
-        raise RecordingError("identify needs at least one recording")
-    first = recs[0]
-    for r in recs:
-        if assume_no_force and r.has_wrench:
-            # refused rather than ignored: the sensor measures the very force the option says is
-            # absent, and ignoring it would put every push into the friction bands
-            raise RecordingError(
-                f"{r.name or 'recording'}: --assume-no-force states that no external force acts, "
-                "but this recording has F/T sensor columns f_x..m_z that measure it; drop the "
-                "option to fit the bands with the sensor"
-            )
-        if not assume_no_force and not r.has_wrench:
-            raise RecordingError(
-                f"{r.name or 'recording'}: identify needs a reference F/T sensor (columns "
-                "f_x..m_z) and this recording has none; with --assume-no-force it can still fit "
-                "the bands from periods where you state that no external force acts"
-            )
-        if r.n != first.n or _robot_key(r.meta) != _robot_key(first.meta):
-            raise RecordingError(
-                f"{r.name or 'recording'}: robot {r.robot_label} with {r.n} joints differs from "
-                f"{first.name or 'the first recording'}'s {first.robot_label} with {first.n} joints"
-            )
+def _check_input(r: Recording, first: Recording | None, assume_no_force: bool) -> None:
+    """Refuse a recording identify cannot use: sensor columns against ``assume_no_force``, or
+    another robot than ``first``'s (None: ``r`` is the first)."""
+    if assume_no_force and r.has_wrench:
+        # refused rather than ignored: the sensor measures the very force the option says is
+        # absent, and ignoring it would put every push into the friction bands
+        raise RecordingError(
+            f"{r.name or 'recording'}: --assume-no-force states that no external force acts, "
+            "but this recording has F/T sensor columns f_x..m_z that measure it; drop the "
+            "option to fit the bands with the sensor"
+        )
+    if not assume_no_force and not r.has_wrench:
+        raise RecordingError(
+            f"{r.name or 'recording'}: identify needs a reference F/T sensor (columns "
+            "f_x..m_z) and this recording has none; with --assume-no-force it can still fit "
+            "the bands from periods where you state that no external force acts"
+        )
+    if first is not None and (r.n != first.n or _robot_key(r.meta) != _robot_key(first.meta)):
+        raise RecordingError(
+            f"{r.name or 'recording'}: robot {r.robot_label} with {r.n} joints differs from "
+            f"{first.name or 'the first recording'}'s {first.robot_label} with {first.n} joints"
+        )
+
+
+def _regime_codes() -> tuple[int, int, int]:
+    return (STILL, DITHER, MOVING)
+
+
+def _pieces(r: Recording | Source, rows: int) -> Iterator[Piece]:
+    """A recording in memory is one piece; a :class:`~ditherlab.io.stream.Source`, its pieces."""
+    if isinstance(r, Recording):
+        return iter([Piece(r, 0, slice(0, len(r)), 0, 1)])
+    return r.pieces(rows)
+
+
+def _n_joints(r: Recording | Source) -> int:
+    if isinstance(r, Recording):
+        return r.n
+    return sum(1 for c in r.columns if c.startswith("q_") and c[2:].isdigit())
+
+
+def _piece_count(r: Recording | Source, rows: int) -> int:
+    return 1 if isinstance(r, Recording) else max(1, -(-r.n_rows // int(rows)))
+
+
+def _times(r: Recording | Source) -> np.ndarray:
+    """The whole recording's time stamps (N,) [s]."""
+    return r.t if isinstance(r, Recording) else r.times()
 
 
 def _robot_key(meta: dict) -> str:
@@ -117,7 +143,7 @@ def _robot_key(meta: dict) -> str:
 
 
 def identify(
-    recs: Sequence[Recording],
+    recs: Sequence[Recording | Source],
     *,
     base: TorqueModel | None = None,
     assume_no_force: bool = False,
@@ -128,12 +154,17 @@ def identify(
     max_accel: float = 0.5,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    chunk_rows: int = CHUNK_ROWS,
+    spill_bytes: int = SPILL_BYTES,
 ) -> TorqueModel:
     """Fit the bands, noise and sliding friction of every joint and regime.
 
     Parameters
     ----------
-    recs : recordings of the same robot with F/T columns ``f_x..m_z``
+    recs : recordings of the same robot with F/T columns ``f_x..m_z``: in memory, or
+        :class:`~ditherlab.io.stream.Source` s read in pieces of ``chunk_rows`` rows (the same
+        model, bit for bit: every per-sample quantity comes from a bounded window, and the
+        bootstrap's block labels continue across pieces)
     base : a model to start from: its prior, effects (subtracted before fitting) and any regime
         that the data do not cover are kept; None starts from the paper's prior and no effects.
     assume_no_force : no F/T sensor: treat the external force as zero everywhere (the user states
@@ -155,6 +186,10 @@ def identify(
         simulator's start-up excitation the abrupt reversals (~200 N·m of inertia on joint 1)
         otherwise widened the moving band to [-202, 102] N·m
     progress : ``progress(done, total)`` callback
+    chunk_rows : rows per piece of a Source
+    spill_bytes : residual samples held in memory before they go to temporary files
+        (:class:`~ditherlab.io.spill.Spill`; about 16 bytes per sample and joint, 32 more per
+        moving sample): memory then stays bounded however long the recordings are
 
     Returns
     -------
@@ -170,29 +205,53 @@ def identify(
     recs = list(recs)
     if dither_band not in ("shrunk", "ml"):
         raise ConfigError(f"dither_band is {dither_band!r}, expected 'shrunk' or 'ml'")
-    _check_inputs(recs, assume_no_force)
-    first = recs[0]
-    n = first.n
-    if base is not None:
-        base.check_robot(first)
-    samples = _Samples(n)
-    steps = len(recs) + 3 * n
+    if not recs:
+        raise RecordingError("identify needs at least one recording")
+    counts = [_piece_count(r, chunk_rows) for r in recs]
+    steps = sum(counts) + 3 * _n_joints(recs[0])
     done = 0
-    for rec in recs:
-        samples.add(rec, base, assume_no_force=assume_no_force, block=block, max_accel=max_accel)
-        done += 1
-        if progress:
-            progress(done, steps)
-
-    fits: dict[tuple[int, int], dict[str, tuple[float, float]]] = {}
-    for code in (STILL, DITHER, MOVING):
-        for j in range(n):
-            f = samples.fit(code, j, min_samples=min_samples, n_boot=n_boot, seed=seed)
-            if f is not None:
-                fits[(code, j)] = f
-            done += 1
-            if progress:
-                progress(done, steps)
+    first: Recording | None = None
+    with Spill(spill_bytes) as store:
+        samples: _Samples | None = None
+        for r in recs:
+            for k, piece in enumerate(_pieces(r, chunk_rows)):
+                if k == 0:
+                    _check_input(piece.rec, first, assume_no_force)
+                    if first is None:
+                        first = piece.rec
+                        if base is not None:
+                            base.check_robot(first)
+                        samples = _Samples(first.n, store)
+                    assert samples is not None
+                    samples.start(_times(r), piece.rec.t0, block)
+                assert samples is not None
+                samples.add(
+                    piece.rec,
+                    piece.keep,
+                    base,
+                    assume_no_force=assume_no_force,
+                    block=block,
+                    max_accel=max_accel,
+                )
+                done += 1
+                if progress:
+                    progress(done, steps)
+            assert samples is not None
+            samples.finish()
+        assert first is not None and samples is not None
+        store.flush()  # a long log's last held samples join the rest on disk before fitting
+        n = first.n
+        steps = done + 3 * n
+        fits: dict[tuple[int, int], dict[str, tuple[float, float]]] = {}
+        for code in _regime_codes():
+            for j in range(n):
+                f = samples.fit(code, j, min_samples=min_samples, n_boot=n_boot, seed=seed)
+                if f is not None:
+                    fits[(code, j)] = f
+                done += 1
+                if progress:
+                    progress(done, steps)
+        amps = samples.amps
     if not fits:
         raise RecordingError(
             f"{first.name or 'recording'}: no joint has {min_samples} samples in any regime "
@@ -209,17 +268,20 @@ def identify(
     capped = _cap_moving(out_regimes, fits)
     widened = _coulomb_floor(out_regimes, fits)
     amp = None
-    if (
-        dither_band == "shrunk"
-        and "dither" in out_regimes
-        and "still" in out_regimes
-        and samples.amps
-    ):
+    if dither_band == "shrunk" and "dither" in out_regimes and "still" in out_regimes and amps:
         out_regimes["dither"], amp = _shrunk_dither_band(
-            out_regimes["still"], out_regimes["dither"], samples.amps
+            out_regimes["still"], out_regimes["dither"], amps
         )
     notes = _notes(
-        recs, assume_no_force, n_boot, block, seed, amp, bool(samples.amps), capped, widened
+        [r.name for r in recs],
+        assume_no_force,
+        n_boot,
+        block,
+        seed,
+        amp,
+        bool(amps),
+        capped,
+        widened,
     ) + _coverage_notes(samples.all_moving, max_accel, borrowed)
     return TorqueModel(
         robot=first.meta["robot"],
@@ -238,42 +300,67 @@ def identify(
 
 #: pseudo-regime of _Samples: every moving sample, whatever its acceleration
 ALL_MOVING = 3
+#: regimes whose fit needs each sample's velocity and sliding flag besides the residual
+_SLIDING = (MOVING, ALL_MOVING)
 
 
 class _Samples:
     """The friction residual's samples per (regime, joint), concatenated over recordings.
 
     Each sample carries a label: its contiguous run inside a time block of its recording (the
-    bootstrap unit; lagged differences never cross labels), its ``dq``, and whether it is on the
-    sliding line (moving, not a break-away transient, slip or velocity reversal).
+    bootstrap unit; lagged differences never cross labels), and in the moving regimes its
+    ``dq`` and whether it is on the sliding line (moving, not a break-away transient, slip or
+    velocity reversal). Recordings are added piece by piece (:meth:`start`, then :meth:`add`
+    per piece): the runs continue across pieces, so the labels are the whole recording's. The
+    samples are kept in a :class:`~ditherlab.io.spill.Spill` (on disk past its budget).
     """
 
-    def __init__(self, n: int):
+    def __init__(self, n: int, spill: Spill):
         self.n = n
-        self.xs: dict[tuple[int, int], list[np.ndarray]] = {}
-        self.labels: dict[tuple[int, int], list[np.ndarray]] = {}
-        self.dqs: dict[tuple[int, int], list[np.ndarray]] = {}
-        self.slides: dict[tuple[int, int], list[np.ndarray]] = {}
+        self.store = spill
         self.lags: dict[int, int] = {STILL: 1, MOVING: 1, DITHER: 1, ALL_MOVING: 1}
         #: joints whose moving regime was fitted on all moving samples (too few slow ones)
         self.all_moving: list[int] = []
-        self.amps: dict[int, list[np.ndarray]] = {}
         self.label_offset = 0
+        self._t0 = 0.0
+        self._nblk = 1
+        self._runs: dict[tuple[int, int], tuple[int, bool]] = {}
+
+    @property
+    def amps(self) -> dict[int, np.ndarray]:
+        """Measured dither amplitude [N·m] of every dithered sample, per joint (0-based)."""
+        return {
+            k[1]: self.store.load(k)
+            for k in list(self.store.keys())
+            if k[0] == "amp" and self.store.count(k)
+        }
+
+    def start(self, t: np.ndarray, t0: float, block: float) -> None:
+        """Begin a recording: its whole time stamps ``t`` (N,) [s], first time ``t0`` [s]."""
+        self._t0 = t0
+        self._nblk = int(((t - t0) // block).max()) + 1 if len(t) else 1
+        self._len = len(t)
+        self._runs = {}
+
+    def finish(self) -> None:
+        """End the recording started last: the next one's labels never meet its labels."""
+        self.label_offset += (self._len + 1) * self._nblk + 1
 
     def add(
         self,
         rec: Recording,
+        keep: slice,
         model: TorqueModel | None,
         *,
         assume_no_force: bool,
         block: float,
         max_accel: float,
     ) -> None:
-        """Add one recording's residual samples of every regime (see :func:`identify`)."""
+        """Add the residual samples of the rows ``keep`` of ``rec`` (a piece of the recording
+        begun by :meth:`start`, with context around them), every regime (see :func:`identify`)."""
         reg = regimes(rec)
         rho = friction_residual(rec, model, assume_no_force=assume_no_force)
-        t = rec.t
-        blk = ((t - t[0]) // block).astype(np.int64)
+        blk = ((rec.t[keep] - self._t0) // block).astype(np.int64)
         dq = rec.dq
         # the paper's model neglects dynamic torques ("slow velocities and low accelerations"):
         # the moving regime is fitted where the (0.1 s averaged) acceleration is low
@@ -289,33 +376,38 @@ class _Samples:
             (MOVING, rho, (reg == MOVING) & slow),
             (ALL_MOVING, rho, reg == MOVING),
         ]
-        if (reg == DITHER).any():
-            dith = self._dither_source(rec, rho, reg)
-            if dith is not None:
-                sources.append(dith)
+        dith = self._dither_source(rec, rho, reg, keep) if (reg == DITHER).any() else None
+        # a piece without dithered samples still continues the dither regime's runs
+        sources.append(dith or (DITHER, rho, np.zeros_like(reg, dtype=bool)))
         for code, r, mask in sources:
             for j in range(self.n):
-                m = mask[:, j]
+                m = mask[keep, j]
+                if not len(m):
+                    continue
+                # run number of every row, continued from the previous piece
+                last, was = self._runs.get((code, j), (0, not m[0]))
+                run = last + np.cumsum(np.r_[m[0] != was, m[1:] != m[:-1]])
+                self._runs[(code, j)] = (int(run[-1]), bool(m[-1]))
                 if not m.any():
                     continue
-                run = np.cumsum(np.r_[True, m[1:] != m[:-1]])
-                lab = self.label_offset + run * (int(blk.max()) + 1) + blk
-                self.xs.setdefault((code, j), []).append(r[m, j])
-                self.labels.setdefault((code, j), []).append(lab[m])
-                self.dqs.setdefault((code, j), []).append(dq[m, j])
-                self.slides.setdefault((code, j), []).append(slide[m, j])
-        self.label_offset += (len(t) + 1) * (int(blk.max()) + 1) + 1
+                lab = self.label_offset + run * self._nblk + blk
+                st, key = self.store, (code, j)
+                st.append(("x", *key), r[keep, j][m])
+                st.append(("label", *key), lab[m])
+                if code in _SLIDING:
+                    st.append(("dq", *key), dq[keep, j][m])
+                    st.append(("slide", *key), slide[keep, j][m])
 
     def _dither_source(
-        self, rec: Recording, rho: np.ndarray, reg: np.ndarray
+        self, rec: Recording, rho: np.ndarray, reg: np.ndarray, keep: slice
     ) -> tuple[int, np.ndarray, np.ndarray] | None:
         """The dither regime's residual from the extracted signal (paper §IV-A), or None.
 
         The extracted signal replaces the raw torque, on samples whose one-period window lies
         wholly in the dither. It is (for the slow part) a one-period running mean: it is compared
         with the model torque passed through the same window, so that the extraction's delay
-        does not count as friction. Records the dither amplitude per joint and the lag of the
-        noise estimate (one period).
+        does not count as friction. Records the dither amplitude per joint (of the rows
+        ``keep``) and the lag of the noise estimate (one period).
         """
         sig = extract_dither(rec)
         if sig is None:
@@ -325,8 +417,9 @@ class _Samples:
         rho_d = sig.signal - causal_mean(model_tau, w)
         dmask = (reg == DITHER) & sig.valid[:, None]
         for j in range(self.n):
-            if dmask[:, j].any():
-                self.amps.setdefault(j, []).append(sig.amplitude[dmask[:, j], j])
+            dk = dmask[keep, j]
+            if dk.any():
+                self.store.append(("amp", j), sig.amplitude[keep][dk, j])
         self.lags[DITHER] = max(self.lags[DITHER], int(round(sig.period * rec.sample_rate)))
         return DITHER, rho_d, dmask
 
@@ -342,19 +435,18 @@ class _Samples:
             # say so; the dynamic torque then widens the band until `inertia` is added)
             key = (ALL_MOVING, j)
             self.all_moving.append(j)
-        x = np.concatenate(self.xs[key])
-        bl = np.unique(np.concatenate(self.labels[key]), return_inverse=True)[1]
+        x = self.store.load(("x", *key))
+        bl = np.unique(self.store.load(("label", *key)), return_inverse=True)[1]
         jseed = seed * 1000 + code * 100 + j
         f: dict[str, tuple[float, float]] = {}
         if code == MOVING:
-            d = np.concatenate(self.dqs[key])
             fc, fv, fit, se_c, se_v = fit_sliding(
                 x,
-                d,
+                self.store.load(("dq", *key)),
                 blocks=bl,
                 n_boot=n_boot,
                 seed=jseed,
-                band_rows=np.concatenate(self.slides[key]),
+                band_rows=self.store.load(("slide", *key)),
             )
             f["coulomb"], f["viscous"] = (fc, se_c), (fv, se_v)
         else:
@@ -365,7 +457,7 @@ class _Samples:
 
     def count(self, key: tuple[int, int]) -> int:
         """Samples of one (regime, joint)."""
-        return sum(len(v) for v in self.xs.get(key, ()))
+        return self.store.count(("x", *key))
 
 
 def _coverage_notes(all_moving: list[int], max_accel: float, borrowed: dict[str, list[int]]) -> str:
@@ -388,7 +480,7 @@ def _coverage_notes(all_moving: list[int], max_accel: float, borrowed: dict[str,
 
 
 def _notes(
-    recs: Sequence[Recording],
+    names: Sequence[str | None],
     assume_no_force: bool,
     n_boot: int,
     block: float,
@@ -410,7 +502,7 @@ def _notes(
         dither_note = "; dither band fitted on the extracted signal" if dithered else ""
     return (
         "identified by ditherlab identify from "
-        + ", ".join(r.name or "<memory>" for r in recs)
+        + ", ".join(name or "<memory>" for name in names)
         + (" assuming no external force (no F/T sensor)" if assume_no_force else "")
         + f"; bootstrap {n_boot} x {block:g} s blocks, seed {seed}"
         + dither_note
@@ -495,8 +587,7 @@ def _shrunk_dither_band(
     n = len(still.sigma)
     A = np.zeros(n)
     have = np.zeros(n, bool)
-    for j, parts in amps.items():
-        a = np.concatenate(parts)
+    for j, a in amps.items():
         if a.size:
             A[j], have[j] = float(np.median(a)), True
     lo, hi = dithered_band(still.tau_min, still.tau_max, A)

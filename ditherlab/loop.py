@@ -21,6 +21,7 @@ from ditherlab.fit import fit_effect, not_identifiable
 from ditherlab.identify import identify
 from ditherlab.io import read
 from ditherlab.io.atomic import check_not_input
+from ditherlab.io.stream import CHUNK_ROWS, open_source
 from ditherlab.model import TorqueModel
 from ditherlab.recording import Recording
 from ditherlab.residual import scored
@@ -127,9 +128,14 @@ def identify_files(
     seed: int = 0,
     read_options: dict | None = None,
     progress: Callable[[int, int], None] | None = None,
+    chunk_rows: int = CHUNK_ROWS,
 ) -> TorqueModel:
     """Read recordings, :func:`~ditherlab.identify.identify`, add effects (:func:`add_effect`),
     save.
+
+    The bands are identified from the recordings read in pieces of ``chunk_rows`` rows
+    (:mod:`ditherlab.io.stream`: memory does not grow with the logs' length); effects named in
+    ``add`` are fitted on the whole recordings, read into memory.
 
     Parameters
     ----------
@@ -139,6 +145,7 @@ def identify_files(
     add : effect names to fit after the bands, in order
     assume_no_force, n_boot, seed, progress : as in :func:`ditherlab.identify.identify`
     read_options : options for :func:`ditherlab.io.read` (``mapping``, ``robot``)
+    chunk_rows : rows per piece
 
     Returns
     -------
@@ -146,17 +153,19 @@ def identify_files(
     """
     inputs = [Path(p) for p in paths] + ([Path(base)] if base is not None else [])
     check_not_input(out, inputs)
-    recs = [read(p, **(read_options or {})) for p in paths]
+    sources = [open_source(p, **(read_options or {})) for p in paths]
     base_model = TorqueModel.load(base) if base is not None else None
     model = identify(
-        recs,
+        sources,
         base=base_model,
         assume_no_force=assume_no_force,
         n_boot=n_boot,
         seed=seed,
         progress=progress,
+        chunk_rows=chunk_rows,
     )
     if add:
+        recs = [s.read() for s in sources]
         for name in add:
             model = add_effect(model, recs, name, assume_no_force=assume_no_force)
     model.source = None

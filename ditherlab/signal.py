@@ -168,21 +168,29 @@ def smooth_wrench(
 def causal_mean(x: np.ndarray, w: int) -> np.ndarray:
     """Mean over the last ``w`` samples (fewer at the start), per column.
 
+    Each output is the sum of its own window, added oldest first, over the count: the value at
+    a sample does not depend on where the array starts (a running cumulative sum would carry the
+    rounding of everything before it), so a piece of a long log with ``w - 1`` rows of context
+    gives the whole log's values exactly (:mod:`ditherlab.io.stream`).
+
     Parameters
     ----------
-    x : (N, n) any unit
+    x : (N, ...) any unit
     w : window [samples]
 
     Returns
     -------
-    (N, n), same unit
+    (N, ...), same unit
     """
     x = np.asarray(x, dtype=float)
-    c = np.cumsum(np.vstack([np.zeros((1,) + x.shape[1:]), x]), axis=0)
-    k = np.arange(1, len(x) + 1)
-    lo = np.maximum(k - w, 0)
-    cnt = (k - lo).reshape((-1,) + (1,) * (x.ndim - 1))
-    return (c[k] - c[lo]) / cnt
+    N = len(x)
+    w = max(int(w), 1)
+    acc = np.zeros_like(x)
+    for k in range(min(w, N) - 1, -1, -1):
+        # the sample k steps back, for every row that has one (zeros add nothing before it)
+        acc[k:] += x[: N - k]
+    cnt = np.minimum(np.arange(1, N + 1), w).reshape((-1,) + (1,) * (x.ndim - 1))
+    return acc / cnt
 
 
 def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -331,7 +339,9 @@ def period_from_feedforward(tau_ffw, t) -> float:
         )
     # crossing times, linearly interpolated between the samples around each sign change
     x0, x1 = x[idx], x[idx + 1]
-    frac = np.where(x1 != x0, x0 / (x0 - x1), 0.5)
+    # (+0.0 and -0.0 differ in sign bit only: the crossing is halfway, without a 0/0 warning)
+    step = x0 - x1
+    frac = np.divide(x0, step, out=np.full(len(x0), 0.5), where=step != 0)
     tc = t[idx] + frac * (t[idx + 1] - t[idx])
     half = np.diff(tc)
     med = np.median(half)

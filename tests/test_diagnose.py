@@ -112,6 +112,45 @@ def test_noise_floor_formula():
     assert noise_floor_sq(s, np.array([h]), np.array([False]))[0] == pytest.approx(mc, rel=0.02)
 
 
+def _windows_by_scanning(model, sc, width=1.0):
+    """The obviously right worst windows: every window's samples found by comparing all times."""
+    from ditherlab.diagnose import _excess_and_floor, nanmean
+
+    ex, fl = _excess_and_floor(model, sc)
+    t = sc.sig.t
+    r = np.where(np.isfinite(ex), ex**2 / np.where(fl > 0, fl, 1.0), np.nan)
+    out, k = [], 0
+    while t[0] + k * width / 2 < t[-1]:
+        start = t[0] + k * width / 2
+        m = (t >= start) & (t < start + width)
+        per = nanmean(r[m], axis=0)
+        if m.sum() > 3 and np.isfinite(per).any():
+            out.append((start, float(nanmean(per)), int(np.nanargmax(per)) + 1))
+        k += 1
+    return sorted(out, key=lambda w: -w[1])
+
+
+def test_worst_windows_linear_equal_the_scan():
+    """The windows found by one division per sample are those of scanning every window, on
+    jittered time stamps (no sample on a window edge)."""
+    from ditherlab.diagnose import worst_windows
+    from ditherlab.recording import Recording
+
+    rec = make_recording(("stribeck",), seed=12, duration=8.0)
+    data = rec.data.copy()
+    data["t"] = data["t"] + 0.3 + np.random.default_rng(3).uniform(0, 1e-4, len(data))
+    rec = Recording(data, rec.meta)
+    m = _identify(rec)
+    sc = scored(m, rec)
+    got = worst_windows(m, [sc], count=99)
+    ref = _windows_by_scanning(m, sc)
+    assert len(got) == len(ref) == 16 and [g["t0"] for g in got] == pytest.approx(
+        [w[0] for w in ref]
+    )
+    assert [g["energy"] for g in got] == pytest.approx([w[1] for w in ref], rel=1e-12)
+    assert [g["worst_joint"] for g in got] == [w[2] for w in ref]
+
+
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """A recording with a hidden ripple and its identified model, on disk."""

@@ -261,3 +261,15 @@ def test_fit_sliding_band_leaves_out_the_transients():
     assert -0.4 < fit.a < -0.2 and 0.2 < fit.b < 0.4, (fit.a, fit.b)
     _, _, wide, _, _ = fit_sliding(x, dq, n_boot=0)
     assert wide.b - wide.a > 2 * (fit.b - fit.a), (wide.a, wide.b)
+
+
+def test_block_members_equal_a_scan_per_block():
+    """The bootstrap's blocks found by one stable sort are those of scanning every block."""
+    from ditherlab.bandfit import block_members
+
+    inv = np.random.default_rng(4).integers(0, 37, 5000)
+    inv[inv == 5] = 6  # a label with no sample
+    got = block_members(inv, 37)
+    assert len(got) == 37
+    for k in range(37):
+        np.testing.assert_array_equal(got[k], np.flatnonzero(inv == k))

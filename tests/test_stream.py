@@ -10,9 +10,13 @@ import pytest
 
 from ditherlab.dither import extract_dither
 from ditherlab.estimates import Estimates
+from ditherlab.identify import identify
 from ditherlab.io import read, write
+from ditherlab.io.spill import Spill
 from ditherlab.io.stream import open_source
+from ditherlab.model import TorqueModel
 from ditherlab.recording import Recording, regimes
+from ditherlab.signal import causal_mean
 
 
 @pytest.fixture(scope="module")
@@ -167,3 +171,109 @@ def test_a_piece_that_breaks_the_contract_is_named(campaign, cli):
     assert r.code == 2 and r.err.count("\n") == 1, r.err
     assert "t" in r.err and "increasing" in r.err, r.err
     assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def still_campaign(campaign):
+    """A push campaign without dither (the still regime), made through the CLI."""
+    from conftest import run_cli
+
+    d = campaign[0]
+    rec = d / "still.parquet"
+    r = run_cli(
+        "simulate",
+        "push-campaign",
+        "--seed",
+        "25",
+        "--no-dither",
+        "--pushes-per-direction",
+        "2",
+        "-o",
+        rec,
+        "-q",
+    )
+    assert r.code == 0, r.err
+    return rec
+
+
+@pytest.mark.parametrize("where", ["push", "dither", "stick"])
+def test_cli_identify_in_pieces_equals_the_whole(campaign, still_campaign, cli, where):
+    """Two recordings (dithered and not: every regime), cut at an awkward place: the model file
+    is byte for byte the one identified whole, and the one the in-memory path gives."""
+    d, path, _ = campaign
+    rec = read(path)
+    rows = _awkward_cuts(rec)[where]
+    assert len(rec) > rows
+    whole, cut = d / f"m_whole_{where}.toml", d / f"m_cut_{where}.toml"
+    args = ("identify", path, still_campaign, "--bootstrap", "4", "--seed", "3", "-q")
+    r = cli(*args, "-o", whole, "--chunk", str(10 * len(rec)))
+    assert r.code == 0, r.err
+    r2 = cli(*args, "-o", cut, "--chunk", str(rows))
+    assert r2.code == 0, r2.err
+    assert r.out.splitlines()[:-1] == r2.out.splitlines()[:-1]
+    assert whole.read_text() == cut.read_text()
+    m = TorqueModel.load(whole)
+    assert set(m.regimes) == {"still", "dither", "moving"}
+    assert all(np.all(b.stderr["sigma"] > 0) for b in m.regimes.values())
+    # the in-memory path (demo, fleet) gives the same model
+    mem = identify([read(path), read(still_campaign)], n_boot=4, seed=3)
+    for name, b in m.regimes.items():
+        for k in ("tau_min", "tau_max", "sigma"):
+            np.testing.assert_array_equal(getattr(b, k), getattr(mem.regimes[name], k))
+
+
+def test_identify_spilled_to_disk_equals_held_in_memory(campaign, still_campaign):
+    """A spill budget of a few kB writes the residual samples to disk after every piece: the
+    model is the same to the bit."""
+    _, path, _ = campaign
+    srcs = [open_source(path), open_source(still_campaign)]
+    held = identify(srcs, n_boot=3, seed=1, chunk_rows=4000)
+    spilled = identify(srcs, n_boot=3, seed=1, chunk_rows=4000, spill_bytes=4096)
+    for name, b in held.regimes.items():
+        for k in ("tau_min", "tau_max", "sigma", "coulomb", "viscous"):
+            if getattr(b, k) is not None:
+                np.testing.assert_array_equal(getattr(b, k), getattr(spilled.regimes[name], k))
+        for k, v in b.stderr.items():
+            np.testing.assert_array_equal(v, spilled.regimes[name].stderr[k])
+    assert held.notes == spilled.notes
+
+
+def test_spill_keeps_order_and_cleans_up():
+    with Spill(budget=100) as sp:
+        rng = np.random.default_rng(0)
+        parts = {k: [rng.normal(size=int(rng.integers(0, 40))) for _ in range(7)] for k in "ab"}
+        for i in range(7):
+            for k in "ab":
+                sp.append(k, parts[k][i])
+        sp.append("flag", np.array([True, False]))
+        assert sp.spilled > 0
+        for k in "ab":
+            np.testing.assert_array_equal(sp.load(k), np.concatenate(parts[k]))
+            assert sp.count(k) == sum(len(p) for p in parts[k])
+        np.testing.assert_array_equal(sp.load("flag"), [True, False])
+        sp.flush()  # everything held goes to disk; the arrays are unchanged
+        assert not any(sp._held.values())
+        for k in "ab":
+            np.testing.assert_array_equal(sp.load(k), np.concatenate(parts[k]))
+        with pytest.raises(TypeError, match="spill key 'a' holds float64, got int64"):
+            sp.append("a", np.arange(3))
+        folder = sp._dir
+        assert folder is not None and folder.exists()
+    assert not folder.exists() and sp.count("a") == 0
+    with Spill() as small:  # under the budget: flush keeps it in memory, no folder
+        small.append("x", np.arange(5.0))
+        small.flush()
+        assert small._dir is None and small.load("x").tolist() == [0, 1, 2, 3, 4]
+
+
+def test_causal_mean_does_not_depend_on_where_the_array_starts():
+    """A window mean's value is its window's alone: a piece with w - 1 rows of context gives
+    the whole array's values to the bit (a running cumsum carried the rounding of all before)."""
+    x = np.random.default_rng(2).normal(size=(5000, 3)) * 1e3 + 1e6
+    w = 37
+    whole = causal_mean(x, w)
+    for start in (36, 37, 1234, 4000):
+        part = causal_mean(x[start - w + 1 :], w)
+        np.testing.assert_array_equal(part[w - 1 :], whole[start:])
+    ref = np.array([x[max(0, i - w + 1) : i + 1].mean(axis=0) for i in range(0, 5000, 97)])
+    np.testing.assert_allclose(whole[::97], ref, rtol=1e-12)
