@@ -112,21 +112,11 @@ def _check_input(r: Recording, first: Recording | None, assume_no_force: bool) -
         )
 
 
-def _regime_codes() -> tuple[int, int, int]:
-    return (STILL, DITHER, MOVING)
-
-
 def _pieces(r: Recording | Source, rows: int) -> Iterator[Piece]:
     """A recording in memory is one piece; a :class:`~ditherlab.io.stream.Source`, its pieces."""
     if isinstance(r, Recording):
         return iter([Piece(r, 0, slice(0, len(r)), 0, 1)])
     return r.pieces(rows)
-
-
-def _n_joints(r: Recording | Source) -> int:
-    if isinstance(r, Recording):
-        return r.n
-    return sum(1 for c in r.columns if c.startswith("q_") and c[2:].isdigit())
 
 
 def _piece_count(r: Recording | Source, rows: int) -> int:
@@ -207,12 +197,11 @@ def identify(
         raise ConfigError(f"dither_band is {dither_band!r}, expected 'shrunk' or 'ml'")
     if not recs:
         raise RecordingError("identify needs at least one recording")
-    counts = [_piece_count(r, chunk_rows) for r in recs]
-    steps = sum(counts) + 3 * _n_joints(recs[0])
+    steps = sum(_piece_count(r, chunk_rows) for r in recs)  # + 3 n fits, once n is known
     done = 0
     first: Recording | None = None
     with Spill(spill_bytes) as store:
-        samples: _Samples | None = None
+        samples = _Samples(store)
         for r in recs:
             for k, piece in enumerate(_pieces(r, chunk_rows)):
                 if k == 0:
@@ -221,10 +210,9 @@ def identify(
                         first = piece.rec
                         if base is not None:
                             base.check_robot(first)
-                        samples = _Samples(first.n, store)
-                    assert samples is not None
+                        samples.n = first.n
+                        steps += 3 * first.n
                     samples.start(_times(r), piece.rec.t0, block)
-                assert samples is not None
                 samples.add(
                     piece.rec,
                     piece.keep,
@@ -236,14 +224,12 @@ def identify(
                 done += 1
                 if progress:
                     progress(done, steps)
-            assert samples is not None
             samples.finish()
-        assert first is not None and samples is not None
-        store.flush()  # a long log's last held samples join the rest on disk before fitting
+        assert first is not None
         n = first.n
-        steps = done + 3 * n
+        store.flush()  # a long log's last held samples join the rest on disk before fitting
         fits: dict[tuple[int, int], dict[str, tuple[float, float]]] = {}
-        for code in _regime_codes():
+        for code in (STILL, DITHER, MOVING):
             for j in range(n):
                 f = samples.fit(code, j, min_samples=min_samples, n_boot=n_boot, seed=seed)
                 if f is not None:
@@ -315,7 +301,8 @@ class _Samples:
     samples are kept in a :class:`~ditherlab.io.spill.Spill` (on disk past its budget).
     """
 
-    def __init__(self, n: int, spill: Spill):
+    def __init__(self, spill: Spill, n: int = 0):
+        #: joints (set from the first recording)
         self.n = n
         self.store = spill
         self.lags: dict[int, int] = {STILL: 1, MOVING: 1, DITHER: 1, ALL_MOVING: 1}
@@ -324,6 +311,7 @@ class _Samples:
         self.label_offset = 0
         self._t0 = 0.0
         self._nblk = 1
+        self._len = 0
         self._runs: dict[tuple[int, int], tuple[int, bool]] = {}
 
     @property
