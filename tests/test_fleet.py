@@ -228,3 +228,32 @@ def test_bad_fleet_input_one_line_exit_2(fleet, cli, tmp_path):
         assert r.err.count("\n") == 1 and msg in r.err, r.err
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
     assert not (tmp_path / "o3").exists()
+
+
+def test_local_cluster_quiet_when_8787_is_taken():
+    """Another Dask on port 8787 (its dashboard): the embedded cluster takes a free port for its
+    health page without the three-line warning distributed prints on stderr."""
+    import socket
+    import warnings
+
+    from ditherlab.fleet.engine import _client
+
+    holder = socket.socket()
+    try:
+        holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        holder.bind(("", 8787))
+        holder.listen()
+    except OSError:
+        pass  # taken already: the same situation
+    try:
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            client, cluster = _client(None, 1)
+        try:
+            assert client.submit(sum, [1, 2]).result() == 3
+        finally:
+            client.close()
+            cluster.close()
+        assert not [w for w in seen if "8787" in str(w.message)]
+    finally:
+        holder.close()

@@ -17,6 +17,7 @@ import contextlib
 import logging
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -63,13 +64,17 @@ def _client(scheduler: str | None, workers: int | None):  # noqa: ANN202 - distr
                 "address of a running Dask scheduler, e.g. tcp://HOST:8786"
             ) from None
     n = workers or os.cpu_count() or 1
-    cluster = distributed.LocalCluster(
-        n_workers=n,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-    )
+    with warnings.catch_warnings():
+        # no dashboard, but the scheduler still serves /health on 8787 and warns in three
+        # lines on stderr when another Dask holds that port (it takes a free one instead)
+        warnings.filterwarnings("ignore", message="Port 8787 is already in use")
+        cluster = distributed.LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
     return distributed.Client(cluster), cluster
 
 
