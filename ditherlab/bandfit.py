@@ -293,14 +293,20 @@ def _fit_weighted(
         g[2] += dpen
         return f + pen, g[free]
 
-    res = optimize.minimize(
-        fun, full[free], jac=True, method="BFGS", options={"maxiter": 3000, "gtol": 1e-9}
-    )
-    z = full.copy()
-    z[free] = res.x
-    c, h, ls = z[0], np.exp(z[1]), z[2]
-    warm = (float(c), float(h), float(np.exp(ls)), *(float(v) for v in z[3:7]))
-    return float(c - h), float(c + h), float(np.exp(ls)), float(res.fun), warm
+    # the line search tries steps far out (a band 1e300 wide, sigma -> 0): the likelihood is
+    # inf or NaN there and BFGS steps back; numpy's overflow warnings about those trials went
+    # to the user's terminal (32 of 35 lines for one identify of an excitation log)
+    with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
+        res = optimize.minimize(
+            fun, full[free], jac=True, method="BFGS", options={"maxiter": 3000, "gtol": 1e-9}
+        )
+        z = full.copy()
+        z[free] = res.x
+        # a fit whose atoms took all the weight can leave h at exp(huge) = inf: returned as it
+        # is (a bootstrap replicate like that makes its standard error NaN, "not fitted")
+        c, h, ls = z[0], np.exp(z[1]), z[2]
+        warm = (float(c), float(h), float(np.exp(ls)), *(float(v) for v in z[3:7]))
+        return float(c - h), float(c + h), float(np.exp(ls)), float(res.fun), warm
 
 
 def fit_band(
@@ -413,8 +419,10 @@ def fit_band(
             reps[r] = _fit_weighted(
                 centres, wts, (warm[0], warm[1], rs0, *warm[3:]), s_floor, fixed, edges
             )[:3]
-        # fewer than 5 blocks cannot say how much the fit varies: no standard error
-        sd = reps.std(axis=0, ddof=1) if (n_boot > 1 and nb >= 5) else np.full(3, np.nan)
+        # fewer than 5 blocks cannot say how much the fit varies: no standard error (nor with a
+        # replicate that diverged: NaN, quietly)
+        with np.errstate(invalid="ignore"):
+            sd = reps.std(axis=0, ddof=1) if (n_boot > 1 and nb >= 5) else np.full(3, np.nan)
         se = (float(sd[0]), float(sd[1]), float(sd[2]))
     return BandFit(a, b, s, se[0], se[1], se[2], n=len(x), nll=nll)
 
