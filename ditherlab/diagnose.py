@@ -633,7 +633,7 @@ def _correlations(scs: Sequence[Scored], j: int) -> list[tuple[str, float]]:
             "t": sig.ts,
         }
         if sig.has_wrench:
-            drivers["J^T F"] = sig.jtf(sig.wrench("verdict"))[:, j]
+            drivers["J^T F"] = sig.sensor_torque("verdict")[:, j]
         for name, x in drivers.items():
             parts.setdefault(name, []).append(np.asarray(x, dtype=float)[m])
     if "residual" not in parts:

@@ -9,14 +9,16 @@ with the bands and the sliding line re-fitted beside it (:func:`stack`);
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 from scipy.optimize import minimize_scalar
 
-from ditherlab.effects import Effect, FitResult
+from ditherlab.effects import Effect, FitResult, design_at
 from ditherlab.recording import MOVING
 from ditherlab.residual import Scored
 from ditherlab.signal import tmm
@@ -65,6 +67,170 @@ def solve_signed(e, h, s, C, W, o, signs: Sequence[int]) -> tuple[np.ndarray, fl
 
 def _solve(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, float]:
     """Minimise ``sum((max(0, |e - o - C w| - h - W w) / s)²)`` over w (convex).
+
+    Semi-smooth Gauss–Newton on the active set (samples outside the band) with a backtracking
+    line search, compiled with numba (:func:`_solve_kernel`; diagnosis runs thousands of these
+    on a few thousand samples each, where numpy's per-call overhead dominated). Shapes: e, h,
+    s, o (M,); C, W (M, k). :func:`_solve_reference` is the same iteration in numpy.
+
+    Returns
+    -------
+    w (k,), loss
+    """
+    f = np.ascontiguousarray
+    C = f(C, dtype=float)
+    W = f(W, dtype=float)
+    base = f(np.asarray(e, dtype=float) - o)
+    k = C.shape[1]
+    w = np.zeros(k) if w0 is None else np.array(w0, dtype=float)
+    w, L = _solve_kernel(
+        base, f(h, dtype=float), f(s, dtype=float), C, W, w, int(iters), bool(W.any())
+    )
+    return w, float(L)
+
+
+@njit(cache=True)
+def _loss_kernel(base, h, s, C, W, w, widen):
+    M, k = C.shape
+    L = 0.0
+    for i in range(M):
+        x = base[i]
+        ww = 0.0
+        for c in range(k):
+            x -= C[i, c] * w[c]
+            if widen:
+                ww += W[i, c] * w[c]
+        ex = abs(x) - h[i] - ww
+        if ex > 0.0:
+            L += (ex / s[i]) ** 2
+    return L
+
+
+@njit(cache=True)
+def _solve_kernel(base, h, s, C, W, w, iters, widen):  # pragma: no cover - compiled
+    M, k = C.shape
+    if k == 0:
+        return w, _loss_kernel(base, h, s, C, W, w, widen)
+    L = _loss_kernel(base, h, s, C, W, w, widen)
+    scale = np.empty(k)
+    for c in range(k):
+        a = 0.0
+        b = 0.0
+        for i in range(M):
+            a += C[i, c] ** 2
+            b += W[i, c] ** 2
+        scale[c] = math.sqrt(a / M + b / M) + 1e-300
+    act = np.zeros(M, dtype=np.bool_)
+    prev = np.zeros(M, dtype=np.bool_)
+    have_prev = False
+    row = np.empty(k)
+    for _ in range(iters):
+        G = np.zeros((k, k))
+        g = np.zeros(k)
+        n_act = 0
+        for i in range(M):
+            x = base[i]
+            ww = 0.0
+            for c in range(k):
+                x -= C[i, c] * w[c]
+                if widen:
+                    ww += W[i, c] * w[c]
+            ex = abs(x) - h[i] - ww
+            act[i] = ex > 0.0
+            if not act[i]:
+                continue
+            n_act += 1
+            sg = 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+            for c in range(k):
+                row[c] = (-(sg * C[i, c]) - W[i, c]) / (s[i] * scale[c])
+            r = ex / s[i]
+            for a in range(k):
+                g[a] += row[a] * r
+                for b in range(a + 1):
+                    G[a, b] += row[a] * row[b]
+        if n_act == 0:
+            break
+        if have_prev:
+            same = True
+            for i in range(M):
+                if act[i] != prev[i]:
+                    same = False
+                    break
+            if same:
+                break  # the last full Gauss-Newton step solved this piece exactly
+        tr = 0.0
+        for a in range(k):
+            for b in range(a):
+                G[b, a] = G[a, b]
+            tr += G[a, a]
+        for a in range(k):
+            G[a, a] += 1e-9 * (tr / k + 1e-300)
+        d = _spd_solve(G, g)
+        if d is None:
+            break
+        for c in range(k):
+            d[c] = -d[c] / scale[c]
+        t = 1.0
+        ok = False
+        wn = w.copy()
+        Ln = L
+        while t > 1e-4:
+            for c in range(k):
+                wn[c] = w[c] + t * d[c]
+            Ln = _loss_kernel(base, h, s, C, W, wn, widen)
+            if Ln <= L:
+                ok = True
+                break
+            t *= 0.5
+        if not ok:
+            break
+        improve = L - Ln
+        w = wn
+        L = Ln
+        have_prev = t == 1.0
+        if have_prev:
+            prev[:] = act
+        if improve <= 1e-12 * max(L, 1e-300) and t == 1.0:
+            break
+    return w, L
+
+
+@njit(cache=True)
+def _spd_solve(G, g):  # pragma: no cover - compiled
+    """``G⁻¹ g`` for a symmetric positive definite G by Cholesky; None when G is not."""
+    k = len(g)
+    Lc = np.zeros((k, k))
+    for a in range(k):
+        v = G[a, a]
+        for c in range(a):
+            v -= Lc[a, c] ** 2
+        if not v > 0.0:
+            return None
+        Lc[a, a] = math.sqrt(v)
+        for b in range(a + 1, k):
+            v = G[b, a]
+            for c in range(a):
+                v -= Lc[b, c] * Lc[a, c]
+            Lc[b, a] = v / Lc[a, a]
+    y = np.empty(k)
+    for a in range(k):
+        v = g[a]
+        for c in range(a):
+            v -= Lc[a, c] * y[c]
+        y[a] = v / Lc[a, a]
+    x = np.empty(k)
+    for a in range(k - 1, -1, -1):
+        v = y[a]
+        for c in range(a + 1, k):
+            v -= Lc[c, a] * x[c]
+        x[a] = v / Lc[a, a]
+    return x
+
+
+def _solve_reference(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, float]:
+    """The obviously right version of :func:`_solve` in numpy (its test's reference).
+
+    Minimise ``sum((max(0, |e - o - C w| - h - W w) / s)²)`` over w (convex).
 
     Semi-smooth Gauss–Newton on the active set (samples outside the band) with a backtracking
     line search. Shapes: e, h, s, o (M,); C, W (M, k).
@@ -144,7 +310,7 @@ class Stack:
     C: np.ndarray
     W: np.ndarray
     o: np.ndarray
-    block: np.ndarray  # (M,) time index within the concatenated samples (for folds)
+    block: np.ndarray  # (M,) row of the whole recordings, concatenated (for folds)
     k: int  # number of effect columns (the rest are intercepts)
 
     def signs(self, eff: Sequence[int]) -> tuple[int, ...]:
@@ -166,16 +332,17 @@ def stack(
 
     ``lags`` (one per recording, samples): the effect's design circularly shifted in time by
     this much against the residual, a surrogate whose driving variable carries no information
-    about the residual (the bands and the sliding line stay where they are).
+    about the residual (the bands and the sliding line stay where they are). On scored rows
+    of a recording (:meth:`Signals.take`) the lags count those rows, and ``block`` numbers the
+    samples by their rows in the whole recordings.
     """
     es, hs, ss, Cs, Ws, os_, bs, gs = [], [], [], [], [], [], [], []
     ns: list[tuple[int, np.ndarray]] = []
     t0 = 0
     for i, s in enumerate(sc):
-        d = e.design(s.sig, j, h, ref)
+        d = design_at(e, s.sig, j, h, ref)
         if lags is not None and lags[i]:
             d = d.rolled(int(lags[i]))
-        N = len(s.e)
         joints = range(s.sig.n) if j is None else [j]
         for jj in joints:
             if j is None:
@@ -192,7 +359,7 @@ def stack(
             Cs.append(C[m])
             Ws.append(np.zeros_like(C[m]) if Wd is None else (Wd * ~mv[:, None])[m])
             os_.append(np.zeros(int(m.sum())) if o is None else o[m])
-            bs.append(t0 + np.flatnonzero(m))
+            bs.append(t0 + s.sig.index[m])
             gs.append(jj * 3 + s.sig.regime[m, jj].astype(np.int64))
             # sliding-friction nuisance (moving only): joint jj's sign(dq) and dq columns
             dqm = np.where(mv, s.sig.dq[:, jj], 0.0)[m]
@@ -202,7 +369,7 @@ def stack(
             if s.sliding[1]:
                 cols.append(dqm)
             ns.append((jj, np.column_stack(cols) if cols else np.zeros((len(dqm), 0))))
-        t0 += N
+        t0 += s.sig.length
     e_, h_, s_, C_, W_, o_, b_, g_ = (np.concatenate(a) for a in (es, hs, ss, Cs, Ws, os_, bs, gs))
     _, gi = np.unique(g_, return_inverse=True)
     G = np.zeros((len(g_), int(gi.max()) + 1 if len(g_) else 0))

@@ -36,6 +36,7 @@ from ditherlab.effects import (
     Effect,
     FitResult,
     clean_none,
+    design_at,
     get_effect,
     make_spec,
     signals,
@@ -231,7 +232,7 @@ def _score(
     ``lags`` (one per recording): of the surrogate whose design is shifted by that much."""
     sigs = [s.sig for s in scs]
     ref = e.reference(sigs, j)
-    total = sum(len(s.e) for s in scs)
+    total = sum(s.sig.length for s in scs)
     fs = scs[0].sig.rec.sample_rate
     guard = int(round(guard_s * fs)) if np.isfinite(fs) else 0
     grid = e.grid(sigs, j)
@@ -314,7 +315,7 @@ def _surrogate_lags(
     15 % and 85 % of each recording and at least 10 % of it apart."""
     per_rec: list[list[int]] = []
     for s in scs:
-        d = e.design(s.sig, j, fit.h, fit.ref)
+        d = design_at(e, s.sig, j, fit.h, fit.ref)
         N = len(s.e)
         use = s.use.any(axis=1) if j is None else s.use[:, j]
         cols = [a.reshape(N, -1) for a in (d.centre, d.widen) if a is not None]
@@ -380,7 +381,7 @@ def _baseline_total(scs: Sequence[Scored], n: int, K: int, guard_s: float) -> fl
     """Held-out loss of the effect-free model summed over all joints (the candidates' share
     of the residual is measured against this)."""
     e = EFFECTS["viscous"]  # any per-joint effect: only its intercept columns are used
-    total = sum(len(s.e) for s in scs)
+    total = sum(s.sig.length for s in scs)
     fs = scs[0].sig.rec.sample_rate
     guard = int(round(guard_s * fs)) if np.isfinite(fs) else 0
     out = 0.0
@@ -499,9 +500,19 @@ def candidates(
 
 
 def _thin(sc: Scored, stride: int) -> Scored:
-    keep = (np.arange(len(sc.e)) % stride == 0)[:, None]
+    """Every ``stride``-th row of a scored recording, with the Signals of those rows only
+    (:meth:`ditherlab.effects.Signals.take`): effects' designs are computed there alone."""
+    rows = np.arange(0, len(sc.e), stride)
     return Scored(
-        sc.sig, sc.e, sc.h, sc.sigma, sc.use & keep, sc.tau, sc.notes, sc.sigma_hf, sc.sliding
+        sc.sig.take(rows),
+        sc.e[rows],
+        sc.h[rows],
+        sc.sigma[rows],
+        sc.use[rows],
+        sc.tau[rows],
+        sc.notes,
+        sc.sigma_hf,
+        sc.sliding,
     )
 
 

@@ -151,6 +151,71 @@ def test_worst_windows_linear_equal_the_scan():
     assert [g["worst_joint"] for g in got] == [w[2] for w in ref]
 
 
+def test_solve_kernel_equals_the_numpy_reference():
+    """The compiled band-aware least squares reaches the numpy iteration's optimum: with and
+    without band widening, bands of zero width (moving samples) and none, 0 to 6 columns."""
+    from ditherlab.fit import _solve, _solve_reference
+
+    rng = np.random.default_rng(5)
+    cases = 0
+    for k in range(7):
+        for widen in (False, True):
+            M = int(rng.integers(50, 3000))
+            C = rng.normal(size=(M, k))
+            W = np.abs(rng.normal(size=(M, k))) * 0.1 if widen else np.zeros((M, k))
+            w_true = rng.normal(size=k)
+            h = np.where(rng.random(M) < 0.4, 0.0, rng.uniform(0, 2, M))
+            s = rng.uniform(0.2, 1.0, M)
+            o = rng.normal(size=M) * 0.1
+            e = o + C @ w_true + rng.normal(size=M) * s + np.sign(rng.normal(size=M)) * h
+            w1, L1 = _solve(e, h, s, C, W, o)
+            w0, L0 = _solve_reference(e, h, s, C, W, o)
+            assert L1 == pytest.approx(L0, rel=1e-10)
+            assert w1 == pytest.approx(w0, rel=1e-6, abs=1e-9)
+            if k:
+                # and it is an optimum: no coordinate step lowers the loss
+                for c in range(k):
+                    for step in (1e-4, -1e-4):
+                        d = np.zeros(k)
+                        d[c] = step
+                        x = e - o - C @ (w1 + d)
+                        Ld = np.sum((np.maximum(np.abs(x) - h - W @ (w1 + d), 0) / s) ** 2)
+                        assert Ld >= L1 * (1 - 1e-6)
+            cases += 1
+    assert cases == 14
+
+
+def test_designs_at_scored_rows_equal_the_whole_recordings():
+    """Diagnosis computes every candidate's design at its scored rows alone
+    (``Signals.take``): for each effect of the library, the design there equals the whole
+    recording's design at those rows. A time-filter effect not marked ``pointwise = False``
+    fails this (its design at a row would be filtered over the thinned rows)."""
+    from ditherlab.effects import EFFECTS, design_at, signals
+
+    rec = make_recording(("stribeck",), seed=4, duration=6.0, temp=True)
+    sig = signals(rec)
+    rows = np.arange(3, len(rec), 7)
+    sub = sig.take(rows)
+    assert sub.take(np.arange(0, len(rows), 2)).index.tolist() == rows[::2].tolist()
+    for e in EFFECTS.values():
+        j = None if e.shared else 1
+        ref = e.reference([sig], j)
+        grid = e.grid([sig], j)
+        for h in grid[:: max(1, len(grid) // 3)]:
+            whole = e.design(sig, j, h, ref).take(rows)
+            part = design_at(e, sub, j, h, ref)
+            for a, b in zip(
+                (whole.centre, whole.widen, whole.offset),
+                (part.centre, part.widen, part.offset),
+                strict=True,
+            ):
+                assert (a is None) == (b is None), e.name
+                if a is not None:
+                    np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12, err_msg=e.name)
+    # without the sensor view too: the F/T columns stay hidden at the rows
+    assert not sub.without_sensor().has_wrench and sub.without_sensor().rows is rows
+
+
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """A recording with a hidden ripple and its identified model, on disk."""

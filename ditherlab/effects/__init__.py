@@ -61,7 +61,7 @@ from ditherlab.effects.apply import (
     sensor_wrench,
     widening,
 )
-from ditherlab.effects.base import Design, Effect, fmt
+from ditherlab.effects.base import Design, Effect, design_at, fmt
 from ditherlab.effects.drive import DriveGain, JointOffset
 from ditherlab.effects.friction import LoadFriction, Stribeck, TemperatureFriction, Viscous
 from ditherlab.effects.library import (
@@ -103,6 +103,7 @@ __all__ = [
     "Viscous",
     "check_model_effects",
     "clean_none",
+    "design_at",
     "effect_names",
     "effects_torque",
     "external_torque",

@@ -20,7 +20,7 @@ from ditherlab.effects.signals import Signals
 from ditherlab.errors import ModelError
 from ditherlab.model import REGIMES
 
-__all__ = ["EFFECTS", "Design", "Effect", "fmt"]
+__all__ = ["EFFECTS", "Design", "Effect", "design_at", "fmt"]
 
 #: one instance of every defined effect by name, in the order diagnosis tries them
 #: (``Effect.order``, then the name); filled by :meth:`Effect.__init_subclass__`
@@ -44,6 +44,14 @@ class Design:
 
         def r(a: np.ndarray | None) -> np.ndarray | None:
             return None if a is None else np.roll(a, lag, axis=0)
+
+        return Design(r(self.centre), r(self.widen), r(self.offset))
+
+    def take(self, rows: np.ndarray) -> Design:
+        """The design at some rows (M,) only."""
+
+        def r(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[rows]
 
         return Design(r(self.centre), r(self.widen), r(self.offset))
 
@@ -74,6 +82,11 @@ class Effect(abc.ABC):
     shows_in: tuple[str, ...] = REGIMES
     #: Where the effect is tried in diagnosis and listed (smaller first; ties by name).
     order: ClassVar[float] = 100.0
+    #: The design at a sample depends on that sample's signals alone (q, dq, ddq, the wrench,
+    #: the regime, the time...). False for a time filter (``attenuation_lag``): on
+    #: :meth:`Signals.take` n rows it is computed on the whole recording, then taken at the rows
+    #: (:func:`design_at`).
+    pointwise: ClassVar[bool] = True
     #: Evidence plots show the residual times sign(dq) while moving (friction that grows with a
     #: load or falls with temperature acts against the motion).
     signed_evidence: ClassVar[bool] = False
@@ -176,6 +189,17 @@ class Effect(abc.ABC):
     @property
     def k(self) -> int:
         return len(self.linear)
+
+
+def design_at(e: Effect, sig: Signals, j: int | None, h: Any, ref: dict[str, Any]) -> Design:
+    """``e.design(sig, j, h, ref)``, also on Signals of some rows (:meth:`Signals.take`): an
+    effect that is not :attr:`Effect.pointwise` is computed on the whole recording and taken at
+    the rows (kept for the next call with the same ``j``, ``h`` and ``ref``)."""
+    rows = sig.rows
+    if rows is None or e.pointwise:
+        return e.design(sig, j, h, ref)
+    key = ("design", e.name, j, repr(h), repr(sorted(ref.items())))
+    return sig._get(key, lambda: e.design(sig.whole, j, h, ref).take(rows))
 
 
 def fmt(x: float) -> str:

@@ -116,7 +116,7 @@ class LoadFriction(Effect):
             mv = s.moving[:, j]
             r = s.tau[mv, j] - s.gravity[mv, j]
             if s.has_wrench:
-                r = r - s.jtf(s.wrench("load_friction"))[mv, j]
+                r = r - s.sensor_torque("load_friction")[mv, j]
             parts.append(np.abs(r))
         v = np.concatenate(parts)
         return float(np.median(v)) if v.size else 0.0

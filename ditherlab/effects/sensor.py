@@ -39,6 +39,7 @@ class AttenuationLag(Effect):
     hyper = ("delay", "lag")
     kind = "external"
     shows_in = REGIMES
+    pointwise = False  # a delay and a filter in time
 
     def signs(self, h):
         return (1,)
@@ -68,7 +69,7 @@ class AttenuationLag(Effect):
         return [(0, 0)] + [(k, 0) for k in ks] + [(0, k) for k in ks]
 
     def design(self, sig, j, h, ref):
-        X = sig.jtf(sig.wrench_lp(self.name))[:, j]
+        X = sig._get("jtf_lp", lambda: sig.jtf(sig.wrench_lp(self.name)))[:, j]
         return Design(self.delayed(sig, X, h)[:, None], offset=-X)
 
     def driver(self, sig, j, p):

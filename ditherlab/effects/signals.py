@@ -4,6 +4,13 @@
 it (the force estimator's view: a sensorless estimate must not read the sensor through a model
 effect). The robot quantities (gravity, Jacobian, mass matrix, regressors), the regimes and
 ``ddq`` do not depend on the sensor and are shared between the two views of one recording.
+
+``signals(rec).take(rows)`` are the same arrays at some rows only (diagnosis scores candidate
+effects on every k-th sample): the logged and filtered columns are the whole recording's at those
+rows, the robot quantities are computed at those rows alone (they depend on the sample's own
+``q, dq, ddq``), and an effect whose design needs the samples around a row (a time filter:
+:attr:`ditherlab.effects.base.Effect.pointwise` False) is computed on the whole recording and
+then taken at the rows.
 """
 
 from __future__ import annotations
@@ -37,25 +44,63 @@ class Signals:
     regime : (N, n) int8 (``STILL``, ``DITHER``, ``MOVING``)
     gravity : (N, n) [N·m] ; jac : (N, 6, n) ; mass : (N, n, n) ; regressor : (N, n, 10)
     has_wrench : the F/T columns are seen
+    whole : the Signals of every row (``self`` unless these are :meth:`take` n rows)
+    index : (N,) int, the rows' numbers in the recording ; length : rows in the recording
     """
 
-    def __init__(self, rec: Recording, sensor: bool = True, *, _shared: dict | None = None):
+    def __init__(
+        self,
+        rec: Recording,
+        sensor: bool = True,
+        *,
+        _shared: dict | None = None,
+        _whole: Signals | None = None,
+        _rows: np.ndarray | None = None,
+    ):
         self.rec = rec
         self.n = rec.n
-        self.t = rec.t
-        self.ts = self.t - rec.t0
-        self.q = rec.q
-        self.dq = rec.dq
-        self.tau = rec.tau
-        self.temp = rec.temp
+        self.length = len(rec)
         self.sample_rate = rec.sample_rate
         self.has_wrench = bool(sensor) and rec.has_wrench
+        self.whole = self if _whole is None else _whole
+        self._rows = _rows
+        src: Any = rec if _rows is None else _whole
+        pick = (lambda a: a) if _rows is None else (lambda a: None if a is None else a[_rows])
+        self.t = pick(src.t)
+        self.ts = self.t - rec.t0
+        self.q = pick(src.q)
+        self.dq = pick(src.dq)
+        self.tau = pick(src.tau)
+        self.temp = pick(src.temp)
+        self.index = np.arange(self.length) if _rows is None else _rows
         # quantities that do not depend on the sensor: shared by both views of a recording
         self._shared: dict[str, Any] = {} if _shared is None else _shared
-        self._cache: dict[str, np.ndarray] = {}
+        self._cache: dict[Any, Any] = {}
+
+    @property
+    def rows(self) -> np.ndarray | None:
+        """(M,) the recording's rows these Signals hold, or None: all of them."""
+        return self._rows
+
+    def take(self, rows: np.ndarray) -> Signals:
+        """These Signals at ``rows`` (M,) only (row numbers of this view, increasing): the
+        logged columns and whole-recording quantities (regimes, ``ddq``, filtered wrench) taken
+        at the rows, the robot quantities computed there alone (module docstring)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        if self._rows is not None:
+            return self.whole.take(self._rows[rows])
+        return Signals(self.rec, self.has_wrench, _whole=self, _rows=rows)
 
     def without_sensor(self) -> Signals:
         """The same recording with its F/T columns hidden (robot quantities shared)."""
+        if self._rows is not None:
+            return Signals(
+                self.rec,
+                sensor=False,
+                _shared=self._shared,
+                _whole=self.whole.cached("_no_sensor", self.whole.without_sensor),
+                _rows=self._rows,
+            )
         return Signals(self.rec, sensor=False, _shared=self._shared)
 
     def cached(self, key: str, make: Callable[[], Any]) -> Any:
@@ -71,9 +116,16 @@ class Signals:
             self._cache[key] = make()
         return self._cache[key]
 
+    def _whole_or(self, key: str, make: Callable[[], Any]) -> Any:
+        """A quantity of the whole recording (``make()``), at these rows."""
+        if self._rows is None:
+            return self.cached(key, make)
+        rows = self._rows
+        return self.cached(key, lambda: getattr(self.whole, key)[rows])
+
     @property
     def regime(self) -> np.ndarray:
-        return self.cached("regime", lambda: regimes(self.rec))
+        return self._whole_or("regime", lambda: regimes(self.rec))
 
     @property
     def moving(self) -> np.ndarray:
@@ -82,7 +134,7 @@ class Signals:
 
     @property
     def ddq(self) -> np.ndarray:
-        return self.rec.ddq
+        return self._whole_or("ddq", lambda: self.rec.ddq)
 
     @property
     def gravity(self) -> np.ndarray:
@@ -115,7 +167,7 @@ class Signals:
         def make() -> np.ndarray:
             L = self.gravity.copy()
             if self.has_wrench:
-                L += self.jtf(self.rec.wrench)
+                L += self.sensor_torque("rigid_load")
             return L + np.where(self.moving, self.dynamic_torque, 0.0)
 
         return self._get("rigid_load", make)
@@ -176,12 +228,25 @@ class Signals:
                 f"{where_prefix(self.rec.name)}effect {what!r} needs the F/T sensor column f_x "
                 "(f_x..m_z), which the recording lacks"
             )
-        return self.rec.wrench
+        if self._rows is None:
+            return self.rec.wrench
+        rows = self._rows
+        return self._get("wrench", lambda: self.whole.wrench(what)[rows])
 
     def wrench_lp(self, what: str) -> np.ndarray:
-        """The F/T columns low-passed (N, 6): :func:`ditherlab.signal.smooth_wrench`."""
+        """The F/T columns low-passed (N, 6): :func:`ditherlab.signal.smooth_wrench` of the
+        whole recording (at these rows)."""
         w = self.wrench(what)
-        return self._get("wrench_lp", lambda: smooth_wrench(w, self.sample_rate))
+        if self._rows is None:
+            return self._get("wrench_lp", lambda: smooth_wrench(w, self.sample_rate))
+        rows = self._rows
+        return self._get("wrench_lp", lambda: self.whole.wrench_lp(what)[rows])
+
+    def sensor_torque(self, what: str) -> np.ndarray:
+        """(N, n) [N·m]: ``J^T F`` of the raw F/T columns (computed once per view); ModelError
+        naming ``what`` without them."""
+        F = self.wrench(what)
+        return self._get("sensor_torque", lambda: self.jtf(F))
 
     def jtf(self, F: np.ndarray) -> np.ndarray:
         """``J^T F`` : (N, n) [N·m] for a wrench F : (N, 6) (:func:`ditherlab.signal.jtf`)."""
