@@ -1,4 +1,6 @@
-"""Diagnosis speed: a whole ``diagnose`` run, and the periodogram shortlist against the full grid.
+"""Diagnosis speed: whole ``diagnose`` runs at two lengths (linear?), the candidates' designs at
+the scored rows against at every row, the compiled band-aware fit against its numpy reference,
+and the periodogram shortlist against the full grid.
 
 Data: a moving IRB140 (three sines per joint, 0.05-0.75 Hz), gravity from pinocchio, Coulomb and
 viscous friction, sensor noise, smooth random wrenches with an F/T sensor, and a position ripple
@@ -55,6 +57,71 @@ def _model():
                                              "still": Band(-FC, FC, SIGMA)})  # fmt: skip
 
 
+def _long(quick: bool) -> list[dict]:
+    """diagnose on 2 and 8 minutes (samples/s at each: flat = linear); on the longer one the
+    candidates' designs at the scored rows against at every row (every effect treated as a
+    time filter: computed on the whole recording, then taken; same diagnosis), and the numba
+    band-aware fit against the numpy iteration on the stacks of that run."""
+    from ditherlab import fit
+    from ditherlab.diagnose import diagnose
+    from ditherlab.effects import EFFECTS
+
+    m = _model()
+    out = []
+    speeds = []
+    for minutes in (0.5, 2.0) if quick else (2.0, 8.0):
+        rec = recording(60 * minutes, seed=1)
+        t0 = time.perf_counter()
+        diagnose(m, [rec])
+        dt = time.perf_counter() - t0
+        speeds.append(len(rec) / dt)
+    out.append(dict(name=f"diagnose, {len(rec)} samples (synthetic, moving, F/T)", value=speeds[1],
+                    unit="samples/s", reference=speeds[0], ratio=speeds[1] / speeds[0],
+                    target="ratio ~1 (linear; reference = a log 4x shorter); 50 k samples/s"))  # fmt: skip
+    calls: list[tuple] = []
+    solve = fit._solve
+
+    def record(*a, **k):
+        if len(calls) < 300:
+            calls.append((a, k))
+        return solve(*a, **k)
+
+    old = {n: e.pointwise for n, e in EFFECTS.items()}
+    try:
+        for e in EFFECTS.values():
+            type(e).pointwise = False
+        t0 = time.perf_counter()
+        ref = diagnose(m, [rec])
+        slow = time.perf_counter() - t0
+    finally:
+        for n, e in EFFECTS.items():
+            type(e).pointwise = old[n]
+    fit._solve = record
+    try:
+        t0 = time.perf_counter()
+        new = diagnose(m, [rec])
+        fast = time.perf_counter() - t0
+    finally:
+        fit._solve = solve
+    same = [c.to_dict() for c in new.candidates] == [c.to_dict() for c in ref.candidates]
+    out.append(dict(name=f"diagnose {len(rec)} samples: designs at the scored rows ({'same' if same else 'DIFFERENT'} candidates)",
+                    value=len(rec) / fast, unit="samples/s", reference=len(rec) / slow,
+                    ratio=slow / fast, target="reference = every design at every row"))  # fmt: skip
+    t0 = time.perf_counter()
+    for a, k in calls:
+        fit._solve(*a, **k)
+    fast = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for a, k in calls:
+        fit._solve_reference(*a, **k)
+    slow = time.perf_counter() - t0
+    M = int(np.median([a[3].shape[0] for a, _ in calls]))
+    out.append(dict(name=f"band-aware fit, {len(calls)} stacks of that run (median {M} rows)",
+                    value=len(calls) / fast, unit="fits/s", reference=len(calls) / slow,
+                    ratio=slow / fast, target="reference = the same iteration in numpy"))  # fmt: skip
+    return out
+
+
 def run(quick: bool = False) -> list[dict]:
     from ditherlab.diagnose import diagnose
     from ditherlab.effects import EFFECTS
@@ -71,6 +138,7 @@ def run(quick: bool = False) -> list[dict]:
     n_cand = len(d.candidates) + len(d.skipped)
     rows.append(dict(name=f"diagnose, {len(rec)} samples x 6 joints, {n_cand} candidates (found: {top})",
                      value=len(rec) / dt, unit="samples/s"))  # fmt: skip
+    rows += _long(quick)
     e = EFFECTS["position_ripple"]
     sc = [scored(m, rec)]
     grid = e.grid([sc[0].sig], 1)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from numba import njit
 
 from ditherlab.errors import ConfigError
 from ditherlab.recording import Recording, meta_dither_period
@@ -118,7 +119,52 @@ def full_window(on: np.ndarray, window: int) -> np.ndarray:
 
 
 def _window_stats(x: np.ndarray, W: int, chunk: int = 65536):
-    """Causal window mean, and means above / below it, of every column of x (N, n).
+    """Causal window mean, and means above / below it, of every column of x (N, n): ``(centre,
+    upper, lower)``, each (N, n) [the unit of x].
+
+    Sample i's window is ``x[max(0, i - W + 1) : i + 1]`` alone (summed oldest first; no running
+    sum), so a piece of a recording with ``W - 1`` samples of history gives exactly the whole
+    recording's values; ``upper`` / ``lower`` are the means of the window's values above / below
+    its mean (the mean itself when there are none). Compiled with numba;
+    :func:`_window_stats_reference` is the same in numpy (``chunk`` bounds its memory).
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    return _window_kernel(x, int(W))
+
+
+@njit(cache=True)
+def _window_kernel(x, W):  # pragma: no cover - compiled
+    N, n = x.shape
+    centre = np.empty((N, n))
+    upper = np.empty((N, n))
+    lower = np.empty((N, n))
+    for j in range(n):
+        for i in range(N):
+            a = max(0, i - W + 1)
+            s = 0.0
+            for k in range(a, i + 1):
+                s += x[k, j]
+            c = s / (i + 1 - a)
+            sa = 0.0
+            sb = 0.0
+            na = 0
+            nb = 0
+            for k in range(a, i + 1):
+                v = x[k, j]
+                if v > c:
+                    sa += v
+                    na += 1
+                elif v < c:
+                    sb += v
+                    nb += 1
+            centre[i, j] = c
+            upper[i, j] = sa / na if na > 0 else c
+            lower[i, j] = sb / nb if nb > 0 else c
+    return centre, upper, lower
+
+
+def _window_stats_reference(x: np.ndarray, W: int, chunk: int = 65536):
+    """Causal window mean, and means above / below it, of every column of x (N, n), in numpy.
 
     Each sample's values come from its own window alone (no running sum), so a piece of a
     recording with ``W - 1`` samples of history gives exactly the whole recording's values.

@@ -62,12 +62,17 @@ def test_extract_matches_loop_reference(periods):
 
 
 def test_extract_small_chunks_equal_one_chunk():
-    """Chunked window statistics do not depend on the chunk size."""
+    """Chunked window statistics do not depend on the chunk size, and the compiled kernel
+    equals the numpy reference (constant stretches included: no value above the mean)."""
     _, tau, _, _ = dithered(seed=3, N=500)
-    a = D._window_stats(tau, 20, chunk=37)
-    b = D._window_stats(tau, 20, chunk=10_000)
-    for x, y in zip(a, b, strict=True):
+    tau[100:160] = 1.25
+    a = D._window_stats_reference(tau, 20, chunk=37)
+    b = D._window_stats_reference(tau, 20, chunk=10_000)
+    c = D._window_stats(tau, 20)
+    for x, y, z in zip(a, b, c, strict=True):
         np.testing.assert_array_equal(x, y)
+        np.testing.assert_allclose(z, x, rtol=1e-13, atol=1e-13)
+    assert (c[1][130] == 1.25).all() and (c[2][130] == 1.25).all()
 
 
 def test_extract_recovers_a_step_under_the_dither():
