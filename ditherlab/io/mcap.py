@@ -24,14 +24,21 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import pandas as pd
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.reader import SeekingReader
+from mcap.opcode import Opcode
+from mcap.reader import NonSeekingReader, SeekingReader
+from mcap.records import Chunk
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 from zstandard import ZstdError
 
@@ -56,6 +63,7 @@ JOINTS, WRENCH, DITHER, EXTRA = (
     "/ditherlab/extra",
 )
 _AXES = ("x", "y", "z")
+_JOINT_COL = re.compile(rf"^({'|'.join(JOINT_FAMILIES)})_(\d+)$")
 
 
 def _array(desc: str) -> dict[str, Any]:
@@ -206,6 +214,12 @@ def write(rec: Recording, path: Path) -> Path:
 
 
 # ------------------------------------------------------------------------------ read
+#: what a damaged file makes the mcap library (or zstandard, json) raise
+_DAMAGE = (McapError, ZstdError, struct.error, ValueError, EOFError, OSError, KeyError)
+_RECORD = struct.Struct("<BQ")  # opcode, length
+_MESSAGE = struct.Struct("<HI")  # channel id, sequence (then log time, publish time, data)
+
+
 def header_profile(path: Path) -> tuple[str, set[str]]:
     """The MCAP header's profile and the set of schema encodings in the summary.
 
@@ -225,14 +239,33 @@ def header_profile(path: Path) -> tuple[str, set[str]]:
     return profile, encodings
 
 
-def read(path: Path, **options: Any) -> Recording:
-    """Read a ditherlab MCAP file.
+@dataclass
+class Layout:
+    """What a ditherlab MCAP file holds, from its summary and metadata record (no message read
+    when the summary has statistics).
 
-    Options ``robot``, ``tool_offset``, ... override the stored metadata. Raises FormatError
-    naming the file when it is truncated, corrupt, or not a ditherlab MCAP file.
+    Attributes
+    ----------
+    path : the file ; meta : the recording's metadata (reader options applied)
+    columns : ``[name, dtype]`` of the table's columns, in order
+    counts : messages per topic ; n_rows : samples (messages on ``/ditherlab/joints``)
     """
+
+    path: Path
+    meta: dict[str, Any]
+    columns: list[list[str]]
+    counts: dict[str, int]
+    n_rows: int
+
+
+def layout(path: Path, **options: Any) -> Layout:
+    """The :class:`Layout` of a ditherlab MCAP file (options as for :func:`read`).
+
+    Raises FormatError naming the file when it is truncated, corrupt, not a ditherlab MCAP file,
+    or a channel has other than one message per sample.
+    """
+    path = Path(path)
     check_options(options, META_OPTIONS, "MCAP", str(path))
-    msgs: dict[str, list[tuple[int, dict[str, Any]]]] = {}
     try:
         with open(path, "rb") as f:
             reader = SeekingReader(f, validate_crcs=True)
@@ -249,28 +282,170 @@ def read(path: Path, **options: Any) -> Recording:
                     f"{PROFILE!r} (a ditherlab MCAP file)"
                 )
             records = [m for m in reader.iter_metadata() if m.name == "ditherlab"]
-            for _schema, channel, message in reader.iter_messages(log_time_order=False):
-                msgs.setdefault(channel.topic, []).append(
-                    (message.sequence, json.loads(message.data))
-                )
+            counts: dict[str, int] = {}
+            if summary.statistics is not None:
+                for cid, k in summary.statistics.channel_message_counts.items():
+                    topic = summary.channels[cid].topic
+                    counts[topic] = counts.get(topic, 0) + k
+            else:  # no statistics: count the messages (one pass, nothing kept)
+                for _schema, ch, _message in reader.iter_messages(log_time_order=False):
+                    counts[ch.topic] = counts.get(ch.topic, 0) + 1
     except FormatError:
         raise
-    except (McapError, ZstdError, struct.error, ValueError, EOFError, OSError, KeyError) as exc:
+    except _DAMAGE as exc:
         raise FormatError(f"{path}: the MCAP file is truncated or corrupt ({exc})") from None
     if not records:
         raise FormatError(f"{path}: MCAP metadata record 'ditherlab' is missing")
     info = records[-1].metadata
-    got = sum(len(v) for v in msgs.values())
-    if summary.statistics and got != summary.statistics.message_count:
-        raise FormatError(
-            f"{path}: the MCAP file is corrupt: {got} messages read, "
-            f"{summary.statistics.message_count} listed in its summary"
-        )
     stored = loads_meta(info.get("recording", ""), str(path))
     meta = meta_from_options(stored, options, where=str(path))
-    columns = json.loads(info.get("columns", "[]"))
-    data = _table(msgs, columns, path)
-    return Recording(data, meta, name=str(path))
+    try:
+        columns = json.loads(info.get("columns", "[]"))
+        columns = [[str(c), str(d)] for c, d in columns]
+    except (ValueError, TypeError) as exc:
+        raise FormatError(
+            f"{path}: MCAP metadata 'columns' is not a JSON list of [name, dtype] ({exc})"
+        ) from None
+    n_rows = counts.get(JOINTS, 0)
+    if not n_rows:
+        raise FormatError(f"{path}: channel {JOINTS} has no messages")
+    for topic, k in counts.items():
+        if k != n_rows:
+            raise FormatError(
+                f"{path}: channel {topic} has {k} messages, expected one per sample ({n_rows})"
+            )
+    return Layout(path, meta, columns, counts, n_rows)
+
+
+def _topic(column: str) -> str:
+    """The channel that stores ``column`` (the module docstring's layout)."""
+    if column == "t" or _JOINT_COL.match(column):
+        return JOINTS
+    if column in WRENCH_COLUMNS:
+        return WRENCH
+    return DITHER if column == "dither" else EXTRA
+
+
+def frames(lay: Layout, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
+    """The table of a ditherlab MCAP file in consecutive blocks of ``rows`` rows (the last one
+    shorter), optionally only some ``columns``; only the channels those columns need are read.
+
+    The messages are taken in file order (the order they were written: row order); on each
+    channel message ``k`` must have ``sequence == k``, so the channels stay aligned row by row.
+    Memory holds one block and one decompressed chunk. Raises FormatError naming the file for a
+    damaged chunk (CRC, decompression), a message out of place, or a message count that differs
+    from the summary's.
+    """
+    path = lay.path
+    dtypes = dict((c, d) for c, d in lay.columns)
+    if columns is None:
+        cols = lay.columns
+        topics = list(lay.counts)  # every channel, so every message is counted
+    else:
+        missing = [c for c in columns if c not in dtypes]
+        if missing:
+            raise FormatError(
+                f"{path}: no column {missing[0]} (columns: {', '.join(dtypes) or 'none'})"
+            )
+        cols = [[c, dtypes[c]] for c in columns]
+        topics = list(dict.fromkeys(_topic(c) for c in columns))
+    for c, _ in cols:
+        if _topic(c) not in lay.counts:
+            raise FormatError(f"{path}: column {c} is listed in the metadata but not stored")
+    pending: dict[str, list[bytes]] = {t: [] for t in topics}
+    seen = dict.fromkeys(topics, 0)
+    try:
+        with open(path, "rb") as f:
+            for topic, sequence, data in _messages(f, set(topics)):
+                k = seen[topic]
+                if sequence != k:
+                    raise FormatError(
+                        f"{path}: message {k + 1} on channel {topic} has sequence "
+                        f"{sequence}, expected {k} (one message per sample, in row order)"
+                    )
+                seen[topic] = k + 1
+                pending[topic].append(data)
+                if len(pending[topic]) >= rows and all(len(v) >= rows for v in pending.values()):
+                    batch = {t: _decode(v[:rows]) for t, v in pending.items()}
+                    for v in pending.values():
+                        del v[:rows]
+                    yield _table(batch, cols, path)
+            if any(seen[t] != lay.counts[t] for t in topics):
+                raise FormatError(
+                    f"{path}: the MCAP file is corrupt: {sum(seen.values())} messages read, "
+                    f"{sum(lay.counts[t] for t in topics)} listed in its summary"
+                )
+            if pending[topics[0]]:
+                yield _table({t: _decode(v) for t, v in pending.items()}, cols, path)
+    except FormatError:
+        raise
+    except _DAMAGE as exc:
+        raise FormatError(f"{path}: the MCAP file is truncated or corrupt ({exc})") from None
+
+
+def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]:
+    """``(topic, sequence, data)`` of the messages on ``topics``, in file order, one chunk
+    decompressed (and its CRC checked) at a time, following the summary's chunk indexes.
+
+    The records inside a chunk are parsed here (opcode, length, then a message's channel id,
+    sequence, log and publish time, data: the MCAP specification): the mcap library's record
+    objects cost about half the time of a read. A file without chunk indexes is read with the
+    library's linear reader.
+    """
+    reader = SeekingReader(f, validate_crcs=True)
+    summary = reader.get_summary()
+    assert summary is not None  # layout() refused a file without one
+    if not summary.chunk_indexes:
+        f.seek(0)
+        for _schema, ch, m in NonSeekingReader(f, validate_crcs=True).iter_messages(
+            topics=list(topics), log_time_order=False
+        ):
+            yield ch.topic, m.sequence, m.data
+        return
+    wanted = {cid: ch.topic for cid, ch in summary.channels.items() if ch.topic in topics}
+    for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        if ci.message_index_offsets and not wanted.keys() & ci.message_index_offsets.keys():
+            continue  # the chunk's message indexes list none of the wanted channels
+        f.seek(ci.chunk_start_offset)
+        if f.read(1)[0] != Opcode.CHUNK:
+            raise McapError(f"no chunk record at offset {ci.chunk_start_offset}")
+        f.seek(8, 1)  # the record length
+        stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)), validate_crc=True)
+        buf = stream.read(size)
+        pos = 0
+        while pos < size:
+            op, length = _RECORD.unpack_from(buf, pos)
+            pos += 9
+            if op == Opcode.MESSAGE:
+                cid, seq = _MESSAGE.unpack_from(buf, pos)
+                if cid in wanted:
+                    yield wanted[cid], seq, buf[pos + 22 : pos + length]
+            pos += length
+        if pos != size:
+            raise McapError(f"a record overruns the chunk at offset {ci.chunk_start_offset}")
+
+
+def _decode(datas: list[bytes]) -> list[Any]:
+    """The JSON bodies of messages, decoded in one call (a JSON array of them); one at a time
+    when that does not give one value per message, so a bad message fails on its own."""
+    try:
+        out = json.loads(b"[" + b",".join(datas) + b"]")
+        if len(out) == len(datas):
+            return out
+    except ValueError:
+        pass
+    return [json.loads(d) for d in datas]
+
+
+def read(path: Path, **options: Any) -> Recording:
+    """Read a ditherlab MCAP file whole (:func:`frames` with one block of all rows).
+
+    Options ``robot``, ``tool_offset``, ... override the stored metadata. Raises FormatError
+    naming the file when it is truncated, corrupt, or not a ditherlab MCAP file.
+    """
+    lay = layout(path, **options)
+    (data,) = list(frames(lay, lay.n_rows))
+    return Recording(data, lay.meta, name=str(path))
 
 
 def _is_float(dtype: str) -> bool:
@@ -281,32 +456,41 @@ def _is_float(dtype: str) -> bool:
 
 
 def _table(
-    msgs: dict[str, list[tuple[int, dict[str, Any]]]], columns: list[list[str]], path: Path
+    batch: dict[str, list[dict[str, Any]]], columns: list[list[str]], path: Path
 ) -> pd.DataFrame:
-    ordered = {k: [m for _, m in sorted(v, key=lambda x: x[0])] for k, v in msgs.items()}
-    joints = ordered.get(JOINTS)
-    if not joints:
-        raise FormatError(f"{path}: channel {JOINTS} has no messages")
-    n_rows = len(joints)
-    for topic, rows in ordered.items():
-        if len(rows) != n_rows:
-            raise FormatError(
-                f"{path}: channel {topic} has {len(rows)} messages, "
-                f"expected one per sample ({n_rows})"
-            )
-    cols: dict[str, Any] = {"t": [m["t"] for m in joints]}
-    for p in JOINT_FAMILIES:
-        if p in joints[0]:
-            block = np.array([m[p] for m in joints], dtype=float)
-            for j in range(block.shape[1]):
-                cols[f"{p}_{j + 1}"] = block[:, j]
-    if WRENCH in ordered:
+    """The one definition of how messages become columns: the rows of ``batch`` (per topic, the
+    same rows' message bodies, in order) as a table of ``columns`` (``[name, dtype]``)."""
+    try:
+        return _columns(batch, columns, path)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise FormatError(
+            f"{path}: a message does not match the ditherlab MCAP layout "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
+
+
+def _columns(
+    batch: dict[str, list[dict[str, Any]]], columns: list[list[str]], path: Path
+) -> pd.DataFrame:
+    want = {name for name, _ in columns}
+    cols: dict[str, Any] = {}
+    joints = batch.get(JOINTS)
+    if joints:
+        if "t" in want:
+            cols["t"] = [m["t"] for m in joints]
+        for p in JOINT_FAMILIES:
+            if p in joints[0] and any(_topic_family(c) == p for c in want):
+                block = np.array([m[p] for m in joints], dtype=float)
+                for j in range(block.shape[1]):
+                    cols[f"{p}_{j + 1}"] = block[:, j]
+    if WRENCH in batch:
         for k, c in enumerate(WRENCH_COLUMNS):
-            part, axis = ("force", "torque")[k // 3], _AXES[k % 3]
-            cols[c] = [m[part][axis] for m in ordered[WRENCH]]
-    if DITHER in ordered:
-        cols["dither"] = [m["active"] for m in ordered[DITHER]]
-    extra_rows = ordered.get(EXTRA, [])
+            if c in want:
+                part, axis = ("force", "torque")[k // 3], _AXES[k % 3]
+                cols[c] = [m[part][axis] for m in batch[WRENCH]]
+    if DITHER in batch and "dither" in want:
+        cols["dither"] = [m["active"] for m in batch[DITHER]]
+    extra_rows = batch.get(EXTRA, [])
     out: dict[str, pd.Series] = {}
     for name, dtype in columns:
         if name in cols:
@@ -319,3 +503,8 @@ def _table(
             raise FormatError(f"{path}: column {name} is listed in the metadata but not stored")
         out[name] = pd.Series(values, dtype=dtype)
     return pd.DataFrame(out)
+
+
+def _topic_family(column: str) -> str | None:
+    m = _JOINT_COL.match(column)
+    return m.group(1) if m else None
