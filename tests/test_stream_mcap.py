@@ -1,5 +1,6 @@
-"""ditherlab MCAP read in pieces (ditherlab.io.mcap through ditherlab.io.stream): the blocks and
-every command's results equal the whole read, and a damaged file is one line naming it."""
+"""ditherlab MCAP read and written in pieces (ditherlab.io.mcap through ditherlab.io.stream): the
+blocks and every command's results equal the whole read, the incremental writer makes the bytes
+of the whole write, and a damaged file is one line naming it."""
 
 from __future__ import annotations
 
@@ -15,8 +16,8 @@ from test_stream import _awkward_cuts
 from ditherlab.errors import FormatError
 from ditherlab.estimates import Estimates
 from ditherlab.io import mcap as mcap_io
-from ditherlab.io import read
-from ditherlab.io.stream import open_source
+from ditherlab.io import read, write
+from ditherlab.io.stream import Source, open_source, write_stream
 
 
 @pytest.fixture(scope="module")
@@ -105,6 +106,33 @@ def test_frames_read_one_block_at_a_time(mc, monkeypatch):
     pulled[0] = 0
     t = pd.concat(list(src.frames(700, ["t"])))
     assert pulled[0] == len(t) == src.n_rows  # only /ditherlab/joints is read for t
+
+
+def test_cli_convert_to_mcap_in_pieces_is_the_whole_write(mc, cli):
+    """convert writes MCAP piece by piece: the file is byte for byte the whole write's, for any
+    chunk; converted back (in pieces) it is the Parquet recording."""
+    d, pq_path, path, _ = mc
+    n = len(read(pq_path))
+    ref = write(read(pq_path), d / "ref.mcap")
+    whole = d / "whole.mcap"
+    assert cli("convert", pq_path, whole, "--chunk", str(n)).code == 0
+    assert path.read_bytes() == ref.read_bytes() == whole.read_bytes()
+    assert read(path).equals(read(pq_path))
+    back = d / "back.parquet"
+    r = cli("convert", path, back, "--chunk", "2222")
+    assert r.code == 0, r.err
+    got, want = read(back), read(pq_path)
+    assert got.equals(want) and list(got.data.dtypes) == list(want.data.dtypes)
+    src = open_source(pq_path)
+
+    def whole(*args):
+        raise AssertionError("the whole recording was read")
+
+    with pytest.MonkeyPatch.context() as mp:  # written piece by piece, never read whole
+        mp.setattr(Source, "read", whole)
+        again = write_stream(src, d / "again.mcap", rows=3001)
+    assert again.read_bytes() == ref.read_bytes()
+    assert sorted(p.name for p in d.iterdir() if p.name.startswith(".")) == []
 
 
 def test_cli_replay_identify_and_info_on_mcap_in_pieces_equal_the_whole(mc, cli):
@@ -252,3 +280,22 @@ def test_channels_must_stay_aligned_row_by_row(mc, tmp_path):
     assert len(next(blocks)) == 2000 and len(next(blocks)) == 2000  # rows before it are fine
     with pytest.raises(FormatError, match=msg):
         next(blocks)
+
+
+def test_write_stream_refuses_a_column_that_changes_type(mc, tmp_path):
+    """A CSV extra column of integers that meets an empty cell late in the file becomes float in
+    that block: the MCAP written in pieces stops with the column and row named, nothing left."""
+    _, pq_path, _, _ = mc
+    rec = read(pq_path)
+    csv = write(rec, tmp_path / "a.csv")
+    lines = csv.read_text().splitlines()
+    head = lines[0].split(",")
+    k = head.index("push")
+    row = lines[9000].split(",")
+    row[k] = ""
+    lines[9000] = ",".join(row)
+    csv.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "a.mcap"
+    with pytest.raises(FormatError, match=rf"^{csv}: column push changes type at row \d+ "):
+        write_stream(open_source(csv), out, rows=3000)
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -26,7 +26,7 @@ import json
 import math
 import re
 import struct
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -135,82 +135,163 @@ def _encode_extra(values: list[Any], kind: str) -> list[Any]:
     return out
 
 
-def write(rec: Recording, path: Path) -> Path:
-    """Write ``rec`` atomically as a ditherlab MCAP file (layout in the module docstring)."""
-    data = rec.data
-    n, t = rec.n, rec.t
-    fam = {p: [f"{p}_{j + 1}" for j in range(n)] for p in JOINT_FAMILIES}
-    present = [p for p in JOINT_FAMILIES if fam[p][0] in data.columns]
-    known = {"t", "dither", *WRENCH_COLUMNS, *(c for p in present for c in fam[p])}
-    extras = [c for c in data.columns if c not in known]
-    for c in extras:
-        kind = data[c].dtype.kind
-        if kind not in "fiubO" or (kind == "O" and not data[c].map(type).eq(str).all()):
-            raise ConfigError(
-                f"{path}: extra column {c} has dtype {data[c].dtype}, which ditherlab MCAP "
-                "cannot store (expected numbers, booleans or text)"
-            )
-    columns = [[str(c), str(data[c].dtype)] for c in data.columns]
+class _Encoder:
+    """How the rows of one recording's table become messages (the layout in the module
+    docstring): fixed by its first block of rows, which every later block must match."""
 
-    offset = min(0.0, float(t[0]))
-    stamps = np.round((t - offset) * 1e9).astype(np.int64).tolist()  # [ns]
-    t_list = t.tolist()
-    rows: dict[str, list[dict[str, Any]]] = {}
-    rows[JOINTS] = [{"t": ti} for ti in t_list]
-    for p in present:
-        block = data[fam[p]].to_numpy(dtype=float).tolist()
-        for r, v in zip(rows[JOINTS], block, strict=True):
-            r[p] = v
-    if rec.has_wrench:
-        w = data[list(WRENCH_COLUMNS)].to_numpy(dtype=float).tolist()
-        rows[WRENCH] = [
-            {
-                "t": ti,
-                "force": dict(zip(_AXES, wi[:3], strict=True)),
-                "torque": dict(zip(_AXES, wi[3:], strict=True)),
-            }
-            for ti, wi in zip(t_list, w, strict=True)
-        ]
-    if "dither" in data.columns:
-        rows[DITHER] = [
-            {"t": ti, "active": bool(d)}
-            for ti, d in zip(t_list, data["dither"].tolist(), strict=True)
-        ]
-    if extras:
-        cols = {c: _encode_extra(data[c].tolist(), data[c].dtype.kind) for c in extras}
-        rows[EXTRA] = [{"t": ti} for ti in t_list]
-        for c, vals in cols.items():
-            for r, v in zip(rows[EXTRA], vals, strict=True):
-                r[str(c)] = v
-
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD)
-        w.start(profile=PROFILE, library=f"ditherlab {ditherlab.__version__}")
-        channel: dict[str, int] = {}
-        for topic in rows:
-            name, schema = SCHEMAS[topic]
-            sid = w.register_schema(name, "jsonschema", json.dumps(schema).encode())
-            channel[topic] = w.register_channel(topic, "json", sid)
-        for i, ns in enumerate(stamps):
-            for topic, msgs in rows.items():
-                w.add_message(
-                    channel[topic],
-                    log_time=ns,
-                    publish_time=ns,
-                    sequence=i,
-                    data=json.dumps(msgs[i], allow_nan=False).encode(),
+    def __init__(self, data: pd.DataFrame, path: Path, name: str):
+        self.name = name
+        n = 0
+        while f"q_{n + 1}" in data.columns:
+            n += 1
+        self.fam = {p: [f"{p}_{j + 1}" for j in range(n)] for p in JOINT_FAMILIES}
+        self.present = [p for p in JOINT_FAMILIES if n and self.fam[p][0] in data.columns]
+        self.wrench = "f_x" in data.columns
+        self.dither = "dither" in data.columns
+        known = {"t", "dither", *WRENCH_COLUMNS, *(c for p in self.present for c in self.fam[p])}
+        self.extras = [c for c in data.columns if c not in known]
+        for c in self.extras:
+            kind = data[c].dtype.kind
+            if kind not in "fiubO" or (kind == "O" and not data[c].map(type).eq(str).all()):
+                raise ConfigError(
+                    f"{path}: extra column {c} has dtype {data[c].dtype}, which ditherlab MCAP "
+                    "cannot store (expected numbers, booleans or text)"
                 )
+        self.columns = [[str(c), str(data[c].dtype)] for c in data.columns]
+        self.offset = min(0.0, float(data["t"].to_numpy(dtype=float)[0]))  # [s]
+        self.topics = [
+            topic
+            for topic, on in (
+                (JOINTS, True),
+                (WRENCH, self.wrench),
+                (DITHER, self.dither),
+                (EXTRA, bool(self.extras)),
+            )
+            if on
+        ]
+
+    def check(self, data: pd.DataFrame, start: int) -> None:
+        """Raise FormatError when ``data`` (rows from ``start`` on) has other columns or dtypes
+        than the first block."""
+        got = [[str(c), str(data[c].dtype)] for c in data.columns]
+        if got == self.columns:
+            return
+        names, now_names = [c for c, _ in self.columns], [c for c, _ in got]
+        if now_names != names:
+            raise FormatError(
+                f"{self.name}: the columns change at row {start + 1} ({', '.join(now_names)}); "
+                f"expected {', '.join(names)}"
+            )
+        c, was, now = next(
+            (a[0], a[1], b[1]) for a, b in zip(self.columns, got, strict=True) if a != b
+        )
+        raise FormatError(
+            f"{self.name}: column {c} changes type at row {start + 1} ({was} -> {now}); "
+            "expected one type per column"
+        )
+
+    def rows(self, data: pd.DataFrame) -> Iterator[tuple[int, tuple[dict[str, Any], ...]]]:
+        """``(log_time [ns], message bodies in the order of topics)`` for each row of ``data``."""
+        t = data["t"].to_numpy(dtype=float)
+        stamps = np.round((t - self.offset) * 1e9).astype(np.int64).tolist()  # [ns]
+        t_list = t.tolist()
+        blocks = [data[self.fam[p]].to_numpy(dtype=float).tolist() for p in self.present]
+        joints = (
+            {"t": ti, **dict(zip(self.present, vals, strict=True))}
+            for ti, *vals in zip(t_list, *blocks, strict=True)
+        )
+        parts: list[Iterator[dict[str, Any]]] = [joints]
+        if self.wrench:
+            w = data[list(WRENCH_COLUMNS)].to_numpy(dtype=float).tolist()
+            parts.append(
+                {
+                    "t": ti,
+                    "force": dict(zip(_AXES, wi[:3], strict=True)),
+                    "torque": dict(zip(_AXES, wi[3:], strict=True)),
+                }
+                for ti, wi in zip(t_list, w, strict=True)
+            )
+        if self.dither:
+            parts.append(
+                {"t": ti, "active": bool(d)}
+                for ti, d in zip(t_list, data["dither"].tolist(), strict=True)
+            )
+        if self.extras:
+            names = [str(c) for c in self.extras]
+            cols = [_encode_extra(data[c].tolist(), data[c].dtype.kind) for c in self.extras]
+            parts.append(
+                {"t": ti, **dict(zip(names, vals, strict=True))}
+                for ti, *vals in zip(t_list, *cols, strict=True)
+            )
+        return zip(stamps, zip(*parts, strict=True), strict=True)
+
+
+def write(rec: Recording, path: Path) -> Path:
+    """Write ``rec`` atomically as a ditherlab MCAP file (layout in the module docstring):
+    :func:`write_frames` with the whole table as one block."""
+    return write_frames([rec.data], rec.meta, path, name=rec.name)
+
+
+def write_frames(
+    frames: Iterable[pd.DataFrame],
+    meta: dict[str, Any],
+    path: Path,
+    name: str | None = None,
+) -> Path:
+    """Write a recording given as consecutive blocks of its table, atomically, as a ditherlab
+    MCAP file; memory holds one block (and the writer's current chunk, 1 MiB).
+
+    Parameters
+    ----------
+    frames : the table's rows in order, in blocks with the same columns and dtypes (a contract
+        checked :class:`~ditherlab.recording.Recording` table: ``t`` (N,) [s], ``q_j`` [rad], ...)
+    meta : the recording's metadata ; path : the ``.mcap`` file to write
+    name : the recording's name (stored, and named in errors; default ``path``)
+
+    The file depends only on the rows, not on how they are cut into blocks. Raises ConfigError
+    for an extra column MCAP cannot store and FormatError for a block whose columns or dtypes
+    differ from the first block's; the target is then untouched.
+    """
+    path = Path(path)
+    where = name or str(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        enc: _Encoder | None = None
+        w = Writer(f, compression=CompressionType.ZSTD)
+        channel: list[int] = []
+        start = 0
+        for data in frames:
+            if enc is None:
+                enc = _Encoder(data, path, where)
+                w.start(profile=PROFILE, library=f"ditherlab {ditherlab.__version__}")
+                for topic in enc.topics:
+                    schema_name, schema = SCHEMAS[topic]
+                    sid = w.register_schema(schema_name, "jsonschema", json.dumps(schema).encode())
+                    channel.append(w.register_channel(topic, "json", sid))
+            else:
+                enc.check(data, start)
+            for i, (ns, bodies) in enumerate(enc.rows(data), start):
+                for cid, body in zip(channel, bodies, strict=True):
+                    w.add_message(
+                        cid,
+                        log_time=ns,
+                        publish_time=ns,
+                        sequence=i,
+                        data=json.dumps(body, allow_nan=False).encode(),
+                    )
+            start += len(data)
+        if enc is None or start == 0:
+            raise FormatError(f"{where}: the recording has no rows; nothing to write to {path}")
         w.add_metadata(
             "ditherlab",
             {
                 "format": FORMAT,
-                "recording": dumps_meta(rec.meta),
-                "columns": json.dumps(columns),
-                "name": rec.name or "",
+                "recording": dumps_meta(meta),
+                "columns": json.dumps(enc.columns),
+                "name": name or "",
             },
         )
         w.finish()
-    return Path(path)
+    return path
 
 
 # ------------------------------------------------------------------------------ read

@@ -340,20 +340,27 @@ def open_source(path: str | Path, **options: Any) -> Source:
 
 
 def write_stream(src: Source, dst: str | Path, rows: int = CHUNK_ROWS) -> Path:
-    """Write the recording ``src`` to a Parquet or CSV file piece by piece (memory holds one
-    piece); other formats are written from the whole recording (:func:`ditherlab.io.write`).
+    """Write the recording ``src`` to a Parquet, CSV or ditherlab MCAP file piece by piece
+    (memory holds one piece); other formats, and sources read whole, are written from the whole
+    recording (:func:`ditherlab.io.write`).
 
     The file equals what :func:`ditherlab.io.write` makes of ``src.read()``: the same table and
     metadata (Parquet in row groups of :data:`ditherlab.io.parquet.ROW_GROUP` rows or fewer, CSV
-    the same text). Written atomically; every piece is checked against the contract first.
+    and MCAP the same bytes). Written atomically; every piece is checked against the contract
+    first.
     """
     p = Path(dst)
-    kind = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv"}.get(p.suffix.lower())
+    kind = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".mcap": "mcap"}.get(
+        p.suffix.lower()
+    )
     if kind is None or not src.bounded:
         return write(src.read(), p)
     try:
         if kind == "parquet":
             return _parquet_pieces(src, p, rows)
+        if kind == "mcap":
+            blocks = (data for _, data in _owned(src, rows))
+            return _module("mcap").write_frames(blocks, src.meta, p, name=src.name)
         return _csv_pieces(src, p, rows)
     except OSError as exc:
         raise FormatError(f"{p}: cannot write the {kind} file ({exc.strerror or exc})") from None
