@@ -156,8 +156,8 @@ def convert(src: str | Path, dst: str | Path, *, rows: int | None = None, **opti
     """Read ``src`` (with reader ``options``, e.g. ``mapping=``, ``robot=``) and write ``dst``.
 
     Refuses to write over the input (or over a CSV input's sidecar); the output is written
-    atomically, so a failure leaves no partial file. Parquet and CSV are read and written
-    ``rows`` at a time (:func:`ditherlab.io.stream.write_stream`; default
+    atomically, so a failure leaves no partial file. Parquet, CSV and ditherlab MCAP are read
+    and written ``rows`` at a time (:func:`ditherlab.io.stream.write_stream`; default
     :data:`ditherlab.io.stream.CHUNK_ROWS`). Returns the path written.
     """
     src, dst = Path(src), Path(dst)

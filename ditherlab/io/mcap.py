@@ -24,14 +24,21 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import pandas as pd
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.reader import SeekingReader
+from mcap.opcode import Opcode
+from mcap.reader import NonSeekingReader, SeekingReader
+from mcap.records import Chunk
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 from zstandard import ZstdError
 
@@ -56,6 +63,7 @@ JOINTS, WRENCH, DITHER, EXTRA = (
     "/ditherlab/extra",
 )
 _AXES = ("x", "y", "z")
+_JOINT_COL = re.compile(rf"^({'|'.join(JOINT_FAMILIES)})_(\d+)$")
 
 
 def _array(desc: str) -> dict[str, Any]:
@@ -127,85 +135,172 @@ def _encode_extra(values: list[Any], kind: str) -> list[Any]:
     return out
 
 
-def write(rec: Recording, path: Path) -> Path:
-    """Write ``rec`` atomically as a ditherlab MCAP file (layout in the module docstring)."""
-    data = rec.data
-    n, t = rec.n, rec.t
-    fam = {p: [f"{p}_{j + 1}" for j in range(n)] for p in JOINT_FAMILIES}
-    present = [p for p in JOINT_FAMILIES if fam[p][0] in data.columns]
-    known = {"t", "dither", *WRENCH_COLUMNS, *(c for p in present for c in fam[p])}
-    extras = [c for c in data.columns if c not in known]
-    for c in extras:
-        kind = data[c].dtype.kind
-        if kind not in "fiubO" or (kind == "O" and not data[c].map(type).eq(str).all()):
-            raise ConfigError(
-                f"{path}: extra column {c} has dtype {data[c].dtype}, which ditherlab MCAP "
-                "cannot store (expected numbers, booleans or text)"
-            )
-    columns = [[str(c), str(data[c].dtype)] for c in data.columns]
+class _Encoder:
+    """How the rows of one recording's table become messages (the layout in the module
+    docstring): fixed by its first block of rows, which every later block must match."""
 
-    offset = min(0.0, float(t[0]))
-    stamps = np.round((t - offset) * 1e9).astype(np.int64).tolist()  # [ns]
-    t_list = t.tolist()
-    rows: dict[str, list[dict[str, Any]]] = {}
-    rows[JOINTS] = [{"t": ti} for ti in t_list]
-    for p in present:
-        block = data[fam[p]].to_numpy(dtype=float).tolist()
-        for r, v in zip(rows[JOINTS], block, strict=True):
-            r[p] = v
-    if rec.has_wrench:
-        w = data[list(WRENCH_COLUMNS)].to_numpy(dtype=float).tolist()
-        rows[WRENCH] = [
-            {
-                "t": ti,
-                "force": dict(zip(_AXES, wi[:3], strict=True)),
-                "torque": dict(zip(_AXES, wi[3:], strict=True)),
-            }
-            for ti, wi in zip(t_list, w, strict=True)
-        ]
-    if "dither" in data.columns:
-        rows[DITHER] = [
-            {"t": ti, "active": bool(d)}
-            for ti, d in zip(t_list, data["dither"].tolist(), strict=True)
-        ]
-    if extras:
-        cols = {c: _encode_extra(data[c].tolist(), data[c].dtype.kind) for c in extras}
-        rows[EXTRA] = [{"t": ti} for ti in t_list]
-        for c, vals in cols.items():
-            for r, v in zip(rows[EXTRA], vals, strict=True):
-                r[str(c)] = v
-
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD)
-        w.start(profile=PROFILE, library=f"ditherlab {ditherlab.__version__}")
-        channel: dict[str, int] = {}
-        for topic in rows:
-            name, schema = SCHEMAS[topic]
-            sid = w.register_schema(name, "jsonschema", json.dumps(schema).encode())
-            channel[topic] = w.register_channel(topic, "json", sid)
-        for i, ns in enumerate(stamps):
-            for topic, msgs in rows.items():
-                w.add_message(
-                    channel[topic],
-                    log_time=ns,
-                    publish_time=ns,
-                    sequence=i,
-                    data=json.dumps(msgs[i], allow_nan=False).encode(),
+    def __init__(self, data: pd.DataFrame, path: Path, name: str):
+        self.name = name
+        n = 0
+        while f"q_{n + 1}" in data.columns:
+            n += 1
+        self.fam = {p: [f"{p}_{j + 1}" for j in range(n)] for p in JOINT_FAMILIES}
+        self.present = [p for p in JOINT_FAMILIES if n and self.fam[p][0] in data.columns]
+        self.wrench = "f_x" in data.columns
+        self.dither = "dither" in data.columns
+        known = {"t", "dither", *WRENCH_COLUMNS, *(c for p in self.present for c in self.fam[p])}
+        self.extras = [c for c in data.columns if c not in known]
+        for c in self.extras:
+            kind = data[c].dtype.kind
+            if kind not in "fiubO" or (kind == "O" and not data[c].map(type).eq(str).all()):
+                raise ConfigError(
+                    f"{path}: extra column {c} has dtype {data[c].dtype}, which ditherlab MCAP "
+                    "cannot store (expected numbers, booleans or text)"
                 )
+        self.columns = [[str(c), str(data[c].dtype)] for c in data.columns]
+        self.offset = min(0.0, float(data["t"].to_numpy(dtype=float)[0]))  # [s]
+        self.topics = [
+            topic
+            for topic, on in (
+                (JOINTS, True),
+                (WRENCH, self.wrench),
+                (DITHER, self.dither),
+                (EXTRA, bool(self.extras)),
+            )
+            if on
+        ]
+
+    def check(self, data: pd.DataFrame, start: int) -> None:
+        """Raise FormatError when ``data`` (rows from ``start`` on) has other columns or dtypes
+        than the first block."""
+        got = [[str(c), str(data[c].dtype)] for c in data.columns]
+        if got == self.columns:
+            return
+        names, now_names = [c for c, _ in self.columns], [c for c, _ in got]
+        if now_names != names:
+            raise FormatError(
+                f"{self.name}: the columns change at row {start + 1} ({', '.join(now_names)}); "
+                f"expected {', '.join(names)}"
+            )
+        c, was, now = next(
+            (a[0], a[1], b[1]) for a, b in zip(self.columns, got, strict=True) if a != b
+        )
+        raise FormatError(
+            f"{self.name}: column {c} changes type at row {start + 1} ({was} -> {now}); "
+            "expected one type per column"
+        )
+
+    def rows(self, data: pd.DataFrame) -> Iterator[tuple[int, tuple[dict[str, Any], ...]]]:
+        """``(log_time [ns], message bodies in the order of topics)`` for each row of ``data``."""
+        t = data["t"].to_numpy(dtype=float)
+        stamps = np.round((t - self.offset) * 1e9).astype(np.int64).tolist()  # [ns]
+        t_list = t.tolist()
+        blocks = [data[self.fam[p]].to_numpy(dtype=float).tolist() for p in self.present]
+        joints = (
+            {"t": ti, **dict(zip(self.present, vals, strict=True))}
+            for ti, *vals in zip(t_list, *blocks, strict=True)
+        )
+        parts: list[Iterator[dict[str, Any]]] = [joints]
+        if self.wrench:
+            w = data[list(WRENCH_COLUMNS)].to_numpy(dtype=float).tolist()
+            parts.append(
+                {
+                    "t": ti,
+                    "force": dict(zip(_AXES, wi[:3], strict=True)),
+                    "torque": dict(zip(_AXES, wi[3:], strict=True)),
+                }
+                for ti, wi in zip(t_list, w, strict=True)
+            )
+        if self.dither:
+            parts.append(
+                {"t": ti, "active": bool(d)}
+                for ti, d in zip(t_list, data["dither"].tolist(), strict=True)
+            )
+        if self.extras:
+            names = [str(c) for c in self.extras]
+            cols = [_encode_extra(data[c].tolist(), data[c].dtype.kind) for c in self.extras]
+            parts.append(
+                {"t": ti, **dict(zip(names, vals, strict=True))}
+                for ti, *vals in zip(t_list, *cols, strict=True)
+            )
+        return zip(stamps, zip(*parts, strict=True), strict=True)
+
+
+def write(rec: Recording, path: Path) -> Path:
+    """Write ``rec`` atomically as a ditherlab MCAP file (layout in the module docstring):
+    :func:`write_frames` with the whole table as one block."""
+    return write_frames([rec.data], rec.meta, path, name=rec.name)
+
+
+def write_frames(
+    frames: Iterable[pd.DataFrame],
+    meta: dict[str, Any],
+    path: Path,
+    name: str | None = None,
+) -> Path:
+    """Write a recording given as consecutive blocks of its table, atomically, as a ditherlab
+    MCAP file; memory holds one block (and the writer's current chunk, 1 MiB).
+
+    Parameters
+    ----------
+    frames : the table's rows in order, in blocks with the same columns and dtypes (a contract
+        checked :class:`~ditherlab.recording.Recording` table: ``t`` (N,) [s], ``q_j`` [rad], ...)
+    meta : the recording's metadata ; path : the ``.mcap`` file to write
+    name : the recording's name (stored, and named in errors; default ``path``)
+
+    The file depends only on the rows, not on how they are cut into blocks. Raises ConfigError
+    for an extra column MCAP cannot store and FormatError for a block whose columns or dtypes
+    differ from the first block's; the target is then untouched.
+    """
+    path = Path(path)
+    where = name or str(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        enc: _Encoder | None = None
+        w = Writer(f, compression=CompressionType.ZSTD)
+        channel: list[int] = []
+        start = 0
+        for data in frames:
+            if enc is None:
+                enc = _Encoder(data, path, where)
+                w.start(profile=PROFILE, library=f"ditherlab {ditherlab.__version__}")
+                for topic in enc.topics:
+                    schema_name, schema = SCHEMAS[topic]
+                    sid = w.register_schema(schema_name, "jsonschema", json.dumps(schema).encode())
+                    channel.append(w.register_channel(topic, "json", sid))
+            else:
+                enc.check(data, start)
+            for i, (ns, bodies) in enumerate(enc.rows(data), start):
+                for cid, body in zip(channel, bodies, strict=True):
+                    w.add_message(
+                        cid,
+                        log_time=ns,
+                        publish_time=ns,
+                        sequence=i,
+                        data=json.dumps(body, allow_nan=False).encode(),
+                    )
+            start += len(data)
+        if enc is None or start == 0:
+            raise FormatError(f"{where}: the recording has no rows; nothing to write to {path}")
         w.add_metadata(
             "ditherlab",
             {
                 "format": FORMAT,
-                "recording": dumps_meta(rec.meta),
-                "columns": json.dumps(columns),
-                "name": rec.name or "",
+                "recording": dumps_meta(meta),
+                "columns": json.dumps(enc.columns),
+                "name": name or "",
             },
         )
         w.finish()
-    return Path(path)
+    return path
 
 
 # ------------------------------------------------------------------------------ read
+#: what a damaged file makes the mcap library (or zstandard, json) raise
+_DAMAGE = (McapError, ZstdError, struct.error, ValueError, EOFError, OSError, KeyError)
+_RECORD = struct.Struct("<BQ")  # opcode, length
+_MESSAGE = struct.Struct("<HI")  # channel id, sequence (then log time, publish time, data)
+
+
 def header_profile(path: Path) -> tuple[str, set[str]]:
     """The MCAP header's profile and the set of schema encodings in the summary.
 
@@ -225,14 +320,33 @@ def header_profile(path: Path) -> tuple[str, set[str]]:
     return profile, encodings
 
 
-def read(path: Path, **options: Any) -> Recording:
-    """Read a ditherlab MCAP file.
+@dataclass
+class Layout:
+    """What a ditherlab MCAP file holds, from its summary and metadata record (no message read
+    when the summary has statistics).
 
-    Options ``robot``, ``tool_offset``, ... override the stored metadata. Raises FormatError
-    naming the file when it is truncated, corrupt, or not a ditherlab MCAP file.
+    Attributes
+    ----------
+    path : the file ; meta : the recording's metadata (reader options applied)
+    columns : ``[name, dtype]`` of the table's columns, in order
+    counts : messages per topic ; n_rows : samples (messages on ``/ditherlab/joints``)
     """
+
+    path: Path
+    meta: dict[str, Any]
+    columns: list[list[str]]
+    counts: dict[str, int]
+    n_rows: int
+
+
+def layout(path: Path, **options: Any) -> Layout:
+    """The :class:`Layout` of a ditherlab MCAP file (options as for :func:`read`).
+
+    Raises FormatError naming the file when it is truncated, corrupt, not a ditherlab MCAP file,
+    or a channel has other than one message per sample.
+    """
+    path = Path(path)
     check_options(options, META_OPTIONS, "MCAP", str(path))
-    msgs: dict[str, list[tuple[int, dict[str, Any]]]] = {}
     try:
         with open(path, "rb") as f:
             reader = SeekingReader(f, validate_crcs=True)
@@ -249,28 +363,170 @@ def read(path: Path, **options: Any) -> Recording:
                     f"{PROFILE!r} (a ditherlab MCAP file)"
                 )
             records = [m for m in reader.iter_metadata() if m.name == "ditherlab"]
-            for _schema, channel, message in reader.iter_messages(log_time_order=False):
-                msgs.setdefault(channel.topic, []).append(
-                    (message.sequence, json.loads(message.data))
-                )
+            counts: dict[str, int] = {}
+            if summary.statistics is not None:
+                for cid, k in summary.statistics.channel_message_counts.items():
+                    topic = summary.channels[cid].topic
+                    counts[topic] = counts.get(topic, 0) + k
+            else:  # no statistics: count the messages (one pass, nothing kept)
+                for _schema, ch, _message in reader.iter_messages(log_time_order=False):
+                    counts[ch.topic] = counts.get(ch.topic, 0) + 1
     except FormatError:
         raise
-    except (McapError, ZstdError, struct.error, ValueError, EOFError, OSError, KeyError) as exc:
+    except _DAMAGE as exc:
         raise FormatError(f"{path}: the MCAP file is truncated or corrupt ({exc})") from None
     if not records:
         raise FormatError(f"{path}: MCAP metadata record 'ditherlab' is missing")
     info = records[-1].metadata
-    got = sum(len(v) for v in msgs.values())
-    if summary.statistics and got != summary.statistics.message_count:
-        raise FormatError(
-            f"{path}: the MCAP file is corrupt: {got} messages read, "
-            f"{summary.statistics.message_count} listed in its summary"
-        )
     stored = loads_meta(info.get("recording", ""), str(path))
     meta = meta_from_options(stored, options, where=str(path))
-    columns = json.loads(info.get("columns", "[]"))
-    data = _table(msgs, columns, path)
-    return Recording(data, meta, name=str(path))
+    try:
+        columns = json.loads(info.get("columns", "[]"))
+        columns = [[str(c), str(d)] for c, d in columns]
+    except (ValueError, TypeError) as exc:
+        raise FormatError(
+            f"{path}: MCAP metadata 'columns' is not a JSON list of [name, dtype] ({exc})"
+        ) from None
+    n_rows = counts.get(JOINTS, 0)
+    if not n_rows:
+        raise FormatError(f"{path}: channel {JOINTS} has no messages")
+    for topic, k in counts.items():
+        if k != n_rows:
+            raise FormatError(
+                f"{path}: channel {topic} has {k} messages, expected one per sample ({n_rows})"
+            )
+    return Layout(path, meta, columns, counts, n_rows)
+
+
+def _topic(column: str) -> str:
+    """The channel that stores ``column`` (the module docstring's layout)."""
+    if column == "t" or _JOINT_COL.match(column):
+        return JOINTS
+    if column in WRENCH_COLUMNS:
+        return WRENCH
+    return DITHER if column == "dither" else EXTRA
+
+
+def frames(lay: Layout, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
+    """The table of a ditherlab MCAP file in consecutive blocks of ``rows`` rows (the last one
+    shorter), optionally only some ``columns``; only the channels those columns need are read.
+
+    The messages are taken in file order (the order they were written: row order); on each
+    channel message ``k`` must have ``sequence == k``, so the channels stay aligned row by row.
+    Memory holds one block and one decompressed chunk. Raises FormatError naming the file for a
+    damaged chunk (CRC, decompression), a message out of place, or a message count that differs
+    from the summary's.
+    """
+    path = lay.path
+    dtypes = dict((c, d) for c, d in lay.columns)
+    if columns is None:
+        cols = lay.columns
+        topics = list(lay.counts)  # every channel, so every message is counted
+    else:
+        missing = [c for c in columns if c not in dtypes]
+        if missing:
+            raise FormatError(
+                f"{path}: no column {missing[0]} (columns: {', '.join(dtypes) or 'none'})"
+            )
+        cols = [[c, dtypes[c]] for c in columns]
+        topics = list(dict.fromkeys(_topic(c) for c in columns))
+    for c, _ in cols:
+        if _topic(c) not in lay.counts:
+            raise FormatError(f"{path}: column {c} is listed in the metadata but not stored")
+    pending: dict[str, list[bytes]] = {t: [] for t in topics}
+    seen = dict.fromkeys(topics, 0)
+    try:
+        with open(path, "rb") as f:
+            for topic, sequence, data in _messages(f, set(topics)):
+                k = seen[topic]
+                if sequence != k:
+                    raise FormatError(
+                        f"{path}: message {k + 1} on channel {topic} has sequence "
+                        f"{sequence}, expected {k} (one message per sample, in row order)"
+                    )
+                seen[topic] = k + 1
+                pending[topic].append(data)
+                if len(pending[topic]) >= rows and all(len(v) >= rows for v in pending.values()):
+                    batch = {t: _decode(v[:rows]) for t, v in pending.items()}
+                    for v in pending.values():
+                        del v[:rows]
+                    yield _table(batch, cols, path)
+            if any(seen[t] != lay.counts[t] for t in topics):
+                raise FormatError(
+                    f"{path}: the MCAP file is corrupt: {sum(seen.values())} messages read, "
+                    f"{sum(lay.counts[t] for t in topics)} listed in its summary"
+                )
+            if pending[topics[0]]:
+                yield _table({t: _decode(v) for t, v in pending.items()}, cols, path)
+    except FormatError:
+        raise
+    except _DAMAGE as exc:
+        raise FormatError(f"{path}: the MCAP file is truncated or corrupt ({exc})") from None
+
+
+def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]:
+    """``(topic, sequence, data)`` of the messages on ``topics``, in file order, one chunk
+    decompressed (and its CRC checked) at a time, following the summary's chunk indexes.
+
+    The records inside a chunk are parsed here (opcode, length, then a message's channel id,
+    sequence, log and publish time, data: the MCAP specification): the mcap library's record
+    objects cost about half the time of a read. A file without chunk indexes is read with the
+    library's linear reader.
+    """
+    reader = SeekingReader(f, validate_crcs=True)
+    summary = reader.get_summary()
+    assert summary is not None  # layout() refused a file without one
+    if not summary.chunk_indexes:
+        f.seek(0)
+        for _schema, ch, m in NonSeekingReader(f, validate_crcs=True).iter_messages(
+            topics=list(topics), log_time_order=False
+        ):
+            yield ch.topic, m.sequence, m.data
+        return
+    wanted = {cid: ch.topic for cid, ch in summary.channels.items() if ch.topic in topics}
+    for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        if ci.message_index_offsets and not wanted.keys() & ci.message_index_offsets.keys():
+            continue  # the chunk's message indexes list none of the wanted channels
+        f.seek(ci.chunk_start_offset)
+        if f.read(1)[0] != Opcode.CHUNK:
+            raise McapError(f"no chunk record at offset {ci.chunk_start_offset}")
+        f.seek(8, 1)  # the record length
+        stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)), validate_crc=True)
+        buf = stream.read(size)
+        pos = 0
+        while pos < size:
+            op, length = _RECORD.unpack_from(buf, pos)
+            pos += 9
+            if op == Opcode.MESSAGE:
+                cid, seq = _MESSAGE.unpack_from(buf, pos)
+                if cid in wanted:
+                    yield wanted[cid], seq, buf[pos + 22 : pos + length]
+            pos += length
+        if pos != size:
+            raise McapError(f"a record overruns the chunk at offset {ci.chunk_start_offset}")
+
+
+def _decode(datas: list[bytes]) -> list[Any]:
+    """The JSON bodies of messages, decoded in one call (a JSON array of them); one at a time
+    when that does not give one value per message, so a bad message fails on its own."""
+    try:
+        out = json.loads(b"[" + b",".join(datas) + b"]")
+        if len(out) == len(datas):
+            return out
+    except ValueError:
+        pass
+    return [json.loads(d) for d in datas]
+
+
+def read(path: Path, **options: Any) -> Recording:
+    """Read a ditherlab MCAP file whole (:func:`frames` with one block of all rows).
+
+    Options ``robot``, ``tool_offset``, ... override the stored metadata. Raises FormatError
+    naming the file when it is truncated, corrupt, or not a ditherlab MCAP file.
+    """
+    lay = layout(path, **options)
+    (data,) = list(frames(lay, lay.n_rows))
+    return Recording(data, lay.meta, name=str(path))
 
 
 def _is_float(dtype: str) -> bool:
@@ -281,32 +537,41 @@ def _is_float(dtype: str) -> bool:
 
 
 def _table(
-    msgs: dict[str, list[tuple[int, dict[str, Any]]]], columns: list[list[str]], path: Path
+    batch: dict[str, list[dict[str, Any]]], columns: list[list[str]], path: Path
 ) -> pd.DataFrame:
-    ordered = {k: [m for _, m in sorted(v, key=lambda x: x[0])] for k, v in msgs.items()}
-    joints = ordered.get(JOINTS)
-    if not joints:
-        raise FormatError(f"{path}: channel {JOINTS} has no messages")
-    n_rows = len(joints)
-    for topic, rows in ordered.items():
-        if len(rows) != n_rows:
-            raise FormatError(
-                f"{path}: channel {topic} has {len(rows)} messages, "
-                f"expected one per sample ({n_rows})"
-            )
-    cols: dict[str, Any] = {"t": [m["t"] for m in joints]}
-    for p in JOINT_FAMILIES:
-        if p in joints[0]:
-            block = np.array([m[p] for m in joints], dtype=float)
-            for j in range(block.shape[1]):
-                cols[f"{p}_{j + 1}"] = block[:, j]
-    if WRENCH in ordered:
+    """The one definition of how messages become columns: the rows of ``batch`` (per topic, the
+    same rows' message bodies, in order) as a table of ``columns`` (``[name, dtype]``)."""
+    try:
+        return _columns(batch, columns, path)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise FormatError(
+            f"{path}: a message does not match the ditherlab MCAP layout "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
+
+
+def _columns(
+    batch: dict[str, list[dict[str, Any]]], columns: list[list[str]], path: Path
+) -> pd.DataFrame:
+    want = {name for name, _ in columns}
+    cols: dict[str, Any] = {}
+    joints = batch.get(JOINTS)
+    if joints:
+        if "t" in want:
+            cols["t"] = [m["t"] for m in joints]
+        for p in JOINT_FAMILIES:
+            if p in joints[0] and any(_topic_family(c) == p for c in want):
+                block = np.array([m[p] for m in joints], dtype=float)
+                for j in range(block.shape[1]):
+                    cols[f"{p}_{j + 1}"] = block[:, j]
+    if WRENCH in batch:
         for k, c in enumerate(WRENCH_COLUMNS):
-            part, axis = ("force", "torque")[k // 3], _AXES[k % 3]
-            cols[c] = [m[part][axis] for m in ordered[WRENCH]]
-    if DITHER in ordered:
-        cols["dither"] = [m["active"] for m in ordered[DITHER]]
-    extra_rows = ordered.get(EXTRA, [])
+            if c in want:
+                part, axis = ("force", "torque")[k // 3], _AXES[k % 3]
+                cols[c] = [m[part][axis] for m in batch[WRENCH]]
+    if DITHER in batch and "dither" in want:
+        cols["dither"] = [m["active"] for m in batch[DITHER]]
+    extra_rows = batch.get(EXTRA, [])
     out: dict[str, pd.Series] = {}
     for name, dtype in columns:
         if name in cols:
@@ -319,3 +584,8 @@ def _table(
             raise FormatError(f"{path}: column {name} is listed in the metadata but not stored")
         out[name] = pd.Series(values, dtype=dtype)
     return pd.DataFrame(out)
+
+
+def _topic_family(column: str) -> str | None:
+    m = _JOINT_COL.match(column)
+    return m.group(1) if m else None

@@ -1,7 +1,8 @@
 """Recordings read in pieces, for logs longer than memory: ``open_source(path) -> Source``.
 
 A :class:`Source` reads a recording's table a batch of rows at a time (Parquet by row-group
-batches, CSV by blocks of lines) and hands it out as overlapping :class:`Piece` s: each piece is a
+batches, CSV by blocks of lines, ditherlab MCAP by its messages in file order, one chunk
+decompressed at a time) and hands it out as overlapping :class:`Piece` s: each piece is a
 :class:`~ditherlab.recording.Recording` of the rows it owns plus ``halo`` rows on either side,
 carrying the whole recording's :class:`~ditherlab.recording.TimeBase` (first time stamp, median
 step, dither period). Every quantity downstream is computed from a bounded neighbourhood of a
@@ -11,9 +12,8 @@ values exactly; :data:`HALO_S` (2 s) covers every window with room to spare.
 
 Memory: a piece of ``rows`` rows (default :data:`CHUNK_ROWS`) and the ``t`` column of the whole
 recording (8 bytes per sample: 72 MB for ten hours at 250 Hz) are held at once. Formats without
-a batch reader (ditherlab MCAP, ROS 2 bags, mapped vendor logs) are read whole and then cut into
-the same pieces: results are the same, memory is not bounded (``ditherlab convert`` them to
-Parquet first).
+a batch reader (ROS 2 bags, mapped vendor logs) are read whole and then cut into the same pieces:
+results are the same, memory is not bounded (``ditherlab convert`` them to Parquet first).
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from ditherlab.errors import ConfigError, FormatError, RecordingError
+from ditherlab.io import _module, detect_format, read, write
 from ditherlab.io import csv as csv_io
-from ditherlab.io import detect_format, read, write
 from ditherlab.io.atomic import atomic_path
 from ditherlab.io.common import (
     META_OPTIONS,
@@ -105,7 +105,9 @@ class Source:
             self._open_parquet(options)
         elif kind == "csv":
             self._open_csv(options)
-        else:  # read whole: MCAP, bags, mapped logs
+        elif kind == "mcap":
+            self._open_mcap(options)
+        else:  # read whole: bags, mapped logs
             self._rec = read(self.path, **options)
             self.meta = self._rec.meta
             self.n_rows = len(self._rec)
@@ -129,6 +131,13 @@ class Source:
         self.meta = meta_from_options(stored, options, where=self.name)
         self.n_rows = int(self._pf.metadata.num_rows)
         self.columns = list(self._pf.schema_arrow.names)
+
+    def _open_mcap(self, options: dict[str, Any]) -> None:
+        # the summary's message counts and the metadata record: no message is read
+        self._mcap = _module("mcap").layout(self.path, **options)
+        self.meta = self._mcap.meta
+        self.n_rows = self._mcap.n_rows
+        self.columns = [c for c, _ in self._mcap.columns]
 
     def _open_csv(self, options: dict[str, Any]) -> None:
         check_options(options, csv_io.OPTIONS, "CSV", self.name)
@@ -164,6 +173,9 @@ class Source:
                 raise FormatError(
                     f"{self.name}: not a readable Parquet file, truncated or corrupt ({msg})"
                 ) from None
+            return
+        if self.kind == "mcap":
+            yield from _module("mcap").frames(self._mcap, rows, columns)
             return
         start = 0
         try:
@@ -328,20 +340,27 @@ def open_source(path: str | Path, **options: Any) -> Source:
 
 
 def write_stream(src: Source, dst: str | Path, rows: int = CHUNK_ROWS) -> Path:
-    """Write the recording ``src`` to a Parquet or CSV file piece by piece (memory holds one
-    piece); other formats are written from the whole recording (:func:`ditherlab.io.write`).
+    """Write the recording ``src`` to a Parquet, CSV or ditherlab MCAP file piece by piece
+    (memory holds one piece); other formats, and sources read whole, are written from the whole
+    recording (:func:`ditherlab.io.write`).
 
     The file equals what :func:`ditherlab.io.write` makes of ``src.read()``: the same table and
     metadata (Parquet in row groups of :data:`ditherlab.io.parquet.ROW_GROUP` rows or fewer, CSV
-    the same text). Written atomically; every piece is checked against the contract first.
+    and MCAP the same bytes). Written atomically; every piece is checked against the contract
+    first.
     """
     p = Path(dst)
-    kind = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv"}.get(p.suffix.lower())
+    kind = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".mcap": "mcap"}.get(
+        p.suffix.lower()
+    )
     if kind is None or not src.bounded:
         return write(src.read(), p)
     try:
         if kind == "parquet":
             return _parquet_pieces(src, p, rows)
+        if kind == "mcap":
+            blocks = (data for _, data in _owned(src, rows))
+            return _module("mcap").write_frames(blocks, src.meta, p, name=src.name)
         return _csv_pieces(src, p, rows)
     except OSError as exc:
         raise FormatError(f"{p}: cannot write the {kind} file ({exc.strerror or exc})") from None
