@@ -474,6 +474,7 @@ def report(
         int, typer.Option("--bootstrap", help="Bootstrap replicates of the detection curves.")
     ] = 200,
     seed: Seed = 0,
+    chunk: Chunk = None,
     json_out: JsonFlag = False,
     quiet: Quiet = False,
 ) -> None:
@@ -491,6 +492,7 @@ def report(
             n_boot=bootstrap,
             seed=seed,
             progress=progress,
+            **({"chunk_rows": chunk} if chunk else {}),
         )
     echo(
         json.dumps(a, indent=1, default=json_default)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,8 +35,10 @@ __all__ = [
     "SCHEMA",
     "VARIANTS",
     "Estimates",
+    "EstimatesSource",
     "EstimatesWriter",
     "check_estimates_match",
+    "check_times_match",
 ]
 
 SCHEMA = "ditherlab.estimates/1"
@@ -126,32 +129,116 @@ class Estimates:
     @classmethod
     def load(cls, path: str | Path) -> Estimates:
         """Read an estimates file; FormatError for anything that is not one."""
-        p = Path(path)
-        if not p.is_file():
-            raise FormatError(f"{p}: no such estimates file")
+        pf, meta = _open(path)
         try:
-            pf = pq.ParquetFile(p)
             table = pf.read()
         except (pa.ArrowException, OSError) as exc:
-            raise FormatError(f"{p}: not a readable Parquet file ({exc})") from None
-        # the footer's key-value metadata: a file written piece by piece (EstimatesWriter)
-        # stores it there only, not in the Arrow schema
-        kv = {**(table.schema.metadata or {}), **(pf.metadata.metadata or {})}
-        if META_KEY not in kv:
-            raise FormatError(
-                f"{p}: key-value metadata 'ditherlab' is missing, expected an estimates file "
-                "written by `ditherlab replay`"
-            )
+            raise FormatError(f"{path}: not a readable Parquet file ({exc})") from None
+        return cls(table.to_pandas(), meta, name=str(path))
+
+
+def _open(path: str | Path, pre_buffer: bool = True) -> tuple[pq.ParquetFile, dict[str, Any]]:
+    """An estimates file opened (not read) and its metadata checked; FormatError otherwise."""
+    p = Path(path)
+    if not p.is_file():
+        raise FormatError(f"{p}: no such estimates file")
+    try:
+        pf = pq.ParquetFile(p, pre_buffer=pre_buffer)
+    except (pa.ArrowException, OSError) as exc:
+        raise FormatError(f"{p}: not a readable Parquet file ({exc})") from None
+    # the footer's key-value metadata: a file written piece by piece (EstimatesWriter)
+    # stores it there only, not in the Arrow schema
+    kv = {**(pf.schema_arrow.metadata or {}), **(pf.metadata.metadata or {})}
+    if META_KEY not in kv:
+        raise FormatError(
+            f"{p}: key-value metadata 'ditherlab' is missing, expected an estimates file "
+            "written by `ditherlab replay`"
+        )
+    try:
+        meta = json.loads(kv[META_KEY].decode("utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{p}: metadata 'ditherlab' is not valid JSON ({exc})") from None
+    if meta.get("schema") != SCHEMA:
+        raise FormatError(
+            f"{p}: metadata key 'schema' is {meta.get('schema')!r}, expected {SCHEMA!r} "
+            "(a recording, not estimates? run `ditherlab replay` first)"
+        )
+    return pf, meta
+
+
+class EstimatesSource:
+    """An estimates file read a block of rows at a time (for files longer than memory), or an
+    :class:`Estimates` in memory behind the same interface (:meth:`of`).
+
+    Attributes
+    ----------
+    name : the path, for messages ; meta : the file's metadata ; n_rows : rows in the file
+    columns : column names in file order
+    """
+
+    def __init__(self, path: str | Path):
+        # pre_buffer=False: one batch at a time (pre-buffering holds whole row groups)
+        self._pf, self.meta = _open(path, pre_buffer=False)
+        self._est: Estimates | None = None
+        self.name = str(path)
+        self.n_rows = int(self._pf.metadata.num_rows)
+        self.columns = list(self._pf.schema_arrow.names)
+
+    @classmethod
+    def of(cls, est: Estimates) -> EstimatesSource:
+        """Estimates in memory read through the same interface."""
+        self = cls.__new__(cls)
+        self._est, self.meta, self.name = est, est.meta, est.name or "estimates"
+        self.n_rows = len(est.data)
+        self.columns = [str(c) for c in est.data.columns]
+        return self
+
+    @property
+    def variants(self) -> list[str]:
+        return list(self.meta.get("variants", []))
+
+    @property
+    def has_wrench(self) -> bool:
+        return "f_x" in self.columns
+
+    def blocks(self, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
+        """The table in consecutive blocks of exactly ``rows`` rows (the last one shorter),
+        optionally only some columns; FormatError naming the file for a corrupt block."""
+        rows = max(int(rows), 1)
+        if self._est is not None:
+            data = self._est.data if columns is None else self._est.data[columns]
+            for a in range(0, self.n_rows, rows):
+                yield data.iloc[a : a + rows].reset_index(drop=True)
+            return
+        buf: list[pa.RecordBatch] = []
+        have = 0
         try:
-            meta = json.loads(kv[META_KEY].decode("utf-8"))
-        except (ValueError, UnicodeDecodeError) as exc:
-            raise FormatError(f"{p}: metadata 'ditherlab' is not valid JSON ({exc})") from None
-        if meta.get("schema") != SCHEMA:
+            for batch in self._pf.iter_batches(batch_size=rows, columns=columns):
+                buf.append(batch)
+                have += batch.num_rows
+                while have >= rows:
+                    table = pa.Table.from_batches(buf)
+                    yield table.slice(0, rows).to_pandas()
+                    buf = table.slice(rows).to_batches()
+                    have -= rows
+        except (pa.ArrowException, OSError) as exc:
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise FormatError(
-                f"{p}: metadata key 'schema' is {meta.get('schema')!r}, expected {SCHEMA!r} "
-                "(a recording, not estimates? run `ditherlab replay` first)"
-            )
-        return cls(table.to_pandas(), meta, name=str(p))
+                f"{self.name}: not a readable Parquet file, truncated or corrupt ({msg})"
+            ) from None
+        if have:
+            yield pa.Table.from_batches(buf).to_pandas()
+
+    def column(self, name: str, rows: int = 1 << 16) -> np.ndarray:
+        """One whole column, (N,)."""
+        if name not in self.columns:
+            raise FormatError(f"{self.name}: required column {name} is missing")
+        parts = [b[name].to_numpy() for b in self.blocks(rows, [name])]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def estimates(self, block: pd.DataFrame) -> Estimates:
+        """A block of rows as :class:`Estimates` (the file's metadata and name)."""
+        return Estimates(block, self.meta, name=self.name)
 
 
 class EstimatesWriter:
@@ -210,16 +297,34 @@ def check_estimates_match(rec: Recording, est: Estimates) -> None:
     """Raise RecordingError unless ``est`` was computed from ``rec``.
 
     The time stamps must be identical (same count, same values) and the recording metadata stored
-    in the estimates file must equal ``rec.meta``.
+    in the estimates file must equal ``rec.meta`` (:func:`check_times_match`).
 
     Raises
     ------
     RecordingError
         One sentence naming both files and the first difference.
     """
-    ename = est.name or "estimates"
-    rname = rec.name or "the recording"
-    t_rec, t_est = rec.t, est.data["t"].to_numpy(dtype=float)
+    check_times_match(
+        rec.t,
+        rec.meta,
+        rec.name or "the recording",
+        est.data["t"].to_numpy(dtype=float),
+        est.meta,
+        est.name or "estimates",
+    )
+
+
+def check_times_match(
+    t_rec: np.ndarray,
+    rec_meta: dict[str, Any],
+    rname: str,
+    t_est: np.ndarray,
+    est_meta: dict[str, Any],
+    ename: str,
+) -> None:
+    """:func:`check_estimates_match` from the parts it compares: the recording's time stamps
+    ``t_rec`` (N,) [s] and metadata, the estimates file's ``t_est`` (M,) [s] and metadata (for a
+    recording and an estimates file read in pieces). Raises RecordingError naming both."""
     if len(t_rec) != len(t_est):
         raise RecordingError(
             f"{ename}: the estimates come from another recording: column t has {len(t_est)} "
@@ -232,12 +337,12 @@ def check_estimates_match(rec: Recording, est: Estimates) -> None:
             f"{ename}: the estimates come from another recording: t in row {i + 1} is "
             f"{t_est[i]!r} s, {rname} has {t_rec[i]!r} s"
         )
-    stored = est.meta.get("recording")
+    stored = est_meta.get("recording")
     if stored is None:
         raise RecordingError(f"{ename}: metadata key 'recording' is missing")
     # both as plain JSON values (tuples as lists, numpy values as Python ones); a recording's
     # metadata is JSON by contract (Recording.meta_json), so no other conversion is needed
-    a, b = plain(stored), plain(rec.meta)
+    a, b = plain(stored), plain(rec_meta)
     if a != b:
         key = next(k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k))
         raise RecordingError(

@@ -10,23 +10,24 @@ fails (no F/T columns, no pushes).
 
 from __future__ import annotations
 
+import hashlib
 import html
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from ditherlab.dither import extract, extract_dither
 from ditherlab.effects import signals
-from ditherlab.errors import RecordingError
-from ditherlab.estimates import Estimates, check_estimates_match
-from ditherlab.io import read
-from ditherlab.io.atomic import atomic_write_json, atomic_write_text, check_not_input
+from ditherlab.estimates import COMPONENTS, Estimates, EstimatesSource
+from ditherlab.io.atomic import atomic_write_json, atomic_write_text, check_not_input, plain
+from ditherlab.io.stream import CHUNK_ROWS, HALO_S, open_source
 from ditherlab.model import TorqueModel
 from ditherlab.recording import DITHER, STILL, Recording
-from ditherlab.thresholds import AXES, PAPER, analyse, find_pushes
+from ditherlab.thresholds import AXES, PAPER, analyse, find_pushes_in_blocks
 from ditherlab.viz import figures as figs
 
 
@@ -206,18 +207,26 @@ def make_report(
     n_boot: int = 200,
     seed: int = 0,
     figures: bool = True,
+    chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Analyse estimates and write the report folder.
 
+    Estimates files and recording files are read ``chunk_rows`` rows at a time: the analysis
+    (:func:`ditherlab.thresholds.analyse`) keeps the pushes, the per-push numbers and counts,
+    the figures only the stretches they show (a window of rows around them), so memory does not
+    grow with the logs' length beyond about 17 bytes per sample; the numbers do not depend on
+    ``chunk_rows``.
+
     Parameters
     ----------
-    estimates : estimates files (or loaded :class:`~ditherlab.replay.Estimates`)
+    estimates : estimates files (or loaded :class:`~ditherlab.estimates.Estimates`)
     out_dir : folder to write (created; files written atomically)
     recordings : the recordings (Recording objects or paths) behind the estimates, optional:
         with them the torque figures (Figs. 2, 4, 5) are drawn too
     n_boot, seed : bootstrap of the detection curves
     figures : draw the PNG figures
+    chunk_rows : rows read at a time from a file (:data:`ditherlab.io.stream.CHUNK_ROWS`)
     progress : ``progress(done, total)``
 
     Returns
@@ -230,7 +239,9 @@ def make_report(
         No F/T columns or no pushes: nothing is written.
     """
     out = Path(out_dir)
-    ests = [e if isinstance(e, Estimates) else Estimates.load(e) for e in estimates]
+    ests = [
+        EstimatesSource.of(e) if isinstance(e, Estimates) else EstimatesSource(e) for e in estimates
+    ]
     for e in estimates:
         if not isinstance(e, Estimates):
             check_not_input(out / "report.json", [e])
@@ -243,7 +254,7 @@ def make_report(
         if progress:
             progress(done, steps)
 
-    analysis = analyse(ests, n_boot=n_boot, seed=seed)
+    analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
     tick()
     level = ests[0].meta.get("interval", {})
     level_txt = f"{level.get('level', 0.95):.0%} {level.get('method', '')}".strip()
@@ -290,7 +301,7 @@ def make_report(
     written: list[str] = []
     if figures:
         out.mkdir(parents=True, exist_ok=True)
-        written += _figures(ests, analysis, recordings, out, blocks, tick)
+        written += _figures(ests, analysis, recordings, out, blocks, tick, chunk_rows)
     analysis["files"] = written + ["report.md", "report.html", "report.json"]
     atomic_write_text(out / "report.md", render(blocks, "md"))
     atomic_write_text(out / "report.html", render(blocks, "html"))
@@ -300,12 +311,13 @@ def make_report(
 
 
 def _figures(
-    ests: list[Estimates],
+    ests: list[EstimatesSource],
     analysis: dict,
     recordings: Sequence[Any],
     out: Path,
     blocks: list[tuple],
     tick: Callable[[], None],
+    chunk_rows: int,
 ) -> list[str]:
     written = []
     blocks.append(("h2", "Figures"))
@@ -317,7 +329,7 @@ def _figures(
     ):
         for e, rinfo in zip(ests, analysis["recordings"], strict=True):
             if variant in e.variants and rinfo["dithered"] == want_dither and rinfo["pushes"]:
-                panels.append((f"{variant} ({label})", e, rinfo))
+                panels.append((f"{variant} ({label})", *_fig6_rows(e, variant, rinfo, chunk_rows)))
                 break
     if panels:
         figs.fig6_estimates(panels, out / "fig6_estimates.png")
@@ -342,16 +354,157 @@ def _figures(
         )
     )
     tick()
-    recs = [_as_recording(r) for r in recordings]
-    if recs:
-        written += _torque_figures(ests, recs, out, blocks)
+    logs = [_Log(r, chunk_rows) for r in recordings]
+    if logs:
+        written += _torque_figures(ests, logs, out, blocks)
     tick()
     tick()
     return written
 
 
-def _as_recording(r: Any) -> Recording:
-    return r if isinstance(r, Recording) else read(r)
+def _fig6_rows(
+    src: EstimatesSource, variant: str, rinfo: dict, chunk_rows: int
+) -> tuple[Estimates, dict, tuple[float, float]]:
+    """The rows of one estimates file that Fig. 6 shows (:func:`ditherlab.viz.figures.fig6_windows`)
+    as Estimates, its analysis row and the file's first and last time [s]."""
+    t = src.column("t").astype(float)
+    span = (float(t[0]), float(t[-1]))
+    show = np.zeros(len(t), dtype=bool)
+    for t0, t1 in figs.fig6_windows(*span, rinfo):
+        show |= (t >= t0) & (t <= t1)
+    del t
+    cols = ["t", *COMPONENTS] + [
+        f"{variant}/{c}{x}" for x in ("", "_lo", "_hi") for c in COMPONENTS
+    ]
+    return _rows_of(src, show, cols, chunk_rows), rinfo, span
+
+
+def _rows_of(src: EstimatesSource, take: np.ndarray, cols: list[str], rows: int) -> Estimates:
+    """The rows ``take`` (N,) bool of some columns of an estimates file, as Estimates."""
+    parts, a = [], 0
+    for block in src.blocks(rows, cols):
+        b = a + len(block)
+        if take[a:b].any():
+            parts.append(block[take[a:b]])
+        a = b
+    data = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=cols)
+    return src.estimates(data)
+
+
+# ------------------------------------------------------------------------------ recordings
+class _Log:
+    """A recording behind the torque figures: a Recording in memory, or a file read a piece
+    at a time (:class:`ditherlab.io.stream.Source`) of which only what the figures need is kept:
+    its time stamps, dither flag, pushes and the windows the figures show."""
+
+    def __init__(self, r: Any, chunk_rows: int):
+        self.rec = r if isinstance(r, Recording) else None
+        self.src = None if self.rec is not None else open_source(r)
+        self.chunk = chunk_rows
+        if self.rec is not None:
+            self.name, self.meta = self.rec.name, self.rec.meta
+            self.columns = [str(c) for c in self.rec.data.columns]
+            self.t, self.dither = self.rec.t, self.rec.dither
+        else:
+            assert self.src is not None
+            self.name, self.meta, self.columns = self.src.name, self.src.meta, self.src.columns
+            self.t = self.src.times()
+            self.dither = (
+                self.src.column("dither").astype(bool) if "dither" in self.columns else None
+            )
+        self.has_wrench = all(c in self.columns for c in COMPONENTS)
+        self.dithered = self.dither is not None and bool(self.dither.any())
+        self._pushes: list | None = None
+
+    def blocks(self, cols: list[str]) -> Iterator[pd.DataFrame]:
+        """Some columns in consecutive blocks of rows."""
+        if self.rec is not None:
+            yield self.rec.data[cols]
+        else:
+            assert self.src is not None
+            yield from self.src.frames(self.chunk, cols)
+
+    @property
+    def pushes(self) -> list:
+        """:func:`ditherlab.thresholds.find_pushes` of the recording's F/T sensor."""
+        if self._pushes is None:
+            cols = list(COMPONENTS[:3])
+            self._pushes = (
+                find_pushes_in_blocks(
+                    self.t, lambda: (b.to_numpy(dtype=float) for b in self.blocks(cols))
+                )
+                if self.has_wrench
+                else []
+            )
+        return self._pushes
+
+    def from_first_push(self, length: float) -> tuple[int, int]:
+        """Rows ``[i0, i1)``: ``length`` [s] from 1 s before the first push (or the start)."""
+        ps = self.pushes
+        t0 = ps[0].start - 1.0 if ps else self.t[0]
+        return _span(self.t, t0, t0 + length)
+
+    def window(self, i0: int, i1: int, context: int = 0) -> tuple[Recording, slice]:
+        """A Recording holding the rows ``[i0, i1)`` and ``context`` rows on either side (a
+        :class:`ditherlab.io.stream.Piece` of them, with the whole recording's time base) and
+        where ``[i0, i1)`` are in it; the whole Recording when in memory."""
+        if self.rec is not None:
+            return self.rec, slice(i0, i1)
+        assert self.src is not None
+        halo = int(np.ceil(HALO_S / self.src.timebase().dt)) if len(self.t) > 1 else 1
+        lo, hi = max(i0 - halo - context, 0), min(i1 + halo + context, len(self.t))
+        parts, a = [], 0
+        for f in self.blocks(self.columns):
+            b = a + len(f)
+            if b > lo and a < hi:
+                parts.append(f.iloc[max(lo - a, 0) : hi - a])
+            a = b
+            if a >= hi:
+                break
+        data = pd.concat(parts, ignore_index=True)
+        rec = Recording(data, self.meta, name=self.name, timebase=self.src.timebase())
+        return rec, slice(i0 - lo, i1 - lo)
+
+    def fingerprint(self) -> tuple[int, str, str | None, str | None]:
+        """(rows, and digests of ``t``, the dither flag and the F/T columns) to match estimates."""
+        return _fingerprint(self.blocks, self.columns, len(self.t))
+
+    def estimates_of(self, ests: Sequence[EstimatesSource]) -> EstimatesSource | None:
+        """The estimates computed from this recording, or None: the same time stamps and
+        recording metadata (:func:`ditherlab.estimates.check_times_match`) and the same copies of
+        its dither flag and F/T columns (two recordings of one campaign can share time stamps and
+        metadata), compared by digest, a block at a time."""
+        mine = self.fingerprint()
+        for e in ests:
+            if e.n_rows != len(self.t) or plain(e.meta.get("recording")) != plain(self.meta):
+                continue
+            cols = [str(c) for c in e.columns]
+            if _fingerprint(lambda c, e=e: e.blocks(self.chunk, c), cols, e.n_rows) == mine:
+                return e
+        return None
+
+
+def _fingerprint(
+    blocks: Callable[[list[str]], Iterator[pd.DataFrame]], columns: list[str], n: int
+) -> tuple[int, str, str | None, str | None]:
+    """(rows, sha256 of ``t`` as float64, of the dither flag as bool, of ``f_x..m_z`` as
+    float64 row by row); None for a column family the table lacks."""
+    has_d = "dither" in columns
+    has_w = all(c in columns for c in COMPONENTS)
+    ht, hd, hw = hashlib.sha256(), hashlib.sha256(), hashlib.sha256()
+    cols = ["t"] + (["dither"] if has_d else []) + (list(COMPONENTS) if has_w else [])
+    for f in blocks(cols):
+        ht.update(np.ascontiguousarray(f["t"].to_numpy(dtype=float)).tobytes())
+        if has_d:
+            hd.update(np.ascontiguousarray(f["dither"].to_numpy(dtype=bool)).tobytes())
+        if has_w:
+            hw.update(np.ascontiguousarray(f[list(COMPONENTS)].to_numpy(dtype=float)).tobytes())
+    return n, ht.hexdigest(), hd.hexdigest() if has_d else None, hw.hexdigest() if has_w else None
+
+
+def _span(t: np.ndarray, t0: float, t1: float) -> tuple[int, int]:
+    """Rows ``[i0, i1)`` of the increasing ``t`` with ``t0 <= t <= t1``."""
+    return int(np.searchsorted(t, t0, "left")), int(np.searchsorted(t, t1, "right"))
 
 
 def _gravity_and_sensor_torque(r: Recording) -> tuple[np.ndarray, np.ndarray]:
@@ -364,79 +517,56 @@ def _gravity_and_sensor_torque(r: Recording) -> tuple[np.ndarray, np.ndarray]:
     return g, sig.jtf(r.wrench)
 
 
-def _estimates_of(rec: Recording, ests: Sequence[Estimates]) -> Estimates | None:
-    """The estimates computed from ``rec``, or None: the same time stamps and recording metadata
-    (:func:`ditherlab.estimates.check_estimates_match`) and the same copies of its dither flag
-    and F/T columns (two recordings of one campaign can share time stamps and metadata)."""
-    for e in ests:
-        try:
-            check_estimates_match(rec, e)
-        except RecordingError:
-            continue
-        if _same_or_none(rec.dither, e.dither) and _same_or_none(rec.wrench, e.wrench):
-            return e
-    return None
-
-
-def _same_or_none(a: np.ndarray | None, b: np.ndarray | None) -> bool:
-    return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
-
-
 def _extraction(
-    rec: Recording, est: Estimates | None
+    log: _Log, est: EstimatesSource | None, i0: int, i1: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
-    """``upper, lower, signal`` (N, n) [N·m] and the period [s] of the dither extraction.
+    """``upper, lower, signal`` (i1 - i0, n) [N·m] on the rows ``[i0, i1)`` and the period [s]
+    of the dither extraction.
 
     Read from the estimates file (its ``extract/*_j`` columns and ``dither_period``: what replay
     extracted and used); only for a recording given without its estimates is the extraction done
-    here (:func:`ditherlab.dither.extract_dither`, the same one). None without dither.
+    here (:func:`ditherlab.dither.extract_dither`, the same one, on the rows with 2 s of context).
+    None without dither.
     """
-    cols = {
-        s: [f"extract/{s}_{j}" for j in range(1, rec.n + 1)] for s in ("upper", "lower", "signal")
-    }
-    if (
-        est is not None
-        and est.meta.get("dither_period")
-        and all(c in est.data.columns for cs in cols.values() for c in cs)
-    ):
-        u, lo, sg = (est.data[cs].to_numpy(dtype=float) for cs in cols.values())
+    n = sum(1 for c in log.columns if c.startswith("tau_") and c[4:].isdigit())
+    names = ("upper", "lower", "signal")
+    cols = [f"extract/{s}_{j}" for s in names for j in range(1, n + 1)]
+    if est is not None and est.meta.get("dither_period") and all(c in est.columns for c in cols):
+        take = np.zeros(est.n_rows, dtype=bool)
+        take[i0:i1] = True
+        d = _rows_of(est, take, cols, log.chunk).data
+        u, lo, sg = (d[cols[k * n : (k + 1) * n]].to_numpy(dtype=float) for k in range(3))
         return u, lo, sg, float(est.meta["dither_period"])
+    rec, sl = log.window(i0, i1)
     ext = extract_dither(rec)
     if ext is None:
         return None
-    return ext.upper, ext.lower, ext.signal, ext.period
-
-
-def _from_first_push(r: Recording, length: float) -> np.ndarray:
-    """(N,) bool: ``length`` [s] from 1 s before the first push of the F/T sensor (or the start)."""
-    ps = find_pushes(r.t, r.wrench) if r.has_wrench else []
-    t0 = ps[0].start - 1.0 if ps else r.t[0]
-    return (r.t >= t0) & (r.t <= t0 + length)
+    return ext.upper[sl], ext.lower[sl], ext.signal[sl], ext.period
 
 
 def _torque_figures(
-    ests: list[Estimates], recs: list[Recording], out: Path, blocks: list[tuple]
+    ests: list[EstimatesSource], logs: list[_Log], out: Path, blocks: list[tuple]
 ) -> list[str]:
     """Figs. 2, 4, 5 from the recordings (with the model stored in the estimates)."""
     model = TorqueModel.from_dict(ests[0].meta["model"])
     still = model.regimes.get(STILL.label)
-    plain = next((r for r in recs if r.dither is None or not r.dither.any()), None)
-    dith = next((r for r in recs if r.dither is not None and r.dither.any()), None)
+    plain_log = next((r for r in logs if not r.dithered), None)
+    dith = next((r for r in logs if r.dithered), None)
     written = []
     # joint 2 carries x and z pushes in the paper's pose; pick the joint most loaded by the pushes
     joint = 2
+    j = joint - 1
     panels = []
-    for title, r in (("without dither", plain), ("with dither", dith)):
+    for title, r in (("without dither", plain_log), ("with dither", dith)):
         if r is None or not r.has_wrench or still is None:
             continue
-        g, ext = _gravity_and_sensor_torque(r)
-        m = _from_first_push(r, 25.0)
-        j = joint - 1
+        rec, m = r.window(*r.from_first_push(25.0))
+        g, ext = _gravity_and_sensor_torque(rec)
         panels.append(
             (
                 title,
-                r.t[m],
-                (r.tau - g)[m, j],
+                rec.t[m],
+                (rec.tau - g)[m, j],
                 ext[m, j],
                 (float(still.tau_min[j]), float(still.tau_max[j])),
             )
@@ -453,70 +583,97 @@ def _torque_figures(
             )
         )
     if dith is not None and still is not None:
-        ext_sig = _extraction(dith, _estimates_of(dith, ests))
-        if ext_sig is not None:
-            upper, lower, signal, period = ext_sig
-            g, ext = _gravity_and_sensor_torque(dith)
-            m = _from_first_push(dith, 6.0)
-            j = joint - 1
-            db = model.regimes.get(DITHER.label)
-            nb = (float(db.tau_min[j]), float(db.tau_max[j])) if db is not None else (0.0, 0.0)
-            figs.fig4_extraction(
-                dith.t[m],
-                (upper - g)[m, j],
-                (lower - g)[m, j],
-                (signal - g)[m, j],
-                (dith.tau - g)[m, j],
-                ext[m, j],
-                (float(still.tau_min[j]), float(still.tau_max[j])),
-                nb,
-                out / "fig4_extraction.png",
-                joint,
-            )
-            written.append("fig4_extraction.png")
-            blocks.append(
-                (
-                    "img",
-                    "fig4_extraction.png",
-                    "Fig. 4: upper and lower one-period means, the extracted signal against "
-                    "J^T F of the sensor, the still band and the band used with dither.",
-                )
-            )
-            # Fig. 5 shows five-period means, which replay does not write: extracted here.
-            five = extract(dith.tau, dith.t, period, periods=5)
-            on = np.flatnonzero(dith.dither)
-            t_on = dith.t[on[0]] if len(on) else dith.t[0]
-            m = (dith.t >= t_on - 1.0) & (dith.t <= t_on + 6.0)
-            ffw = dith.tau_ffw[m, j] if dith.tau_ffw is not None else None
-            amp_ref = None
-            sim = dith.meta.get("sim", {})
-            frac = (sim.get("params", {}).get("dither", {}) or {}).get("amplitude_fraction")
-            stat = (sim.get("bands", {}) or {}).get("static")
-            if frac is not None and stat is not None:
-                fr = frac[j] if isinstance(frac, list) else frac
-                amp_ref = float(fr) * float(stat[j])
-            figs.fig5_dither_control(
-                dith.t[m],
-                five.centre[m, j],
-                five.amplitude[m, j],
-                ffw,
-                dith.tau[m, j],
-                g[m, j],
-                (float(still.tau_min[j]), float(still.tau_max[j])),
-                amp_ref,
-                out / "fig5_dither_control.png",
-                joint,
-            )
-            written.append("fig5_dither_control.png")
-            blocks.append(
-                (
-                    "img",
-                    "fig5_dither_control.png",
-                    "Fig. 5: centre and amplitude of the logged torque (five-period means), "
-                    "the feedforward, and the torque with the band around gravity.",
-                )
-            )
+        written += _dither_figures(dith, dith.estimates_of(ests), model, joint, out, blocks)
     return written
+
+
+def _dither_figures(
+    dith: _Log,
+    est: EstimatesSource | None,
+    model: TorqueModel,
+    joint: int,
+    out: Path,
+    blocks: list[tuple],
+) -> list[str]:
+    """Figs. 4 and 5 of the dithered recording."""
+    i0, i1 = dith.from_first_push(6.0)
+    ext_sig = _extraction(dith, est, i0, i1)
+    if ext_sig is None:
+        return []
+    upper, lower, signal, period = ext_sig
+    still = model.regimes[STILL.label]
+    j = joint - 1
+    rec, m = dith.window(i0, i1)
+    g, ext = _gravity_and_sensor_torque(rec)
+    g, ext, gm = g[m], ext[m], g[m, j]
+    db = model.regimes.get(DITHER.label)
+    nb = (float(db.tau_min[j]), float(db.tau_max[j])) if db is not None else (0.0, 0.0)
+    figs.fig4_extraction(
+        rec.t[m],
+        upper[:, j] - gm,
+        lower[:, j] - gm,
+        signal[:, j] - gm,
+        rec.tau[m, j] - gm,
+        ext[:, j],
+        (float(still.tau_min[j]), float(still.tau_max[j])),
+        nb,
+        out / "fig4_extraction.png",
+        joint,
+    )
+    written = ["fig4_extraction.png"]
+    blocks.append(
+        (
+            "img",
+            "fig4_extraction.png",
+            "Fig. 4: upper and lower one-period means, the extracted signal against "
+            "J^T F of the sensor, the still band and the band used with dither.",
+        )
+    )
+    # Fig. 5 shows five-period means, which replay does not write: extracted here, on the
+    # rows shown with five periods of history before them.
+    assert dith.dither is not None
+    on = np.flatnonzero(dith.dither)
+    t_on = dith.t[on[0]] if len(on) else dith.t[0]
+    i0, i1 = _span(dith.t, t_on - 1.0, t_on + 6.0)
+    five_w = int(np.ceil(5 * period / _step(dith.t))) + 1
+    rec, m = dith.window(i0, i1, context=five_w)
+    g = _gravity_and_sensor_torque(rec)[0]
+    five = extract(rec.tau, rec.t, period, periods=5, dt=_step(dith.t))
+    ffw = rec.tau_ffw[m, j] if rec.tau_ffw is not None else None
+    amp_ref = None
+    sim = dith.meta.get("sim", {})
+    frac = (sim.get("params", {}).get("dither", {}) or {}).get("amplitude_fraction")
+    stat = (sim.get("bands", {}) or {}).get("static")
+    if frac is not None and stat is not None:
+        fr = frac[j] if isinstance(frac, list) else frac
+        amp_ref = float(fr) * float(stat[j])
+    figs.fig5_dither_control(
+        rec.t[m],
+        five.centre[m, j],
+        five.amplitude[m, j],
+        ffw,
+        rec.tau[m, j],
+        g[m, j],
+        (float(still.tau_min[j]), float(still.tau_max[j])),
+        amp_ref,
+        out / "fig5_dither_control.png",
+        joint,
+    )
+    written.append("fig5_dither_control.png")
+    blocks.append(
+        (
+            "img",
+            "fig5_dither_control.png",
+            "Fig. 5: centre and amplitude of the logged torque (five-period means), "
+            "the feedforward, and the torque with the band around gravity.",
+        )
+    )
+    return written
+
+
+def _step(t: np.ndarray) -> float:
+    """The median sample step [s] of the whole recording (what ``extract`` takes by default)."""
+    return float(np.median(np.diff(t))) if len(t) > 1 else 1.0
 
 
 def summary_text(analysis: dict) -> str:

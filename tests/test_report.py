@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from synthetic import push_recording
 
-from ditherlab.estimates import Estimates
+from ditherlab.estimates import Estimates, EstimatesSource
 from ditherlab.identify import identify
 from ditherlab.replay import replay
 from ditherlab.report import make_report, paper_table, summary_text
@@ -64,6 +64,7 @@ def test_report_reads_the_extraction_replay_wrote(tmp_path, pair, monkeypatch):
     """Fig. 4 takes upper, lower and signal from the estimates file (extract/*_j, written by
     replay) and its period from the file's metadata: the extraction is not redone."""
     import ditherlab.report as report
+    from ditherlab.io import write
 
     paths, recs = pair
 
@@ -71,17 +72,24 @@ def test_report_reads_the_extraction_replay_wrote(tmp_path, pair, monkeypatch):
         raise AssertionError("the report redid the dither extraction")
 
     monkeypatch.setattr(report, "extract_dither", no_extraction)
-    a = make_report(paths, tmp_path / "rep", recordings=list(recs), n_boot=5)
-    assert "fig4_extraction.png" in a["files"] and "fig5_dither_control.png" in a["files"]
-    est = Estimates.load(paths[1])
-    upper, lower, signal, period = report._extraction(recs[1], report._estimates_of(recs[1], [est]))
-    assert period == est.meta["dither_period"]
-    assert np.array_equal(signal[:, 1], est.data["extract/signal_2"].to_numpy())
-    assert np.array_equal(upper[:, 5], est.data["extract/upper_6"].to_numpy())
+    rec_paths = [write(r, tmp_path / f"rec{k}.parquet") for k, r in enumerate(recs)]
+    for given in (list(recs), rec_paths):  # in memory, and files read in pieces
+        a = make_report(paths, tmp_path / "rep", recordings=given, n_boot=5, chunk_rows=1000)
+        assert "fig4_extraction.png" in a["files"] and "fig5_dither_control.png" in a["files"]
+    est = EstimatesSource(paths[1])
+    log = report._Log(recs[1], 1000)
+    n = len(recs[1])
+    upper, lower, signal, period = report._extraction(log, log.estimates_of([est]), 0, n)
+    full = Estimates.load(paths[1])
+    assert period == full.meta["dither_period"]
+    assert np.array_equal(signal[:, 1], full.data["extract/signal_2"].to_numpy())
+    assert np.array_equal(upper[:, 5], full.data["extract/upper_6"].to_numpy())
     # both recordings share time stamps and metadata: their own copied columns tell them apart
-    both = [Estimates.load(p) for p in paths]
-    assert [report._estimates_of(r, both).name for r in recs] == [str(p) for p in paths]
-    assert report._estimates_of(recs[0], [est]) is None
+    both = [EstimatesSource(p) for p in paths]
+    for given in (recs, rec_paths):
+        logs = [report._Log(r, 1000) for r in given]
+        assert [g.estimates_of(both).name for g in logs] == [str(p) for p in paths]
+        assert logs[0].estimates_of([est]) is None
 
 
 def test_report_is_deterministic(tmp_path, pair):

@@ -277,3 +277,62 @@ def test_causal_mean_does_not_depend_on_where_the_array_starts():
         np.testing.assert_array_equal(part[w - 1 :], whole[start:])
     ref = np.array([x[max(0, i - w + 1) : i + 1].mean(axis=0) for i in range(0, 5000, 97)])
     np.testing.assert_allclose(whole[::97], ref, rtol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def replayed(campaign, still_campaign):
+    """The estimates of the dithered and of the undithered campaign, replayed through the CLI."""
+    from conftest import run_cli
+
+    d, path, model = campaign
+    out = []
+    for rec in (path, still_campaign):
+        est = d / f"est_{rec.stem}.parquet"
+        r = run_cli("replay", rec, "--model", model, "-o", est, "-q")
+        assert r.code == 0, r.err
+        out.append(est)
+    return out
+
+
+@pytest.mark.parametrize("where", ["push", "dither", "stick"])
+def test_cli_report_in_pieces_equals_the_whole(campaign, still_campaign, replayed, cli, where):
+    """The report of both campaigns with their recordings, the estimates and recordings read in
+    pieces cut at an awkward place: report.json and every figure byte for byte the ones read
+    whole (and, for one cut, the in-memory path's)."""
+    import json
+
+    from ditherlab.report import make_report
+
+    d, path, _ = campaign
+    rec = read(path)
+    rows = _awkward_cuts(rec)[where]
+    n = max(len(rec), len(read(still_campaign)))
+    assert len(rec) > rows  # two pieces at least, the first cut where asked
+    args = ("report", *replayed, "--recording", path, "--recording", still_campaign)
+    out = {}
+    for name, chunk in (("whole", n), ("cut", rows)):
+        out[name] = d / f"report_{where}_{name}"
+        r = cli(*args, "-o", out[name], "--bootstrap", "20", "-q", "--chunk", str(chunk))
+        assert r.code == 0, r.err
+    whole = json.loads((out["whole"] / "report.json").read_text())
+    assert len(whole["files"]) == 8  # Figs. 2, 4, 5, 6, the detection curves, md, html, json
+    for f in whole["files"]:
+        assert (out["whole"] / f).read_bytes() == (out["cut"] / f).read_bytes(), f
+    pushes = [len(r["pushes"]) for r in whole["recordings"]]
+    assert min(pushes) >= 6 and set(whole["conditions"]) == {
+        "nodither_band",
+        "nodither_noband",
+        "nodither_band (dither on)",
+        "nodither_noband (dither on)",
+        "dither_band",
+        "dither_noband",
+    }
+    if where == "push":
+        mem = make_report(
+            [Estimates.load(p) for p in replayed],
+            d / "report_memory",
+            recordings=[read(path), read(still_campaign)],
+            n_boot=20,
+        )
+        for key in ("conditions", "recordings"):  # as JSON text: NaN equal to NaN
+            assert json.dumps(mem[key]) == json.dumps(whole[key])

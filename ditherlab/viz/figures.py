@@ -45,15 +45,34 @@ def _window(t: np.ndarray, pushes: Sequence[dict], n: int = 6) -> tuple[float, f
     return max(float(t[0]), ps[0]["start"] - 1.0), min(float(t[-1]), ps[-1]["end"] + 1.5)
 
 
+def fig6_windows(
+    t_first: float, t_last: float, rinfo: dict, max_seconds: float = 40.0
+) -> list[tuple[float, float]]:
+    """The stretch ``(t0, t1)`` [s] :func:`fig6_estimates` shows per force axis (x, y, z) of a
+    recording spanning ``t_first .. t_last`` [s] whose analysis row (pushes) is ``rinfo``."""
+    span = np.array([t_first, t_last], dtype=float)
+    out = []
+    for a in FORCE_AXES:
+        pushes = [p for p in rinfo["pushes"] if p["axis"] == a]
+        t0, t1 = _window(span, sorted(pushes, key=lambda p: p["peak"])[:: max(len(pushes) // 6, 1)])
+        if not pushes:
+            t0, t1 = float(t_first), float(t_last)
+        out.append((t0, min(t1, t0 + max_seconds)))
+    return out
+
+
 def fig6_estimates(
-    panels: Sequence[tuple[str, Any, dict]], path: Path, max_seconds: float = 40.0
+    panels: Sequence[tuple[str, Any, dict] | tuple[str, Any, dict, tuple[float, float]]],
+    path: Path,
+    max_seconds: float = 40.0,
 ) -> Path:
     """Estimated and measured force per direction, one column per condition (paper Fig. 6).
 
     Parameters
     ----------
-    panels : (title, Estimates, recording dict of the analysis) per column; the variant is the
-        title's first word
+    panels : (title, Estimates, recording dict of the analysis) per column, optionally with the
+        whole file's ``(t_first, t_last)`` [s] when the Estimates hold only the rows shown
+        (:func:`fig6_windows`); the variant is the title's first word
     path : PNG to write
     max_seconds : longest stretch shown per column [s]
     """
@@ -61,20 +80,16 @@ def fig6_estimates(
     fig, axs = plt.subplots(
         3, len(panels), figsize=(4.2 * len(panels), 7.5), squeeze=False, sharex="col"
     )
-    for c, (title, est, rinfo) in enumerate(panels):
+    for c, (title, est, rinfo, *span) in enumerate(panels):
         variant = title.split()[0]
         t = est.t
         F = est.wrench
         Fh = est.F(variant)
         lo, hi = est.interval(variant)
+        first, last = span[0] if span else (float(t[0]), float(t[-1]))
+        windows = fig6_windows(first, last, rinfo, max_seconds)
         for k, a in enumerate(FORCE_AXES):
-            pushes = [p for p in rinfo["pushes"] if p["axis"] == a]
-            t0, t1 = _window(
-                t, sorted(pushes, key=lambda p: p["peak"])[:: max(len(pushes) // 6, 1)]
-            )
-            if not pushes:
-                t0, t1 = float(t[0]), float(t[-1])
-            t1 = min(t1, t0 + max_seconds)
+            t0, t1 = windows[k]
             m = (t >= t0) & (t <= t1)
             ax = axs[k, c]
             ax.fill_between(
