@@ -89,18 +89,23 @@ def _solve(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, floa
     return w, float(L)
 
 
+@njit(cache=True, inline="always")
+def _residual_at(base, h, C, W, w, i, widen):  # pragma: no cover - compiled
+    """Sample i's residual ``x = base - C w`` and its excess ``|x| - h - W w`` beyond the band."""
+    x = base[i]
+    ww = 0.0
+    for c in range(C.shape[1]):
+        x -= C[i, c] * w[c]
+        if widen:
+            ww += W[i, c] * w[c]
+    return x, abs(x) - h[i] - ww
+
+
 @njit(cache=True)
-def _loss_kernel(base, h, s, C, W, w, widen):
-    M, k = C.shape
+def _loss_kernel(base, h, s, C, W, w, widen):  # pragma: no cover - compiled
     L = 0.0
-    for i in range(M):
-        x = base[i]
-        ww = 0.0
-        for c in range(k):
-            x -= C[i, c] * w[c]
-            if widen:
-                ww += W[i, c] * w[c]
-        ex = abs(x) - h[i] - ww
+    for i in range(C.shape[0]):
+        ex = _residual_at(base, h, C, W, w, i, widen)[1]
         if ex > 0.0:
             L += (ex / s[i]) ** 2
     return L
@@ -129,13 +134,7 @@ def _solve_kernel(base, h, s, C, W, w, iters, widen):  # pragma: no cover - comp
         g = np.zeros(k)
         n_act = 0
         for i in range(M):
-            x = base[i]
-            ww = 0.0
-            for c in range(k):
-                x -= C[i, c] * w[c]
-                if widen:
-                    ww += W[i, c] * w[c]
-            ex = abs(x) - h[i] - ww
+            x, ex = _residual_at(base, h, C, W, w, i, widen)
             act[i] = ex > 0.0
             if not act[i]:
                 continue
