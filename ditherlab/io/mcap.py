@@ -26,6 +26,7 @@ import json
 import math
 import re
 import struct
+import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,12 +34,12 @@ from typing import Any, BinaryIO
 
 import numpy as np
 import pandas as pd
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.records import Chunk
-from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 from zstandard import ZstdError
 
@@ -297,6 +298,7 @@ def write_frames(
 # ------------------------------------------------------------------------------ read
 #: what a damaged file makes the mcap library (or zstandard, json) raise
 _DAMAGE = (McapError, ZstdError, struct.error, ValueError, EOFError, OSError, KeyError)
+_FAST_COMPRESSIONS = ("zstd", "")  # chunks _messages decompresses itself
 _RECORD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE = struct.Struct("<HI")  # channel id, sequence (then log time, publish time, data)
 
@@ -470,13 +472,15 @@ def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]
 
     The records inside a chunk are parsed here (opcode, length, then a message's channel id,
     sequence, log and publish time, data: the MCAP specification): the mcap library's record
-    objects cost about half the time of a read. A file without chunk indexes is read with the
-    library's linear reader.
+    objects cost about half the time of a read. A file without chunk indexes, or with chunks
+    compressed otherwise than ditherlab writes them (zstd) or uncompressed, is read with the
+    library's linear reader (the same messages, slower).
     """
     reader = SeekingReader(f, validate_crcs=True)
     summary = reader.get_summary()
     assert summary is not None  # layout() refused a file without one
-    if not summary.chunk_indexes:
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    if not chunks or any(c.compression not in _FAST_COMPRESSIONS for c in chunks):
         f.seek(0)
         for _schema, ch, m in NonSeekingReader(f, validate_crcs=True).iter_messages(
             topics=list(topics), log_time_order=False
@@ -484,16 +488,15 @@ def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]
             yield ch.topic, m.sequence, m.data
         return
     wanted = {cid: ch.topic for cid, ch in summary.channels.items() if ch.topic in topics}
-    for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+    for ci in chunks:
         if ci.message_index_offsets and not wanted.keys() & ci.message_index_offsets.keys():
             continue  # the chunk's message indexes list none of the wanted channels
         f.seek(ci.chunk_start_offset)
         if f.read(1)[0] != Opcode.CHUNK:
             raise McapError(f"no chunk record at offset {ci.chunk_start_offset}")
         f.seek(8, 1)  # the record length
-        stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)), validate_crc=True)
-        buf = stream.read(size)
-        pos = 0
+        buf = _chunk_bytes(Chunk.read(ReadDataStream(f)))
+        pos, size = 0, len(buf)
         while pos < size:
             op, length = _RECORD.unpack_from(buf, pos)
             pos += 9
@@ -504,6 +507,22 @@ def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]
             pos += length
         if pos != size:
             raise McapError(f"a record overruns the chunk at offset {ci.chunk_start_offset}")
+
+
+def _chunk_bytes(chunk: Chunk) -> bytes:
+    """A chunk's records, decompressed; McapError when its CRC or size does not match."""
+    if chunk.compression == "zstd":
+        data = zstandard.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:  # not reached: _messages reads other compressions with the library
+        raise McapError(f"unknown chunk compression {chunk.compression!r}")
+    if len(data) != chunk.uncompressed_size:
+        raise McapError(f"a chunk holds {len(data)} bytes, {chunk.uncompressed_size} expected")
+    crc = zlib.crc32(data)
+    if chunk.uncompressed_crc and crc != chunk.uncompressed_crc:
+        raise McapError(f"chunk CRC {crc} does not match the stored {chunk.uncompressed_crc}")
+    return data
 
 
 def _decode(datas: list[bytes]) -> list[Any]:
