@@ -4,7 +4,9 @@ Layout, chosen so that any MCAP tool (Foxglove, ``mcap cat``, PlotJuggler) can s
 
 - every channel has message encoding ``json`` and a ``jsonschema`` schema; one message per
   sample on each channel, ``log_time = publish_time`` = the sample time in ns (shifted so the
-  first sample is >= 0 when ``t`` starts negative), ``sequence`` = the row index;
+  first sample is >= 0 when ``t`` starts negative), ``sequence`` = the row index; the messages
+  are written row by row (a row's message on each channel, then the next row's) and read back
+  in that order, a block of rows at a time (:func:`layout`, :func:`frames`);
 - ``/ditherlab/joints`` (schema ``ditherlab.JointSample``):
   ``{"t": s, "q": [rad], "tau": [N·m], "dq"?: [rad/s], "tau_ffw"?: [N·m], "temp"?: [°C]}``;
 - ``/ditherlab/wrench`` (``ditherlab.Wrench``, only with F/T columns):
@@ -371,8 +373,8 @@ def layout(path: Path, **options: Any) -> Layout:
                     topic = summary.channels[cid].topic
                     counts[topic] = counts.get(topic, 0) + k
             else:  # no statistics: count the messages (one pass, nothing kept)
-                for _schema, ch, _message in reader.iter_messages(log_time_order=False):
-                    counts[ch.topic] = counts.get(ch.topic, 0) + 1
+                for topic, _, _ in _messages(f, {c.topic for c in summary.channels.values()}):
+                    counts[topic] = counts.get(topic, 0) + 1
     except FormatError:
         raise
     except _DAMAGE as exc:
@@ -476,8 +478,8 @@ def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]
     compressed otherwise than ditherlab writes them (zstd) or uncompressed, is read with the
     library's linear reader (the same messages, slower).
     """
-    reader = SeekingReader(f, validate_crcs=True)
-    summary = reader.get_summary()
+    f.seek(0)
+    summary = SeekingReader(f, validate_crcs=True).get_summary()
     assert summary is not None  # layout() refused a file without one
     chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
     if not chunks or any(c.compression not in _FAST_COMPRESSIONS for c in chunks):
@@ -525,16 +527,21 @@ def _chunk_bytes(chunk: Chunk) -> bytes:
     return data
 
 
-def _decode(datas: list[bytes]) -> list[Any]:
-    """The JSON bodies of messages, decoded in one call (a JSON array of them); one at a time
-    when that does not give one value per message, so a bad message fails on its own."""
-    try:
-        out = json.loads(b"[" + b",".join(datas) + b"]")
-        if len(out) == len(datas):
-            return out
-    except ValueError:
-        pass
-    return [json.loads(d) for d in datas]
+def _decode(datas: list[bytes], step: int = 16384) -> list[Any]:
+    """The JSON bodies of messages, decoded ``step`` at a time in one call each (a JSON array of
+    them); one at a time when that does not give one value per message, so a bad message fails
+    on its own."""
+    out: list[Any] = []
+    for a in range(0, len(datas), step):
+        part = datas[a : a + step]
+        try:
+            values = json.loads(b"[" + b",".join(part) + b"]")
+        except ValueError:
+            values = None
+        if values is None or len(values) != len(part):
+            values = [json.loads(d) for d in part]
+        out += values
+    return out
 
 
 def read(path: Path, **options: Any) -> Recording:
