@@ -215,10 +215,11 @@ def test_damaged_mcap_is_one_line_through_the_cli(mc, cli, tmp_path, damage):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap"]
 
 
-def _rewrite(src, dst, *, drop=None, swap=None, statistics=True):
+def _rewrite(src, dst, *, drop=None, swap=None, statistics=True, **writer):
     """Copy a ditherlab MCAP message by message: ``drop`` = (topic, k) leaves out the k-th
     message of a channel, ``swap`` = (topic, k) writes its messages k and k+1 in each other's
-    place (their sequence numbers kept), ``statistics=False`` writes no statistics record."""
+    place (their sequence numbers kept), ``statistics=False`` writes no statistics record,
+    ``writer`` goes to the mcap Writer (compression, use_chunking)."""
     with open(src, "rb") as f:
         reader = SeekingReader(f)
         summary = reader.get_summary()
@@ -233,7 +234,8 @@ def _rewrite(src, dst, *, drop=None, swap=None, statistics=True):
     if drop:
         del msgs[seen[drop[0]][drop[1]]]
     with open(dst, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD, use_statistics=statistics)
+        opts = {"compression": CompressionType.ZSTD, "use_statistics": statistics, **writer}
+        w = Writer(f, **opts)
         w.start(profile="ditherlab", library="test")
         ids = {}
         for ch in summary.channels.values():
@@ -299,3 +301,25 @@ def test_write_stream_refuses_a_column_that_changes_type(mc, tmp_path):
     with pytest.raises(FormatError, match=rf"^{csv}: column push changes type at row \d+ "):
         write_stream(open_source(csv), out, rows=3000)
     assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize(
+    "writer",
+    [
+        {"compression": CompressionType.LZ4},
+        {"compression": CompressionType.NONE},
+        {"use_chunking": False},
+    ],
+)
+def test_mcap_written_otherwise_reads_the_same(mc, tmp_path, writer):
+    """lz4 chunks and a file without chunks go through the mcap library's reader, uncompressed
+    chunks through ours: the same blocks."""
+    _, pq_path, path, _ = mc
+    ref = read(pq_path).data
+    other = _rewrite(path, tmp_path / "other.mcap", **writer)
+    src = open_source(other)
+    assert src.bounded and src.n_rows == len(ref)
+    got = pd.concat(list(src.frames(1500)), ignore_index=True)
+    pd.testing.assert_frame_equal(got, ref, check_exact=True)
+    got = pd.concat(list(src.frames(4000, ["t", "f_y"])), ignore_index=True)
+    pd.testing.assert_frame_equal(got, ref[["t", "f_y"]], check_exact=True)

@@ -4,7 +4,9 @@ Layout, chosen so that any MCAP tool (Foxglove, ``mcap cat``, PlotJuggler) can s
 
 - every channel has message encoding ``json`` and a ``jsonschema`` schema; one message per
   sample on each channel, ``log_time = publish_time`` = the sample time in ns (shifted so the
-  first sample is >= 0 when ``t`` starts negative), ``sequence`` = the row index;
+  first sample is >= 0 when ``t`` starts negative), ``sequence`` = the row index; the messages
+  are written row by row (a row's message on each channel, then the next row's) and read back
+  in that order, a block of rows at a time (:func:`layout`, :func:`frames`);
 - ``/ditherlab/joints`` (schema ``ditherlab.JointSample``):
   ``{"t": s, "q": [rad], "tau": [N·m], "dq"?: [rad/s], "tau_ffw"?: [N·m], "temp"?: [°C]}``;
 - ``/ditherlab/wrench`` (``ditherlab.Wrench``, only with F/T columns):
@@ -26,6 +28,7 @@ import json
 import math
 import re
 import struct
+import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,12 +36,12 @@ from typing import Any, BinaryIO
 
 import numpy as np
 import pandas as pd
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.records import Chunk
-from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 from zstandard import ZstdError
 
@@ -297,6 +300,7 @@ def write_frames(
 # ------------------------------------------------------------------------------ read
 #: what a damaged file makes the mcap library (or zstandard, json) raise
 _DAMAGE = (McapError, ZstdError, struct.error, ValueError, EOFError, OSError, KeyError)
+_FAST_COMPRESSIONS = ("zstd", "")  # chunks _messages decompresses itself
 _RECORD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE = struct.Struct("<HI")  # channel id, sequence (then log time, publish time, data)
 
@@ -369,8 +373,8 @@ def layout(path: Path, **options: Any) -> Layout:
                     topic = summary.channels[cid].topic
                     counts[topic] = counts.get(topic, 0) + k
             else:  # no statistics: count the messages (one pass, nothing kept)
-                for _schema, ch, _message in reader.iter_messages(log_time_order=False):
-                    counts[ch.topic] = counts.get(ch.topic, 0) + 1
+                for topic, _, _ in _messages(f, {c.topic for c in summary.channels.values()}):
+                    counts[topic] = counts.get(topic, 0) + 1
     except FormatError:
         raise
     except _DAMAGE as exc:
@@ -470,13 +474,15 @@ def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]
 
     The records inside a chunk are parsed here (opcode, length, then a message's channel id,
     sequence, log and publish time, data: the MCAP specification): the mcap library's record
-    objects cost about half the time of a read. A file without chunk indexes is read with the
-    library's linear reader.
+    objects cost about half the time of a read. A file without chunk indexes, or with chunks
+    compressed otherwise than ditherlab writes them (zstd) or uncompressed, is read with the
+    library's linear reader (the same messages, slower).
     """
-    reader = SeekingReader(f, validate_crcs=True)
-    summary = reader.get_summary()
+    f.seek(0)
+    summary = SeekingReader(f, validate_crcs=True).get_summary()
     assert summary is not None  # layout() refused a file without one
-    if not summary.chunk_indexes:
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    if not chunks or any(c.compression not in _FAST_COMPRESSIONS for c in chunks):
         f.seek(0)
         for _schema, ch, m in NonSeekingReader(f, validate_crcs=True).iter_messages(
             topics=list(topics), log_time_order=False
@@ -484,16 +490,15 @@ def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]
             yield ch.topic, m.sequence, m.data
         return
     wanted = {cid: ch.topic for cid, ch in summary.channels.items() if ch.topic in topics}
-    for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+    for ci in chunks:
         if ci.message_index_offsets and not wanted.keys() & ci.message_index_offsets.keys():
             continue  # the chunk's message indexes list none of the wanted channels
         f.seek(ci.chunk_start_offset)
         if f.read(1)[0] != Opcode.CHUNK:
             raise McapError(f"no chunk record at offset {ci.chunk_start_offset}")
         f.seek(8, 1)  # the record length
-        stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)), validate_crc=True)
-        buf = stream.read(size)
-        pos = 0
+        buf = _chunk_bytes(Chunk.read(ReadDataStream(f)))
+        pos, size = 0, len(buf)
         while pos < size:
             op, length = _RECORD.unpack_from(buf, pos)
             pos += 9
@@ -506,16 +511,37 @@ def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]
             raise McapError(f"a record overruns the chunk at offset {ci.chunk_start_offset}")
 
 
-def _decode(datas: list[bytes]) -> list[Any]:
-    """The JSON bodies of messages, decoded in one call (a JSON array of them); one at a time
-    when that does not give one value per message, so a bad message fails on its own."""
-    try:
-        out = json.loads(b"[" + b",".join(datas) + b"]")
-        if len(out) == len(datas):
-            return out
-    except ValueError:
-        pass
-    return [json.loads(d) for d in datas]
+def _chunk_bytes(chunk: Chunk) -> bytes:
+    """A chunk's records, decompressed; McapError when its CRC or size does not match."""
+    if chunk.compression == "zstd":
+        data = zstandard.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:  # not reached: _messages reads other compressions with the library
+        raise McapError(f"unknown chunk compression {chunk.compression!r}")
+    if len(data) != chunk.uncompressed_size:
+        raise McapError(f"a chunk holds {len(data)} bytes, {chunk.uncompressed_size} expected")
+    crc = zlib.crc32(data)
+    if chunk.uncompressed_crc and crc != chunk.uncompressed_crc:
+        raise McapError(f"chunk CRC {crc} does not match the stored {chunk.uncompressed_crc}")
+    return data
+
+
+def _decode(datas: list[bytes], step: int = 16384) -> list[Any]:
+    """The JSON bodies of messages, decoded ``step`` at a time in one call each (a JSON array of
+    them); one at a time when that does not give one value per message, so a bad message fails
+    on its own."""
+    out: list[Any] = []
+    for a in range(0, len(datas), step):
+        part = datas[a : a + step]
+        try:
+            values = json.loads(b"[" + b",".join(part) + b"]")
+        except ValueError:
+            values = None
+        if values is None or len(values) != len(part):
+            values = [json.loads(d) for d in part]
+        out += values
+    return out
 
 
 def read(path: Path, **options: Any) -> Recording:

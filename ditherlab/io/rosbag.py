@@ -20,6 +20,14 @@ Reading
   topic → a recording without F/T columns; ``wrench_topic=""`` ignores the wrench).
 - The robot: ``robot=`` (name or URDF path), else the ditherlab metadata stored by :func:`write`
   in the bag's ``custom_data``, else a ``/robot_description`` (``std_msgs/msg/String``) topic.
+- In blocks (:func:`layout` then :func:`frames`, for :class:`ditherlab.io.stream.Source`): a
+  first pass keeps only the joint-state stamps (8 bytes a message), the wrench's first and last
+  stamps and the URDF, which fix the rows, the tolerance and the dropped samples; a second pass
+  reads the messages again and merges each block of joint states with the wrench samples from
+  the last one before it to the first one at or after its end, carried across the cut, which
+  gives the whole merge's values exactly. This needs the header stamps in the bag's order on
+  each topic (they never go back); a bag whose stamps go back must be sorted and is read whole.
+  :func:`read` is the same two passes over the messages held in memory, sorted.
 
 Writing
 -------
@@ -33,12 +41,16 @@ key ``ditherlab``. Columns other than q, dq, tau and the wrench are not stored.
 from __future__ import annotations
 
 import contextlib
+import heapq
 import os
 import shutil
 import sqlite3
 import struct
 import tempfile
 import warnings
+from array import array
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -112,74 +124,224 @@ def _pick(
     return found[0]
 
 
-def read(path: Path, **options: Any) -> Recording:
-    """Read a ROS 2 bag (folder, ``.mcap`` or ``.db3``) into a Recording (rules above)."""
+_JOINT, _WRENCH, _URDF = 0, 1, 2
+#: what rosbags raises on a damaged bag
+_DAMAGE = (
+    AnyReaderError,
+    OSError,
+    ValueError,
+    KeyError,
+    AssertionError,
+    struct.error,
+    sqlite3.Error,
+    apsw.Error,
+    OverflowError,
+    IndexError,
+)
+
+
+class _Bag:
+    """The messages of a bag that the reader needs, deserialized, in the bag's order: iterating
+    yields ``(kind, stamp [ns], message)`` with kind ``_JOINT``, ``_WRENCH`` or ``_URDF``; the
+    stamp is ``header.stamp`` (the receive time when it is zero). Once iteration has started,
+    ``jtopic``, ``wtopic`` and ``custom`` (the bags' custom data) are set. A damaged bag is a
+    FormatError naming it."""
+
+    def __init__(self, path: Path, options: dict[str, Any]):
+        self.path, self.options = path, options
+        self.jtopic = ""
+        self.wtopic: str | None = None
+        self.custom: dict[str, str] = {}
+
+    def __iter__(self) -> Iterator[tuple[int, int, Any]]:
+        path, options = self.path, self.options
+        try:
+            with AnyReader([path], default_typestore=get_typestore(TYPESTORE)) as reader:
+                topics = {c.topic: c.msgtype for c in reader.connections}
+                jtopic = _pick(
+                    topics, options.get("joint_topic"), JOINT_STATE, "joint_topic", path, True
+                )
+                assert jtopic is not None
+                wopt = options.get("wrench_topic")
+                wtopic = (
+                    None
+                    if wopt == ""
+                    else _pick(topics, wopt, WRENCH_STAMPED, "wrench_topic", path, False)
+                )
+                self.jtopic, self.wtopic, self.custom = jtopic, wtopic, _custom_data(reader)
+                conns = [
+                    c
+                    for c in reader.connections
+                    if c.topic in (jtopic, wtopic)
+                    or (c.topic == "/robot_description" and c.msgtype == STRING)
+                ]
+                for conn, stamp, raw in reader.messages(connections=conns):
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    if conn.topic == jtopic:
+                        yield _JOINT, _stamp(msg.header) or stamp, msg
+                    elif conn.topic == wtopic:
+                        yield _WRENCH, _stamp(msg.header) or stamp, msg
+                    else:
+                        yield _URDF, stamp, msg
+        except FormatError:
+            raise
+        except _DAMAGE as exc:
+            raise FormatError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+
+
+@dataclass
+class BagLayout:
+    """What a bag holds, from one pass over its messages that keeps only their time stamps.
+
+    Attributes
+    ----------
+    path : the bag ; meta : the metadata (reader options applied) ; columns : the table's columns
+    ordered : True when the header stamps never go back in the bag's order on either topic
+        (then :func:`frames` can read the bag in blocks; else it is read whole and sorted)
+    t : (n_rows,) [s] the rows' times ; n_rows : rows of the table
+    jtopic, wtopic : the topics read (``wtopic`` None when no wrench is merged)
+    names : the robot's joint names ; has_dq : every message carries velocities
+    tol : [s] the wrench merge's nearest-sample tolerance
+    """
+
+    path: Path
+    meta: dict[str, Any]
+    columns: list[str]
+    ordered: bool
+    t: np.ndarray
+    n_rows: int
+    jtopic: str
+    wtopic: str | None
+    names: list[str]
+    has_dq: bool
+    tol: float
+
+
+def layout(path: Path, **options: Any) -> BagLayout:
+    """The :class:`BagLayout` of a ROS 2 bag, from one pass over its messages (memory: 8 bytes
+    per joint-state message). Raises what :func:`read` raises for the topics, the robot, the
+    wrench overlap and a damaged bag, and gives its warnings (when ``ordered``)."""
     path = Path(path)
     check_options(options, OPTIONS, "ROS 2 bag", str(path))
-    default_ts = get_typestore(TYPESTORE)
-    try:
-        with AnyReader([path], default_typestore=default_ts) as reader:
-            topics = {c.topic: c.msgtype for c in reader.connections}
-            jtopic = _pick(
-                topics, options.get("joint_topic"), JOINT_STATE, "joint_topic", path, required=True
-            )
-            wopt = options.get("wrench_topic")
-            wtopic = (
-                None
-                if wopt == ""
-                else _pick(topics, wopt, WRENCH_STAMPED, "wrench_topic", path, required=False)
-            )
-            custom = _custom_data(reader)
-            urdf_text = None
-            joints: list[tuple[int, Any]] = []
-            wrenches: list[tuple[int, Any]] = []
-            conns = [
-                c
-                for c in reader.connections
-                if c.topic in (jtopic, wtopic)
-                or (c.topic == "/robot_description" and c.msgtype == STRING)
-            ]
-            for conn, stamp, raw in reader.messages(connections=conns):
-                msg = reader.deserialize(raw, conn.msgtype)
-                if conn.topic == jtopic:
-                    joints.append((_stamp(msg.header) or stamp, msg))
-                elif conn.topic == wtopic:
-                    wrenches.append((_stamp(msg.header) or stamp, msg))
-                else:
-                    urdf_text = msg.data
-    except FormatError:
-        raise
-    except (
-        AnyReaderError,
-        OSError,
-        ValueError,
-        KeyError,
-        AssertionError,
-        struct.error,
-        sqlite3.Error,
-        apsw.Error,
-        OverflowError,
-        IndexError,
-    ) as exc:  # what rosbags raises on a damaged bag
-        raise FormatError(f"{path}: not a readable ROS 2 bag ({exc})") from None
-    if not joints:
-        raise FormatError(f"{path}: topic {jtopic} [{JOINT_STATE}] has no messages")
+    bag = _Bag(path, options)
+    return _scan(bag, iter(bag), options)
 
-    stored = loads_meta(custom["ditherlab"], str(path)) if "ditherlab" in custom else None
+
+def _scan(bag: _Bag, items: Iterator[tuple[int, int, Any]], options: dict[str, Any]) -> BagLayout:
+    """Pass one: stamps, velocity presence, the wrench's span, the URDF (``items`` from ``bag``
+    or the same messages sorted)."""
+    joints: array[int] = array("q")
+    has_dq, ordered = True, True
+    w_first = w_last = w_count = 0
+    frame, urdf_text = "", None
+    for kind, stamp, msg in items:
+        if kind == _JOINT:
+            ordered = ordered and (not joints or stamp >= joints[-1])
+            joints.append(stamp)
+            has_dq = has_dq and len(msg.velocity) == len(msg.name)
+        elif kind == _WRENCH:
+            ordered = ordered and (not w_count or stamp >= w_last)
+            if not w_count:
+                w_first, frame = stamp, str(msg.header.frame_id)
+            w_count += int(not w_count or stamp != w_last)  # distinct stamps
+            w_last = stamp
+        else:
+            urdf_text = msg.data
+    path = bag.path
+    if not joints:
+        raise FormatError(f"{path}: topic {bag.jtopic} [{JOINT_STATE}] has no messages")
+    stored = loads_meta(bag.custom["ditherlab"], str(path)) if "ditherlab" in bag.custom else None
     if stored is None and urdf_text and options.get("robot") is None:
         robot = urdf_spec(urdf_text, options.get("tool_frame"), where=f"{path}: /robot_description")
         stored = {"robot": robot}
-    foreign = "ditherlab" not in custom  # a bag that ditherlab did not write
+    foreign = "ditherlab" not in bag.custom  # a bag that ditherlab did not write
     meta = meta_from_options(stored, options, where=str(path))
     if foreign:
         meta.setdefault("source", f"ROS 2 bag {path.name}")
     names = _joint_names(meta, path)
-    data = _joint_table(joints, names, jtopic, path)
-    if wtopic is not None and wrenches:
-        data, frame = _merge_wrench(data, wrenches, options.get("wrench_tolerance"), wtopic, path)
-        if frame and foreign:
-            meta["wrench_frame"] = frame
-    return Recording(data, meta, name=str(path))
+    columns = ["t", *(f"{p}_{j + 1}" for p in ("q", "dq", "tau") for j in range(len(names)))]
+    if not has_dq:
+        columns = [c for c in columns if not c.startswith("dq_")]
+    wtopic = bag.wtopic if w_count else None
+    lay = BagLayout(
+        path, meta, columns, ordered, np.zeros(0), 0, bag.jtopic, wtopic, names, has_dq, 0.0
+    )
+    if not ordered:
+        return lay  # read whole and sorted (read): its warnings then, not twice
+    stamps = np.frombuffer(joints, dtype=np.int64)
+    keep = np.ones(len(stamps), dtype=bool)
+    keep[1:] = np.diff(stamps) > 0
+    if not keep.all():
+        warnings.warn(
+            f"{path}: {int((~keep).sum())} messages on {bag.jtopic} repeat the previous "
+            "time stamp and were dropped",
+            DitherlabWarning,
+            stacklevel=3,
+        )
+    t = stamps[keep] * 1e-9
+    lay.t, lay.n_rows = t, len(t)
+    if wtopic is None:
+        return lay
+    tol = options.get("wrench_tolerance")
+    if tol is None:
+        tol = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    elif float(tol) < 0:
+        raise ConfigError(f"{path}: option wrench_tolerance is {tol}, expected >= 0 s")
+    lay.tol = float(tol)
+    # coverage depends on the wrench's first and last samples only (merge_onto)
+    ends = np.array([w_first, w_last] if w_count > 1 else [w_first]) * 1e-9
+    _, covered = merge_onto(t, ends, np.zeros((len(ends), 6)), lay.tol)
+    t_w = ends[[0, -1]]
+    if not covered.any():
+        raise FormatError(
+            f"{path}: the wrench on {wtopic} (t={t_w[0]:.3f}..{t_w[-1]:.3f} s) does "
+            f"not overlap the joint states (t={t[0]:.3f}..{t[-1]:.3f} s)"
+        )
+    if not covered.all():
+        bad = np.flatnonzero(~covered)
+        warnings.warn(
+            f"{path}: {len(bad)} joint-state samples between t={t[bad[0]]:.3f} s and "
+            f"t={t[bad[-1]]:.3f} s lie outside the wrench on {wtopic} and were dropped",
+            DitherlabWarning,
+            stacklevel=3,
+        )
+    lay.t, lay.n_rows = t[covered], int(covered.sum())
+    lay.columns += list(WRENCH_COLUMNS)
+    if frame and foreign:
+        meta["wrench_frame"] = frame
+    return lay
+
+
+def frames(lay: BagLayout, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
+    """The table of an ``ordered`` bag in consecutive blocks of ``rows`` rows (the last one
+    shorter), read again message by message: memory holds a block, and the wrench samples
+    around it (the merge's neighbours are carried across the cut)."""
+    if not lay.ordered:
+        raise ConfigError(f"{lay.path}: the bag's time stamps go back: read it whole")
+    bag = _Bag(lay.path, {"joint_topic": lay.jtopic, "wrench_topic": lay.wtopic or ""})
+    for block in _blocks(bag, lay, rows):
+        yield block if columns is None else block[columns]
+
+
+def read(path: Path, **options: Any) -> Recording:
+    """Read a ROS 2 bag (folder, ``.mcap`` or ``.db3``) into a Recording (rules above): the
+    messages in memory, sorted by stamp on each topic (stable), then the two passes of
+    :func:`layout` and :func:`frames` over them."""
+    path = Path(path)
+    check_options(options, OPTIONS, "ROS 2 bag", str(path))
+    bag = _Bag(path, options)
+    items = list(bag)
+    by_kind = {k: [x for x in items if x[0] == k] for k in (_JOINT, _WRENCH, _URDF)}
+    srt = list(
+        heapq.merge(
+            sorted(by_kind[_JOINT], key=lambda x: x[1]),
+            sorted(by_kind[_WRENCH], key=lambda x: x[1]),
+            key=lambda x: x[1],
+        )
+    )
+    lay = _scan(bag, iter(srt + by_kind[_URDF]), options)
+    (data,) = list(_blocks(srt, lay, max(len(by_kind[_JOINT]), 1)))
+    return Recording(data, lay.meta, name=str(path))
 
 
 def _custom_data(reader: AnyReader) -> dict[str, str]:
@@ -196,56 +358,116 @@ def _joint_names(meta: dict[str, Any], path: Path) -> list[str]:
     return list(RobotModel.from_spec(meta["robot"], where=str(path)).joint_names)
 
 
-def _joint_table(
-    joints: list[tuple[int, Any]], names: list[str], topic: str, path: Path
-) -> pd.DataFrame:
-    joints.sort(key=lambda x: x[0])
-    stamps = np.array([s for s, _ in joints], dtype=np.int64)
-    keep = np.ones(len(stamps), dtype=bool)
-    keep[1:] = np.diff(stamps) > 0
-    if not keep.all():
-        warnings.warn(
-            f"{path}: {int((~keep).sum())} messages on {topic} repeat the previous "
-            "time stamp and were dropped",
-            DitherlabWarning,
-            stacklevel=3,
+def _joint_row(
+    msg: Any, names: list[str], i: int, topic: str, path: Path
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(position, effort, velocity) of joint-state message ``i`` (0-based) in the robot's joint
+    order (velocity empty when the message has none); FormatError for a missing joint or a
+    field of the wrong length."""
+    index = {nm: k for k, nm in enumerate(msg.name)}
+    missing = [nm for nm in names if nm not in index]
+    if missing:
+        raise FormatError(
+            f"{path}: {topic} message {i + 1} has no joint {missing[0]} (names in the "
+            f"message: {', '.join(msg.name) or 'none'}; the robot's joints: {', '.join(names)})"
         )
-    n = len(names)
-    q = np.empty((len(joints), n))
-    tau = np.empty((len(joints), n))
-    dq: np.ndarray | None = np.empty((len(joints), n))
-    for i, (_, msg) in enumerate(joints):
-        index = {nm: k for k, nm in enumerate(msg.name)}
-        missing = [nm for nm in names if nm not in index]
-        if missing:
-            raise FormatError(
-                f"{path}: {topic} message {i + 1} has no joint {missing[0]} (names in the "
-                f"message: {', '.join(msg.name) or 'none'}; the robot's joints: {', '.join(names)})"
-            )
-        order = [index[nm] for nm in names]
-        pos, eff, vel = (np.asarray(msg.position), np.asarray(msg.effort), np.asarray(msg.velocity))
-        if len(pos) != len(msg.name):
-            raise FormatError(
-                f"{path}: {topic} message {i + 1} has {len(pos)} positions for "
-                f"{len(msg.name)} joint names"
-            )
-        if len(eff) != len(msg.name):
-            raise FormatError(
-                f"{path}: {topic} message {i + 1} has {len(eff)} efforts for "
-                f"{len(msg.name)} joint names (tau needs the effort field)"
-            )
-        q[i], tau[i] = pos[order], eff[order]
-        if dq is not None:
-            if len(vel) == len(msg.name):
-                dq[i] = vel[order]
-            else:
-                dq = None
-    cols: dict[str, np.ndarray] = {"t": stamps[keep] * 1e-9}
-    for prefix, arr in (("q", q), ("dq", dq), ("tau", tau)):
-        if arr is not None:
+    order = [index[nm] for nm in names]
+    pos, eff, vel = (np.asarray(msg.position), np.asarray(msg.effort), np.asarray(msg.velocity))
+    if len(pos) != len(msg.name):
+        raise FormatError(
+            f"{path}: {topic} message {i + 1} has {len(pos)} positions for "
+            f"{len(msg.name)} joint names"
+        )
+    if len(eff) != len(msg.name):
+        raise FormatError(
+            f"{path}: {topic} message {i + 1} has {len(eff)} efforts for "
+            f"{len(msg.name)} joint names (tau needs the effort field)"
+        )
+    return pos[order], eff[order], vel[order] if len(vel) == len(msg.name) else vel[:0]
+
+
+def _blocks(
+    items: Iterable[tuple[int, int, Any]], lay: BagLayout, rows: int
+) -> Iterator[pd.DataFrame]:
+    """Pass two: the table in blocks of ``rows`` rows from ``items`` in stamp order on each topic
+    (``lay.ordered``). Joint states with a repeated stamp are dropped (the first kept); each
+    block of ``rows`` joint states is merged with the wrench samples from the last one before
+    it to the first one at or after its end (:func:`merge_onto` then gives the values of the
+    whole merge) and loses the rows outside the wrench's span."""
+    n, merge = len(lay.names), lay.wtopic is not None
+    js: list[int] = []
+    jrows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    wt: list[float] = []
+    wv: list[list[float]] = []
+    out: list[pd.DataFrame] = []
+    held = 0
+    i = 0
+    last_j = last_w = None
+
+    def block(k: int) -> pd.DataFrame:
+        t = np.asarray(js[:k], dtype=np.int64) * 1e-9
+        cols: dict[str, np.ndarray] = {"t": t}
+        for f, prefix in ((0, "q"), (2, "dq"), (1, "tau")):
+            if prefix == "dq" and not lay.has_dq:
+                continue
+            arr = np.array([r[f] for r in jrows[:k]], dtype=float).reshape(k, n)
             for j in range(n):
-                cols[f"{prefix}_{j + 1}"] = arr[keep, j]
-    return pd.DataFrame(cols)
+                cols[f"{prefix}_{j + 1}"] = arr[:, j]
+        data = pd.DataFrame(cols)
+        del js[:k], jrows[:k]
+        if not merge:
+            return data
+        tw = np.asarray(wt)
+        a = max(int(np.searchsorted(tw, t[0])) - 1, 0)
+        b = min(int(np.searchsorted(tw, t[-1])), len(tw) - 1)
+        W, covered = merge_onto(t, tw[a : b + 1], np.asarray(wv[a : b + 1]), lay.tol)
+        del wt[: max(b - 1, 0)], wv[: max(b - 1, 0)]
+        data = data.loc[covered].reset_index(drop=True)
+        for c, col in enumerate(WRENCH_COLUMNS):
+            data[col] = W[covered, c]
+        return data
+
+    def ready() -> bool:
+        return len(js) >= rows and (not merge or (bool(wt) and wt[-1] >= js[rows - 1] * 1e-9))
+
+    def emit(final: bool) -> Iterator[pd.DataFrame]:
+        nonlocal out, held
+        while held >= rows or (final and held):
+            data = pd.concat(out, ignore_index=True) if len(out) > 1 else out[0]
+            yield data.iloc[:rows].reset_index(drop=True)
+            out = [data.iloc[rows:].reset_index(drop=True)] if len(data) > rows else []
+            held = max(len(data) - rows, 0)
+
+    for kind, stamp, msg in items:
+        if kind == _JOINT:
+            row = _joint_row(msg, lay.names, i, lay.jtopic, lay.path)
+            i += 1
+            if last_j is not None and stamp <= last_j:
+                if stamp < last_j:
+                    raise FormatError(f"{lay.path}: the bag changed while it was read")
+                continue
+            last_j = stamp
+            js.append(stamp)
+            jrows.append(row)
+        elif kind == _WRENCH:
+            if last_w is not None and stamp <= last_w:
+                continue
+            last_w = stamp
+            f, m = msg.wrench.force, msg.wrench.torque
+            wt.append(stamp * 1e-9)
+            wv.append([f.x, f.y, f.z, m.x, m.y, m.z])
+        else:
+            continue
+        while ready():
+            data = block(rows)
+            out.append(data)
+            held += len(data)
+            yield from emit(False)
+    if js:
+        data = block(len(js))
+        out.append(data)
+        held += len(data)
+    yield from emit(True)
 
 
 def merge_onto(
@@ -282,52 +504,6 @@ def merge_onto(
     covered = near_ok | inside
     out[~covered] = np.nan
     return out, covered
-
-
-def _merge_wrench(
-    data: pd.DataFrame, wrenches: list[tuple[int, Any]], tol: float | None, topic: str, path: Path
-) -> tuple[pd.DataFrame, str]:
-    wrenches.sort(key=lambda x: x[0])
-    stamps = np.array([s for s, _ in wrenches], dtype=np.int64)
-    keep = np.ones(len(stamps), dtype=bool)
-    keep[1:] = np.diff(stamps) > 0
-    t_w = stamps[keep] * 1e-9
-    w = np.array(
-        [
-            [
-                m.wrench.force.x,
-                m.wrench.force.y,
-                m.wrench.force.z,
-                m.wrench.torque.x,
-                m.wrench.torque.y,
-                m.wrench.torque.z,
-            ]
-            for _, m in wrenches
-        ]
-    )[keep]
-    t = data["t"].to_numpy()
-    if tol is None:
-        tol = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    elif float(tol) < 0:
-        raise ConfigError(f"{path}: option wrench_tolerance is {tol}, expected >= 0 s")
-    W, covered = merge_onto(t, t_w, w, float(tol))
-    if not covered.any():
-        raise FormatError(
-            f"{path}: the wrench on {topic} (t={t_w[0]:.3f}..{t_w[-1]:.3f} s) does "
-            f"not overlap the joint states (t={t[0]:.3f}..{t[-1]:.3f} s)"
-        )
-    if not covered.all():
-        bad = np.flatnonzero(~covered)
-        warnings.warn(
-            f"{path}: {len(bad)} joint-state samples between t={t[bad[0]]:.3f} s and "
-            f"t={t[bad[-1]]:.3f} s lie outside the wrench on {topic} and were dropped",
-            DitherlabWarning,
-            stacklevel=3,
-        )
-    data = data.loc[covered].reset_index(drop=True)
-    for k, c in enumerate(WRENCH_COLUMNS):
-        data[c] = W[covered, k]
-    return data, str(wrenches[0][1].header.frame_id)
 
 
 # ------------------------------------------------------------------------------ write

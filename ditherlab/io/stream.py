@@ -2,7 +2,8 @@
 
 A :class:`Source` reads a recording's table a batch of rows at a time (Parquet by row-group
 batches, CSV by blocks of lines, ditherlab MCAP by its messages in file order, one chunk
-decompressed at a time) and hands it out as overlapping :class:`Piece` s: each piece is a
+decompressed at a time, ROS 2 bags message by message after a first pass that keeps only the time
+stamps) and hands it out as overlapping :class:`Piece` s: each piece is a
 :class:`~ditherlab.recording.Recording` of the rows it owns plus ``halo`` rows on either side,
 carrying the whole recording's :class:`~ditherlab.recording.TimeBase` (first time stamp, median
 step, dither period). Every quantity downstream is computed from a bounded neighbourhood of a
@@ -12,8 +13,9 @@ values exactly; :data:`HALO_S` (2 s) covers every window with room to spare.
 
 Memory: a piece of ``rows`` rows (default :data:`CHUNK_ROWS`) and the ``t`` column of the whole
 recording (8 bytes per sample: 72 MB for ten hours at 250 Hz) are held at once. Formats without
-a batch reader (ROS 2 bags, mapped vendor logs) are read whole and then cut into the same pieces:
-results are the same, memory is not bounded (``ditherlab convert`` them to Parquet first).
+a batch reader (mapped vendor logs, and ROS 2 bags whose header stamps go back in the bag's order,
+which must be sorted) are read whole and then cut into the same pieces: results are the same,
+memory is not bounded (``ditherlab convert`` them to Parquet first).
 """
 
 from __future__ import annotations
@@ -107,11 +109,10 @@ class Source:
             self._open_csv(options)
         elif kind == "mcap":
             self._open_mcap(options)
-        else:  # read whole: bags, mapped logs
-            self._rec = read(self.path, **options)
-            self.meta = self._rec.meta
-            self.n_rows = len(self._rec)
-            self.columns = [str(c) for c in self._rec.data.columns]
+        elif kind == "rosbag":
+            self._open_rosbag(options)
+        else:  # mapped logs
+            self._read_whole(options)
         self.bounded = self._rec is None
         self._timebase: TimeBase | None = None
 
@@ -138,6 +139,22 @@ class Source:
         self.meta = self._mcap.meta
         self.n_rows = self._mcap.n_rows
         self.columns = [c for c, _ in self._mcap.columns]
+
+    def _read_whole(self, options: dict[str, Any]) -> None:
+        self._rec = read(self.path, **options)
+        self.meta = self._rec.meta
+        self.n_rows = len(self._rec)
+        self.columns = [str(c) for c in self._rec.data.columns]
+
+    def _open_rosbag(self, options: dict[str, Any]) -> None:
+        # one pass over the messages keeps their stamps: the rows' times, the wrench's span
+        lay = _module("rosbag").layout(self.path, **options)
+        if not lay.ordered:  # sorting needs every message
+            self._read_whole(options)
+            return
+        self._bag = lay
+        self.meta, self.n_rows, self.columns = lay.meta, lay.n_rows, list(lay.columns)
+        self._t = lay.t
 
     def _open_csv(self, options: dict[str, Any]) -> None:
         check_options(options, csv_io.OPTIONS, "CSV", self.name)
@@ -176,6 +193,9 @@ class Source:
             return
         if self.kind == "mcap":
             yield from _module("mcap").frames(self._mcap, rows, columns)
+            return
+        if self.kind == "rosbag":
+            yield from _module("rosbag").frames(self._bag, rows, columns)
             return
         start = 0
         try:
