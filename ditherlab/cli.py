@@ -188,6 +188,7 @@ def view(
     serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    chunk: Chunk = None,
     quiet: Quiet = False,
 ) -> None:
     """Review a recording, its estimates and model in Rerun (3D robot, torques, forces, events)."""
@@ -206,7 +207,7 @@ def view(
         read_options=_read_options(mapping, robot),
     )
     with progress_bar("view", quiet) as progress:
-        res = run_view(req, progress=progress)
+        res = run_view(req, progress=progress, **({"chunk_rows": chunk} if chunk else {}))
     if res.path is not None:
         echo(
             f"wrote {res.path} ({sum(res.summary.rows.values())} rows); open it with: rerun {res.path}"

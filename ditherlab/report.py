@@ -245,6 +245,8 @@ def make_report(
     for e in estimates:
         if not isinstance(e, Estimates):
             check_not_input(out / "report.json", [e])
+    # the recordings opened (and their time stamps read) before anything is written
+    logs = [_Log(r, chunk_rows) for r in recordings] if figures else []
     steps = 3 + (4 if figures else 0)
     done = 0
 
@@ -301,7 +303,7 @@ def make_report(
     written: list[str] = []
     if figures:
         out.mkdir(parents=True, exist_ok=True)
-        written += _figures(ests, analysis, recordings, out, blocks, tick, chunk_rows)
+        written += _figures(ests, analysis, logs, out, blocks, tick, chunk_rows)
     analysis["files"] = written + ["report.md", "report.html", "report.json"]
     atomic_write_text(out / "report.md", render(blocks, "md"))
     atomic_write_text(out / "report.html", render(blocks, "html"))
@@ -313,7 +315,7 @@ def make_report(
 def _figures(
     ests: list[EstimatesSource],
     analysis: dict,
-    recordings: Sequence[Any],
+    logs: list[_Log],
     out: Path,
     blocks: list[tuple],
     tick: Callable[[], None],
@@ -354,7 +356,6 @@ def _figures(
         )
     )
     tick()
-    logs = [_Log(r, chunk_rows) for r in recordings]
     if logs:
         written += _torque_figures(ests, logs, out, blocks)
     tick()

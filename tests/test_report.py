@@ -137,3 +137,13 @@ def test_cli_report_on_a_recording_exit_2(tmp_path, cli, pair):
     r = cli("report", src, "-o", tmp_path / "rep", "-q")
     assert r.code == 2 and "expected 'ditherlab.estimates/1'" in r.err
     assert not (tmp_path / "rep").exists()
+
+
+def test_cli_report_with_a_missing_recording_writes_nothing(tmp_path, cli, pair):
+    """A --recording that does not exist: one line naming it, exit 2, and no report folder
+    (the recordings are opened before anything is written)."""
+    paths, _ = pair
+    out = tmp_path / "rep"
+    r = cli("report", *paths, "-o", out, "--recording", tmp_path / "nope.parquet", "-q")
+    assert r.code == 2 and r.err.count("\n") == 1 and "nope.parquet" in r.err, r.err
+    assert not out.exists()

@@ -336,3 +336,46 @@ def test_cli_report_in_pieces_equals_the_whole(campaign, still_campaign, replaye
         )
         for key in ("conditions", "recordings"):  # as JSON text: NaN equal to NaN
             assert json.dumps(mem[key]) == json.dumps(whole[key])
+
+
+@pytest.mark.parametrize(
+    "where, estimates", [("push", True), ("dither", True), ("stick", True), ("dither", False)]
+)
+def test_cli_view_in_pieces_equals_the_whole(campaign, replayed, cli, where, estimates):
+    """The view of the dithered campaign with its model (and estimates), the recording read in
+    pieces cut at an awkward place: every row of the .rrd read back (all entities, times and
+    values, bit for bit) is the one written from the whole log; without the estimates the
+    extraction is redone on each piece."""
+    from ditherlab.viz.rrd import rrd_contents, rrd_rows
+
+    d, path, model = campaign
+    rec = read(path)
+    rows = _awkward_cuts(rec)[where]
+    assert len(rec) > rows
+    args = ["view", path, "--model", model, "-q"]
+    if estimates:
+        args += ["--estimates", replayed[0]]
+    out, printed = {}, {}
+    for name, chunk in (("whole", len(rec)), ("cut", rows)):
+        out[name] = d / f"view_{where}_{estimates}_{name}.rrd"
+        r = cli(*args, "--save", out[name], "--chunk", str(chunk))
+        assert r.code == 0, r.err
+        printed[name] = r.out.replace(str(out[name]), "OUT")
+    assert printed["whole"] == printed["cut"]  # the row count
+    whole, cut = rrd_rows(out["whole"]), rrd_rows(out["cut"])
+    assert whole.keys() == cut.keys()
+    for key, (t, v) in whole.items():
+        assert (t is None) == (cut[key][0] is None), key
+        assert t is None or np.array_equal(t, cut[key][0]), key
+        if isinstance(v, np.ndarray):
+            assert np.array_equal(v, cut[key][1]), key
+        else:
+            assert v == cut[key][1], key
+    # what the comparison covered: full-rate series, thinned ones, 3D, events across the cut
+    c = rrd_contents(out["whole"])
+    assert c["joints/2/tau"]["Scalars:scalars"] == len(rec)
+    assert 0 < c["joints/2/extract"]["Scalars:scalars"] < len(rec)
+    assert c["robot/skeleton"]["LineStrips3D:strips"] == -(-len(rec) // 10)
+    assert c["events/pushes"]["TextLog:text"] == 3 * 12
+    assert c["events/dither"]["TextLog:text"] >= 1
+    assert ("events/detections/dither_band" in c) == estimates

@@ -12,7 +12,7 @@ import pandas as pd
 import rerun as rr
 
 from ditherlab import dither
-from ditherlab.dither import Extraction, dither_on, dithered_band, extract_dither, full_window
+from ditherlab.dither import Extraction, dithered_band, extract_dither, full_window, has_dither
 from ditherlab.effects import effects_torque, external_torque, sensor_wrench, signals
 from ditherlab.errors import ConfigError
 from ditherlab.estimates import Estimates
@@ -24,6 +24,8 @@ from ditherlab.viz.stream import REGIME_COLORS, SENSOR_COLOR, VARIANT_COLORS, Co
 
 EXTRACT_SIGNALS = ("upper", "lower", "signal")
 _DITHER_COL = re.compile(r"^dither_(?P<name>[A-Za-z0-9_]+?)_(?P<j>\d+)$")
+#: colours of the model versions' residuals and of the joints' history bars
+_PALETTE = [(200, 60, 60), (230, 150, 40), (60, 160, 60), (40, 110, 230), (140, 60, 200)]
 #: Fig. 5 signals a simulator or controller may log: centre_ref_3, amp_meas_3, centre_ffw_3 ...
 _FIG5_COL = re.compile(r"^(?P<name>(?:centre|center|amp|amplitude)(?:_[a-z]+)?)_(?P<j>\d+)$")
 
@@ -56,14 +58,19 @@ def external_sensor(rec: Recording) -> np.ndarray | None:
 def log_joints(
     log: ColumnLogger,
     rec: Recording,
+    keep: slice,
     tb: np.ndarray,
     jtf: np.ndarray | None,
     model: TorqueModel | None,
 ) -> None:
-    tau = rec.tau
+    """Per joint ``tau`` and ``tau_bar`` beside ``J^T F`` of the sensor.
+
+    ``rec`` is a piece (or the whole recording) and ``keep`` its owned rows; ``tb`` and ``jtf``
+    (L, n) [N·m] are on all of its rows."""
+    tau = rec.tau[keep]
+    tb = tb[keep]
+    jtf = None if jtf is None else jtf[keep]
     label = "tau - gravity" if model is None or not model.effects else "tau - gravity - effects"
-    t = rec.t
-    span = np.array([0, len(t) - 1]) if len(t) > 1 else np.array([0])
     for j in range(rec.n):
         base = f"joints/{j + 1}"
         log.series(
@@ -77,20 +84,26 @@ def log_joints(
             vals = np.column_stack([tb[:, j], jtf[:, j]])
             names, colors = [label, "J^T F (sensor)"], [[0, 0, 0], [0, 150, 150]]
         log.series(f"{base}/tau_bar", vals, names=names, colors=colors, widths=1.5, thin=False)
-        if model is None:
-            continue
+
+
+def log_bands(log: ColumnLogger, n: int, model: TorqueModel | None, span: np.ndarray) -> None:
+    """The model's band edges per joint and regime at ``span`` (the recording's first and last
+    time [s]), once."""
+    if model is None:
+        return
+    for j in range(n):
         for regime in (STILL.label, DITHER.label):
             if regime not in model.regimes:
                 continue
             b = model.regimes[regime]
             edges = np.tile([b.tau_min[j], b.tau_max[j]], (len(span), 1))
             log.series(
-                f"{base}/band/{regime}",
+                f"joints/{j + 1}/band/{regime}",
                 edges,
                 names=[f"{regime} band min", f"{regime} band max"],
                 colors=[REGIME_COLORS[regime]] * 2,
                 widths=1.0,
-                idx=span,
+                t=span,
                 thin=False,
             )
 
@@ -100,7 +113,8 @@ def dither_period(rec: Recording, estimates: Estimates | None = None) -> float |
 
     The estimates file's ``dither_period`` (what replay used) when it states one, else
     :func:`ditherlab.dither.dither_period` (the metadata, the feedforward's square wave, the
-    torque's spectrum) where :func:`ditherlab.dither.dither_on` finds the dither on.
+    torque's spectrum) where :func:`ditherlab.dither.dither_on` finds the dither on (for a
+    piece of a longer recording: the whole recording's, from its time base).
     """
     if estimates is not None and estimates.meta.get("dither_period"):
         return float(estimates.meta["dither_period"])
@@ -108,8 +122,7 @@ def dither_period(rec: Recording, estimates: Estimates | None = None) -> float |
         # the feedforward's interpolation divides by zero where the square wave is flat; those
         # entries are unused
         with np.errstate(invalid="ignore", divide="ignore"):
-            on = dither_on(rec)
-            if on is None or not on.any():
+            if not has_dither(rec):  # a piece: whether the whole recording has it
                 return None
             return dither.dither_period(rec)
     except ConfigError:
@@ -144,18 +157,27 @@ def _fig5_group(col: str, n: int) -> tuple[str, str, int] | None:
 def log_dither(
     log: ColumnLogger,
     rec: Recording,
+    keep: slice,
     estimates: Estimates | None,
     g: np.ndarray,
     tb: np.ndarray,
     model: TorqueModel | None,
+    period: float | None,
 ) -> None:
     """Fig. 5 (centre and amplitude: measured, reference, feedforward) and Fig. 4 (upper, lower,
-    extracted signal; the signal minus gravity against J^T F of the sensor and the bands)."""
+    extracted signal; the signal minus gravity against J^T F of the sensor and the bands).
+
+    ``rec`` is a piece (or the whole recording) and ``keep`` its owned rows; ``g``, ``tb`` (L, n)
+    [N·m] on all its rows; ``estimates`` the owned rows' estimates; ``period`` [s] the whole
+    recording's dither period (:func:`dither_period`), None without dither."""
     ffw = rec.tau_ffw
     if ffw is not None:
         for j in range(rec.n):
             log.series(
-                f"joints/{j + 1}/dither/ffw", ffw[:, j], names="tau_ffw", colors=[[150, 150, 150]]
+                f"joints/{j + 1}/dither/ffw",
+                ffw[keep, j],
+                names="tau_ffw",
+                colors=[[150, 150, 150]],
             )
     shades = {"centre": (40, 110, 230), "amplitude": (230, 130, 30), "other": (120, 120, 120)}
     for col in rec.data.columns:
@@ -165,35 +187,38 @@ def log_dither(
         group, name, j = hit
         light = "ref" in name or "ffw" in name or "cmd" in name
         c = shades[group] if not light else tuple(int(x + (255 - x) * 0.5) for x in shades[group])
-        vals = pd.to_numeric(rec.data[col], errors="coerce").to_numpy(dtype=float)
+        vals = pd.to_numeric(rec.data[col].iloc[keep], errors="coerce").to_numpy(dtype=float)
         log.series(f"joints/{j}/dither/{group}/{name}", vals, names=name, colors=[c], step=True)
 
     d = estimates.data if estimates is not None else None
     have = d is not None and all(f"extract/{s}_1" in d.columns for s in EXTRACT_SIGNALS)
+    if period is None:
+        return
     # The estimates file's own columns when present (the extraction replay did and wrote, read
     # back rather than redone); without them the same extraction, ditherlab.dither.extract_dither.
     ext = None if have else _extraction(rec)
-    period = dither_period(rec, estimates) if have else ext.period if ext is not None else None
-    if period is None:
+    if not have and ext is None:
         return
     # The window is the extraction's: whole periods at this rate; the centre (not in the file) is
     # its window mean.
-    window = max(2, int(round(period / float(np.median(np.diff(rec.t)))))) if len(rec) > 1 else 2
-    centre = causal_mean(rec.tau, window) if ext is None else ext.centre  # (N, n) [N·m]
+    window = max(2, int(round(period / rec.dt))) if len(rec) > 1 else 2
+    centre = (causal_mean(rec.tau, window) if ext is None else ext.centre)[keep]  # (M, n) [N·m]
     still = model.regimes.get(STILL.label) if model is not None else None
     # Dither quantities mean something only where the dither was on over the whole window; NaN
     # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
-    on = _dither_window_on(rec, window)
+    on = _dither_window_on(rec, window)[keep]
     off = ~on
+    g, tau, tb = g[keep], rec.tau[keep], tb[keep]
     # The simulator states its amplitude set-points (the reference of Fig. 5) in the metadata.
     setpoint = ((rec.meta.get("sim") or {}).get("dither_amplitudes") or {}).get("set_point")
     for j in range(1, rec.n + 1):
         sig: dict[str, np.ndarray] = {}
         for s in EXTRACT_SIGNALS:
             if ext is None:
+                assert d is not None
                 sig[s] = d[f"extract/{s}_{j}"].to_numpy(dtype=float)
             else:
-                sig[s] = getattr(ext, s)[:, j - 1]
+                sig[s] = getattr(ext, s)[keep, j - 1]
         # upper, lower, signal, the window mean (Fig. 5's measured centre) and its reference, the
         # gravity torque, share one entity (same units, scale and time base: one time column and
         # row id for five series).
@@ -228,7 +253,7 @@ def log_dither(
                 widths=1.5,
             )
         # Fig. 4, lower: the extracted signal in the estimator's units (gravity and effects off).
-        offset = rec.tau[:, j - 1] - tb[:, j - 1]  # gravity + effects [N·m]
+        offset = tau[:, j - 1] - tb[:, j - 1]  # gravity + effects [N·m]
         log.series(
             f"joints/{j}/fig4/signal_bar",
             np.where(off, np.nan, sig["signal"] - offset),
@@ -255,9 +280,11 @@ def _dither_window_on(rec: Recording, window: int) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- per force axis
-def log_forces(log: ColumnLogger, rec: Recording, estimates: Estimates | None) -> None:
+def log_forces(log: ColumnLogger, rec: Recording, keep: slice, estimates: Estimates | None) -> None:
+    """Per force axis the sensor, the controller's online estimate and every variant's estimate
+    with its interval (``rec`` a piece, ``keep`` its owned rows, ``estimates`` theirs)."""
     if rec.has_wrench:
-        w = rec.wrench
+        w = rec.wrench[keep]
         for k, a in enumerate(FORCE_AXES):
             log.series(
                 f"force/{a}/sensor",
@@ -272,7 +299,7 @@ def log_forces(log: ColumnLogger, rec: Recording, estimates: Estimates | None) -
         if f"fhat_{a}" in rec.data.columns:
             log.series(
                 f"force/{a}/online",
-                rec.data[f"fhat_{a}"].to_numpy(dtype=float),
+                rec.data[f"fhat_{a}"].to_numpy(dtype=float)[keep],
                 names="online estimate (controller)",
                 colors=[[150, 60, 200]],
                 widths=1.5,
@@ -343,25 +370,31 @@ def residual(rec: Recording, gravity: np.ndarray, model: TorqueModel) -> np.ndar
 
 
 def log_residuals(
-    log: ColumnLogger, rec: Recording, g: np.ndarray, model: TorqueModel | None
+    log: ColumnLogger, rec: Recording, keep: slice, g: np.ndarray, model: TorqueModel | None
 ) -> None:
-    """Residual per joint for every rebuildable model version, and the history's RMS per version."""
+    """Residual per joint for every rebuildable model version (``rec`` a piece, ``keep`` its
+    owned rows, ``g`` (L, n) [N·m] on all its rows)."""
     if model is None:
         return
-    palette = [(200, 60, 60), (230, 150, 40), (60, 160, 60), (40, 110, 230), (140, 60, 200)]
     if rec.has_wrench:
         for k, (ver, m) in enumerate(model_versions(model).items()):
-            rho = residual(rec, g, m)
+            rho = residual(rec, g, m)[keep]
             label = f"v{ver}: " + (" + ".join(m.effect_names()) or "base model")
             for j in range(rec.n):
                 log.series(
                     f"joints/{j + 1}/residual/v{ver}",
                     rho[:, j],
                     names=label,
-                    colors=[palette[k % len(palette)]],
+                    colors=[_PALETTE[k % len(_PALETTE)]],
                     widths=1.0,
                     thin=False,
                 )
+
+
+def log_history(log: ColumnLogger, model: TorqueModel | None) -> None:
+    """The model history's residual RMS per version (bar charts and a table, static), once."""
+    if model is None:
+        return
     rows = [h for h in model.history if isinstance(h, Mapping) and h.get("torque_rms")]
     if not rows:
         return
@@ -370,7 +403,7 @@ def log_residuals(
     for j in range(rms.shape[1]):
         log.stream.log(
             f"history/torque_rms/{j + 1}",
-            rr.BarChart(rms[:, j], abscissa=versions, color=palette[j % len(palette)]),
+            rr.BarChart(rms[:, j], abscissa=versions, color=_PALETTE[j % len(_PALETTE)]),
             static=True,
         )
     lines = [

@@ -1,15 +1,18 @@
 """Log a recording, its estimates, the torque model and a diagnosis to Rerun (``.rrd``).
 
-Everything is sent as whole columns (``send_columns`` + one ``TimeColumn`` named ``time``, the
-recording's ``t`` in seconds); styling is logged once as static data; the layout comes from
-:func:`ditherlab.viz.blueprint.make_blueprint`.
+Everything is sent as columns (``send_columns`` + one ``TimeColumn`` named ``time``, the
+recording's ``t`` in seconds), one chunk per entity and piece of the recording; styling is
+logged once as static data; the layout comes from :func:`ditherlab.viz.blueprint.make_blueprint`.
 
 This module holds the entry points (:func:`log_view`, :func:`save_view`, :func:`show_view`,
 :func:`run_view`, :func:`save_view_files`) and re-exports the public names of the modules that do
 the work, each a job of its own:
 
-- :mod:`ditherlab.viz.inputs`: reading and checking the inputs (:func:`load_view_request`,
-  :func:`load_estimates`, :func:`check_estimates_match`)
+- :mod:`ditherlab.viz.inputs`: opening and checking the inputs (:func:`load_view_request`,
+  :func:`load_estimates`, :func:`open_estimates`, :func:`check_estimates_match`)
+- :mod:`ditherlab.viz.pieces`: the loop over a recording's pieces (a long log is read and its
+  ``.rrd`` written a piece at a time, ``--chunk ROWS``; a recording in memory is one piece) and
+  what it needs of the whole recording first
 - :mod:`ditherlab.viz.stream`: sending columns (:class:`~ditherlab.viz.stream.ColumnLogger`,
   :func:`thin_mask`, :func:`decimate_index`, the colours)
 - :mod:`ditherlab.viz.robot3d`: the robot, force arrows and interval boxes in 3D
@@ -71,41 +74,26 @@ from pathlib import Path
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 
-from ditherlab.effects import signals
 from ditherlab.errors import DitherlabError
-from ditherlab.estimates import Estimates
+from ditherlab.estimates import Estimates, EstimatesSource, check_estimates_match
 from ditherlab.io.atomic import atomic_path, check_not_input, json_default
+from ditherlab.io.stream import CHUNK_ROWS, Piece, Source
 from ditherlab.model import TorqueModel
 from ditherlab.recording import Recording
 from ditherlab.viz.blueprint import make_blueprint
 from ditherlab.viz.diagnosis import DiagnosisLike
-from ditherlab.viz.events import DETECTION_MERGE_GAP, log_diagnosis, log_events, merge_spans
-from ditherlab.viz.inputs import (
-    ViewRequest,
-    check_estimates_match,
-    load_estimates,
-    load_view_request,
-)
-from ditherlab.viz.panels import (
-    dither_period,
-    external_sensor,
-    log_dither,
-    log_forces,
-    log_joints,
-    log_residuals,
-    model_versions,
-    residual,
-    tau_bar,
-)
-from ditherlab.viz.robot3d import log_robot
-from ditherlab.viz.rrd import rrd_contents, rrd_scalars
+from ditherlab.viz.events import DETECTION_MERGE_GAP, merge_spans
+from ditherlab.viz.inputs import ViewRequest, load_estimates, load_view_request, open_estimates
+from ditherlab.viz.panels import dither_period, model_versions, residual, tau_bar
+from ditherlab.viz.pieces import WholeView, log_pieces
+from ditherlab.viz.rrd import rrd_contents, rrd_rows, rrd_scalars
 from ditherlab.viz.stream import (
     REGIME_COLORS,
     SENSOR_COLOR,
     TIMELINE,
     VARIANT_COLORS,
-    ColumnLogger,
     ViewSummary,
     decimate_index,
     thin_mask,
@@ -126,16 +114,20 @@ __all__ = [
     "dither_period",
     "load_estimates",
     "load_view_request",
+    "open_estimates",
     "log_view",
+    "log_view_pieces",
     "merge_spans",
     "model_versions",
     "new_stream",
     "residual",
     "rrd_contents",
+    "rrd_rows",
     "rrd_scalars",
     "run_view",
     "save_view",
     "save_view_files",
+    "save_view_pieces",
     "show_view",
     "tau_bar",
     "thin_mask",
@@ -178,78 +170,58 @@ def log_view(
     """
     if estimates is not None:
         check_estimates_match(rec, estimates)
-    steps = 7
-    done = 0
-
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        if progress is not None:
-            progress(done, steps)
-
     if progress is not None:
-        progress(0, steps)
-    t = rec.t
-    log = ColumnLogger(stream, t)
-    log.summary.n_joints = rec.n
-    log.summary.variants = estimates.variants if estimates is not None else []
-    stream.log(
-        "info/recording",
-        rr.TextDocument(_recording_markdown(rec, estimates), media_type="text/markdown"),
-        static=True,
+        progress(0, 1)
+    whole = WholeView.of_recording(rec, estimates, rate_3d)
+    return log_pieces(
+        stream,
+        whole,
+        [Piece(rec, 0, slice(0, len(rec)), 0, 1)],
+        estimates=EstimatesSource.of(estimates) if estimates is not None else None,
+        model=model,
+        diagnosis=diagnosis,
+        force_scale=force_scale,
+        progress=progress,
     )
-    if model is not None:
-        stream.log(
-            "info/model", rr.TextDocument(model.dumps(), media_type="text/plain"), static=True
-        )
-
-    log_robot(log, rec, rec.robot(), estimates, rate_3d, force_scale)
-    tick()
-    # gravity (N, n) [N·m], shared by tau_bar and the residuals: the recording's cached signals
-    g = signals(rec).gravity
-    tb = tau_bar(rec, g, model)
-    log_joints(log, rec, tb, external_sensor(rec), model)
-    tick()
-    log_dither(log, rec, estimates, g, tb, model)
-    tick()
-    log_forces(log, rec, estimates)
-    tick()
-    log_residuals(log, rec, g, model)
-    tick()
-    log_events(log, rec, estimates)
-    tick()
-    log_diagnosis(log, rec, diagnosis)
-    tick()
-    return log.summary
 
 
-# ---------------------------------------------------------------------- text
-def _recording_markdown(rec: Recording, est: Estimates | None) -> str:
-    lines = [
-        f"# {rec.name or 'recording'}",
-        "",
-        f"- robot: {rec.robot_label}, {rec.n} joints",
-        f"- {len(rec)} samples, {rec.duration:.2f} s, {rec.sample_rate:.1f} Hz",
-        f"- F/T sensor: {'yes' if rec.has_wrench else 'no'}; dither flag: "
-        f"{'yes' if rec.dither is not None else 'no'}",
-    ]
-    if est is not None:
-        iv = est.meta.get("interval", {})
-        lines += [
-            f"- estimates: {est.name}, variants {', '.join(est.variants)}",
-            f"- interval: {iv.get('method', '?')} at level {iv.get('level', '?')}",
-        ]
-    lines += [
-        "",
-        "Force signs: the wrench the robot exerts on its environment (a push P shows as -P).",
-    ]
-    return "\n".join(lines)
+def log_view_pieces(
+    src: Source,
+    stream: rr.RecordingStream,
+    *,
+    head: Recording,
+    estimates: EstimatesSource | None = None,
+    model: TorqueModel | None = None,
+    diagnosis: DiagnosisLike | None = None,
+    rate_3d: float | None = 25.0,
+    force_scale: float = 0.005,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Callable[[int, int], None] | None = None,
+) -> ViewSummary:
+    """:func:`log_view` of a recording read in pieces of ``chunk_rows`` rows
+    (:func:`ditherlab.viz.pieces.log_pieces`): the same rows and values, memory for one piece
+    (and 8 bytes per sample for the time stamps). ``head``: the recording's first rows with its
+    time base (:func:`ditherlab.viz.inputs.load_view_request`); ``estimates`` checked against
+    the recording by the caller."""
+    if progress is not None:
+        progress(0, 1)
+    whole = WholeView.of_source(src, head, estimates, rate_3d, chunk_rows)
+    return log_pieces(
+        stream,
+        whole,
+        src.pieces(chunk_rows),
+        estimates=estimates,
+        model=model,
+        diagnosis=diagnosis,
+        force_scale=force_scale,
+        progress=progress,
+    )
 
 
 # ---------------------------------------------------------------------- entry points
 def new_stream(
     rec: Recording,
-    estimates: Estimates | None = None,
+    estimates: Estimates | EstimatesSource | None = None,
     model: TorqueModel | None = None,
     application_id: str = "ditherlab",
 ) -> rr.RecordingStream:
@@ -259,9 +231,20 @@ def new_stream(
     in place of the old one); another recording or other estimates of it give another id (the
     viewer keeps them apart instead of merging them).
     """
+    return _stream(rec.meta_json(), rec.t, estimates, model, application_id)
+
+
+def _stream(
+    meta_json: str,
+    t: np.ndarray,
+    estimates: Estimates | EstimatesSource | None,
+    model: TorqueModel | None,
+    application_id: str = "ditherlab",
+) -> rr.RecordingStream:
+    """:func:`new_stream` from the recording's metadata (JSON) and time stamps (N,) [s]."""
     h = hashlib.sha256()
-    h.update(rec.meta_json().encode())
-    h.update(np.asarray(rec.t).tobytes())
+    h.update(meta_json.encode())
+    h.update(np.asarray(t).tobytes())
     if estimates is not None:
         h.update(json.dumps(estimates.meta, sort_keys=True, default=json_default).encode())
     if model is not None:
@@ -284,28 +267,61 @@ def save_view(
 
     Raises DitherlabError when ``path`` is one of ``inputs``.
     """
+    out = _check_out(path, [*inputs, *([rec.name] if rec.name else [])])
+    if estimates is not None:
+        check_estimates_match(rec, estimates)
+    stream = new_stream(rec, estimates, model)
+    bp = make_blueprint(rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench)
+    kw = {"estimates": estimates, "model": model, "diagnosis": diagnosis, "rate_3d": rate_3d}
+    return _save(out, stream, bp, lambda: log_view(rec, stream, progress=progress, **kw))
+
+
+def save_view_pieces(
+    src: Source,
+    path: str | Path,
+    *,
+    head: Recording,
+    estimates: EstimatesSource | None = None,
+    model: TorqueModel | None = None,
+    diagnosis: DiagnosisLike | None = None,
+    inputs: Sequence[str | Path] = (),
+    rate_3d: float | None = 25.0,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Callable[[int, int], None] | None = None,
+) -> ViewSummary:
+    """Write the view of a recording read in pieces to an ``.rrd`` file as the pieces come
+    (Rerun's file sink streams; the file is renamed into place at the end); see
+    :func:`log_view_pieces`. Raises DitherlabError when ``path`` is one of ``inputs``."""
+    out = _check_out(path, [*inputs, src.name])
+    stream = _stream(json.dumps(src.meta, sort_keys=True), src.times(), estimates, model)
+    variants = estimates.variants if estimates else []
+    bp = make_blueprint(head.n, variants, has_wrench=head.has_wrench)
+    kw = {"estimates": estimates, "model": model, "diagnosis": diagnosis, "rate_3d": rate_3d}
+
+    def log() -> ViewSummary:
+        return log_view_pieces(
+            src, stream, head=head, chunk_rows=chunk_rows, progress=progress, **kw
+        )
+
+    return _save(out, stream, bp, log)
+
+
+def _check_out(path: str | Path, inputs: Sequence[str | Path]) -> Path:
     out = Path(path)
     if out.suffix != ".rrd":
         raise DitherlabError(f"{out}: a Rerun recording must end in .rrd")
-    check_not_input(out, [*inputs, *([rec.name] if rec.name else [])])
-    if estimates is not None:
-        check_estimates_match(rec, estimates)
+    check_not_input(out, inputs)
+    return out
+
+
+def _save(
+    out: Path, stream: rr.RecordingStream, bp: rrb.Blueprint, log: Callable[[], ViewSummary]
+) -> ViewSummary:
+    """Run ``log`` with ``stream`` saving to a temporary file renamed onto ``out``."""
     with atomic_path(out) as tmp:
-        stream = new_stream(rec, estimates, model)
-        bp = make_blueprint(
-            rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench
-        )
         stream.save(tmp, default_blueprint=bp)
         try:
-            summary = log_view(
-                rec,
-                stream,
-                estimates=estimates,
-                model=model,
-                diagnosis=diagnosis,
-                rate_3d=rate_3d,
-                progress=progress,
-            )
+            summary = log()
         finally:
             stream.flush()
             stream.disconnect()
@@ -329,15 +345,7 @@ def show_view(
     """
     stream = new_stream(rec, estimates, model)
     bp = make_blueprint(rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench)
-    url = None
-    if mode == "spawn":
-        rr.spawn(recording=stream, default_blueprint=bp)
-    elif mode == "serve":
-        grpc = rr.serve_grpc(recording=stream, default_blueprint=bp)
-        rr.serve_web_viewer(web_port=WEB_PORT, connect_to=grpc, open_browser=False)
-        url = f"http://localhost:{WEB_PORT}/?url={grpc}"
-    else:
-        raise DitherlabError(f"view mode is {mode!r}, expected 'spawn' or 'serve'")
+    url = _connect(stream, bp, mode)
     log_view(
         rec,
         stream,
@@ -349,6 +357,18 @@ def show_view(
     )
     stream.flush()
     return url
+
+
+def _connect(stream: rr.RecordingStream, bp: rrb.Blueprint, mode: str) -> str | None:
+    """Start the viewer of ``mode`` for ``stream``; the web viewer's URL for ``"serve"``."""
+    if mode == "spawn":
+        rr.spawn(recording=stream, default_blueprint=bp)
+        return None
+    if mode == "serve":
+        grpc = rr.serve_grpc(recording=stream, default_blueprint=bp)
+        rr.serve_web_viewer(web_port=WEB_PORT, connect_to=grpc, open_browser=False)
+        return f"http://localhost:{WEB_PORT}/?url={grpc}"
+    raise DitherlabError(f"view mode is {mode!r}, expected 'spawn' or 'serve'")
 
 
 def wait_until_interrupted() -> None:
@@ -373,21 +393,32 @@ def run_view(
     req: ViewRequest,
     *,
     rate_3d: float | None = 25.0,
+    chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
 ) -> ViewResult:
-    """Write (``req.save``) or show (``req.mode``) the view of a checked request."""
-    kw = {
+    """Write (``req.save``) or show (``req.mode``) the view of a checked request, the recording
+    and its estimates read in pieces of ``chunk_rows`` rows (:func:`log_view_pieces`)."""
+    kw: dict = {
+        "head": req.head,
         "estimates": req.estimates,
         "model": req.model,
         "diagnosis": req.diagnosis,
         "rate_3d": rate_3d,
+        "chunk_rows": chunk_rows,
         "progress": progress,
     }
     if req.save is not None:
-        summary = save_view(req.rec, req.save, inputs=req.inputs, **kw)
+        summary = save_view_pieces(req.src, req.save, inputs=req.inputs, **kw)
         return ViewResult(summary, path=req.save)
-    url = show_view(req.rec, mode=str(req.mode), **kw)
-    return ViewResult(ViewSummary(), url=url)
+    src, est = req.src, req.estimates
+    stream = _stream(json.dumps(src.meta, sort_keys=True), src.times(), est, req.model)
+    variants = est.variants if est else []
+    url = _connect(
+        stream, make_blueprint(req.head.n, variants, has_wrench=req.head.has_wrench), str(req.mode)
+    )
+    summary = log_view_pieces(src, stream, **kw)
+    stream.flush()
+    return ViewResult(summary, url=url)
 
 
 def save_view_files(
@@ -398,14 +429,16 @@ def save_view_files(
     model: str | Path | None = None,
     diagnosis: str | Path | None = None,
     rate_3d: float | None = 25.0,
+    chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
 ) -> Path:
-    """Read the files, check them and write the view to ``out`` (``.rrd``); returns ``out``.
+    """Open the files, check them and write the view to ``out`` (``.rrd``) reading the
+    recording in pieces; returns ``out``.
 
     The one call a script (``make demo``) needs; see :func:`load_view_request` for the checks.
     """
     req = load_view_request(
         recording, estimates=estimates, model=model, diagnosis=diagnosis, save=out
     )
-    run_view(req, rate_3d=rate_3d, progress=progress)
+    run_view(req, rate_3d=rate_3d, chunk_rows=chunk_rows, progress=progress)
     return Path(out)

@@ -11,27 +11,30 @@ from scipy.spatial.transform import Rotation
 
 from ditherlab.estimates import Estimates
 from ditherlab.recording import FORCE_AXES, Recording
-from ditherlab.robot import RobotModel
-from ditherlab.viz.stream import SENSOR_COLOR, VARIANT_COLORS, ColumnLogger, decimate_index
+from ditherlab.viz.stream import SENSOR_COLOR, VARIANT_COLORS, ColumnLogger
 
 
 def log_robot(
     log: ColumnLogger,
     rec: Recording,
-    robot: RobotModel,
+    idx: np.ndarray,
     estimates: Estimates | None,
-    rate_3d: float | None,
+    est_idx: np.ndarray,
+    caps: dict[str, float],
     force_scale: float,
 ) -> None:
-    s = log.stream
-    s.log("robot", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    idx = decimate_index(rec.t, rate_3d)
+    """The robot, the force arrows and the interval boxes at the samples ``idx`` (M,) of ``rec``
+    (the 3D rate's samples among the rows a piece owns); the estimates' rows ``est_idx`` (M,) are
+    the same samples. ``caps`` [N] per variant: where an unbounded interval side is drawn
+    (:func:`interval_cap`, of the whole recording)."""
+    log.static("robot", rr.ViewCoordinates.RIGHT_HAND_Z_UP)
+    robot = rec.robot()
     t3 = rec.t[idx]
     q3 = rec.q[idx]
     poses = robot.link_poses(q3)
     for name, T in poses.items():
         path = f"robot/links/{rr.escape_entity_path_part(name)}"
-        s.log(path, rr.TransformAxes3D(0.06), static=True)
+        log.static(path, rr.TransformAxes3D(0.06))
         log.send(
             path,
             t3,
@@ -39,7 +42,7 @@ def log_robot(
         )
     # Skeleton through the link origins in kinematic order; coincident origins (wrist) collapse.
     origins = np.stack([T[:, :3, 3] for T in poses.values()], axis=1)  # (M, L, 3) [m]
-    s.log("robot/skeleton", rr.LineStrips3D([], radii=0.02, colors=[160, 160, 170]), static=True)
+    log.static("robot/skeleton", rr.LineStrips3D([], radii=0.02, colors=[160, 160, 170]))
     log.send(
         "robot/skeleton",
         t3,
@@ -52,20 +55,17 @@ def log_robot(
     if estimates is not None:
         d = estimates.data
         for v in estimates.variants:
-            fe = d[[f"{v}/f_{a}" for a in FORCE_AXES]].to_numpy(dtype=float)[idx]
+            fe = d[[f"{v}/f_{a}" for a in FORCE_AXES]].to_numpy(dtype=float)[est_idx]
             _arrows(log, f"robot/force/{v}", t3, tool, fe * force_scale, VARIANT_COLORS[v], v)
-            lo_c = [f"{v}/f_{a}_lo" for a in FORCE_AXES]
-            hi_c = [f"{v}/f_{a}_hi" for a in FORCE_AXES]
-            if all(c in d.columns for c in lo_c + hi_c):
-                lo = d[lo_c].to_numpy(dtype=float)[idx]
-                hi = d[hi_c].to_numpy(dtype=float)[idx]
-                # An unbounded side (a free component) is drawn at 4x the largest finite one.
-                cap = 4 * max(float(np.nanmax(np.abs(np.where(np.isfinite(lo), lo, 0)))), 1.0)
+            if v in caps:
+                lo_c, hi_c = _interval_columns(v)
+                lo = d[lo_c].to_numpy(dtype=float)[est_idx]
+                hi = d[hi_c].to_numpy(dtype=float)[est_idx]
+                cap = caps[v]
                 lo, hi = np.clip(lo, -cap, cap), np.clip(hi, -cap, cap)
-                s.log(
+                log.static(
                     f"robot/force/{v}/interval",
                     rr.Boxes3D(half_sizes=[[0, 0, 0]], colors=[VARIANT_COLORS[v]], radii=0.002),
-                    static=True,
                 )
                 log.send(
                     f"robot/force/{v}/interval",
@@ -75,6 +75,40 @@ def log_robot(
                         half_sizes=force_scale * (hi - lo) / 2,
                     ),
                 )
+
+
+def _interval_columns(v: str) -> tuple[list[str], list[str]]:
+    return [f"{v}/f_{a}_lo" for a in FORCE_AXES], [f"{v}/f_{a}_hi" for a in FORCE_AXES]
+
+
+def interval_cap(lo: np.ndarray) -> float:
+    """The largest finite ``|lo|`` [N] of interval lower bounds (M, 3) at the 3D rate (0 where
+    none is finite): an unbounded side (a free component) is drawn at 4x it (at least 4 N)."""
+    return float(np.max(np.abs(np.where(np.isfinite(lo), lo, 0)), initial=0.0))
+
+
+def interval_caps(
+    columns: list[str], variants: list[str], blocks: Any, idx: np.ndarray
+) -> dict[str, float]:
+    """Per variant with interval columns, the box cap [N] of :func:`log_robot`:
+    ``4 * max(interval_cap over the whole recording's 3D samples, 1)``.
+
+    ``blocks(cols)`` gives those columns of the estimates in consecutive blocks of rows; ``idx``
+    (M,) the whole recording's 3D samples (increasing row indices)."""
+    out: dict[str, float] = {}
+    for v in variants:
+        lo_c, hi_c = _interval_columns(v)
+        if not all(c in columns for c in lo_c + hi_c):
+            continue
+        m, a = 0.0, 0
+        for block in blocks(lo_c):
+            b = a + len(block)
+            sel = idx[(idx >= a) & (idx < b)] - a
+            if len(sel):
+                m = max(m, interval_cap(block.to_numpy(dtype=float)[sel]))
+            a = b
+        out[v] = 4 * max(m, 1.0)
+    return out
 
 
 def _quat_xyzw(R: np.ndarray) -> np.ndarray:
@@ -92,11 +126,10 @@ def _arrows(
     label: str,
 ) -> None:
     vec = np.where(np.isfinite(vectors), vectors, 0.0)
-    log.stream.log(
+    log.static(
         path,
         rr.Arrows3D(
             vectors=[[0, 0, 0]], colors=[color], radii=0.006, labels=[label], show_labels=False
         ),
-        static=True,
     )
     log.send(path, t, rr.Arrows3D.columns(vectors=vec, origins=origins))

@@ -1,11 +1,15 @@
 """Reading an ``.rrd`` file back with Rerun's own reader (``rerun.chunk.RrdReader``): what it
-holds per entity, and the scalars of one entity (the tests and ``make bench`` check the view so)."""
+holds per entity, the scalars of one entity, and every row in comparable form (the tests and
+``make bench`` check the view so)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 from rerun.chunk import RrdReader
 
 from ditherlab.errors import DitherlabError
@@ -61,3 +65,49 @@ def rrd_scalars(path: str | Path, entity: str) -> tuple[np.ndarray, np.ndarray]:
     v = np.concatenate(vs)
     order = np.argsort(t, kind="stable")
     return t[order] / 1e9, v[order]
+
+
+def rrd_rows(path: str | Path) -> dict[tuple[str, str, bool], tuple[np.ndarray | None, Any]]:
+    """Every logged row of an ``.rrd`` file in a form to compare two files bit for bit.
+
+    The chunks of an entity are joined and their rows put in time order (stable), so a file
+    written in pieces compares equal to one written at once. The recording's start time
+    (``RecordingInfo:start_time``, the wall clock) is left out.
+
+    Returns
+    -------
+    dict (entity path, component, static) -> (times (M,) [ns] of the ``time`` timeline or None
+    when static, values): float lists of one length as their bits, (M, k) int64 (NaN equal to
+    NaN); anything else as Python values, a list of M
+    """
+    raw: dict[tuple[str, str, bool], list[tuple[np.ndarray | None, pa.Array]]] = {}
+    for ch in RrdReader(str(path)).stream():
+        rb = ch.to_record_batch()
+        names = rb.schema.names
+        t = None if ch.is_static else rb.column(names.index(TIMELINE)).cast("int64").to_numpy()
+        for f in rb.schema:
+            if (f.metadata or {}).get(b"rerun:kind") != b"data":
+                continue
+            if f.name == "RecordingInfo:start_time":
+                continue
+            raw.setdefault((ch.entity_path, f.name, ch.is_static), []).append(
+                (t, rb.column(f.name))
+            )
+    out: dict[tuple[str, str, bool], tuple[np.ndarray | None, Any]] = {}
+    for key, parts in raw.items():
+        arr = pa.concat_arrays([a for _, a in parts])
+        if key[2]:
+            out[key] = (None, arr.to_pylist())
+            continue
+        t = np.concatenate([p[0] for p in parts if p[0] is not None])
+        order = np.argsort(t, kind="stable")
+        typ = arr.type
+        if pa.types.is_list(typ) and pa.types.is_floating(typ.value_type):
+            lens = pc.list_value_length(arr).to_numpy(zero_copy_only=False)
+            if len(np.unique(lens)) == 1:
+                flat = arr.flatten().to_numpy(zero_copy_only=False).astype(np.float64)
+                out[key] = (t[order], flat.view(np.int64).reshape(len(arr), -1)[order])
+                continue
+        rows = arr.to_pylist()
+        out[key] = (t[order], [rows[i] for i in order])
+    return out

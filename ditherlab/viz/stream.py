@@ -96,12 +96,35 @@ class ViewSummary:
 
 
 class ColumnLogger:
-    """Sends columns to one RecordingStream and keeps the row counts."""
+    """Sends columns to one RecordingStream and keeps the row counts.
+
+    A recording logged in pieces (:func:`ditherlab.viz.pieces.log_pieces`) sets the time stamps
+    of each piece's rows with :meth:`next_piece`; a series' style is logged once, and its lossless
+    thinning (:func:`thin_mask`) runs across the cuts: each piece's last sample is held back until
+    the next piece's first says whether it equals both neighbours, so the rows sent are those of
+    the whole recording sent at once.
+    """
 
     def __init__(self, stream: rr.RecordingStream, t: np.ndarray) -> None:
         self.stream = stream
         self.t = t
         self.summary = ViewSummary()
+        #: the current piece is the recording's last (nothing is held back)
+        self.last = True
+        self._styled: set[str] = set()
+        # path -> (the sample before the held one or None, the held sample, its time [s])
+        self._held: dict[str, tuple[np.ndarray | None, np.ndarray, float]] = {}
+
+    def next_piece(self, t: np.ndarray, last: bool) -> None:
+        """The next piece's time stamps (M,) [s]; ``last`` for the recording's last piece."""
+        self.t = t
+        self.last = last
+
+    def static(self, path: str, value: Any) -> None:
+        """Log static data once per path (later calls for the same path are ignored)."""
+        if path not in self._styled:
+            self._styled.add(path)
+            self.stream.log(path, value, static=True)
 
     def series(
         self,
@@ -111,18 +134,15 @@ class ColumnLogger:
         names: str | Sequence[str],
         colors: Any = None,
         widths: float | Sequence[float] | None = None,
-        idx: np.ndarray | None = None,
+        t: np.ndarray | None = None,
         thin: bool = True,
         step: bool = False,
     ) -> None:
-        """Log one scalar series (N,) or k series (N, k) at ``self.t`` (or ``self.t[idx]``)."""
+        """Log one scalar series (M,) or k series (M, k) at ``self.t`` (or at ``t`` [s])."""
         v = np.asarray(values, dtype=np.float64)
-        t = self.t if idx is None else self.t[idx]
-        if idx is not None and len(v) == len(self.t):
-            v = v[idx]  # otherwise the values are already given at t[idx]
+        t = self.t if t is None else np.asarray(t, dtype=float)
         if thin:
-            keep = thin_mask(v)
-            v, t = v[keep], t[keep]
+            v, t = self._thin(path, v, t)
         names_l = [names] if isinstance(names, str) else list(names)
         style: dict[str, Any] = {"names": names_l}
         if colors is not None:
@@ -131,19 +151,33 @@ class ColumnLogger:
             style["widths"] = widths
         if step:
             style["interpolation_mode"] = rr.components.InterpolationMode.StepAfter
-        self.stream.log(path, rr.SeriesLines(**style), static=True)
-        self.stream.send_columns(
-            path,
-            indexes=[rr.TimeColumn(TIMELINE, duration=t)],
-            columns=rr.Scalars.columns(scalars=v),
-        )
-        self.summary.rows[path] = len(t)
+        self.static(path, rr.SeriesLines(**style))
+        if len(t):
+            self.send(path, t, rr.Scalars.columns(scalars=v))
+
+    def _thin(self, path: str, v: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The samples of ``v`` (M,) or (M, k) at ``t`` (M,) to send: :func:`thin_mask` across
+        pieces (the sample held back from the previous piece first, this piece's last held)."""
+        held = self._held.pop(path, None)
+        off = 0
+        if held is not None:
+            prev, hv, ht = held
+            head = [hv] if prev is None else [prev, hv]
+            off = len(head) - 1
+            v = np.concatenate([np.stack(head), v])
+            t = np.concatenate([np.full(off, np.nan), [ht], t])
+        keep = thin_mask(v)
+        keep[:off] = False  # the sample before the held one was decided with its piece
+        if not self.last and len(v):
+            keep[-1] = False
+            self._held[path] = (v[-2] if len(v) > 1 else None, v[-1], float(t[-1]))
+        return v[keep], t[keep]
 
     def send(self, path: str, t: np.ndarray, columns: Any) -> None:
         self.stream.send_columns(
             path, indexes=[rr.TimeColumn(TIMELINE, duration=t)], columns=columns
         )
-        self.summary.rows[path] = len(t)
+        self.summary.rows[path] = self.summary.rows.get(path, 0) + len(t)
 
     def text_log(self, path: str, t: np.ndarray, text: Sequence[str], level: Sequence[str]) -> None:
         if len(t) == 0:
