@@ -453,3 +453,21 @@ def test_surrogate_rule_in_the_decision(recs):
         sc.sliding,
     )
     assert not _score(e, [fake], 1, 5, 0.25).evidence(0.05)
+
+
+def test_signals_cache_frees_its_recording():
+    """The robot quantities cached per recording go with it: a recording no longer used is
+    freed (a module-level WeakKeyDictionary kept every one alive, its values holding their key:
+    about 100 MB per piece of a long log)."""
+    import gc
+    import weakref
+
+    from ditherlab.effects import signals
+
+    rec = make_recording(seed=2, duration=1.0)
+    assert signals(rec).gravity.shape == (len(rec), 6)
+    assert signals(rec) is signals(rec)
+    gone = weakref.ref(rec)
+    del rec
+    gc.collect()
+    assert gone() is None

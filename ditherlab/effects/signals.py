@@ -15,7 +15,6 @@ then taken at the rows.
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -253,16 +252,18 @@ class Signals:
         return jtf(self.jac, F)
 
 
-_SIGNALS: weakref.WeakKeyDictionary[Recording, Signals] = weakref.WeakKeyDictionary()
-
-
 def signals(rec: Recording, sensor: bool = True) -> Signals:
     """The cached :class:`Signals` of a recording (robot quantities computed once per recording,
-    shared by the views with and without the sensor)."""
-    s = _SIGNALS.get(rec)
+    shared by the views with and without the sensor).
+
+    Kept on the recording itself (``rec._signals``): the two refer to each other and are freed
+    together when the recording is no longer used. (A module-level ``WeakKeyDictionary`` kept
+    every recording alive: its values hold their key.)
+    """
+    s = rec.__dict__.get("_signals")
     if s is None:
         s = Signals(rec)
-        _SIGNALS[rec] = s
+        object.__setattr__(rec, "_signals", s)
     if sensor or not rec.has_wrench:
         return s
     return s.cached("_no_sensor", s.without_sensor)

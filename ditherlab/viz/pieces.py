@@ -15,8 +15,6 @@ whatever the piece size; a recording in memory is logged as one piece.
 
 from __future__ import annotations
 
-import sys
-import weakref
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -258,7 +256,6 @@ def log_pieces(
                 )
             est = estimates.estimates(block)
         _log_piece(log, whole, piece, est, model, force_scale, events)
-        _release(piece.rec)
         # wait until the piece is written: the stream's batcher and sink would otherwise
         # queue the pieces as fast as they are computed, and memory grow with the log
         stream.flush()
@@ -266,19 +263,6 @@ def log_pieces(
             progress(piece.index + 1, piece.count)
     events.finish(log)
     return log.summary
-
-
-def _release(rec: Recording) -> None:
-    """Drop the robot signals cached for a piece (gravity, Jacobians, the effects' inputs).
-
-    ``ditherlab.effects.signals`` caches them in a ``WeakKeyDictionary`` whose values hold the
-    recording itself, so an entry never expires: every piece would stay in memory (about 100 MB
-    per 65 536 rows with a model). Until the cache holds its recording weakly, the view removes
-    its own pieces' entries here (a no-op once the cache is gone or fixed).
-    """
-    cache = getattr(sys.modules.get("ditherlab.effects.signals"), "_SIGNALS", None)
-    if isinstance(cache, weakref.WeakKeyDictionary):
-        cache.pop(rec, None)
 
 
 def _log_piece(
