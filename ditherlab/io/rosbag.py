@@ -202,6 +202,8 @@ class BagLayout:
     jtopic, wtopic : the topics read (``wtopic`` None when no wrench is merged)
     names : the robot's joint names ; has_dq : every message carries velocities
     tol : [s] the wrench merge's nearest-sample tolerance
+    span : [ns] the first and last stamps of the rows kept (the others lie outside the wrench)
+    w_count : the wrench samples with distinct stamps
     """
 
     path: Path
@@ -215,6 +217,8 @@ class BagLayout:
     names: list[str]
     has_dq: bool
     tol: float
+    span: tuple[int, int] = (0, 0)
+    w_count: int = 0
 
 
 def layout(path: Path, **options: Any) -> BagLayout:
@@ -279,7 +283,8 @@ def _scan(bag: _Bag, items: Iterator[tuple[int, int, Any]], options: dict[str, A
             stacklevel=3,
         )
     t = stamps[keep] * 1e-9
-    lay.t, lay.n_rows = t, len(t)
+    lay.t, lay.n_rows, lay.w_count = t, len(t), w_count
+    lay.span = (int(stamps[0]), int(stamps[-1]))
     if wtopic is None:
         return lay
     tol = options.get("wrench_tolerance")
@@ -306,6 +311,8 @@ def _scan(bag: _Bag, items: Iterator[tuple[int, int, Any]], options: dict[str, A
             stacklevel=3,
         )
     lay.t, lay.n_rows = t[covered], int(covered.sum())
+    kept = stamps[keep][covered]  # one run: coverage is the wrench's span widened by tol
+    lay.span = (int(kept[0]), int(kept[-1]))
     lay.columns += list(WRENCH_COLUMNS)
     if frame and foreign:
         meta["wrench_frame"] = frame
@@ -393,15 +400,15 @@ def _blocks(
     (``lay.ordered``). Joint states with a repeated stamp are dropped (the first kept); each
     block of ``rows`` joint states is merged with the wrench samples from the last one before
     it to the first one at or after its end (:func:`merge_onto` then gives the values of the
-    whole merge) and loses the rows outside the wrench's span."""
+    whole merge). The rows outside the wrench's span (``lay.span``) are dropped as they come;
+    a block waits for the wrench sample after its end, or for the wrench's last sample."""
     n, merge = len(lay.names), lay.wtopic is not None
     js: list[int] = []
     jrows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     wt: list[float] = []
     wv: list[list[float]] = []
     out: list[pd.DataFrame] = []
-    held = 0
-    i = 0
+    held = i = w_seen = 0
     last_j = last_w = None
 
     def block(k: int) -> pd.DataFrame:
@@ -428,7 +435,9 @@ def _blocks(
         return data
 
     def ready() -> bool:
-        return len(js) >= rows and (not merge or (bool(wt) and wt[-1] >= js[rows - 1] * 1e-9))
+        if len(js) < rows or not merge:
+            return len(js) >= rows
+        return bool(wt) and (wt[-1] >= js[rows - 1] * 1e-9 or w_seen == lay.w_count)
 
     def emit(final: bool) -> Iterator[pd.DataFrame]:
         nonlocal out, held
@@ -447,12 +456,15 @@ def _blocks(
                     raise FormatError(f"{lay.path}: the bag changed while it was read")
                 continue
             last_j = stamp
+            if not lay.span[0] <= stamp <= lay.span[1]:
+                continue  # outside the wrench: dropped (not held until its end)
             js.append(stamp)
             jrows.append(row)
         elif kind == _WRENCH:
             if last_w is not None and stamp <= last_w:
                 continue
             last_w = stamp
+            w_seen += 1
             f, m = msg.wrench.force, msg.wrench.torque
             wt.append(stamp * 1e-9)
             wv.append([f.x, f.y, f.z, m.x, m.y, m.z])
