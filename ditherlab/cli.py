@@ -273,6 +273,7 @@ def diagnose(
         ),
     ] = None,
     json_out: JsonFlag = False,
+    chunk: Chunk = None,
     quiet: Quiet = False,
 ) -> None:
     """Where the model fails (residual vs noise floor, force error, worst windows) and which effect is missing."""
@@ -290,6 +291,7 @@ def diagnose(
             history=not no_history,
             regimes=regime,
             progress=progress,
+            **({"chunk_rows": chunk} if chunk else {}),
         )
     echo(json.dumps(d.to_dict(), indent=1, default=json_default) if json_out else d.summary())
 

@@ -31,7 +31,7 @@ The band-plus-noise fits themselves are :mod:`ditherlab.bandfit`.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -40,7 +40,7 @@ from ditherlab.dither import dithered_band, extract_dither
 from ditherlab.effects import effects_torque, external_torque, sensor_wrench
 from ditherlab.errors import ConfigError, RecordingError
 from ditherlab.io.spill import SPILL_BYTES, Spill
-from ditherlab.io.stream import CHUNK_ROWS, Piece, Source
+from ditherlab.io.stream import CHUNK_ROWS, Source, pieces_of
 from ditherlab.model import PAPER_PRIOR_SIGMA, Band, TorqueModel
 from ditherlab.recording import DITHER, MOVING, STILL, Recording, regimes
 from ditherlab.signal import REVERSAL_V, causal_mean, jtf, stick_transitions
@@ -110,13 +110,6 @@ def _check_input(r: Recording, first: Recording | None, assume_no_force: bool) -
             f"{r.name or 'recording'}: robot {r.robot_label} with {r.n} joints differs from "
             f"{first.name or 'the first recording'}'s {first.robot_label} with {first.n} joints"
         )
-
-
-def _pieces(r: Recording | Source, rows: int) -> Iterator[Piece]:
-    """A recording in memory is one piece; a :class:`~ditherlab.io.stream.Source`, its pieces."""
-    if isinstance(r, Recording):
-        return iter([Piece(r, 0, slice(0, len(r)), 0, 1)])
-    return r.pieces(rows)
 
 
 def _piece_count(r: Recording | Source, rows: int) -> int:
@@ -203,7 +196,7 @@ def identify(
     with Spill(spill_bytes) as store:
         samples = _Samples(store)
         for r in recs:
-            for k, piece in enumerate(_pieces(r, chunk_rows)):
+            for k, piece in enumerate(pieces_of(r, chunk_rows)):
                 if k == 0:
                     _check_input(piece.rec, first, assume_no_force)
                     if first is None:

@@ -19,7 +19,6 @@ from ditherlab.effects import clean_none, get_effect, make_spec, signals
 from ditherlab.errors import ModelError
 from ditherlab.fit import fit_effect, not_identifiable
 from ditherlab.identify import identify
-from ditherlab.io import read
 from ditherlab.io.atomic import check_not_input
 from ditherlab.io.stream import CHUNK_ROWS, open_source
 from ditherlab.model import TorqueModel
@@ -182,6 +181,7 @@ def diagnose_files(
     history: bool = True,
     regimes: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    chunk_rows: int = CHUNK_ROWS,
 ) -> Diagnosis:
     """The ``ditherlab diagnose`` command: read, diagnose, append the history, write the report.
 
@@ -191,13 +191,14 @@ def diagnose_files(
     model_path : the model TOML; its history gets one row (atomically) unless ``history=False``
     out_dir : folder for ``report.md``, ``report.json`` and the PNG figures (optional)
     read_options : passed to :func:`ditherlab.io.read` (``mapping``, ``robot``)
+    chunk_rows : rows per piece (recordings are read in pieces: :func:`ditherlab.diagnose.diagnose`)
     """
     model = TorqueModel.load(model_path)
-    recs = [read(p, **(read_options or {})) for p in recordings]
+    recs = [open_source(p, **(read_options or {})) for p in recordings]
     if out_dir is not None:
         for name in ("report.md", "report.json"):
             check_not_input(Path(out_dir) / name, [*recordings, model_path])
-    d = diagnose(model, recs, regimes=regimes or None, progress=progress)
+    d = diagnose(model, recs, regimes=regimes or None, progress=progress, chunk_rows=chunk_rows)
     if history:
         d.model = append_history(model_path, d.history_entry())
     if out_dir is not None:

@@ -9,6 +9,7 @@ it is :mod:`ditherlab.fit`; scoring them on held-out data is :mod:`ditherlab.dia
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,11 +25,23 @@ from ditherlab.effects import (
     widening,
 )
 from ditherlab.errors import ModelError, where_prefix
+from ditherlab.io.spill import Spill
 from ditherlab.model import TorqueModel
 from ditherlab.recording import DITHER, MOVING, Recording, Regime
 from ditherlab.signal import REVERSAL_V, STICK_SETTLE_S, smooth_wrench, stick_transitions
 
-__all__ = ["Scored", "band_loss", "scored", "white_noise"]
+__all__ = [
+    "Local",
+    "ScoreStats",
+    "Scored",
+    "StatsBuilder",
+    "band_loss",
+    "local",
+    "noband_rows",
+    "score_notes",
+    "scored",
+    "white_noise",
+]
 
 
 @dataclass
@@ -73,8 +86,214 @@ def _dither_signal(rec: Recording) -> tuple[np.ndarray, np.ndarray] | None:
     return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool)
 
 
+@dataclass
+class Local:
+    """What scoring a recording (or a piece of one, with its context rows) computes from its own
+    samples, before the statistics of the whole recording (:class:`ScoreStats`).
+
+    Attributes
+    ----------
+    sig : Signals ; reg : (N, n) regime codes ; tau : (N, n) [N·m] the torque used
+    rho : (N, n) [N·m] ``tau - gravity - effects - J^T F``
+    cen : (N, n) [N·m] the band centre, plus the sliding line where moving (without the moving
+        offset of the whole recording)
+    use : (N, n) bool, scored before the whole recording's rules (dither windows, sticks,
+        reversals, a regime without a band)
+    near, rev : (N, n) bool, near a stick ; a velocity reversal while moving
+    no_extraction : the recording has dither samples but no dither extraction
+    """
+
+    sig: Signals
+    reg: np.ndarray
+    tau: np.ndarray
+    rho: np.ndarray
+    cen: np.ndarray
+    use: np.ndarray
+    near: np.ndarray
+    rev: np.ndarray
+    no_extraction: bool
+
+
+@dataclass
+class ScoreStats:
+    """The statistics of a whole recording that scoring one of its samples needs.
+
+    Attributes
+    ----------
+    few : (3, n) bool, a regime (code) of a joint with fewer than ``min_samples`` scored
+        samples in the whole recording (not scored)
+    shift : (n,) [N·m] where the moving band's one point sits, minus the band centre
+    sigma_hf : (n,) [N·m] :func:`white_noise`, NaN where there are too few pairs
+    """
+
+    few: np.ndarray
+    shift: np.ndarray
+    sigma_hf: np.ndarray
+
+
+def local(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Local:
+    """:class:`Local` of a recording (or a piece with context rows): see :func:`scored`."""
+    sig = signals(rec)
+    if model.n != rec.n:
+        raise ModelError(
+            f"{where_prefix(rec.name)}the recording has {rec.n} joints, the model {model.n}; expected the same robot"
+        )
+    check_model_effects(model, rec)
+    reg = sig.regime
+    tau = rec.tau.copy()
+    use = np.ones(tau.shape, dtype=bool)
+    no_extraction = False
+    if (reg == DITHER).any():
+        ext = _dither_signal(rec)
+        if ext is None:
+            use &= reg != DITHER
+            no_extraction = True
+        else:
+            tau = np.where(reg == DITHER, ext[0], tau)
+            # the first dither period has no full window
+            use &= (reg != DITHER) | ext[1][:, None]
+    near = stick_transitions(reg, rec.sample_rate)
+    use &= ~near
+    # velocity reversals inside a motion: the joint is at rest for a few samples and its
+    # friction passes through the static band, neither on the sliding line nor a stick
+    rev = (reg == MOVING) & (np.abs(rec.dq) < REVERSAL_V) & use
+    use &= ~rev
+    rho = tau - sig.gravity - effects_torque(model, rec)
+    if use_sensor and rec.has_wrench:
+        rho -= external_torque(
+            model, rec, smooth_wrench(sensor_wrench(model, rec), rec.sample_rate)
+        )
+    cen = np.zeros_like(rho)
+    for code in Regime:
+        if code.label not in model.regimes:
+            continue
+        b = model.band(code.label)
+        m = reg == code
+        c = np.broadcast_to(0.5 * (b.tau_min + b.tau_max), rho.shape)
+        if code == MOVING:
+            c = c + b.sliding(sig.dq)
+        cen[m] = c[m]
+    return Local(sig, reg, tau, rho, cen, use, near, rev, no_extraction)
+
+
+class StatsBuilder:
+    """:class:`ScoreStats` of a whole recording gathered piece by piece (:meth:`add` the
+    :class:`Local` of each piece with the rows it owns, then :meth:`finish`); the differences for
+    :func:`white_noise` go to a :class:`~ditherlab.io.spill.Spill` (16 bytes per pair)."""
+
+    def __init__(self, model: TorqueModel, min_samples: int = 200, spill: Spill | None = None):
+        self.model = model
+        self.min_samples = min_samples
+        n = model.n
+        self.counts = np.zeros((3, n), dtype=np.int64)  # scored samples per regime and joint
+        self.present = np.zeros((3, n), dtype=np.int64)  # samples per regime and joint
+        self.present_rows = np.zeros(3, dtype=np.int64)  # rows with a joint in the regime
+        self.off_sum = np.zeros(n)
+        self.off_n = np.zeros(n, dtype=np.int64)
+        self.spill = spill if spill is not None else Spill()
+
+    def add(self, loc: Local, keep: slice = slice(None)) -> None:
+        """Gather the rows ``keep`` of ``loc`` (a piece's own rows)."""
+        reg, use = loc.reg, loc.use
+        N = len(reg)
+        lo, hi, _ = keep.indices(N)
+        mb = self.model.regimes.get("moving")
+        for code in Regime:
+            m = (reg[lo:hi] == code) & use[lo:hi]
+            self.present[code] += (reg[lo:hi] == code).sum(axis=0)
+            self.present_rows[code] += int((reg[lo:hi] == code).any(axis=1).sum())
+            self.counts[code] += m.sum(axis=0)
+            if code == MOVING and mb is not None:
+                centre = 0.5 * (mb.tau_min + mb.tau_max)
+                for j in range(reg.shape[1]):
+                    mj = m[:, j]
+                    if mj.any():
+                        v = (loc.rho - loc.cen + centre)[lo:hi][mj, j] - centre[j]
+                        self.off_sum[j] += float(np.sum(v))
+                        self.off_n[j] += int(mj.sum())
+        # white noise: first differences of consecutive scored samples of one regime, for the
+        # pairs ending in an own row (the row before the first is the piece's context)
+        known = np.isin(reg, [c for c in Regime if c.label in self.model.regimes])
+        u = use & known & (reg != DITHER)
+        a = max(lo, 1)
+        if hi <= a:
+            return
+        e0 = loc.rho[a - 1 : hi] - loc.cen[a - 1 : hi]
+        d = np.diff(e0, axis=0)
+        ok = u[a:hi] & u[a - 1 : hi - 1] & (reg[a:hi] == reg[a - 1 : hi - 1])
+        r2 = reg[a:hi]
+        for j in range(reg.shape[1]):
+            for code in (c for c in Regime if c != DITHER):
+                sel = ok[:, j] & (r2[:, j] == code)
+                if sel.any():
+                    self.spill.append(("wn", j, int(code)), d[sel, j])
+
+    def finish(self, regimes: Sequence[str] | None = None) -> ScoreStats:
+        """The statistics; ``regimes``: only these regimes' pairs make the white noise."""
+        model = self.model
+        n = model.n
+        few = self.counts < self.min_samples
+        shift = np.zeros(n)
+        mb = model.regimes.get("moving")
+        if mb is not None:
+            centre = 0.5 * (mb.tau_min + mb.tau_max)
+            for j in range(n):
+                if self.off_n[j]:
+                    off = self.off_sum[j] / self.off_n[j]
+                    shift[j] = np.clip(centre[j] + off, mb.tau_min[j], mb.tau_max[j]) - centre[j]
+        hf = np.full(n, np.nan)
+        for j in range(n):
+            parts = [
+                self.spill.load(("wn", j, int(c)))
+                for c in Regime
+                if c != DITHER
+                and not few[c, j]
+                and (regimes is None or c.label in regimes)
+                and self.spill.count(("wn", j, int(c)))
+            ]
+            x = np.concatenate(parts) if parts else np.zeros(0)
+            if x.size >= 20:
+                hf[j] = 1.4826 * np.median(np.abs(x - np.median(x))) / np.sqrt(2.0)
+        return ScoreStats(few, shift, hf)
+
+
+def noband_rows(model: TorqueModel, loc: Local, stats: ScoreStats) -> dict[str, np.ndarray]:
+    """(N,) bool per regime the model has no band for: the rows where a joint would be scored
+    in it (not scored: the note says how many)."""
+    out = {}
+    for code in Regime:
+        if code.label not in model.regimes:
+            m = (loc.reg == code) & loc.use & ~stats.few[code][None, :]
+            if m.any():
+                out[code.label] = m.any(axis=1)
+    return out
+
+
+def score_notes(no_extraction: bool, near: int, rev: int, noband: dict[str, int]) -> list[str]:
+    """What scoring left out, in words: dither samples without extraction, ``near`` joint-samples
+    near a stick, ``rev`` of velocity reversals, rows of regimes without a band."""
+    notes = []
+    if no_extraction:
+        notes.append("dither samples not scored (no dither extraction for this recording)")
+    if near:
+        notes.append(f"{near} joint-samples within {STICK_SETTLE_S:g} s of a stick not scored")
+    if rev:
+        notes.append(
+            f"{rev} joint-samples of velocity reversals (|dq| < {REVERSAL_V:g} rad/s "
+            "while moving) not scored"
+        )
+    notes += [f"{k} {name} samples not scored (no band)" for name, k in noband.items() if k]
+    return notes
+
+
 def scored(
-    model: TorqueModel, rec: Recording, *, use_sensor: bool = True, min_samples: int = 200
+    model: TorqueModel,
+    rec: Recording,
+    *,
+    use_sensor: bool = True,
+    min_samples: int = 200,
+    stats: ScoreStats | None = None,
+    loc: Local | None = None,
 ) -> Scored:
     """The band-aware residual ``rho = tau - gravity - effects - J^T F`` of a recording.
 
@@ -94,60 +313,39 @@ def scored(
         absent, the residual contains the external torque (free-motion logs have none).
     min_samples : a joint's regime with fewer samples in this recording is not scored (as in
         :func:`ditherlab.identify.identify`).
+    stats : the whole recording's statistics when ``rec`` is a piece of it (pass 1 of a
+        recording read in pieces: :class:`StatsBuilder`); default: this recording's own
+    loc : its :class:`Local`, when already computed
 
     Raises
     ------
     ModelError
         When the recording contains a regime the model has no band for.
     """
-    sig = signals(rec)
-    if model.n != rec.n:
-        raise ModelError(
-            f"{where_prefix(rec.name)}the recording has {rec.n} joints, the model {model.n}; expected the same robot"
-        )
-    check_model_effects(model, rec)
-    reg = sig.regime
-    tau = rec.tau.copy()
-    notes: list[str] = []
-    use = np.ones(tau.shape, dtype=bool)
-    if (reg == DITHER).any():
-        ext = _dither_signal(rec)
-        if ext is None:
-            use &= reg != DITHER
-            notes.append("dither samples not scored (no dither extraction for this recording)")
-        else:
-            tau = np.where(reg == DITHER, ext[0], tau)
-            # the first dither period has no full window
-            use &= (reg != DITHER) | ext[1][:, None]
-    near = stick_transitions(reg, rec.sample_rate)
-    if near.any():
-        use &= ~near
-        notes.append(
-            f"{int(near.sum())} joint-samples within {STICK_SETTLE_S:g} s of a stick not scored"
-        )
-    # velocity reversals inside a motion: the joint is at rest for a few samples and its
-    # friction passes through the static band, neither on the sliding line nor a stick
-    rev = (reg == MOVING) & (np.abs(rec.dq) < REVERSAL_V) & use
-    if rev.any():
-        use &= ~rev
-        notes.append(
-            f"{int(rev.sum())} joint-samples of velocity reversals (|dq| < {REVERSAL_V:g} rad/s "
-            "while moving) not scored"
-        )
-    rho = tau - sig.gravity - effects_torque(model, rec)
-    if use_sensor and rec.has_wrench:
-        rho -= external_torque(
-            model, rec, smooth_wrench(sensor_wrench(model, rec), rec.sample_rate)
-        )
-    e = np.zeros_like(rho)
-    h = np.zeros_like(rho)
-    sigma = np.ones_like(rho)
+    if loc is None:
+        loc = local(model, rec, use_sensor=use_sensor)
+    if stats is None:
+        with Spill() as spill:
+            b = StatsBuilder(model, min_samples, spill)
+            b.add(loc)
+            stats = b.finish()
+    sig, reg = loc.sig, loc.reg
+    use = loc.use.copy()
+    notes = score_notes(
+        loc.no_extraction,
+        int(loc.near.sum()),
+        int(loc.rev.sum()),
+        {k: int(v.sum()) for k, v in noband_rows(model, loc, stats).items()},
+    )
+    e = np.zeros_like(loc.rho)
+    h = np.zeros_like(loc.rho)
+    sigma = np.ones_like(loc.rho)
     for code in Regime:
         name = code.label
         m = (reg == code) & use
         if not m.any():
             continue
-        few = m.sum(axis=0) < min_samples
+        few = stats.few[code]
         if few.any():
             # a handful of samples (e.g. velocity reversals flagged still) is not a regime:
             # identification fits no band from it either
@@ -157,33 +355,24 @@ def scored(
                 continue
         if name not in model.regimes:
             use &= ~m
-            notes.append(f"{int(m.any(axis=1).sum())} {name} samples not scored (no band)")
             continue
         b = model.band(name)
-        centre = 0.5 * (b.tau_min + b.tau_max)
-        half = 0.5 * (b.tau_max - b.tau_min)
-        cen = np.broadcast_to(centre, rho.shape).copy()
+        cen = loc.cen
         if code == MOVING:
-            cen += b.sliding(sig.dq)
             # the band collapses to one point in [tau_min, tau_max]: the one the data sit at
             # (mean offset from the sliding line, clipped into the band)
-            for j in range(rec.n):
-                mj = m[:, j]
-                if mj.any():
-                    off = float(np.mean((rho - cen + centre)[mj, j] - centre[j]))
-                    cen[:, j] += np.clip(centre[j] + off, b.tau_min[j], b.tau_max[j]) - centre[j]
-            hh = np.zeros(rho.shape)
+            cen = cen + stats.shift[None, :]
+            hh = np.zeros(loc.rho.shape)
         else:
-            hh = np.broadcast_to(half, rho.shape)
-        e[m] = (rho - cen)[m]
+            hh = np.broadcast_to(0.5 * (b.tau_max - b.tau_min), loc.rho.shape)
+        e[m] = (loc.rho - cen)[m]
         h[m] = hh[m]
-        sigma[m] = np.broadcast_to(b.sigma, rho.shape)[m]
+        sigma[m] = np.broadcast_to(b.sigma, loc.rho.shape)[m]
     wid = widening(model, rec)
     h = np.where(reg == MOVING, h, np.maximum(h + wid, 0.0))
     mb = model.regimes.get("moving")
     sliding = (mb is not None and mb.coulomb is not None, mb is not None and mb.viscous is not None)
-    hf = white_noise(e, use & (reg != DITHER), reg)
-    return Scored(sig, e, h, sigma, use, tau, notes, hf, sliding)
+    return Scored(sig, e, h, sigma, use, loc.tau, notes, stats.sigma_hf, sliding)
 
 
 def white_noise(e: np.ndarray, use: np.ndarray, reg: np.ndarray) -> np.ndarray:

@@ -39,7 +39,6 @@ from ditherlab.effects import (
     design_at,
     get_effect,
     make_spec,
-    signals,
 )
 from ditherlab.errors import ModelError
 from ditherlab.fit import Stack, not_identifiable, solve_signed, stack
@@ -435,12 +434,12 @@ def _evaluate(
     return Candidate(name, joints, frac, suggested, scores, params, not_identifiable=why)
 
 
-def _applicable(name: str, recs: Sequence[Recording]) -> str | None:
-    """Why an effect cannot be tried on these recordings (None when it can)."""
+def _applicable(name: str, scs: Sequence[Scored]) -> str | None:
+    """Why an effect cannot be tried on these scored recordings (None when it can)."""
     e = get_effect(name)
     try:
-        for r in recs:
-            e.check(signals(r))
+        for s in scs:
+            e.check(s.sig)
     except ModelError as exc:
         return str(exc)
     return None
@@ -488,7 +487,7 @@ def candidates(
     total = _baseline_total(scs, model.n, folds, guard)
     out, skipped = [], {}
     for i, n in enumerate(names):
-        why = _applicable(n, recs)
+        why = _applicable(n, scs)
         if why is not None:
             skipped[n] = why
         else:

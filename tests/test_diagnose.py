@@ -114,9 +114,9 @@ def test_noise_floor_formula():
 
 def _windows_by_scanning(model, sc, width=1.0):
     """The obviously right worst windows: every window's samples found by comparing all times."""
-    from ditherlab.diagnose import _excess_and_floor, nanmean
+    from ditherlab.diagnose.accumulate import excess_and_floor, nanmean
 
-    ex, fl = _excess_and_floor(model, sc)
+    ex, fl = excess_and_floor(sc)
     t = sc.sig.t
     r = np.where(np.isfinite(ex), ex**2 / np.where(fl > 0, fl, 1.0), np.nan)
     out, k = [], 0

@@ -49,14 +49,16 @@ def campaign(tmp_path_factory):
     return d, rec, model
 
 
-def _awkward_cuts(rec: Recording) -> dict[str, int]:
+def _awkward_cuts(rec: Recording, first: int = 0) -> dict[str, int]:
     """Row counts whose first cut falls inside a push, inside a dither period (mid-period, the
-    dither on) and inside a stick (a joint that stopped moving a moment ago)."""
+    dither on) and inside a stick (a joint that stopped moving a moment ago), at or after row
+    ``first``."""
     F = np.abs(rec.wrench[:, :3]).max(axis=1)
     push = np.flatnonzero(F > 5.0)
     on = np.flatnonzero(rec.dither)
     reg = regimes(rec)
     stopped = np.flatnonzero((reg[:-1, 1] == 2) & (reg[1:, 1] != 2)) + 1
+    push, on, stopped = push[push >= first], on[on >= first], stopped[stopped >= first]
     rate = rec.sample_rate
     cuts = {
         "push": int(push[len(push) // 2]),
@@ -379,3 +381,61 @@ def test_cli_view_in_pieces_equals_the_whole(campaign, replayed, cli, where, est
     assert c["events/pushes"]["TextLog:text"] == 3 * 12
     assert c["events/dither"]["TextLog:text"] >= 1
     assert ("events/detections/dither_band" in c) == estimates
+
+
+@pytest.fixture(scope="module")
+def long_campaign(campaign):
+    """A dithered push campaign long enough for diagnose's 12 s context (about 30 000 rows)."""
+    from conftest import run_cli
+
+    d = campaign[0]
+    rec = d / "long.parquet"
+    r = run_cli(
+        "simulate", "push-campaign", "--seed", "23", "--pushes-per-direction", "6", "-o", rec, "-q"
+    )
+    assert r.code == 0, r.err
+    return rec
+
+
+def _close(a, b, path="") -> None:
+    """JSON values equal, floats to 1e-9 relative (sums gathered piece by piece)."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for k in a:
+            _close(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _close(x, y, f"{path}[{i}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert b == pytest.approx(a, rel=1e-9, abs=1e-12, nan_ok=True), path
+    else:
+        assert a == b, path
+
+
+@pytest.mark.parametrize("where", ["push", "dither", "stick"])
+def test_cli_diagnose_in_pieces_equals_the_whole(campaign, long_campaign, cli, where):
+    """diagnose read in pieces cut inside a push, a dither period or a stick gives the whole
+    recording's diagnosis: residual, force error and coverage, worst windows, every candidate's
+    evidence and parameters, the verdict, the notes (sums to 1e-9 relative; the suggestions
+    themselves exactly)."""
+    import json
+
+    _, _, model = campaign
+    rec = read(long_campaign)
+    rows = _awkward_cuts(rec, first=12_000)[where]
+    assert 12_000 <= rows < len(rec) - 3000
+    args = ("diagnose", long_campaign, "--model", model, "--no-history", "--json", "-q")
+    whole = cli(*args, "--chunk", str(10 * len(rec)))
+    assert whole.code == 0, whole.err
+    cut = cli(*args, "--chunk", str(rows))
+    assert cut.code == 0, cut.err
+    a, b = json.loads(whole.out), json.loads(cut.out)
+    assert [(c["effect"], c["joints"], c["suggested"]) for c in a["candidates"]] == [
+        (c["effect"], c["joints"], c["suggested"]) for c in b["candidates"]
+    ]
+    _close(a, b)
+    assert a["force"]["coverage"] is not None and a["residual"]["worst_windows"]
+    # a chunk shorter than four times the 12 s context: one line, exit 2
+    r = cli(*args, "--chunk", "5000")
+    assert r.code == 2 and r.err.count("\n") == 1 and "context" in r.err, r.err

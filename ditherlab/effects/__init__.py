@@ -78,7 +78,7 @@ from ditherlab.effects.library import (
 )
 from ditherlab.effects.rigid import Dynamics, Inertia, Payload
 from ditherlab.effects.sensor import AttenuationLag, FtBias, FtFrame
-from ditherlab.effects.signals import Signals, signals
+from ditherlab.effects.signals import Signals, release, signals
 from ditherlab.effects.transmission import PositionRipple
 
 __all__ = [
@@ -112,6 +112,7 @@ __all__ = [
     "hyper_params",
     "joint_params",
     "make_spec",
+    "release",
     "model_text",
     "sensor_wrench",
     "signals",

@@ -199,6 +199,12 @@ def design_at(e: Effect, sig: Signals, j: int | None, h: Any, ref: dict[str, Any
     if rows is None or e.pointwise:
         return e.design(sig, j, h, ref)
     key = ("design", e.name, j, repr(h), repr(sorted(ref.items())))
+    if sig.whole is None and key not in sig._cache:
+        raise ModelError(
+            f"effect {e.name!r} filters in time and was not computed on every piece for "
+            f"joint {'all' if j is None else j + 1}, {e.hyper or 'value'} {h!r}; expected its "
+            "grid and reference to depend on the sample rate alone"
+        )
     return sig._get(key, lambda: e.design(sig.whole, j, h, ref).take(rows))
 
 

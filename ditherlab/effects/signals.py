@@ -15,6 +15,7 @@ then taken at the rows.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from typing import Any
 
@@ -24,7 +25,7 @@ from ditherlab.errors import ModelError, where_prefix
 from ditherlab.recording import MOVING, Recording, regimes
 from ditherlab.signal import jtf, smooth_wrench
 
-__all__ = ["Signals", "signals"]
+__all__ = ["Signals", "release", "signals"]
 
 
 class Signals:
@@ -90,8 +91,58 @@ class Signals:
             return self.whole.take(self._rows[rows])
         return Signals(self.rec, self.has_wrench, _whole=self, _rows=rows)
 
+    @classmethod
+    def join(cls, parts: list[Signals], length: int) -> Signals:
+        """One Signals of the rows of several :meth:`take` n parts of the same recording (its
+        pieces read one after another, each part's ``index`` numbering the recording's rows):
+        their arrays and cached quantities joined in order. There is no whole recording behind
+        it: a design that needs one (not :attr:`Effect.pointwise`) must have been computed on
+        every part (``design_at`` keeps it) before the join."""
+        first = parts[0]
+        out = cls.__new__(cls)
+        out.rec = first.rec
+        out.n = first.n
+        out.length = int(length)
+        out.sample_rate = first.sample_rate
+        out.has_wrench = first.has_wrench
+        out.whole = None  # type: ignore[assignment]
+        out._rows = np.concatenate([p.index for p in parts])
+        out.index = out._rows
+
+        def cat(xs: list[Any]) -> Any:
+            if any(x is None for x in xs):
+                return None
+            if isinstance(xs[0], tuple):
+                return tuple(cat([x[i] for x in xs]) for i in range(len(xs[0])))
+            if isinstance(xs[0], np.ndarray):
+                return np.concatenate(xs)
+            d0 = xs[0]  # a Design
+            return type(d0)(
+                *(cat([getattr(x, f) for x in xs]) for f in ("centre", "widen", "offset"))
+            )
+
+        for f in ("t", "ts", "q", "dq", "tau", "temp"):
+            setattr(out, f, cat([getattr(p, f) for p in parts]))
+        out._shared = {
+            k: cat([p._shared[k] for p in parts])
+            for k in ("regime", "ddq")
+            if all(k in p._shared for p in parts)
+        }
+        out._cache = {
+            k: cat([p._cache[k] for p in parts])
+            for k in first._cache
+            if (k in ("wrench", "wrench_lp") or (isinstance(k, tuple) and k[0] == "design"))
+            and all(k in p._cache for p in parts)
+        }
+        return out
+
     def without_sensor(self) -> Signals:
         """The same recording with its F/T columns hidden (robot quantities shared)."""
+        if self._rows is not None and self.whole is None:  # joined parts: hide the columns
+            out = copy.copy(self)
+            out.has_wrench = False
+            out._cache = {}
+            return out
         if self._rows is not None:
             return Signals(
                 self.rec,
@@ -267,3 +318,9 @@ def signals(rec: Recording, sensor: bool = True) -> Signals:
     if sensor or not rec.has_wrench:
         return s
     return s.cached("_no_sensor", s.without_sensor)
+
+
+def release(rec: Recording) -> None:
+    """Drop the Signals cached on ``rec`` now (a piece of a long log, done with): the two refer
+    to each other, and Python's cycle collector may not run before many pieces have piled up."""
+    rec.__dict__.pop("_signals", None)

@@ -48,7 +48,15 @@ from ditherlab.io.parquet import META_KEY, ROW_GROUP, file_metadata
 from ditherlab.recording import Recording, TimeBase, meta_dither_period
 from ditherlab.signal import PERIOD_SAMPLES, period_from_feedforward, period_from_spectrum, runs
 
-__all__ = ["CHUNK_ROWS", "HALO_S", "Piece", "Source", "open_source", "write_stream"]
+__all__ = [
+    "CHUNK_ROWS",
+    "HALO_S",
+    "Piece",
+    "Source",
+    "open_source",
+    "pieces_of",
+    "write_stream",
+]
 
 #: rows a piece owns by default (about 4.4 min at 250 Hz; replay then peaks near 1 GB in all)
 CHUNK_ROWS = 65_536
@@ -352,6 +360,15 @@ class Source:
                 f"{self.name}: {buf_start + (0 if buf is None else len(buf))} rows read, "
                 f"{N} expected from the file's row count"
             )
+
+
+def pieces_of(
+    r: Recording | Source, rows: int = CHUNK_ROWS, halo_s: float = HALO_S
+) -> Iterator[Piece]:
+    """A recording in memory is one piece (all its rows owned); a :class:`Source`, its pieces."""
+    if isinstance(r, Recording):
+        return iter([Piece(r, 0, slice(0, len(r)), 0, 1)])
+    return r.pieces(rows, halo_s)
 
 
 def open_source(path: str | Path, **options: Any) -> Source:

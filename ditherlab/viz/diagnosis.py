@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.diagnose import AXES, Diagnosis, nanmean
-from ditherlab.effects import EFFECTS, Effect, hyper_params, model_text
+from ditherlab.effects import EFFECTS, Effect, design_at, hyper_params, model_text
 from ditherlab.errors import FormatError
 from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text, plain
 from ditherlab.recording import MOVING
@@ -54,8 +54,8 @@ def _evidence_figure(d: Diagnosis, c: Candidate, path: Path) -> None:
         for sc in d.scs:
             p = _params_for_plot(e, c, s, j)
             x, label = e.driver(sc.sig, j, p)
-            des = e.design(
-                sc.sig, None if e.shared else j, s.fit.h if s else None, s.fit.ref if s else {}
+            des = design_at(
+                e, sc.sig, None if e.shared else j, s.fit.h if s else None, s.fit.ref if s else {}
             )
             if e.shared:
                 shift = des.centre[:, j, :] @ s.fit.w + (

@@ -29,36 +29,45 @@ motion) and need a varying pose or force to be told apart from the band.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.stats import norm
 
+from ditherlab.diagnose.accumulate import (
+    AXES,
+    Correlations,
+    ForceError,
+    ResidualSums,
+    Windows,
+    nanmean,
+    noise_floor_sq,
+)
 from ditherlab.effects import (
-    effects_torque,
-    force_gain,
+    EFFECTS,
+    Effect,
+    Signals,
+    design_at,
+    get_effect,
     model_text,
-    sensor_wrench,
-    signals,
+    release,
 )
-from ditherlab.errors import ModelError
-from ditherlab.estimator import estimate, intervals
+from ditherlab.errors import ModelError, where_prefix
 from ditherlab.io.atomic import plain
+from ditherlab.io.spill import Spill
+from ditherlab.io.stream import CHUNK_ROWS, Piece, Source, pieces_of
 from ditherlab.model import TorqueModel
-from ditherlab.recording import (
-    DITHER,
-    MOVING,
-    REGIME_NAMES,
-    STILL,
-    WRENCH_COLUMNS,
-    Recording,
-    Regime,
+from ditherlab.recording import REGIME_NAMES, Recording, Regime
+from ditherlab.residual import (
+    Scored,
+    StatsBuilder,
+    local,
+    noband_rows,
+    score_notes,
+    scored,
 )
-from ditherlab.residual import Scored, scored, white_noise
 from ditherlab.scoring import MIN_FRACTION, Candidate, candidates
 
 __all__ = [
@@ -67,6 +76,8 @@ __all__ = [
     "append_history",
     "candidates",
     "diagnose",
+    "force_error",
+    "nanmean",
     "noise_floor_sq",
     "residual_summary",
 ]
@@ -75,58 +86,9 @@ __all__ = [
 MIN_REGIME_SAMPLES = 200
 #: a candidate whose joints' residual RMS is below this share of their noise floor is noise
 FLOOR_SHARE = 0.5
-AXES = WRENCH_COLUMNS
 
 
-def nanmean(x: np.ndarray, axis: int | None = None) -> np.ndarray:
-    """Mean over the finite values; NaN (without a warning) where there are none."""
-    x = np.asarray(x, dtype=float)
-    ok = np.isfinite(x)
-    cnt = ok.sum(axis=axis)
-    tot = np.where(ok, x, 0.0).sum(axis=axis)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
-
-
-# ============================================================== noise floor
-def noise_floor_sq(sigma: np.ndarray, half: np.ndarray, moving: np.ndarray) -> np.ndarray:
-    """Expected squared band-aware residual while the model is right, per sample.
-
-    Moving (band collapsed): ``sigma²``.
-    Still/dither: friction at a band edge plus noise ``n``: ``E[n_+²] + E[(-n - 2h)_+²]``
-    ``= sigma²/2 + (sigma² + 4h²) Φ(-2h/sigma) - 2 h sigma φ(2h/sigma)`` (``sigma²`` for h = 0);
-    the largest value any placement of the friction inside the band gives.
-
-    Parameters
-    ----------
-    sigma, half : (...) [N·m]; half is the band half-width
-    moving : (...) bool
-
-    Returns
-    -------
-    (...) [N·m²]
-    """
-    s = np.asarray(sigma, dtype=float)
-    h = np.asarray(half, dtype=float)
-    z = 2 * h / s
-    edge = s**2 / 2 + (s**2 + 4 * h**2) * norm.cdf(-z) - 2 * h * s * norm.pdf(z)
-    return np.where(moving, s**2, edge)
-
-
-# ============================================================== residual summary
-def _excess_and_floor(model: TorqueModel, sc: Scored) -> tuple[np.ndarray, np.ndarray]:
-    """(N, n) excess [N·m] and per-sample floor² [N·m²] (NaN where not scored)."""
-    reg = sc.sig.regime
-    ex = sc.excess()
-    s = sc.sigma
-    if sc.sigma_hf is not None:
-        s = np.where(np.isfinite(sc.sigma_hf), sc.sigma_hf, sc.sigma)
-    fl = noise_floor_sq(s, sc.h, reg == MOVING)
-    ex = np.where(sc.use, ex, np.nan)
-    fl = np.where(sc.use, fl, np.nan)
-    return ex, fl
-
-
+# ============================================================== one recording in memory
 def residual_summary(model: TorqueModel, scs: Sequence[Scored]) -> dict[str, Any]:
     """Torque residual per joint and regime against the noise floor.
 
@@ -136,41 +98,10 @@ def residual_summary(model: TorqueModel, scs: Sequence[Scored]) -> dict[str, Any
     ``per_regime``: list of {joint, regime, samples, rms, floor, outside_fraction, mean_excess}
     where ``mean_excess`` is the signed mean excess in units of sigma (a bias shows here).
     """
-    n = model.n
-    exs, fls, regs, sigs = [], [], [], []
+    acc = ResidualSums(model.n)
     for sc in scs:
-        ex, fl = _excess_and_floor(model, sc)
-        exs.append(ex)
-        fls.append(fl)
-        regs.append(sc.sig.regime)
-        sigs.append(sc.sigma)
-    ex, fl, reg, sg = (np.concatenate(a) for a in (exs, fls, regs, sigs))
-    rms = np.sqrt(nanmean(ex**2, axis=0))
-    floor = np.sqrt(nanmean(fl, axis=0))
-    rows = []
-    for j in range(n):
-        for code, name in ((g, g.label) for g in Regime):
-            m = (reg[:, j] == code) & np.isfinite(ex[:, j])
-            if not m.any():
-                continue
-            x = ex[m, j]
-            rows.append(
-                {
-                    "joint": j + 1,
-                    "regime": name,
-                    "samples": int(m.sum()),
-                    "rms": float(np.sqrt(np.mean(x**2))),
-                    "floor": float(np.sqrt(np.mean(fl[m, j]))),
-                    "outside_fraction": float(np.mean(x != 0)),
-                    "mean_excess_sigma": float(np.mean(x / sg[m, j])),
-                }
-            )
-    return {
-        "torque_rms": [float(v) for v in rms],
-        "noise_floor": [float(v) for v in floor],
-        "ratio": [float(a / b) if b > 0 else float("nan") for a, b in zip(rms, floor, strict=True)],
-        "per_regime": rows,
-    }
+        acc.add(sc)
+    return acc.result()
 
 
 def worst_windows(
@@ -181,60 +112,18 @@ def worst_windows(
 
     Window ``k`` of a recording is ``[t_0 + k·width/2, t_0 + k·width/2 + width)`` (``t_0`` its
     first time stamp), for every ``k`` that starts before the last sample; a window with fewer
-    than four samples is skipped. Each sample falls in two windows, found by one division, so
-    the cost is linear in the samples (sums per window by ``np.bincount``).
+    than four samples is skipped (:class:`~ditherlab.diagnose.accumulate.Windows`: linear in the
+    samples).
     """
     out = []
-    half = width / 2
     for sc in scs:
-        ex, fl = _excess_and_floor(model, sc)
         t = sc.sig.t
-        if len(t) == 0:
-            continue
-        r = np.where(np.isfinite(ex), ex**2 / np.where(fl > 0, fl, 1.0), np.nan)
-        t0 = float(t[0])
-        nwin = int(math.ceil((float(t[-1]) - t0) / half))
-        k = np.floor((t - t0) / half).astype(np.int64)
-        ok = np.isfinite(r)
-        rz = np.where(ok, r, 0.0)
-        samples = _per_window(k, None, nwin)
-        tot = np.column_stack([_per_window(k, rz[:, j], nwin) for j in range(r.shape[1])])
-        cnt = np.column_stack(
-            [_per_window(k, ok[:, j].astype(float), nwin) for j in range(r.shape[1])]
-        )
-        with np.errstate(invalid="ignore", divide="ignore"):
-            per = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
-        for w in np.flatnonzero((samples > 3) & np.isfinite(per).any(axis=1)):
-            j = int(np.nanargmax(per[w]))
-            start = t0 + w * half
-            out.append(
-                {
-                    "recording": sc.sig.rec.name or "<memory>",
-                    "t0": float(start),
-                    "t1": float(start + width),
-                    "energy": float(nanmean(per[w])),
-                    "worst_joint": j + 1,
-                    "worst_joint_ratio": float(math.sqrt(per[w, j])),
-                }
-            )
+        if len(t):
+            w = Windows(sc.sig.rec.name or "<memory>", t[0], t[-1], model.n, width)
+            w.add(sc)
+            out += w.result()
     out.sort(key=lambda d: -d["energy"])
     return out[:count]
-
-
-def _per_window(k: np.ndarray, w: np.ndarray | None, nwin: int) -> np.ndarray:
-    """(nwin,) sums of ``w`` (None: counts) per half-overlapping window: a sample of slot ``k``
-    is in window ``k`` and in window ``k - 1``."""
-    c = np.bincount(k, weights=w, minlength=nwin + 1)
-    return c[:nwin] + c[1 : nwin + 1]
-
-
-# ============================================================== force error
-def _regime_per_sample(reg: np.ndarray) -> np.ndarray:
-    """(N,) regime of the robot: moving if any joint moves, else dither if any, else still."""
-    out = np.full(len(reg), STILL, dtype=np.int8)
-    out[(reg == DITHER).any(axis=1)] = DITHER
-    out[(reg == MOVING).any(axis=1)] = MOVING
-    return out
 
 
 def force_error(
@@ -249,70 +138,10 @@ def force_error(
     ``{"rms": (6,) [N, N·m], "bias": (6,), "per_regime": [...], "coverage": (6,) or None,
     "interval": {"method", "level"}}``.
     """
-    errs, regs, covs = [], [], []
+    acc = ForceError(model, level, max_interval_samples)
     for sc in scs:
-        rec = sc.sig.rec
-        if not rec.has_wrench:
-            continue
-        reg = sc.sig.regime
-        # the estimator is sensorless: the model's effects without the F/T columns
-        tau_bar = sc.tau - sc.sig.gravity - effects_torque(model, rec, sensor=False)
-        lo, hi, sg = model.sample_bands(reg, sc.sig.dq, dither=True)
-        # joints not scored (e.g. dither without extraction): leave them out with a huge band
-        lo = np.where(sc.use, lo, -1e9)
-        hi = np.where(sc.use, hi, 1e9)
-        J = sc.sig.jac * force_gain(model)[None, None, :]
-        sol = estimate(tau_bar, J, lo, hi, sg, model.prior_mean, model.prior_sigma)
-        Fs = sensor_wrench(model, rec)
-        errs.append(sol.F - Fs)
-        regs.append(_regime_per_sample(reg))
-        try:
-            # coverage on an evenly spaced subset (intervals cost far more than estimates)
-            k = max(1, len(Fs) // max_interval_samples)
-            sub = slice(None, None, k)
-            ilo, ihi = intervals(
-                tau_bar[sub],
-                J[sub],
-                lo[sub],
-                hi[sub],
-                sg[sub],
-                model.prior_mean,
-                model.prior_sigma,
-                F_hat=sol.F[sub],
-                method="set_membership",
-                level=level,
-            )
-            cov = np.full(Fs.shape, np.nan)
-            cov[sub] = (Fs[sub] >= ilo) & (Fs[sub] <= ihi)
-            covs.append(cov)
-        except Exception:  # noqa: BLE001 - coverage is reported as unavailable
-            covs.append(np.full(Fs.shape, np.nan))
-    if not errs:
-        return None
-    err = np.concatenate(errs)
-    reg = np.concatenate(regs)
-    cov = np.concatenate(covs).astype(float)
-    rows = []
-    for code, name in ((g, g.label) for g in Regime):
-        m = reg == code
-        if m.any():
-            rows.append(
-                {
-                    "regime": name,
-                    "samples": int(m.sum()),
-                    "rms": [float(v) for v in np.sqrt(np.mean(err[m] ** 2, axis=0))],
-                    "bias": [float(v) for v in np.mean(err[m], axis=0)],
-                }
-            )
-    coverage = nanmean(cov, axis=0) if np.isfinite(cov).any() else None
-    return {
-        "axes": list(AXES),
-        "rms": [float(v) for v in np.sqrt(np.mean(err**2, axis=0))],
-        "bias": [float(v) for v in np.mean(err, axis=0)],
-        "per_regime": rows,
-        "coverage": None if coverage is None else [float(v) for v in coverage],
-        "interval": {"method": "set_membership", "level": level},
-    }
+        acc.add(sc, slice(0, len(sc.e)), 0, len(sc.e))
+    return acc.result()
 
 
 # ============================================================== the whole diagnosis
@@ -418,9 +247,15 @@ class Diagnosis:
         return "\n".join(lines)
 
 
+#: context rows on either side of a piece [s]: the first-order lag of ``attenuation_lag`` (up to
+#: 0.3 s, in the model or as a candidate) starts at rest at a piece's first row, and forgets that
+#: start below 1e-16 after 37 time constants (11.1 s)
+HALO_S = 12.0
+
+
 def diagnose(
     model: TorqueModel,
-    recs: Sequence[Recording],
+    recs: Sequence[Recording | Source],
     *,
     folds: int = 5,
     guard: float = 0.25,
@@ -428,19 +263,33 @@ def diagnose(
     effects: Sequence[str] | None = None,
     regimes: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    chunk_rows: int = CHUNK_ROWS,
+    max_samples: int = 4000,
 ) -> Diagnosis:
     """Compare model and measurements, and rank the missing effects.
+
+    A recording is read twice, a piece of ``chunk_rows`` rows at a time (one piece when it is
+    held in memory): the first pass gathers what scoring needs of the whole recording (which
+    regimes have too few samples, where the moving band sits, the white noise:
+    :class:`~ditherlab.residual.StatsBuilder`), the second scores every piece and adds it to
+    sums (:mod:`ditherlab.diagnose.accumulate`), keeping every k-th sample (at most
+    ``max_samples`` in all) on which the candidates are fitted. Memory holds a piece, the sums,
+    those samples and the white noise's differences (16 bytes per sample, spilled to disk past
+    256 MB).
 
     Parameters
     ----------
     model : TorqueModel
-    recs : recordings of the model's robot (F/T columns make the force error and the
-        ``attenuation_lag`` / ``ft_bias`` candidates possible)
+    recs : recordings of the model's robot, in memory or :class:`~ditherlab.io.stream.Source`
+        s (F/T columns make the force error and the ``attenuation_lag`` / ``ft_bias``
+        candidates possible)
     folds, guard, min_fraction : see :func:`candidates`
     effects : candidate names to try (default: all not in the model)
     regimes : score only these regimes (e.g. ``("still", "dither")`` for the force estimate at
         rest); default all
     progress : ``progress(done, total)``
+    chunk_rows : rows a piece owns (pieces carry :data:`HALO_S` of context on either side)
+    max_samples : the candidates are fitted on every k-th sample, k = ceil(N / max_samples)
 
     Returns
     -------
@@ -455,60 +304,100 @@ def diagnose(
     recs = list(recs)
     if not recs:
         raise ModelError("diagnose needs at least one recording")
+    bad = [x for x in regimes or () if x not in REGIME_NAMES]
+    if bad:
+        raise ModelError(
+            f"regime {bad[0]!r} is unknown, expected one of: {', '.join(REGIME_NAMES)}"
+        )
+    have = set(model.effect_names())
+    names = [n for n in (effects or EFFECTS) if n not in have]
+    timed = [get_effect(n) for n in names if not get_effect(n).pointwise]
+    totals = [len(r) if isinstance(r, Recording) else r.n_rows for r in recs]
+    stride = max(1, -(-sum(totals) // max_samples))
+    counts = [1 if isinstance(r, Recording) else max(1, -(-r.n_rows // chunk_rows)) for r in recs]
+    steps = 2 * sum(counts) + len(names)
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, steps)
+
     notes: list[str] = []
-    scs = []
-    for r in recs:
-        # regimes present but absent from the model -> one clear error
-        reg = signals(r).regime
-        for code, name in ((g, g.label) for g in Regime):
-            wanted = regimes is None or name in regimes
-            if (
-                wanted
-                and name not in model.regimes
-                and (reg == code).sum(axis=0).max() >= MIN_REGIME_SAMPLES
-            ):
-                where = f"{r.name}: " if r.name else ""
-                raise ModelError(
-                    f"{where}the recording has {int((reg == code).any(axis=1).sum())} {name} samples "
-                    f"but the model has no [regimes.{name}] (it has {', '.join(model.regimes) or 'none'}); "
-                    "identify the model from a recording with that regime"
+    residual, force, corr = ResidualSums(model.n), ForceError(model), Correlations(model.n)
+    windows: list[dict[str, Any]] = []
+    thinned: list[Scored] = []
+    for r, total in zip(recs, totals, strict=True):
+        name = r.name or "<memory>"
+        with Spill() as spill:
+            built = StatsBuilder(model, MIN_REGIME_SAMPLES, spill)
+            has_wrench = False
+            for piece in _pieces(r, chunk_rows):
+                built.add(local(model, piece.rec), piece.keep)
+                has_wrench = piece.rec.has_wrench
+                tick()
+            _absent_regimes(model, built, regimes, r.name)
+            stats = built.finish(regimes)
+        t = r.t if isinstance(r, Recording) else r.times()
+        win = Windows(name, t[0], t[-1], model.n)
+        left = {"near": 0, "rev": 0, "no_extraction": False}
+        noband: dict[str, int] = {}
+        parts = []
+        for piece in _pieces(r, chunk_rows):
+            loc = local(model, piece.rec)
+            sc = scored(model, piece.rec, stats=stats, loc=loc)
+            if regimes is not None:
+                sc.use = sc.use & np.isin(sc.sig.regime, [g for g in Regime if g.label in regimes])
+            k = piece.keep
+            residual.add(sc, k)
+            win.add(sc, k)
+            force.add(sc, k, piece.start, total)
+            corr.add(sc, k)
+            left["near"] += int(loc.near[k].sum())
+            left["rev"] += int(loc.rev[k].sum())
+            left["no_extraction"] |= loc.no_extraction
+            for x, rows in noband_rows(model, loc, stats).items():
+                noband[x] = noband.get(x, 0) + int(rows[k].sum())
+            own = np.arange(k.start, k.stop)
+            rows = own[(piece.start + own) % stride == 0]
+            if len(rows):
+                parts.append(
+                    _thin(sc, rows, timed, piece.start, parts[0].sig.rec if parts else None)
                 )
-        sc = scored(model, r)
-        if regimes is not None:
-            bad = [x for x in regimes if x not in REGIME_NAMES]
-            if bad:
-                raise ModelError(
-                    f"regime {bad[0]!r} is unknown, expected one of: {', '.join(REGIME_NAMES)}"
-                )
-            keep = np.isin(sc.sig.regime, [r for r in Regime if r.label in regimes])
-            sc.use = sc.use & keep
-            sc.sigma_hf = white_noise(sc.e, sc.use & (sc.sig.regime != DITHER), sc.sig.regime)
-        scs.append(sc)
-        notes.extend(f"{r.name or 'recording'}: {x}" for x in sc.notes)
-        if not r.has_wrench:
+            tick()
+        windows += win.result()
+        thinned.append(_join(parts, total))
+        why = score_notes(bool(left["no_extraction"]), left["near"], left["rev"], noband)
+        notes.extend(f"{r.name or 'recording'}: {x}" for x in why)
+        if not has_wrench:
             notes.append(
                 f"{r.name or 'recording'}: no F/T columns: the residual contains any external "
                 "force, and there is no force error"
             )
-    residual = residual_summary(model, scs)
-    force = force_error(model, scs)
-    windows = worst_windows(model, scs)
+    summary = residual.result()
+    windows.sort(key=lambda d: -d["energy"])
+
+    def cand_progress(i: int, n: int) -> None:
+        tick()
+
     cands, skipped = candidates(
         model,
-        recs,
+        [],
         effects=effects,
         folds=folds,
         guard=guard,
         min_fraction=min_fraction,
-        scored_recs=scs,
-        progress=progress,
+        scored_recs=thinned,
+        max_samples=max(1, sum(len(s.e) for s in thinned)),
+        progress=cand_progress,
     )
     for c in cands:
         # nothing to explain where the residual is far below the noise floor: a share of what
         # is noise already is not evidence of an effect (a standing UR10e: viscous "explained"
         # 6.6 % of joint 1's residual at 0.34x its floor). Right models of moving logs sit at
         # 0.83-0.87x, and a real 5 degree F/T mount rotation at 0.84-0.97x: hence half the floor
-        ratio = residual["ratio"]
+        ratio = summary["ratio"]
         low = [j for j in c.joints if not ratio[j - 1] > FLOOR_SHARE]
         if c.suggested and low == c.joints:
             c.suggested = False
@@ -521,15 +410,104 @@ def diagnose(
     cands.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
     return Diagnosis(
         model,
-        residual,
-        force,
-        windows,
+        summary,
+        force.result(),
+        windows[:5],
         cands,
         skipped,
         notes,
         [r.name or "<memory>" for r in recs],
-        scs,
-        verdict(residual, cands, scs),
+        thinned,
+        verdict(summary, cands, corr),
+    )
+
+
+def _pieces(r: Recording | Source, rows: int) -> Iterator[Piece]:
+    """The recording's pieces with :data:`HALO_S` of context, each one's cached Signals
+    released when the next is asked for (a recording in memory is one piece, kept)."""
+    for piece in pieces_of(r, rows, HALO_S):
+        yield piece
+        if piece.rec is not r:
+            release(piece.rec)
+
+
+def _absent_regimes(
+    model: TorqueModel, built: StatsBuilder, regimes: Sequence[str] | None, name: str | None
+) -> None:
+    """A regime of the recording (>= :data:`MIN_REGIME_SAMPLES` samples on a joint) the model
+    has no band for: one clear error."""
+    for code in Regime:
+        wanted = regimes is None or code.label in regimes
+        if (
+            wanted
+            and code.label not in model.regimes
+            and built.present[code].max() >= MIN_REGIME_SAMPLES
+        ):
+            raise ModelError(
+                f"{where_prefix(name)}the recording has {int(built.present_rows[code])} "
+                f"{code.label} samples but the model has no [regimes.{code.label}] (it has "
+                f"{', '.join(model.regimes) or 'none'}); identify the model from a recording "
+                "with that regime"
+            )
+
+
+def _thin(
+    sc: Scored,
+    rows: np.ndarray,
+    timed: Sequence[Effect],
+    start: int,
+    rec: Recording | None = None,
+) -> Scored:
+    """The rows of a scored piece the candidates are fitted on, with Signals of those rows
+    (:meth:`ditherlab.effects.Signals.take`); the designs of effects that filter in time
+    (``timed``) computed here, on the piece, for every value of their grid. ``start``: the
+    recording's row of the piece's first row (the rows are numbered in the recording).
+
+    The part lets go of its piece (the piece's Signals and table: about 100 MB each), keeping
+    ``rec`` (the first piece's recording: name, robot, time base) in its place."""
+    sub = sc.sig.take(rows)
+    sub.index = start + rows
+    _ = sub.regime, sub.ddq  # the whole recording's, taken at the rows (joined later)
+    if sub.has_wrench:
+        sub.wrench("diagnose")
+        sub.wrench_lp("diagnose")
+    for e in timed:
+        try:
+            e.check(sub)
+        except ModelError:
+            continue  # the candidates skip it and say why
+        for j in [None] if e.shared else range(sub.n):
+            ref = e.reference([sub], j)
+            for h in e.grid([sub], j):
+                design_at(e, sub, j, h, ref)
+    sub.whole = None  # type: ignore[assignment]
+    sub.rec = rec if rec is not None else sc.sig.rec
+    return Scored(
+        sub,
+        sc.e[rows],
+        sc.h[rows],
+        sc.sigma[rows],
+        sc.use[rows],
+        sc.tau[rows],
+        [],
+        sc.sigma_hf,
+        sc.sliding,
+    )
+
+
+def _join(parts: list[Scored], total: int) -> Scored:
+    """One scored recording of the thinned rows of its pieces (``total``: its rows)."""
+    if not parts:
+        raise ModelError("diagnose: a recording without samples")
+    return Scored(
+        Signals.join([p.sig for p in parts], total),
+        *(
+            np.concatenate([getattr(p, f) for p in parts])
+            for f in ("e", "h", "sigma", "use", "tau")
+        ),
+        [],
+        parts[0].sigma_hf,
+        parts[0].sliding,
     )
 
 
@@ -552,7 +530,7 @@ CHECKS = {
 
 
 def verdict(
-    residual: dict[str, Any], cands: Sequence[Candidate], scs: Sequence[Scored]
+    residual: dict[str, Any], cands: Sequence[Candidate], corr: Correlations
 ) -> dict[str, Any] | None:
     """What the diagnosis concludes where the model fails, and no library effect explains it.
 
@@ -571,9 +549,10 @@ def verdict(
     ]
     if not failing:
         return None
+    corr_of = corr
     suggested = [c for c in cands if c.suggested]
     joints = sorted({f["joint"] for f in failing})
-    corr = {j: _correlations(scs, j - 1) for j in joints}
+    corr = {j: corr_of.result(j - 1) for j in joints}
     strongest = sorted(
         {(name, abs(v)) for c in corr.values() for name, v in c[:2]}, key=lambda x: -x[1]
     )
@@ -612,42 +591,6 @@ def verdict(
         "checks": checks,
         "text": text,
     }
-
-
-def _correlations(scs: Sequence[Scored], j: int) -> list[tuple[str, float]]:
-    """Pearson r of joint j's scored residual with its driving variables, strongest first."""
-    parts: dict[str, list[np.ndarray]] = {}
-    for sc in scs:
-        m = sc.use[:, j] & np.isfinite(sc.e[:, j])
-        if not m.any():
-            continue
-        sig = sc.sig
-        drivers = {
-            "residual": sc.e[:, j],
-            "tau": sig.tau[:, j],
-            "gravity": sig.gravity[:, j],
-            "q": sig.q[:, j],
-            "dq": sig.dq[:, j],
-            "sign(dq)": np.sign(sig.dq[:, j]),
-            "ddq": sig.ddq[:, j],
-            "t": sig.ts,
-        }
-        if sig.has_wrench:
-            drivers["J^T F"] = sig.sensor_torque("verdict")[:, j]
-        for name, x in drivers.items():
-            parts.setdefault(name, []).append(np.asarray(x, dtype=float)[m])
-    if "residual" not in parts:
-        return []
-    e = np.concatenate(parts.pop("residual"))
-    out = []
-    for name, xs in parts.items():
-        if len(xs) != len(parts["tau"]):  # J^T F where only some recordings have the sensor
-            continue
-        x = np.concatenate(xs)
-        if len(x) != len(e) or len(x) < 10 or np.std(x) == 0 or np.std(e) == 0:
-            continue
-        out.append((name, float(np.corrcoef(e, x)[0, 1])))
-    return sorted(out, key=lambda kv: -abs(kv[1]))
 
 
 # ============================================================== history and report
