@@ -8,13 +8,15 @@ child). The target of the scale issue: peak memory independent of the log's leng
 2 GB for ten hours.
 
 ``python -m bench.bench_stream --hours 10 --keep DIR`` keeps the logs; ``--only identify`` runs
-one command.
+one command. ``view`` and ``report`` read the logs' estimates (replayed once, not timed); the
+ten-hour view writes a 13 GB ``.rrd`` (removed after).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -101,6 +103,15 @@ def run(
                 ["replay", "{rec}", "--model", str(model), "-o", "{out}.est.parquet", "-q"],
             ),
             ("identify, 30 bootstrap replicates", ["identify", "{rec}", "-o", "{out}.toml", "-q"]),
+            (
+                "view with estimates and model to .rrd",
+                ["view", "{rec}", "--estimates", "{est}", "--model", str(model)]
+                + ["--save", "{out}.rrd", "-q"],
+            ),
+            (
+                "report with the recording",
+                ["report", "{est}", "--recording", "{rec}", "-o", "{out}", "-q"],
+            ),
         ):
             if only is not None and not name.startswith(only):
                 continue
@@ -108,11 +119,16 @@ def run(
             for label, rec in (("short", one), ("long", many)):
                 slug = name.split()[0].strip(",")
                 out = d / f"{label}_{slug}"
-                a = [x.format(rec=rec, out=out) for x in args]
+                est = d / f"{label}.estimates.parquet"  # replayed once, for view and report
+                if any("{est}" in x for x in args) and not est.exists():
+                    _peak(["replay", str(rec), "--model", str(model), "-o", str(est), "-q"])
+                a = [x.format(rec=rec, out=out, est=est) for x in args]
                 res[label] = _peak(a)
                 for f in d.glob(f"{label}_{slug}*"):
                     if f.is_file():
                         os.remove(f)
+                    elif f.is_dir():
+                        shutil.rmtree(f)
             dur_s = seconds * times / 3600
             rows.append(
                 {

@@ -346,25 +346,19 @@ def fit_logistic(
     g50 = np.linspace(0.0, 1.5 * fmax, 300)
     gs = np.geomspace(0.25, 50.0, 60)
     G50, GS = np.meshgrid(g50, gs, indexing="ij")
-    z = (force[None, None, :] - G50[..., None]) / GS[..., None]  # (300, 60, P)
-    lp = -np.logaddexp(0.0, -z)  # log p(hit)
-    lq = -np.logaddexp(0.0, z)  # log p(miss)
-
-    def best(weights: np.ndarray) -> tuple[float, float]:
-        ll = lp @ (weights * hit) + lq @ (weights * ~hit)
-        i, j = np.unravel_index(int(np.argmax(ll)), ll.shape)
-        return float(g50[i]), float(gs[j])
-
-    f50, s = best(np.ones(len(force)))
+    # the fit and every bootstrap replicate: weights per push, the replicates drawn in order
+    weights = [np.ones(len(force))]
+    if n_boot > 1:
+        rng = np.random.default_rng(seed)
+        for _ in range(n_boot):
+            w = np.bincount(rng.integers(0, len(force), len(force)), minlength=len(force))
+            weights.append(w.astype(float))
+    fits = _grid_ml(force, hit, G50, GS, weights)
+    f50, s = float(g50[fits[0][0]]), float(gs[fits[0][1]])
     ln9 = float(np.log(9.0))
     out: dict[str, Any] = {"F50": f50, "F90": f50 + s * ln9, "scale": s}
     if n_boot > 1:
-        rng = np.random.default_rng(seed)
-        reps = np.empty((n_boot, 2))
-        for r in range(n_boot):
-            w = np.bincount(rng.integers(0, len(force), len(force)), minlength=len(force))
-            b50, bs = best(w.astype(float))
-            reps[r] = (b50, b50 + bs * ln9)
+        reps = np.array([(g50[i], g50[i] + gs[j] * ln9) for i, j in fits[1:]], dtype=float)
         q = [(1 - level) / 2, (1 + level) / 2]
         out["F50_ci"] = np.quantile(reps[:, 0], q).tolist()
         out["F90_ci"] = np.quantile(reps[:, 1], q).tolist()
@@ -372,6 +366,35 @@ def fit_logistic(
         out["F50_ci"] = [nan, nan]
         out["F90_ci"] = [nan, nan]
     return out
+
+
+def _grid_ml(
+    force: np.ndarray,
+    hit: np.ndarray,
+    G50: np.ndarray,
+    GS: np.ndarray,
+    weights: list[np.ndarray],
+    rows: int = 10,
+) -> list[tuple[int, int]]:
+    """The grid point ``(i, j)`` of largest weighted log-likelihood of the logistic curve, per
+    weight vector (P,): the first largest in row-major order, as ``np.argmax``. The (300, 60, P)
+    log-probabilities are made ``rows`` F50 values at a time (memory bounded however many pushes
+    there are; each (60, P) slice's products are numpy's as for the whole grid)."""
+    best = [(-np.inf, 0, 0)] * len(weights)
+    wh = [w * hit for w in weights]
+    wm = [w * ~hit for w in weights]
+    n_s = G50.shape[1]
+    for i0 in range(0, G50.shape[0], rows):
+        sl = slice(i0, i0 + rows)
+        z = (force[None, None, :] - G50[sl, :, None]) / GS[sl, :, None]  # (rows, 60, P)
+        lp = -np.logaddexp(0.0, -z)  # log p(hit)
+        lq = -np.logaddexp(0.0, z)  # log p(miss)
+        for r in range(len(weights)):
+            ll = lp @ wh[r] + lq @ wm[r]
+            k = int(np.argmax(ll))
+            if ll.flat[k] > best[r][0]:
+                best[r] = (float(ll.flat[k]), i0 + k // n_s, k % n_s)
+    return [(i, j) for _, i, j in best]
 
 
 # ------------------------------------------------------------------------------ analysis
