@@ -251,9 +251,7 @@ class StatsBuilder:
                 and (regimes is None or c.label in regimes)
                 and self.spill.count(("wn", j, int(c)))
             ]
-            x = np.concatenate(parts) if parts else np.zeros(0)
-            if x.size >= 20:
-                hf[j] = 1.4826 * np.median(np.abs(x - np.median(x))) / np.sqrt(2.0)
+            hf[j] = white_noise(np.concatenate(parts) if parts else np.zeros(0))
         return ScoreStats(few, shift, hf)
 
 
@@ -375,33 +373,18 @@ def scored(
     return Scored(sig, e, h, sigma, use, loc.tau, notes, stats.sigma_hf, sliding)
 
 
-def white_noise(e: np.ndarray, use: np.ndarray, reg: np.ndarray) -> np.ndarray:
-    """Model-free noise level per joint from first differences of the residual.
+def white_noise(d: np.ndarray) -> float:
+    """Model-free noise level [N·m] from first differences ``d`` (M,) of the residual.
 
-    Effects are smooth in time; white measurement noise is not: ``diff(e)`` has standard
+    Effects are smooth in time; white measurement noise is not: a difference has standard
     deviation ``sqrt(2)·sigma``. A robust scale (1.4826 · median absolute deviation) ignores the
-    few jumps at velocity reversals and regime changes. Only consecutive samples that are both
-    scored and in the same regime count (dither samples are excluded: the extracted signal is a
-    window mean).
-
-    Parameters
-    ----------
-    e : (N, n) [N·m] ; use : (N, n) bool ; reg : (N, n) regime codes
-
-    Returns
-    -------
-    (n,) [N·m]; NaN for a joint with fewer than 20 usable pairs
+    few jumps at velocity reversals and regime changes. :class:`StatsBuilder` gathers the
+    differences of consecutive samples that are both scored and in the same regime (dither
+    samples are excluded: the extracted signal is a window mean). NaN for fewer than 20.
     """
-    out = np.full(e.shape[1], np.nan)
-    if len(e) < 2:
-        return out
-    d = np.diff(e, axis=0)
-    ok = use[1:] & use[:-1] & (reg[1:] == reg[:-1])
-    for j in range(e.shape[1]):
-        x = d[ok[:, j], j]
-        if x.size >= 20:
-            out[j] = 1.4826 * np.median(np.abs(x - np.median(x))) / np.sqrt(2.0)
-    return out
+    if d.size < 20:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
 
 
 def band_loss(x: np.ndarray, h: np.ndarray, s: np.ndarray) -> np.ndarray:

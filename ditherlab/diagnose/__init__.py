@@ -8,7 +8,7 @@ For a model and one or more recordings (with an F/T sensor when available):
    in the band); in the moving regime the band collapses onto the sliding friction line and the
    whole residual about it counts. Its RMS is compared with the **noise floor**: the RMS the same
    quantity may have while the model is right, with ``sigma`` the white-noise level measured
-   model-free from first differences of the residual (:func:`ditherlab.effects.white_noise`; the
+   model-free from first differences of the residual (:func:`ditherlab.residual.white_noise`; the
    model's own sigma would absorb any missing effect): moving, ``sigma``; still/dither, the excess
    beyond the band of a friction sitting at the band edge plus noise, ``sqrt(sigma²/2 + ...)``,
    the largest any placement of the friction inside the band gives.
