@@ -321,6 +321,11 @@ def signals(rec: Recording, sensor: bool = True) -> Signals:
 
 
 def release(rec: Recording) -> None:
-    """Drop the Signals cached on ``rec`` now (a piece of a long log, done with): the two refer
-    to each other, and Python's cycle collector may not run before many pieces have piled up."""
-    rec.__dict__.pop("_signals", None)
+    """Drop the Signals cached on ``rec`` now, and everything they computed (a piece of a long
+    log, done with). The recording and its Signals refer to each other, and so do the two
+    sensor views through their shared cache: only Python's cycle collector would free them, and
+    it may not run before many pieces (about 40 MB each) have piled up."""
+    s = rec.__dict__.pop("_signals", None)
+    if s is not None:
+        s._shared.clear()
+        s._cache.clear()
