@@ -37,7 +37,7 @@ import numpy as np
 
 from ditherlab.bandfit import BandFit, band_noise_logpdf, fit_band, fit_sliding
 from ditherlab.dither import dithered_band, extract_dither
-from ditherlab.effects import effects_torque, external_torque, sensor_wrench
+from ditherlab.effects import effects_torque, external_torque, release, sensor_wrench
 from ditherlab.errors import ConfigError, RecordingError
 from ditherlab.io.spill import SPILL_BYTES, Spill
 from ditherlab.io.stream import CHUNK_ROWS, Source, pieces_of
@@ -214,6 +214,8 @@ def identify(
                     block=block,
                     max_accel=max_accel,
                 )
+                if piece.count > 1:  # a piece of a long log: its robot quantities go now
+                    release(piece.rec)
                 done += 1
                 if progress:
                     progress(done, steps)

@@ -37,7 +37,7 @@ import pandas as pd
 
 from ditherlab.dither import Extraction, dithered_band, extract_dither
 from ditherlab.dither import band_as_noise as band_variance_as_noise
-from ditherlab.effects import effects_torque, force_gain
+from ditherlab.effects import effects_torque, force_gain, release
 from ditherlab.errors import ConfigError
 from ditherlab.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates, EstimatesWriter
 from ditherlab.estimator import estimate, gaussian_profile_intervals, intervals
@@ -378,6 +378,8 @@ def replay_stream(
             last = float(t[-1])
             if meta is None:
                 meta = est.meta
+            if piece.count > 1:  # a piece of a long log: its robot quantities go now
+                release(piece.rec)
             if progress:
                 progress(piece.index + 1, piece.count)
         assert meta is not None

@@ -427,7 +427,7 @@ def _pieces(r: Recording | Source, rows: int) -> Iterator[Piece]:
     released when the next is asked for (a recording in memory is one piece, kept)."""
     for piece in pieces_of(r, rows, HALO_S):
         yield piece
-        if piece.rec is not r:
+        if piece.count > 1:
             release(piece.rec)
 
 

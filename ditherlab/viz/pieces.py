@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 import rerun as rr
 
-from ditherlab.effects import signals
+from ditherlab.effects import release, signals
 from ditherlab.errors import FormatError
 from ditherlab.estimates import Estimates, EstimatesSource
 from ditherlab.io.stream import Piece, Source
@@ -256,6 +256,8 @@ def log_pieces(
                 )
             est = estimates.estimates(block)
         _log_piece(log, whole, piece, est, model, force_scale, events)
+        if piece.count > 1:  # a piece of a long log: its robot quantities go now
+            release(piece.rec)
         # wait until the piece is written: the stream's batcher and sink would otherwise
         # queue the pieces as fast as they are computed, and memory grow with the log
         stream.flush()
