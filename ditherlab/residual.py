@@ -69,6 +69,21 @@ class Scored:
     #: the model's moving band has (coulomb, viscous): identification re-fits them
     sliding: tuple[bool, bool] = (False, False)
 
+    def at(self, rows: np.ndarray) -> Scored:
+        """These scored samples at some rows (M,) only, with the Signals of those rows
+        (:meth:`ditherlab.effects.Signals.take`: effects' designs are computed there alone)."""
+        return Scored(
+            self.sig.take(rows),
+            self.e[rows],
+            self.h[rows],
+            self.sigma[rows],
+            self.use[rows],
+            self.tau[rows],
+            self.notes,
+            self.sigma_hf,
+            self.sliding,
+        )
+
     def excess(
         self, shift: np.ndarray | None = None, widen: np.ndarray | None = None
     ) -> np.ndarray:

@@ -479,7 +479,7 @@ def candidates(
     n_all = sum(len(s.e) for s in scs)
     stride = max(1, -(-n_all // max_samples))
     if stride > 1:
-        scs = [_thin(s, stride) for s in scs]
+        scs = [s.at(np.arange(0, len(s.e), stride)) for s in scs]
     have = set(model.effect_names())
     names = [n for n in (effects or EFFECTS) if n not in have]
     for n in names:
@@ -496,23 +496,6 @@ def candidates(
             progress(i + 1, len(names))
     out.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
     return out, skipped
-
-
-def _thin(sc: Scored, stride: int) -> Scored:
-    """Every ``stride``-th row of a scored recording, with the Signals of those rows only
-    (:meth:`ditherlab.effects.Signals.take`): effects' designs are computed there alone."""
-    rows = np.arange(0, len(sc.e), stride)
-    return Scored(
-        sc.sig.take(rows),
-        sc.e[rows],
-        sc.h[rows],
-        sc.sigma[rows],
-        sc.use[rows],
-        sc.tau[rows],
-        sc.notes,
-        sc.sigma_hf,
-        sc.sliding,
-    )
 
 
 def select_joints(

@@ -333,8 +333,11 @@ def diagnose(
         with Spill() as spill:
             built = StatsBuilder(model, MIN_REGIME_SAMPLES, spill)
             has_wrench = False
+            held = None  # a recording of one piece: its Local serves both passes
             for piece in _pieces(r, chunk_rows):
-                built.add(local(model, piece.rec), piece.keep)
+                loc = local(model, piece.rec)
+                built.add(loc, piece.keep)
+                held = loc if piece.count == 1 else None
                 has_wrench = piece.rec.has_wrench
                 tick()
             _absent_regimes(model, built, regimes, r.name)
@@ -345,7 +348,7 @@ def diagnose(
         noband: dict[str, int] = {}
         parts = []
         for piece in _pieces(r, chunk_rows):
-            loc = local(model, piece.rec)
+            loc = held if held is not None else local(model, piece.rec)
             sc = scored(model, piece.rec, stats=stats, loc=loc)
             if regimes is not None:
                 sc.use = sc.use & np.isin(sc.sig.regime, [g for g in Regime if g.label in regimes])
@@ -378,9 +381,6 @@ def diagnose(
     summary = residual.result()
     windows.sort(key=lambda d: -d["energy"])
 
-    def cand_progress(i: int, n: int) -> None:
-        tick()
-
     cands, skipped = candidates(
         model,
         [],
@@ -390,7 +390,7 @@ def diagnose(
         min_fraction=min_fraction,
         scored_recs=thinned,
         max_samples=max(1, sum(len(s.e) for s in thinned)),
-        progress=cand_progress,
+        progress=lambda i, n: tick(),
     )
     for c in cands:
         # nothing to explain where the residual is far below the noise floor: a share of what
@@ -458,41 +458,24 @@ def _thin(
     start: int,
     rec: Recording | None = None,
 ) -> Scored:
-    """The rows of a scored piece the candidates are fitted on, with Signals of those rows
-    (:meth:`ditherlab.effects.Signals.take`); the designs of effects that filter in time
-    (``timed``) computed here, on the piece, for every value of their grid. ``start``: the
-    recording's row of the piece's first row (the rows are numbered in the recording).
-
-    The part lets go of its piece (the piece's Signals and table: about 100 MB each), keeping
-    ``rec`` (the first piece's recording: name, robot, time base) in its place."""
-    sub = sc.sig.take(rows)
-    sub.index = start + rows
-    _ = sub.regime, sub.ddq  # the whole recording's, taken at the rows (joined later)
-    if sub.has_wrench:
-        sub.wrench("diagnose")
-        sub.wrench_lp("diagnose")
+    """The rows of a scored piece the candidates are fitted on (:meth:`Scored.at`), with the
+    designs of effects that filter in time (``timed``) computed here, on the piece, for every
+    value of their grid; then detached from the piece (:meth:`Signals.detach`: ``start`` is
+    the recording's row of the piece's row 0, ``rec`` the recording kept in the piece's place,
+    default the piece's own)."""
+    part = sc.at(rows)
     for e in timed:
         try:
-            e.check(sub)
+            e.check(part.sig)
         except ModelError:
             continue  # the candidates skip it and say why
-        for j in [None] if e.shared else range(sub.n):
-            ref = e.reference([sub], j)
-            for h in e.grid([sub], j):
-                design_at(e, sub, j, h, ref)
-    sub.whole = None  # type: ignore[assignment]
-    sub.rec = rec if rec is not None else sc.sig.rec
-    return Scored(
-        sub,
-        sc.e[rows],
-        sc.h[rows],
-        sc.sigma[rows],
-        sc.use[rows],
-        sc.tau[rows],
-        [],
-        sc.sigma_hf,
-        sc.sliding,
-    )
+        for j in [None] if e.shared else range(part.sig.n):
+            ref = e.reference([part.sig], j)
+            for h in e.grid([part.sig], j):
+                design_at(e, part.sig, j, h, ref)
+    part.sig.detach(start, rec if rec is not None else sc.sig.rec)
+    part.notes = []
+    return part
 
 
 def _join(parts: list[Scored], total: int) -> Scored:
@@ -530,7 +513,7 @@ CHECKS = {
 
 
 def verdict(
-    residual: dict[str, Any], cands: Sequence[Candidate], corr: Correlations
+    residual: dict[str, Any], cands: Sequence[Candidate], correlations: Correlations
 ) -> dict[str, Any] | None:
     """What the diagnosis concludes where the model fails, and no library effect explains it.
 
@@ -549,10 +532,9 @@ def verdict(
     ]
     if not failing:
         return None
-    corr_of = corr
     suggested = [c for c in cands if c.suggested]
     joints = sorted({f["joint"] for f in failing})
-    corr = {j: corr_of.result(j - 1) for j in joints}
+    corr = {j: correlations.result(j - 1) for j in joints}
     strongest = sorted(
         {(name, abs(v)) for c in corr.values() for name, v in c[:2]}, key=lambda x: -x[1]
     )

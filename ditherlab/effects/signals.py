@@ -91,13 +91,27 @@ class Signals:
             return self.whole.take(self._rows[rows])
         return Signals(self.rec, self.has_wrench, _whole=self, _rows=rows)
 
+    def detach(self, first_row: int, rec: Recording) -> None:
+        """Make :meth:`take` n rows of a piece of a recording ready for :meth:`join`: the
+        whole-recording quantities join needs (regimes, ``ddq``, the F/T columns raw and
+        low-passed) kept at the rows, the rows numbered in the recording (the piece's row 0 is
+        its row ``first_row``), and the piece let go (its Signals and table: about 100 MB), with
+        ``rec`` (one recording of the same robot and time base) in its place."""
+        _ = self.regime, self.ddq
+        if self.has_wrench:
+            self.wrench("join")
+            self.wrench_lp("join")
+        self.index = first_row + self.index
+        self.whole = None  # type: ignore[assignment]
+        self.rec = rec
+
     @classmethod
     def join(cls, parts: list[Signals], length: int) -> Signals:
         """One Signals of the rows of several :meth:`take` n parts of the same recording (its
         pieces read one after another, each part's ``index`` numbering the recording's rows):
         their arrays and cached quantities joined in order. There is no whole recording behind
         it: a design that needs one (not :attr:`Effect.pointwise`) must have been computed on
-        every part (``design_at`` keeps it) before the join."""
+        every part (``design_at`` keeps it) before :meth:`detach`."""
         first = parts[0]
         out = cls.__new__(cls)
         out.rec = first.rec
