@@ -319,6 +319,15 @@ class Recording:
             object.__setattr__(self, "_robot", cached)
         return cached
 
+    def share_robot(self, other: Recording) -> None:
+        """Use ``other``'s :meth:`robot` as this recording's: ``other`` is another piece of the
+        same recording (the same metadata). Each piece would otherwise parse the URDF and build
+        its own pinocchio model with its own result cache, which Python frees only at its next
+        full collection (the model and its kernels refer to each other)."""
+        if other.meta is not self.meta and other.meta != self.meta:
+            raise ValueError("share_robot: the recordings' metadata differ")
+        object.__setattr__(self, "_robot", other.robot())
+
     # ------------------------------------------------------------------ transformations
     def slice(self, t0: float | None = None, t1: float | None = None) -> Recording:
         """The samples with ``t0 <= t < t1`` (either bound may be None), as a new Recording."""

@@ -471,3 +471,27 @@ def test_signals_cache_frees_its_recording():
     del rec
     gc.collect()
     assert gone() is None
+
+
+def test_released_signals_free_their_recording_without_the_cycle_collector():
+    """A released piece goes as soon as it is no longer used: nothing of it waits for Python's
+    cycle collector, which a long log's few, large objects seldom trigger (the whole Signals
+    referred to itself as ``whole``: diagnose's pass 2 grew 3-25 MB a piece until its end)."""
+    import gc
+    import weakref
+
+    from ditherlab.effects import release, signals
+
+    rec = make_recording(seed=2, duration=1.0)
+    sig = signals(rec)
+    _ = sig.gravity, sig.regime, sig.take(np.arange(0, len(rec), 7)).jac
+    _ = signals(rec, sensor=False).gravity
+    assert sig.whole is sig and sig.take(np.arange(3)).whole is sig
+    gone, gone_sig = weakref.ref(rec), weakref.ref(sig)
+    gc.disable()
+    try:
+        release(rec)
+        del rec, sig, _
+        assert gone() is None and gone_sig() is None
+    finally:
+        gc.enable()

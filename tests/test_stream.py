@@ -92,6 +92,12 @@ def test_pieces_tile_the_recording_and_see_its_whole_time_base(campaign):
         assert ext.period == ref_ext.period
         assert np.array_equal(ext.signal[p.keep], ref_ext.signal[a:b])
         assert np.array_equal(ext.valid[p.keep], ref_ext.valid[a:b])
+    # one robot (URDF parsed once, one pinocchio model and result cache) for every piece
+    assert all(p.rec.robot() is pieces[0].rec.robot() for p in pieces[1:])
+    assert np.array_equal(
+        np.concatenate([p.rec.robot().gravity(p.rec.q)[p.keep] for p in pieces]),
+        whole.robot().gravity(whole.q),
+    )
 
 
 @pytest.mark.parametrize("where", ["push", "dither", "stick"])

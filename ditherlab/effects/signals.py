@@ -62,7 +62,8 @@ class Signals:
         self.length = len(rec)
         self.sample_rate = rec.sample_rate
         self.has_wrench = bool(sensor) and rec.has_wrench
-        self.whole = self if _whole is None else _whole
+        self._whole = _whole  # None: these are the whole recording's (not `self`: a cycle)
+        self._detached = False
         self._rows = _rows
         src: Any = rec if _rows is None else _whole
         pick = (lambda a: a) if _rows is None else (lambda a: None if a is None else a[_rows])
@@ -76,6 +77,14 @@ class Signals:
         # quantities that do not depend on the sensor: shared by both views of a recording
         self._shared: dict[str, Any] = {} if _shared is None else _shared
         self._cache: dict[Any, Any] = {}
+
+    @property
+    def whole(self) -> Signals | None:
+        """The Signals of every row: ``self``, or the Signals these rows were taken from, or
+        None after :meth:`detach` / :meth:`join` (no whole recording behind them)."""
+        if self._detached:
+            return None
+        return self if self._whole is None else self._whole
 
     @property
     def rows(self) -> np.ndarray | None:
@@ -102,7 +111,7 @@ class Signals:
             self.wrench("join")
             self.wrench_lp("join")
         self.index = first_row + self.index
-        self.whole = None  # type: ignore[assignment]
+        self._whole, self._detached = None, True
         self.rec = rec
 
     @classmethod
@@ -119,7 +128,7 @@ class Signals:
         out.length = int(length)
         out.sample_rate = first.sample_rate
         out.has_wrench = first.has_wrench
-        out.whole = None  # type: ignore[assignment]
+        out._whole, out._detached = None, True
         out._rows = np.concatenate([p.index for p in parts])
         out.index = out._rows
 

@@ -334,13 +334,19 @@ class Source:
         a = 0
         k = 0
 
+        first: Recording | None = None  # the first piece: its robot serves every piece
+
         def cut(a: int, b: int) -> Piece:
+            nonlocal first
             lo, hi = max(a - halo, 0), min(b + halo, N)
             assert buf is not None
             data = buf.iloc[lo - buf_start : hi - buf_start].reset_index(drop=True)
             rec = Recording(data, self.meta, name=self.name, timebase=tb)
-            if k == 0:
+            if first is None:
                 check_units(rec)
+                first = rec
+            else:
+                rec.share_robot(first)
             return Piece(rec, lo, slice(a - lo, b - lo), k, count)
 
         for frame in self.frames(rows):
