@@ -104,6 +104,10 @@ def run(
             ),
             ("identify, 30 bootstrap replicates", ["identify", "{rec}", "-o", "{out}.toml", "-q"]),
             (
+                "diagnose, 13 candidates",
+                ["diagnose", "{rec}", "--model", str(model), "--no-history", "--json", "-q"],
+            ),
+            (
                 "view with estimates and model to .rrd",
                 ["view", "{rec}", "--estimates", "{est}", "--model", str(model)]
                 + ["--save", "{out}.rrd", "-q"],
