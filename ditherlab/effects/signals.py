@@ -347,8 +347,12 @@ def release(rec: Recording) -> None:
     """Drop the Signals cached on ``rec`` now, and everything they computed (a piece of a long
     log, done with). The recording and its Signals refer to each other, and so do the two
     sensor views through their shared cache: only Python's cycle collector would free them, and
-    it may not run before many pieces (about 40 MB each) have piled up."""
+    it may not run before many pieces (about 40 MB each) have piled up. The robot's cached
+    results go too (the pieces of a log share one robot; the next piece's poses are others)."""
     s = rec.__dict__.pop("_signals", None)
     if s is not None:
         s._shared.clear()
         s._cache.clear()
+    robot = rec.__dict__.get("_robot")
+    if robot is not None:  # shared by the pieces of a log: its results for this one go too
+        robot.clear_cache()

@@ -9,6 +9,7 @@ import os
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,9 @@ import pinocchio as pin
 from ditherlab.errors import RobotError, where_prefix
 from ditherlab.robot.dedup import unique_configurations
 from ditherlab.robot.describe import describe_robot
+from ditherlab.robot.fast import gravity as tree_gravity
+from ditherlab.robot.fast import jacobian as tree_jacobian
+from ditherlab.robot.fast import tree_of
 from ditherlab.robot.kernels import quantity_kernels, tool_to_joint_params
 from ditherlab.robot.poses import PAPER_POSE, check_units, parse_pose
 from ditherlab.robot.urdf import (
@@ -178,6 +182,7 @@ class RobotModel:
         self._cache: OrderedDict[tuple, dict[str, np.ndarray | None]] = OrderedDict()
         #: Byte budget of the per-configuration result cache (see :meth:`evaluate`).
         self.cache_bytes = 256 * 2**20
+        self._reference_cache = self.reference_kernels()
         self._kernels_cache = self._kernels()
 
     def __reduce__(self):
@@ -351,7 +356,23 @@ class RobotModel:
         return out
 
     def _kernels(self) -> dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]]:
-        """Per-quantity loops over pinocchio (:func:`ditherlab.robot.kernels.quantity_kernels`)."""
+        """Per-quantity loops: gravity and the Jacobian compiled (:mod:`ditherlab.robot.fast`)
+        when every joint is a one-axis revolute or prismatic joint, the rest (and those
+        otherwise) over pinocchio (:meth:`reference_kernels`)."""
+        kernels = dict(self._reference_cache)
+        tree = tree_of(self.model, self._tool_point_id)
+        if tree is not None:
+            n = self.n
+            kernels["gravity"] = (partial(tree_gravity, tree), (n,))
+            kernels["jacobian"] = (partial(tree_jacobian, tree), (6, n))
+        return kernels
+
+    def reference_kernels(
+        self,
+    ) -> dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]]:
+        """Per-quantity loops over pinocchio (:func:`ditherlab.robot.kernels.quantity_kernels`):
+        ``name -> (fill(qs (U, nq), out (U, ...)), shape)``; the reference of the compiled
+        ones."""
         return quantity_kernels(
             self.model,
             self._data,
@@ -366,9 +387,11 @@ class RobotModel:
         qs: np.ndarray,
         quantities: Sequence[str],
         progress: Callable[[int, int], None] | None,
+        reference: bool = False,
     ) -> dict[str, np.ndarray]:
-        """Evaluate ``quantities`` at every row of ``qs (U, n)``, one pinocchio call each."""
-        kernels = self._kernels_cache
+        """Evaluate ``quantities`` at every row of ``qs (U, n)`` (``reference``: with pinocchio's
+        loops, :meth:`reference_kernels`)."""
+        kernels = self._reference_cache if reference else self._kernels_cache
         qs = self.pin_configuration(qs)
         total = len(qs)
         outs = {k: np.empty((total, *kernels[k][1])) for k in quantities}
@@ -392,6 +415,7 @@ class RobotModel:
         tol: float = 0.0,
         dedup: bool = True,
         progress: Callable[[int, int], None] | None = None,
+        reference: bool = False,
     ) -> dict[str, np.ndarray]:
         """Several batched quantities at once, sharing one deduplication pass.
 
@@ -407,6 +431,11 @@ class RobotModel:
             Quantisation step (see :meth:`gravity`); 0 = exact repeats only.
         dedup : bool
             False evaluates every sample with a plain loop (the reference path, not cached).
+        reference : bool
+            Every quantity with pinocchio's own functions (:meth:`reference_kernels`; the
+            simulator's ground truth), without deduplication; by default gravity and the
+            Jacobian come from the compiled kernels of :mod:`ditherlab.robot.fast` (within
+            1e-12 relative of pinocchio's) when the robot's joints allow.
         progress : callable(done, total), optional
             Called with the number of distinct configurations evaluated so far.
 
@@ -433,8 +462,8 @@ class RobotModel:
                 f"quantisation tolerance is {tol!r}, expected a finite value >= 0 [rad]"
             )
         quantities = list(dict.fromkeys(quantities))
-        if not dedup:
-            return self._compute(q, quantities, progress)
+        if not dedup or reference:
+            return self._compute(q, quantities, progress, reference=reference)
         key = (
             hashlib.blake2b(np.ascontiguousarray(q).data, digest_size=16).digest(),
             q.shape,

@@ -160,11 +160,12 @@ class Engine:
         all friction stuck and unloaded."""
         n = self.n
         x = np.zeros((K.N_X, n))
-        g = self.plant_robot.gravity(q0)[0]
+        # reference=True here and below: pinocchio's own functions, the simulator's ground truth
+        g = self.plant_robot.evaluate(q0, ["gravity"], reference=True)["gravity"][0]
         x[K.X_QM] = q0
         x[K.X_Q] = q0 - g / self.jp[K.KG]
         # the velocity integral carries what the controller's gravity model misses
-        x[K.X_I] = g - self.robot.gravity(q0)[0]
+        x[K.X_I] = g - self.robot.evaluate(q0, ["gravity"], reference=True)["gravity"][0]
         x[K.X_SM] = x[K.X_SO] = 1.0
         return {
             "x": x,
@@ -175,9 +176,8 @@ class Engine:
 
     def _dynamics(self, q_link: np.ndarray, q_motor: np.ndarray) -> tuple[np.ndarray, ...]:
         n, eps = self.n, 1e-6
-        # dedup=False: the plain evaluation path, without the robot model's result cache
         qs = np.vstack([q_link, q_link + eps * np.eye(n)])
-        pl = self.plant_robot.evaluate(qs, ["gravity", "mass_matrix", "jacobian"], dedup=False)
+        pl = self.plant_robot.evaluate(qs, ["gravity", "mass_matrix", "jacobian"], reference=True)
         M = pl["mass_matrix"]
         W = np.linalg.inv(M[0] + np.diag(self.output_inertia))
         gp = pl["gravity"]
@@ -185,7 +185,7 @@ class Engine:
         dM = np.moveaxis((M[1:] - M[0]) / eps, 0, 2)  # dM_ij/dq_k at [i, j, k]
         Gam = 0.5 * (dM + np.swapaxes(dM, 1, 2) - np.moveaxis(dM, 2, 0))
         qs = np.vstack([q_motor, q_motor + eps * np.eye(n)])
-        gc = self.robot.evaluate(qs, ["gravity"], dedup=False)["gravity"]
+        gc = self.robot.evaluate(qs, ["gravity"], reference=True)["gravity"]
         Gc = ((gc[1:] - gc[0]) / eps).T
         JT = pl["jacobian"][0].T.copy()
         return W, gp[0].copy(), Gp, q_link.copy(), gc[0].copy(), Gc, q_motor.copy(), JT, Gam

@@ -130,10 +130,11 @@ def lead_through(
             np.abs(inputs.dq_ref[k]) > 0.002
         )
         dq = np.where(moving, dq, 0.0)
-        tau_bar = tau - robot.gravity(q)[0]
+        geo = robot.evaluate(q, ["gravity", "jacobian"], reference=True)  # as the plant's
+        tau_bar = tau - geo["gravity"][0]
         tau_bar = tau_bar - np.where(moving, eng.fc * np.sign(dq) + eng.fv * dq, 0.0)
         half = np.where(moving, 0.0, half)
-        J = robot.jacobian(q)
+        J = geo["jacobian"]
         sol = estimate(
             tau_bar[None],
             J,
