@@ -5,11 +5,16 @@ the frame of the joint that carries it."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from functools import partial
 
 import numpy as np
 import pinocchio as pin
 
-__all__ = ["quantity_kernels", "tool_to_joint_params"]
+from ditherlab.robot.fast import gravity as tree_gravity
+from ditherlab.robot.fast import jacobian as tree_jacobian
+from ditherlab.robot.fast import tree_of
+
+__all__ = ["compiled_kernels", "quantity_kernels", "tool_to_joint_params"]
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -82,6 +87,23 @@ def quantity_kernels(
         "link_poses": (links, (len(link_ids), 4, 4)),
         "gravity_regressor": (regressor, (n, 10)),
     }
+
+
+def compiled_kernels(
+    m: pin.Model,
+    point_id: int,
+    reference: dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]],
+) -> dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]]:
+    """``reference`` (:func:`quantity_kernels`) with gravity and the Jacobian at the frame
+    ``point_id`` compiled (:mod:`ditherlab.robot.fast`) when every joint of ``m`` is a one-axis
+    revolute or prismatic joint; the other quantities (and those otherwise) stay pinocchio's."""
+    kernels = dict(reference)
+    tree = tree_of(m, point_id)
+    if tree is not None:
+        n = int(m.nv)
+        kernels["gravity"] = (partial(tree_gravity, tree), (n,))
+        kernels["jacobian"] = (partial(tree_jacobian, tree), (6, n))
+    return kernels
 
 
 def tool_to_joint_params(model: pin.Model, tool_frame_id: int) -> np.ndarray:

@@ -9,7 +9,6 @@ import os
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +18,7 @@ import pinocchio as pin
 from ditherlab.errors import RobotError, where_prefix
 from ditherlab.robot.dedup import unique_configurations
 from ditherlab.robot.describe import describe_robot
-from ditherlab.robot.fast import gravity as tree_gravity
-from ditherlab.robot.fast import jacobian as tree_jacobian
-from ditherlab.robot.fast import tree_of
-from ditherlab.robot.kernels import quantity_kernels, tool_to_joint_params
+from ditherlab.robot.kernels import compiled_kernels, quantity_kernels, tool_to_joint_params
 from ditherlab.robot.poses import PAPER_POSE, check_units, parse_pose
 from ditherlab.robot.urdf import (
     BUILTIN,
@@ -183,7 +179,9 @@ class RobotModel:
         #: Byte budget of the per-configuration result cache (see :meth:`evaluate`).
         self.cache_bytes = 256 * 2**20
         self._reference_cache = self.reference_kernels()
-        self._kernels_cache = self._kernels()
+        self._kernels_cache = compiled_kernels(
+            self.model, self._tool_point_id, self._reference_cache
+        )
 
     def __reduce__(self):
         """Pickle as the constructor's arguments (pinocchio objects are rebuilt)."""
@@ -355,24 +353,9 @@ class RobotModel:
                 out[:, iq + 1] = np.sin(q[:, iv])
         return out
 
-    def _kernels(self) -> dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]]:
-        """Per-quantity loops: gravity and the Jacobian compiled (:mod:`ditherlab.robot.fast`)
-        when every joint is a one-axis revolute or prismatic joint, the rest (and those
-        otherwise) over pinocchio (:meth:`reference_kernels`)."""
-        kernels = dict(self._reference_cache)
-        tree = tree_of(self.model, self._tool_point_id)
-        if tree is not None:
-            n = self.n
-            kernels["gravity"] = (partial(tree_gravity, tree), (n,))
-            kernels["jacobian"] = (partial(tree_jacobian, tree), (6, n))
-        return kernels
-
-    def reference_kernels(
-        self,
-    ) -> dict[str, tuple[Callable[[np.ndarray, np.ndarray], None], tuple]]:
-        """Per-quantity loops over pinocchio (:func:`ditherlab.robot.kernels.quantity_kernels`):
-        ``name -> (fill(qs (U, nq), out (U, ...)), shape)``; the reference of the compiled
-        ones."""
+    def reference_kernels(self) -> dict[str, tuple[Callable, tuple]]:
+        """Per-quantity loops over pinocchio (:func:`~ditherlab.robot.kernels.quantity_kernels`,
+        the reference of the compiled ones): ``name -> (fill(qs (U, nq), out (U, ...)), shape)``."""
         return quantity_kernels(
             self.model,
             self._data,
