@@ -227,17 +227,19 @@ class TorqueModel:
     def copy(self) -> TorqueModel:
         return copy.deepcopy(self)
 
+    def same_robot(self, spec: str | dict) -> bool:
+        """Whether a recording's ``robot`` metadata entry is this model's robot (the same
+        built-in name, or the same URDF text)."""
+        m = self.robot
+        if isinstance(m, str) or isinstance(spec, str):
+            return m == spec
+        return m.get("urdf") == spec.get("urdf")
+
     def check_robot(self, rec: Recording) -> None:
         """Raise ModelError when the recording's robot is not the model's (name/URDF or joint
         count)."""
-        spec_r = rec.meta["robot"]
         spec_m = self.robot
-        same = self.n == rec.n and (
-            spec_m == spec_r
-            if isinstance(spec_m, str) or isinstance(spec_r, str)
-            else spec_m.get("urdf") == spec_r.get("urdf")
-        )
-        if not same:
+        if not (self.n == rec.n and self.same_robot(rec.meta["robot"])):
             mlabel = spec_m if isinstance(spec_m, str) else spec_m.get("name", "urdf")
             where = f"{rec.name}: " if rec.name else ""
             raise ModelError(

@@ -302,10 +302,7 @@ class Recording:
     @property
     def robot_label(self) -> str:
         """A short human-readable robot name."""
-        spec = self.robot_spec
-        if isinstance(spec, str):
-            return spec
-        return str(spec.get("name") or _urdf_name(spec.get("urdf", "")) or "urdf")
+        return robot_label(self.robot_spec)
 
     def robot(self) -> RobotModel:
         """The :class:`~ditherlab.robot.RobotModel` described by the metadata (cached).
@@ -462,6 +459,14 @@ def meta_dither_period(meta: Mapping[str, Any]) -> float | None:
 
 
 # ---------------------------------------------------------------------- validation
+def robot_label(spec: str | Mapping[str, Any]) -> str:
+    """A short human-readable name of a ``robot`` metadata entry (a built-in name, or the
+    URDF's ``name`` / its ``<robot name=...>``)."""
+    if isinstance(spec, str):
+        return spec
+    return str(spec.get("name") or _urdf_name(spec.get("urdf", "")) or "urdf")
+
+
 def _urdf_name(urdf: str) -> str | None:
     m = re.search(r"<robot[^>]*\bname\s*=\s*[\"']([^\"']+)", urdf or "")
     return m.group(1) if m else None

@@ -202,13 +202,29 @@ def test_serial_loop_gives_the_same_table(fleet, cli):
 
 
 def test_bad_fleet_input_one_line_exit_2(fleet, cli, tmp_path):
-    """A manifest without a ``file`` column, a pattern matching nothing, an output folder that
-    holds the inputs, and an unreachable scheduler: one line each, exit 2, nothing written."""
-    d, _, _, _ = fleet
+    """A manifest without a ``file`` column, a manifest naming a missing file, a pattern
+    matching nothing, an output folder that holds the inputs, an unreachable scheduler, and one
+    model for recordings of two robots: one line each, exit 2, nothing written."""
+    from ditherlab.io import read, write
+    from ditherlab.recording import Recording
+
+    d, base, _, _ = fleet
     m = tmp_path / "m.csv"
     m.write_text("path,robot\nx.parquet,r1\n")
+    m2 = tmp_path / "m2.csv"
+    m2.write_text(f"file,robot\n{d / 'logs' / 'r01_2026-01-10.parquet'},r1\nnope.parquet,r2\n")
+    one = read(d / "logs" / "r01_2026-01-10.parquet")
+    other = write(Recording(one.data, {**one.meta, "robot": "ur10e"}), tmp_path / "ur.parquet")
     cases = [
         (["--manifest", m, "-o", tmp_path / "o1"], "column 'file' is missing"),
+        (
+            ["--manifest", m2, "-o", tmp_path / "o4"],
+            f"{m2}: row 3, column 'file' is 'nope.parquet': no such file or folder",
+        ),
+        (
+            [d / "logs" / "r01_2026-01-10.parquet", other, "--model", base, "-o", tmp_path / "o5"],
+            f"{other}: the recording's robot is ur10e but the model {base} is for irb140",
+        ),
         ([str(tmp_path / "nothing*.parquet"), "-o", tmp_path / "o2"], "matches no file"),
         ([d / "logs", "-o", d], "the output folder is, contains or lies inside the input"),
         (
@@ -228,6 +244,7 @@ def test_bad_fleet_input_one_line_exit_2(fleet, cli, tmp_path):
         assert r.err.count("\n") == 1 and msg in r.err, r.err
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
     assert not (tmp_path / "o3").exists()
+    assert not (tmp_path / "o4").exists() and not (tmp_path / "o5").exists()
 
 
 def test_local_cluster_quiet_when_8787_is_taken():

@@ -22,11 +22,14 @@ from typing import Any
 
 import pandas as pd
 
-from ditherlab.errors import ConfigError
+from ditherlab.errors import ConfigError, DitherlabError
 from ditherlab.fleet.engine import TaskResult, run_tasks
 from ditherlab.fleet.job import COLUMNS, analyse_recording
 from ditherlab.fleet.summary import summarise, to_markdown
 from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text
+from ditherlab.io.stream import Source
+from ditherlab.model import TorqueModel
+from ditherlab.recording import robot_label
 
 __all__ = ["collect_inputs", "read_manifest", "run_fleet"]
 
@@ -78,6 +81,12 @@ def read_manifest(path: str | Path) -> list[tuple[Path, dict[str, Any]]]:
     for i, r in m.iterrows():
         f = Path(r["file"])
         f = f if f.is_absolute() else p.parent / f
+        if not f.exists():
+            raise ConfigError(
+                f"{p}: row {i + 2}, column 'file' is {r['file']!r}: no such file or folder"
+                + (f" ({f})" if str(f) != r["file"] else "")
+                + "; expected a recording"
+            )
         date = r.get("date", "") or None
         if date is not None:
             try:
@@ -146,6 +155,28 @@ def _check_out(out: Path, inputs: list[Path], force: bool) -> None:
         raise ConfigError(f"{out}: the folder is not empty; use --force to write into it")
 
 
+def _check_robots(
+    items: list[tuple[Path, dict[str, Any]]], model: TorqueModel, read: dict[str, Any]
+) -> None:
+    """One model for the whole fleet: every recording must be of its robot. Checked before any
+    task runs, on the recordings whose metadata is read without their samples (Parquet, CSV,
+    ditherlab MCAP); bags, mapped logs and unreadable files are checked (or reported) in their
+    task."""
+    for p, _ in items:
+        if "mapping" in read or _is_bag(p) or p.suffix.lower() not in (".parquet", ".csv", ".mcap"):
+            continue
+        try:
+            spec = Source(p, **read).meta.get("robot")
+        except DitherlabError:
+            continue  # its task reports what is wrong with it
+        if spec is not None and not model.same_robot(spec):
+            raise ConfigError(
+                f"{p}: the recording's robot is {robot_label(spec)} but the model "
+                f"{model.source or ''} is for {robot_label(model.robot)}; one model serves one "
+                "robot: run the fleet once per robot, or without --model".replace("  ", " ")
+            )
+
+
 def _model_name(robot: str, path: Path) -> str:
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in f"{robot}__{path.stem}")
     return f"{safe}.toml"
@@ -201,6 +232,7 @@ def run_fleet(
         if not b.is_file():
             raise ConfigError(f"{b}: no such model file")
         base_text = b.read_text(encoding="utf-8")
+        _check_robots(items, TorqueModel.load(b), dict(read_options or {}))
     options = {
         "read": dict(read_options or {}),
         "base": base_text,
