@@ -519,6 +519,21 @@ def test_gaussian_intervals_are_the_closed_form_profile(components, estimate):
     np.testing.assert_allclose(hi, ghi, rtol=1e-9, atol=1e-9)
 
 
+def test_gaussian_intervals_on_repeated_geometry():
+    """Samples whose Jacobian, noise and prior repeat the previous sample's (a robot at rest,
+    deduplicated) reuse its half-widths: the result equals numpy's inverse on every row."""
+    args, _ = model_data(27, N=30, zero_band=True)
+    rows = np.repeat(np.arange(30), 3)
+    args = _sub(args, rows)
+    sol = E.estimate(**args)
+    lo, hi = E.gaussian_profile_intervals(*(args[k] for k in ARGS), F_hat=sol.F, level=0.95)
+    W = 1.0 / np.broadcast_to(args["sigma"], (90, 6)) ** 2
+    H = np.einsum("kin,kn,kjn->kij", args["J"], W, args["J"]) + np.diag(1 / PAPER_PRIOR**2)
+    sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
+    np.testing.assert_allclose(hi - sol.F, 1.959963984540054 * sd, rtol=1e-9)
+    np.testing.assert_array_equal((hi - lo)[0::3], (hi - lo)[2::3])
+
+
 @pytest.mark.parametrize("change", ["band", "no_prior"])
 def test_gaussian_intervals_fall_back_to_the_profile_search(change):
     """A band with width, or an estimated component without prior, leaves the closed form: the
