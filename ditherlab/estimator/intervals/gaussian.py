@@ -11,8 +11,8 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.core import problem
-from ditherlab.estimator.intervals import intervals
+from ditherlab.estimator.core import Problem, problem
+from ditherlab.estimator.intervals import problem_intervals
 
 
 @njit(cache=True)
@@ -116,23 +116,19 @@ def gaussian_profile_intervals(
     -------
     lo, hi : (N, 6) [N, N·m]
     """
+    prob = problem(tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components)
+    return gaussian_problem_intervals(prob, F_hat, level, chunk)
+
+
+def gaussian_problem_intervals(
+    prob: Problem, F_hat: np.ndarray, level: float = 0.95, chunk: int = 65536
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`gaussian_profile_intervals` of a prepared :class:`Problem` (falls back to
+    :func:`~ditherlab.estimator.intervals.problem_intervals` as it does)."""
     from scipy.stats import chi2
 
-    prob = problem(tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components)
     if not np.array_equal(prob.tau_min, prob.tau_max) or np.any(prob.p_true <= 0):
-        return intervals(
-            tau_bar,
-            J,
-            tau_min,
-            tau_max,
-            sigma,
-            prior_mean,
-            prior_sigma,
-            F_hat=F_hat,
-            method="profile",
-            level=level,
-            components=components,
-        )
+        return problem_intervals(prob, F_hat, method="profile", level=level)
     N, m = prob.N, prob.m
     lo = np.broadcast_to(prob.full_mean, (N, 6)).copy()
     hi = lo.copy()
