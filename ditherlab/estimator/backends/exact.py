@@ -123,7 +123,9 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
             _sides(tbk, Jk, ak, bk, x, m, n, sn)
             same = True
             for j in range(n):
-                if sn[j] != s[j]:
+                # a joint of zero-width band is on the same piece on either side of it (the
+                # edge is the same number): a sign change there is not a new active set
+                if sn[j] != s[j] and not (ak[j] == bk[j] and sn[j] != 0 and s[j] != 0):
                     same = False
                     break
             if same:
