@@ -176,7 +176,7 @@ def _profile_kernel(
     factorisation per segment.
 
     Each sample is factored once, at the active set of ``F_hat`` (the reference's ``R0``); from
-    it come ``H0^-1``, ``G0 = H0^-1 U^T`` and ``M0 = U H0^-1 U^T`` (``U_j = sqrt(w_j) J_j^T``,
+    it come ``diag(H0^-1)``, ``H0^-1 grad``, ``G0 = H0^-1 U^T`` and ``M0 = U H0^-1 U^T`` (``U_j = sqrt(w_j) J_j^T``,
     one row per joint). Along the path of component ``i`` a breakpoint adds or removes one joint,
     ``H -> H +- U_j U_j^T``, and all the path needs of ``H^-1`` — ``h = (H^-1)_ii`` (the
     curvature of the profile is ``1 / h``) and ``g_k = (H^-1 U_k)_i`` (the joints' residual
@@ -194,7 +194,8 @@ def _profile_kernel(
     N, m, n = J.shape
     R0 = np.empty((m, m))
     Z = np.empty((m, m))
-    Hinv = np.empty((m, m))
+    hd = np.empty(m)
+    zg = np.empty(m)
     U = np.empty((n, m))
     Wt = np.empty((n, m))
     G0 = np.empty((m, n))
@@ -202,6 +203,7 @@ def _profile_kernel(
     u = np.empty(m)
     grad = np.empty(m)
     hg = np.empty(m)
+    ip = np.empty(m)
     isw = np.empty(n)
     r0 = np.empty(n)
     r = np.empty(n)
@@ -215,17 +217,14 @@ def _profile_kernel(
     ft = np.empty(maxseg)
     for k in range(N):
         tbk, Jk, ak, bk, wk, pk, Fk = tb[k], J[k], a[k], b[k], w[k], p[k], Fh[k]
-        f0 = _cost(tbk, Jk, ak, bk, wk, pk, fb, Fk, m, n)
-        target = f0 + thr
-        scale = 0.0
-        for i in range(m):
-            for j in range(n):
-                scale += wk[j] * Jk[i, j] ** 2
-        scale = scale / m if scale > 0.0 else 1.0
-        far = unobs * math.sqrt(thr / scale)
-        # residuals, sides and the gradient at F_hat (zero up to rounding: it is the minimiser)
+        # one pass over J: the cost at F_hat (as _cost), the residuals, sides, the gradient (zero
+        # up to rounding: F_hat is the minimiser), the data information and U
+        f0 = 0.0
         for q in range(m):
+            f0 += pk[q] * (Fk[q] - fb[q]) ** 2
             grad[q] = 2.0 * pk[q] * (Fk[q] - fb[q])
+            ip[q] = 1.0 / pk[q]
+        scale = 0.0
         for j in range(n):
             rj = tbk[j]
             for q in range(m):
@@ -238,11 +237,16 @@ def _profile_kernel(
             else:
                 s0[j] = 0
             dj = _dist(rj, ak[j], bk[j])
+            f0 += wk[j] * dj * dj
             sw = math.sqrt(wk[j])
             isw[j] = 1.0 / sw
             for q in range(m):
+                scale += wk[j] * Jk[q, j] ** 2
                 grad[q] -= 2.0 * wk[j] * Jk[q, j] * dj
                 U[j, q] = sw * Jk[q, j]
+        target = f0 + thr
+        scale = scale / m if scale > 0.0 else 1.0
+        far = unobs * math.sqrt(thr / scale)
         # the factor at F_hat's active set, and what the paths need of its inverse
         inside = True
         for j in range(n):
@@ -251,12 +255,10 @@ def _profile_kernel(
                 break
         if inside:  # every joint inside its band: H0 = diag(p)
             for i in range(m):
-                for q in range(m):
-                    Hinv[i, q] = 0.0
-                Hinv[i, i] = 1.0 / pk[i]
-                hg[i] = grad[i] / pk[i]
+                hd[i] = ip[i]
+                hg[i] = grad[i] * ip[i]
                 for j in range(n):
-                    G0[i, j] = U[j, i] / pk[i]
+                    G0[i, j] = U[j, i] * ip[i]
             for j in range(n):
                 for l in range(j, n):
                     v = 0.0
@@ -266,22 +268,30 @@ def _profile_kernel(
                     M0[l, j] = v
         else:
             _qr_factor(Jk, wk, pk, s0, m, n, R0, u)
+            for q in range(m):
+                u[q] = 1.0 / R0[q, q]
             for c in range(m):  # Z = R0^-T (lower triangular): column c solves R0^T z = e_c
-                for q in range(m):
-                    if q < c:
-                        Z[q, c] = 0.0
-                        continue
-                    v = 1.0 if q == c else 0.0
+                for q in range(c):
+                    Z[q, c] = 0.0
+                Z[c, c] = u[c]
+                for q in range(c + 1, m):
+                    v = 0.0
                     for t in range(c, q):
                         v -= R0[t, q] * Z[t, c]
-                    Z[q, c] = v / R0[q, q]
-            for i in range(m):  # H0^-1 = Z^T Z
-                for q in range(i, m):
-                    v = 0.0
-                    for t in range(q, m):
-                        v += Z[t, i] * Z[t, q]
-                    Hinv[i, q] = v
-                    Hinv[q, i] = v
+                    Z[q, c] = v * u[q]
+            for q in range(m):  # zg = Z grad
+                v = 0.0
+                for t in range(q + 1):
+                    v += Z[q, t] * grad[t]
+                zg[q] = v
+            for i in range(m):  # diag(H0^-1) and H0^-1 grad, H0^-1 = Z^T Z
+                v = 0.0
+                v2 = 0.0
+                for t in range(i, m):
+                    v += Z[t, i] * Z[t, i]
+                    v2 += Z[t, i] * zg[t]
+                hd[i] = v
+                hg[i] = v2
             for j in range(n):  # Wt_j = Z U_j (R0^-T U_j)
                 for q in range(m):
                     v = 0.0
@@ -301,10 +311,6 @@ def _profile_kernel(
                     for t in range(i, m):
                         v += Z[t, i] * Wt[j, t]
                     G0[i, j] = v
-                v = 0.0
-                for q in range(m):
-                    v += Hinv[i, q] * grad[q]
-                hg[i] = v
         bad = False
         for i in range(m):
             for side in range(2):
@@ -313,7 +319,7 @@ def _profile_kernel(
                     r[j] = r0[j]
                     s[j] = s0[j]
                     g[j] = G0[i, j]
-                h = Hinv[i, i]
+                h = hd[i]
                 dp = sg * hg[i] / h  # slope of the profile along the path: grad f . v
                 pcur = f0
                 pos = 0.0
@@ -324,38 +330,47 @@ def _profile_kernel(
                 while nseg < maxseg:
                     nseg += 1
                     invh = 1.0 / h
+                    fac = sg * invh
                     db = np.inf
                     jb = -1
                     for j in range(n):
-                        cj = sg * g[j] * invh * isw[j]  # r_j(D) = r_j - D cj
+                        cj = fac * g[j] * isw[j]  # r_j(D) = r_j - D cj
                         cs[j] = cj
-                        rj = r[j]
-                        dj = np.inf
-                        if s[j] == 0:
-                            if cj < 0.0:
-                                dj = (bk[j] - rj) / (-cj)
-                            elif cj > 0.0:
-                                dj = (rj - ak[j]) / cj
-                        elif s[j] > 0:
-                            if cj > 0.0:
-                                dj = (rj - bk[j]) / cj
+                        # the edge r_j reaches next, (r_j - edge) / cj away: going down (cj > 0)
+                        # from inside or above, going up from inside or below
+                        sj = s[j]
+                        if cj > 0.0:
+                            if sj < 0:
+                                continue
+                            num = r[j] - (bk[j] if sj > 0 else ak[j])
+                            if not num < db * cj:  # dj >= db: skip the division
+                                continue
                         elif cj < 0.0:
-                            dj = (ak[j] - rj) / (-cj)
+                            if sj > 0:
+                                continue
+                            num = r[j] - (ak[j] if sj < 0 else bk[j])
+                            if not num > db * cj:
+                                continue
+                        else:
+                            continue
+                        dj = num / cj
                         if dj < 0.0:
                             dj = 0.0
                         if dj < db:
                             db = dj
                             jb = j
+                    # p(D) = pcur + dp D + D^2 / h on this piece, increasing from below the
+                    # target: it is reached on the piece iff p(db) >= target
                     rem = target - pcur
-                    if rem <= 0.0:
+                    pnext = pcur + db * (dp + db * invh)
+                    if rem <= 0.0 or not pnext < target:  # (db = inf: reached)
                         dstar = 0.0
-                    else:  # p(D) = pcur + dp D + D^2 / h on this piece
-                        dstar = 2.0 * rem / (dp + math.sqrt(dp * dp + 4.0 * invh * rem))
-                    if dstar <= db:
-                        end = sg * (pos + dstar)
+                        if rem > 0.0:
+                            dstar = 2.0 * rem / (dp + math.sqrt(dp * dp + 4.0 * invh * rem))
+                        end = sg * (pos + min(dstar, db))
                         break
                     pos += db
-                    pcur += db * (dp + db * invh)
+                    pcur = pnext
                     dp += 2.0 * db * invh
                     for j in range(n):
                         r[j] -= db * cs[j]
