@@ -114,7 +114,9 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
             for i in range(m):
                 F[i] = fb[i]
         _sides(tbk, Jk, ak, bk, F, m, n, s)
-        fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
+        # the cost at F, computed when first needed (most samples stop at the first piece)
+        fcur = 0.0
+        have_fcur = False
         it = 0
         n_amb_tries = 0
         while it < max_iter:
@@ -134,8 +136,7 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
                 # piece without them may be the true optimum (13 N away in a fuzzed case).
                 improved = False
                 if n_amb_tries < 8:
-                    f1 = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
-                    fbest = f1 - 1e-12 * (1.0 + f1)
+                    fbest = np.nan  # computed at the first joint near its edge
                     for j in range(n):
                         if s[j] == 0:
                             continue
@@ -147,6 +148,9 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
                             size += abs(Jk[i, j] * x[i])
                         if abs(r - e) > 1e-9 * size:
                             continue
+                        if fbest != fbest:
+                            f1 = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
+                            fbest = f1 - 1e-12 * (1.0 + f1)
                         for q in range(n):
                             sa[q] = s[q]
                         sa[j] = 0
@@ -160,12 +164,16 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
                 if improved:
                     n_amb_tries += 1
                     fcur = fbest
+                    have_fcur = True
                     _sides(tbk, Jk, ak, bk, F, m, n, s)
                     continue
                 for i in range(m):
                     F[i] = x[i]
                 break
             fnew = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
+            if not have_fcur:
+                fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
+                have_fcur = True
             if fnew < fcur:
                 for i in range(m):
                     F[i] = x[i]
