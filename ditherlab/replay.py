@@ -168,9 +168,10 @@ def replay(
             progress(done, steps)
 
     robot = rec.robot()
-    g = robot.gravity(rec.q, tol=q_tol)
+    # one deduplication pass for both (a whole hour is too large for the robot's cache)
+    g, J = robot.gravity_jacobian(rec.q, tol=q_tol)
     # the log's drive gains scale the pushes' torque too (drive_gain): J^T row j times k_j
-    J = robot.jacobian(rec.q, tol=q_tol) * force_gain(model)[None, None, :]
+    J *= force_gain(model)[None, None, :]
     eff = model_effects(model, rec)
     reg = regimes(rec)
     model.band("still")  # the estimator needs it: a clear error without
