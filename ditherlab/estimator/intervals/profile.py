@@ -176,15 +176,15 @@ def _profile_kernel(
     factorisation per segment.
 
     Each sample is factored once, at the active set of ``F_hat`` (the reference's ``R0``); from
-    it come ``diag(H0^-1)``, ``H0^-1 grad``, ``G0 = H0^-1 U^T`` and ``M0 = U H0^-1 U^T`` (``U_j = sqrt(w_j) J_j^T``,
-    one row per joint). Along the path of component ``i`` a breakpoint adds or removes one joint,
-    ``H -> H +- U_j U_j^T``, and all the path needs of ``H^-1`` — ``h = (H^-1)_ii`` (the
-    curvature of the profile is ``1 / h``) and ``g_k = (H^-1 U_k)_i`` (the joints' residual
-    slopes ``c_k = g_k / (sqrt(w_k) h)``) — follows by the Sherman–Morrison formula, with the
-    column of ``M`` it needs rebuilt from ``M0`` and the path's earlier updates. The residuals
-    and the profile are carried along the path (``r_j -= D c_j``; ``p += dp D + D^2 / h``,
-    ``dp += 2 D / h``). A segment costs ``O(n)`` and a breakpoint ``O(n t)`` after ``t``
-    updates, instead of a refactorisation.
+    it come ``diag(H0^-1)``, ``H0^-1 grad``, ``G0 = H0^-1 U^T`` and ``M0 = U H0^-1 U^T``
+    (``U_j = sqrt(w_j) J_j^T``, one row per joint). Along the path of component ``i`` a
+    breakpoint adds or removes one joint, ``H -> H +- U_j U_j^T``, and all the path needs of
+    ``H^-1`` — ``h = (H^-1)_ii`` (the curvature of the profile is ``1 / h``) and
+    ``g_k = (H^-1 U_k)_i`` (the joints' residual slopes ``c_k = g_k / (sqrt(w_k) h)``) — follows
+    by the Sherman–Morrison formula, with the column of ``M`` it needs rebuilt from ``M0`` and
+    the path's earlier updates. The residuals and the profile are carried along the path
+    (``r_j -= D c_j``; ``p += dp D + D^2 / h``, ``dp += 2 D / h``). A segment costs ``O(n)`` and
+    a breakpoint ``O(n t)`` after ``t`` updates, instead of a refactorisation.
 
     Rank-one updates lose accuracy when a denominator ``1 +- U_j^T H^-1 U_j`` cancels; a
     sample whose path magnifies rounding by more than :data:`MAX_MAGNIFICATION`, whose ``h``
