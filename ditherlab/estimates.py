@@ -291,7 +291,8 @@ class EstimatesWriter:
 def _write_options(schema: pa.Schema) -> dict[str, Any]:
     """zstd, and dictionary encoding only for the integer columns (``dither``, ``V/active``): the
     float columns are all distinct, and trying a dictionary on them first doubled the time of
-    writing the replay hour's estimates (7.4 -> 3.2 s) and made the file 13 % larger."""
+    writing the replay hour's estimates (7.4 s against 3.5 s) and made the file 26 % larger
+    (657 MB against 521 MB)."""
     ints = [f.name for f in schema if not pa.types.is_floating(f.type)]
     return {"compression": "zstd", "use_dictionary": ints}
 
