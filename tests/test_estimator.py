@@ -434,8 +434,8 @@ def test_profile_fast_kernel_matches_the_reference_on_fuzzed_problems(seed):
 
 def test_profile_fast_kernel_edge_cases():
     """No band at all (every joint active along every path), every joint inside with a huge band
-    (the prior alone: F_hat +- sqrt(thr) prior_sigma), and an unobservable prior-less component
-    (infinite both ways) come out as the reference's."""
+    (the prior alone: F_hat +- sqrt(thr) prior_sigma), an unobservable prior-less component
+    (infinite both ways) and bands open on one side come out as the reference's."""
     args, _ = random_problem(seed=31, N=60)
     args["tau_max"] = args["tau_min"].copy()
     (lo, hi), (rlo, rhi), _ = _profile_both(args)
@@ -451,6 +451,12 @@ def test_profile_fast_kernel_edge_cases():
     args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, np.inf, 0.3])
     (lo, hi), (rlo, rhi), _ = _profile_both(args)
     assert np.isneginf(lo[:, 4]).all() and np.isposinf(hi[:, 4]).all()
+    _assert_same_bounds(lo, rlo)
+    _assert_same_bounds(hi, rhi)
+    args, _ = random_problem(seed=33, N=60)  # one-sided bands: some edges infinite
+    args["tau_min"][[0, 3]] = -np.inf
+    args["tau_max"][1] = np.inf
+    (lo, hi), (rlo, rhi), _ = _profile_both(args)
     _assert_same_bounds(lo, rlo)
     _assert_same_bounds(hi, rhi)
 
