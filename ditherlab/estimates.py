@@ -123,7 +123,7 @@ class Estimates:
         kv[META_KEY] = json.dumps(self.meta, sort_keys=True, allow_nan=True).encode("utf-8")
         table = table.replace_schema_metadata(kv)
         with atomic_path(path) as tmp:
-            pq.write_table(table, tmp, compression="zstd")
+            pq.write_table(table, tmp, **_write_options(table.schema))
         return Path(path)
 
     @classmethod
@@ -267,7 +267,7 @@ class EstimatesWriter:
         if self._writer is None:
             table = pa.Table.from_pandas(data, preserve_index=False)
             self._schema = table.schema
-            self._writer = pq.ParquetWriter(self._tmp, self._schema, compression="zstd")
+            self._writer = pq.ParquetWriter(self._tmp, self._schema, **_write_options(self._schema))
         else:
             table = pa.Table.from_pandas(data, schema=self._schema, preserve_index=False)
         self._writer.write_table(table)
@@ -286,6 +286,15 @@ class EstimatesWriter:
             self._stack.__exit__(*sys.exc_info())
             raise
         return bool(self._stack.__exit__(kind, exc, tb))
+
+
+def _write_options(schema: pa.Schema) -> dict[str, Any]:
+    """zstd, and dictionary encoding only for the integer columns (``dither``, ``V/active``): the
+    float columns are all distinct, and trying a dictionary on them first doubled the time of
+    writing the replay hour's estimates (7.4 s against 3.5 s) and made the file 26 % larger
+    (657 MB against 521 MB)."""
+    ints = [f.name for f in schema if not pa.types.is_floating(f.type)]
+    return {"compression": "zstd", "use_dictionary": ints}
 
 
 def _n_from_meta(meta: dict[str, Any]) -> int:

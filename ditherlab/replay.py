@@ -40,7 +40,9 @@ from ditherlab.dither import band_as_noise as band_variance_as_noise
 from ditherlab.effects import effects_torque, force_gain, release
 from ditherlab.errors import ConfigError
 from ditherlab.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates, EstimatesWriter
-from ditherlab.estimator import estimate, gaussian_profile_intervals, intervals
+from ditherlab.estimator import problem, solve
+from ditherlab.estimator.intervals import problem_intervals
+from ditherlab.estimator.intervals.gaussian import gaussian_problem_intervals
 from ditherlab.io.atomic import check_not_input, plain
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.model import TorqueModel
@@ -166,9 +168,10 @@ def replay(
             progress(done, steps)
 
     robot = rec.robot()
-    g = robot.gravity(rec.q, tol=q_tol)
+    # one deduplication pass for both (a whole hour is too large for the robot's cache)
+    g, J = robot.gravity_jacobian(rec.q, tol=q_tol)
     # the log's drive gains scale the pushes' torque too (drive_gain): J^T row j times k_j
-    J = robot.jacobian(rec.q, tol=q_tol) * force_gain(model)[None, None, :]
+    J *= force_gain(model)[None, None, :]
     eff = model_effects(model, rec)
     reg = regimes(rec)
     model.band("still")  # the estimator needs it: a clear error without
@@ -187,13 +190,14 @@ def replay(
     bits = (1 << np.arange(rec.n)).astype(np.int64)
     for v in variants:
         tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext)
-        est = (tb, J, a, b, s, model.prior_mean, model.prior_sigma)
-        sol = estimate(*est, components=comps, backend=backend)
+        # one validated problem for the estimate and its intervals
+        prob = problem(tb, J, a, b, s, model.prior_mean, model.prior_sigma, comps)
+        sol = solve(prob, backend)
         tick()
         if interval == "profile" and v.endswith("noband"):
-            ilo, ihi = gaussian_profile_intervals(*est, F_hat=sol.F, level=level, components=comps)
+            ilo, ihi = gaussian_problem_intervals(prob, sol.F, level=level)
         else:
-            ilo, ihi = intervals(*est, F_hat=sol.F, method=interval, level=level, components=comps)
+            ilo, ihi = problem_intervals(prob, sol.F, method=interval, level=level)
         tick()
         for k, c in enumerate(COMPONENTS):
             cols[f"{v}/{c}"] = sol.F[:, k]

@@ -16,6 +16,7 @@ from ditherlab import estimator as E
 from ditherlab.errors import ConfigError, ModelError
 from ditherlab.estimator import core as estimator_core
 from ditherlab.estimator.backends.exact import _solve_exact
+from ditherlab.estimator.intervals.profile import _run_profile, profile_reference
 from ditherlab.estimator.intervals.set_membership import _set_membership
 
 PAPER_PRIOR = np.array([20.0, 20.0, 20.0, 0.3, 0.3, 0.3])
@@ -383,6 +384,83 @@ def test_profile_endpoints_are_at_the_threshold(case, backend, estimate, request
             np.testing.assert_allclose(costs, target, rtol=1e-7, atol=1e-7)
 
 
+def _assert_same_bounds(got, ref, rtol=1e-9):
+    """Equal NaN and inf patterns, and finite bounds within ``rtol`` of max(1, |ref|)."""
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+    np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
+    np.testing.assert_array_equal(got[np.isinf(ref)], ref[np.isinf(ref)])
+    ok = np.isfinite(ref)
+    err = np.abs(got[ok] - ref[ok]) / np.maximum(1.0, np.abs(ref[ok]))
+    assert err.max(initial=0.0) <= rtol, err.max()
+
+
+def _profile_both(args, level=0.95):
+    prob = E.problem(**args)
+    Fm = E.estimate(**args).F[:, prob.free]
+    lo, hi, redone = _run_profile(prob, Fm, level)
+    rlo, rhi = profile_reference(prob, Fm, level)
+    return (lo, hi), (rlo, rhi), redone
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_profile_fast_kernel_matches_the_reference(case):
+    """The rank-one-update profile kernel gives the reference path's bounds (a refactorisation
+    per segment) to 1e-9, with the same infinite bounds, on every adversarial case."""
+    (lo, hi), (rlo, rhi), redone = _profile_both(_case(case))
+    _assert_same_bounds(lo, rlo)
+    _assert_same_bounds(hi, rhi)
+    if case == "tiny_noise":  # sigma 1e-4: the updates would cancel; the reference redoes them
+        assert redone.any()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_profile_fast_kernel_matches_the_reference_on_fuzzed_problems(seed):
+    """Random problems over decades of noise, band width and prior, some without a prior, some
+    with many joints active: the fast kernel equals the reference to 1e-9."""
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(1, 8))
+    noise = 10.0 ** rng.uniform(-3, 0.5)
+    band = 10.0 ** rng.uniform(-1, 1.5)
+    args, _ = random_problem(
+        seed=200 + seed, N=400, n=n, force=10.0 ** rng.uniform(0, 2.5),
+        band=(0.2 * band, band), noise=(0.2 * noise, noise),
+    )  # fmt: skip
+    if seed % 3 == 2:
+        args["prior_sigma"] = np.array([np.inf, 20.0, np.inf, 0.3, np.inf, 0.3])
+    (lo, hi), (rlo, rhi), _ = _profile_both(args)
+    _assert_same_bounds(lo, rlo)
+    _assert_same_bounds(hi, rhi)
+
+
+def test_profile_fast_kernel_edge_cases():
+    """No band at all (every joint active along every path), every joint inside with a huge band
+    (the prior alone: F_hat +- sqrt(thr) prior_sigma), an unobservable prior-less component
+    (infinite both ways) and bands open on one side come out as the reference's."""
+    args, _ = random_problem(seed=31, N=60)
+    args["tau_max"] = args["tau_min"].copy()
+    (lo, hi), (rlo, rhi), _ = _profile_both(args)
+    _assert_same_bounds(lo, rlo)
+    _assert_same_bounds(hi, rhi)
+    args, _ = random_problem(seed=32, N=60, band=(1e6, 2e6), force=1.0)
+    (lo, hi), (rlo, rhi), _ = _profile_both(args)
+    F = E.estimate(**args).F
+    half = np.sqrt(3.841458820694124) * PAPER_PRIOR
+    np.testing.assert_allclose(hi - F, np.broadcast_to(half, F.shape), rtol=1e-12)
+    _assert_same_bounds(lo, rlo)
+    args = _case("zero_component_row")
+    args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, np.inf, 0.3])
+    (lo, hi), (rlo, rhi), _ = _profile_both(args)
+    assert np.isneginf(lo[:, 4]).all() and np.isposinf(hi[:, 4]).all()
+    _assert_same_bounds(lo, rlo)
+    _assert_same_bounds(hi, rhi)
+    args, _ = random_problem(seed=33, N=60)  # one-sided bands: some edges infinite
+    args["tau_min"][[0, 3]] = -np.inf
+    args["tau_max"][1] = np.inf
+    (lo, hi), (rlo, rhi), _ = _profile_both(args)
+    _assert_same_bounds(lo, rlo)
+    _assert_same_bounds(hi, rhi)
+
+
 def test_held_components_have_point_intervals():
     """Components not estimated get lo = hi = prior mean under both methods."""
     args, _ = random_problem(seed=21)
@@ -445,6 +523,21 @@ def test_gaussian_intervals_are_the_closed_form_profile(components, estimate):
     glo, ghi = E.intervals(**args, F_hat=sol.F, method="profile", level=0.9, components=components)
     np.testing.assert_allclose(lo, glo, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(hi, ghi, rtol=1e-9, atol=1e-9)
+
+
+def test_gaussian_intervals_on_repeated_geometry():
+    """Samples whose Jacobian, noise and prior repeat the previous sample's (a robot at rest,
+    deduplicated) reuse its half-widths: the result equals numpy's inverse on every row."""
+    args, _ = model_data(27, N=30, zero_band=True)
+    rows = np.repeat(np.arange(30), 3)
+    args = _sub(args, rows)
+    sol = E.estimate(**args)
+    lo, hi = E.gaussian_profile_intervals(*(args[k] for k in ARGS), F_hat=sol.F, level=0.95)
+    W = 1.0 / np.broadcast_to(args["sigma"], (90, 6)) ** 2
+    H = np.einsum("kin,kn,kjn->kij", args["J"], W, args["J"]) + np.diag(1 / PAPER_PRIOR**2)
+    sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
+    np.testing.assert_allclose(hi - sol.F, 1.959963984540054 * sd, rtol=1e-9)
+    np.testing.assert_array_equal((hi - lo)[0::3], (hi - lo)[2::3])
 
 
 @pytest.mark.parametrize("change", ["band", "no_prior"])
@@ -527,6 +620,16 @@ def test_profile_on_a_time_series_matches_sample_by_sample():
         lo1, hi1 = E.intervals(**_sub(args, [k]), method="profile")
         np.testing.assert_allclose(lo1[0], lo[k], rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(hi1[0], hi[k], rtol=1e-9, atol=1e-9)
+
+
+def test_zero_width_bands_take_one_newton_iteration():
+    """With zero-width bands every joint is on the same piece whichever side its residual is on:
+    a sign change is no new active set, so each sample takes one Newton iteration."""
+    args, _ = smooth_series(4, N=200)
+    args["tau_max"] = args["tau_min"]
+    sol = E.estimate(**args)
+    assert (sol.iterations == 1).all()
+    assert sol.kkt.max() < 1e-12
 
 
 def _small_chunks(monkeypatch):

@@ -280,3 +280,40 @@ def test_closed_form_noband_intervals_match_general_profile(recs, model):
         ref = intervals(*args, F_hat=sol.F, method="profile", level=0.9, components=comps)
         np.testing.assert_allclose(fast[0], ref[0], atol=1e-6)
         np.testing.assert_allclose(fast[1], ref[1], atol=1e-6)
+
+
+def test_fast_interval_kernels_match_their_references_on_replay_data(recs, model):
+    """On a replayed dithered recording (every variant's inputs), the fast profile kernel and the
+    set-membership LPs give their references' bounds (profile: the per-segment refactorisation,
+    1e-9; set membership: linprog on a subset, 1e-7)."""
+    from ditherlab.effects import force_gain
+    from ditherlab.estimator import estimate, problem, set_membership_reference
+    from ditherlab.estimator.intervals.profile import _run_profile, profile_reference
+    from ditherlab.estimator.intervals.set_membership import _set_membership
+    from ditherlab.recording import regimes
+    from ditherlab.replay import model_effects, variant_inputs
+
+    dith = recs[1].slice(0, 60.0)
+    r = dith.robot()
+    g = r.gravity(dith.q)
+    J = r.jacobian(dith.q) * force_gain(model)[None, None, :]
+    eff = model_effects(model, dith)
+    reg = regimes(dith)
+    base = (dith.tau - g - eff, *model.sample_bands(reg, dith.dq))
+    ext = extract_dither(dith)
+    for v in ("nodither_band", "dither_band", "dither_noband"):
+        tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext)
+        prob = problem(tb, J, a, b, s, model.prior_mean, model.prior_sigma)
+        Fm = estimate(tb, J, a, b, s, model.prior_mean, model.prior_sigma).F[:, prob.free]
+        lo, hi, _ = _run_profile(prob, Fm, 0.95)
+        rlo, rhi = profile_reference(prob, Fm)
+        for got, ref in ((lo, rlo), (hi, rhi)):
+            assert np.isfinite(got).all() and np.isfinite(ref).all()
+            np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)
+        slo, shi, _ = _set_membership(prob, 0.95)
+        rows = np.arange(0, prob.N, prob.N // 40)
+        sub = problem(tb[rows], J[rows], a[rows], b[rows], s[rows], model.prior_mean,
+                      model.prior_sigma)  # fmt: skip
+        rlo, rhi = set_membership_reference(sub)
+        np.testing.assert_allclose(slo[rows], rlo, rtol=1e-7, atol=1e-7)
+        np.testing.assert_allclose(shi[rows], rhi, rtol=1e-7, atol=1e-7)

@@ -10,24 +10,23 @@ import numpy as np
 from numba import njit
 
 from ditherlab.estimator.core import Problem, _chunks
-from ditherlab.estimator.kernels import _cost, _dist, _givens_row, _sides
+from ditherlab.estimator.kernels import _cost, _dist, _sides
 
 
 @njit(cache=True)
-def _newton_piece(tb, J, a, b, w, p, fb, s, m, n, R, z, u, x):
+def _newton_piece(tb, J, a, b, w, p, fb, s, m, n, R, z, Bm, bb, x):
     """Minimiser x of the quadratic piece of f with active set s (joint j outside on side s_j).
 
     The piece is the least-squares problem ``|sqrt(p) (F - F_bar)|^2 + sum_{j active}
-    w_j (tau_bar_j - e_j - J_j^T F)^2``; it is solved by QR (Givens rotations adding one active
-    joint row at a time to the triangular factor ``diag(sqrt(p))``), not by the normal
-    equations: with tiny noise the normal equations square a condition number of ~1e5 and lose
-    1e-4 N in the prior-held directions.
+    w_j (tau_bar_j - e_j - J_j^T F)^2``; it is solved by QR, not by the normal equations: with
+    tiny noise the normal equations square a condition number of ~1e5 and lose 1e-4 N in the
+    prior-held directions. The QR is by Householder reflections on the stacked matrix
+    ``[diag(sqrt(p)); sqrt(w_j) J_j^T for the active joints]`` (``Bm``, ``bb``: the active rows
+    and their right-hand side): the top block stays triangular, so column ``c`` reflects its
+    diagonal entry and the active rows only — one square root per column instead of one per
+    column and active joint by Givens rotations.
     """
-    for i in range(m):
-        for k in range(m):
-            R[i, k] = 0.0
-        R[i, i] = math.sqrt(p[i])
-        z[i] = 0.0  # unknown: dF = F - F_bar
+    na = 0
     for j in range(n):
         if s[j] == 0:
             continue
@@ -36,9 +35,41 @@ def _newton_piece(tb, J, a, b, w, p, fb, s, m, n, R, z, u, x):
         beta = tb[j] - e
         for i in range(m):
             beta -= J[i, j] * fb[i]
-            u[i] = sw * J[i, j]
-        beta *= sw
-        _givens_row(R, u, m, z, beta, True)
+            Bm[na, i] = sw * J[i, j]
+        bb[na] = beta * sw
+        na += 1
+    for i in range(m):
+        for k in range(m):
+            R[i, k] = 0.0
+        R[i, i] = math.sqrt(p[i])
+        z[i] = 0.0  # unknown: dF = F - F_bar
+    if na:
+        for c in range(m):
+            sig = 0.0
+            for r in range(na):
+                sig += Bm[r, c] * Bm[r, c]
+            if sig == 0.0:
+                continue
+            alpha = R[c, c]  # > 0, untouched by the earlier columns' reflections
+            nrm = math.sqrt(alpha * alpha + sig)
+            v0 = alpha + nrm
+            f2 = 2.0 / (v0 * v0 + sig)
+            R[c, c] = -nrm
+            for k in range(c + 1, m):
+                t = v0 * R[c, k]
+                for r in range(na):
+                    t += Bm[r, c] * Bm[r, k]
+                t *= f2
+                R[c, k] -= t * v0
+                for r in range(na):
+                    Bm[r, k] -= t * Bm[r, c]
+            t = v0 * z[c]
+            for r in range(na):
+                t += Bm[r, c] * bb[r]
+            t *= f2
+            z[c] -= t * v0
+            for r in range(na):
+                bb[r] -= t * Bm[r, c]
     for i in range(m - 1, -1, -1):
         v = z[i]
         for k in range(i + 1, m):
@@ -100,7 +131,8 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
     N, m, n = J.shape
     R = np.empty((m, m))
     z = np.empty(m)
-    u = np.empty(m)
+    Bm = np.empty((n, m))
+    bb = np.empty(n)
     x = np.empty(m)
     d = np.empty(m)
     F = fb.copy()
@@ -114,16 +146,20 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
             for i in range(m):
                 F[i] = fb[i]
         _sides(tbk, Jk, ak, bk, F, m, n, s)
-        fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
+        # the cost at F, computed when first needed (most samples stop at the first piece)
+        fcur = 0.0
+        have_fcur = False
         it = 0
         n_amb_tries = 0
         while it < max_iter:
             it += 1
-            _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, s, m, n, R, z, u, x)
+            _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, s, m, n, R, z, Bm, bb, x)
             _sides(tbk, Jk, ak, bk, x, m, n, sn)
             same = True
             for j in range(n):
-                if sn[j] != s[j]:
+                # a joint of zero-width band is on the same piece on either side of it (the
+                # edge is the same number): a sign change there is not a new active set
+                if sn[j] != s[j] and not (ak[j] == bk[j] and sn[j] != 0 and s[j] != 0):
                     same = False
                     break
             if same:
@@ -132,8 +168,7 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
                 # piece without them may be the true optimum (13 N away in a fuzzed case).
                 improved = False
                 if n_amb_tries < 8:
-                    f1 = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
-                    fbest = f1 - 1e-12 * (1.0 + f1)
+                    fbest = np.nan  # computed at the first joint near its edge
                     for j in range(n):
                         if s[j] == 0:
                             continue
@@ -145,10 +180,13 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
                             size += abs(Jk[i, j] * x[i])
                         if abs(r - e) > 1e-9 * size:
                             continue
+                        if fbest != fbest:
+                            f1 = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
+                            fbest = f1 - 1e-12 * (1.0 + f1)
                         for q in range(n):
                             sa[q] = s[q]
                         sa[j] = 0
-                        _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, sa, m, n, R, z, u, d)
+                        _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, sa, m, n, R, z, Bm, bb, d)
                         f2 = _cost(tbk, Jk, ak, bk, wk, pk, fb, d, m, n)
                         if f2 < fbest:
                             fbest = f2
@@ -158,12 +196,16 @@ def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
                 if improved:
                     n_amb_tries += 1
                     fcur = fbest
+                    have_fcur = True
                     _sides(tbk, Jk, ak, bk, F, m, n, s)
                     continue
                 for i in range(m):
                     F[i] = x[i]
                 break
             fnew = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
+            if not have_fcur:
+                fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
+                have_fcur = True
             if fnew < fcur:
                 for i in range(m):
                     F[i] = x[i]

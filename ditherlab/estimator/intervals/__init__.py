@@ -42,7 +42,7 @@ import numpy as np
 
 from ditherlab.errors import ConfigError
 from ditherlab.estimator.backends.exact import _solve_exact
-from ditherlab.estimator.core import problem
+from ditherlab.estimator.core import Problem, problem
 from ditherlab.estimator.intervals.profile import _profile
 from ditherlab.estimator.intervals.set_membership import _set_membership
 
@@ -91,6 +91,12 @@ def intervals(
         Interval bounds; ``lo = hi = prior_mean`` for components held at the prior; ``-inf`` /
         ``inf`` for prior-less components the data cannot determine.
     """
+    _check(method, level)
+    prob = problem(tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components)
+    return problem_intervals(prob, F_hat, method, level, progress)
+
+
+def _check(method: str, level: float) -> None:
     if method not in INTERVAL_METHODS:
         raise ConfigError(
             f"estimator: interval method {method!r} is unknown; expected one of "
@@ -98,7 +104,18 @@ def intervals(
         )
     if not 0.0 < float(level) < 1.0:
         raise ConfigError(f"estimator: interval level {level!r} is invalid; expected 0 < level < 1")
-    prob = problem(tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components)
+
+
+def problem_intervals(
+    prob: Problem,
+    F_hat=None,
+    method: str = "set_membership",
+    level: float = 0.95,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`intervals` of a prepared :class:`~ditherlab.estimator.core.Problem` (built once
+    and shared with :func:`~ditherlab.estimator.solve`); ``F_hat (N, 6)`` as there."""
+    _check(method, level)
     N, m = prob.N, prob.m
     if F_hat is None and method == "profile":
         Fm, _ = _solve_exact(prob)
