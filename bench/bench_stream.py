@@ -54,6 +54,12 @@ def _tile(src: Path, dst: Path, times: int) -> None:
     part.replace(dst)
 
 
+def _rows(path: Path) -> int:
+    import pyarrow.parquet as pq
+
+    return int(pq.ParquetFile(path).metadata.num_rows)
+
+
 def _peak(args: list[str]) -> tuple[float, float]:
     """(wall seconds, peak RSS [MB]) of ``python -m ditherlab ARGS`` in a fresh process (the
     child's own ``ru_maxrss``, from ``os.wait4``)."""
@@ -152,6 +158,17 @@ def run(
                     "reference": res["short"][0],
                 }
             )
+            if name.startswith("diagnose"):  # the scale issue's rate target on a long log
+                n_long = _rows(many)
+                rows.append(
+                    {
+                        "name": f"diagnose: samples per second of wall time, {dur_s:g} h log",
+                        "value": n_long / res["long"][0],
+                        "unit": "samples/s",
+                        "reference": _rows(one) / res["short"][0],
+                        "target": ">= 50 k samples/s on long logs, linear",
+                    }
+                )
         return rows
 
 
