@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+import typer._click.exceptions as UsageErrors  # typer vendors click: its exceptions are here
 
 from ditherlab.errors import DitherlabError, DitherlabWarning
 
@@ -121,16 +122,33 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:  # n
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the app; a DitherlabError becomes one line on stderr and exit 2.
 
-    Usage errors (unknown option, missing argument) are typer's own: a short usage message and
-    exit status 2.
+    Usage errors (an unknown option, a missing argument, a value out of range) too: one line
+    naming the command and what was wrong, exit status 2 (typer's own is a framed box of five
+    lines).
     """
     warnings.formatwarning = _format_warning
     warnings.simplefilter("default", DitherlabWarning)
     try:
-        app(args=argv, prog_name="ditherlab")
+        code = app(args=argv, prog_name="ditherlab", standalone_mode=False)
     except DitherlabError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
+    except UsageErrors.NoArgsIsHelpError as exc:  # bare ``ditherlab``: the help, as typer
+        typer.echo(exc.ctx.get_help() if exc.ctx is not None else str(exc))
+        sys.exit(2)
+    except UsageErrors.UsageError as exc:
+        where = exc.ctx.command_path if exc.ctx is not None else "ditherlab"
+        msg = " ".join(exc.format_message().split())
+        typer.echo(f"error: {where}: {msg} (see '{where} --help')", err=True)
+        sys.exit(2)
+    except UsageErrors.ClickException as exc:
+        typer.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        typer.echo("aborted", err=True)
+        sys.exit(1)
+    if isinstance(code, int) and code:
+        sys.exit(code)
 
 
 # ================================================================ commands

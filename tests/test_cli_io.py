@@ -198,3 +198,33 @@ def test_info_bad_urdf_and_nan_are_one_line(cli, tmp_path):
         cli("info", p, "--robot", "ur10e"),
         rf"a\.csv: tau_4 has 3 NaN values between t={t[3]:.2f} s and t={t[5]:.2f} s$",
     )
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["replay", "--bogus"], "error: ditherlab replay: No such option: --bogus"),
+        (["replay"], "error: ditherlab replay: Missing argument 'recording'."),
+        (["frobnicate"], "error: ditherlab: No such command 'frobnicate'."),
+        (
+            ["diagnose", "x.parquet", "--chunk", "0"],
+            "error: ditherlab diagnose: Invalid value for '--chunk': Input should be greater "
+            "than or equal to 1",
+        ),
+        (["replay", "x.parquet", "--level", "abc"], "error: ditherlab replay: Invalid value"),
+    ],
+)
+def test_usage_errors_are_one_line_exit_2(cli, args, message):
+    """A usage error (unknown option or command, missing argument, a value typer refuses) is one
+    line on stderr naming the command, with where to look, and exit status 2 (typer's own was a
+    usage line, a hint and a framed box: five lines)."""
+    r = cli(*args)
+    assert r.code == 2, (r.out, r.err)
+    assert r.err.count("\n") == 1 and r.err.startswith(message), r.err
+    assert r.err.rstrip().endswith("--help')") and r.out == ""
+
+
+def test_bare_command_prints_the_help(cli):
+    r = cli()
+    assert r.code == 2 and r.err == ""
+    assert "Usage: ditherlab" in r.out and "diagnose" in r.out
