@@ -83,6 +83,8 @@ def _solve(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, floa
     base = f(np.asarray(e, dtype=float) - o)
     k = C.shape[1]
     w = np.zeros(k) if w0 is None else np.array(w0, dtype=float)
+    if len(base) == 0:  # nothing to fit (a fold of a very short log): the start, no loss
+        return w, 0.0
     w, L = _solve_kernel(
         base, f(h, dtype=float), f(s, dtype=float), C, W, w, int(iters), bool(W.any())
     )

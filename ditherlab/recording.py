@@ -420,8 +420,11 @@ def moving_mask(rec: Recording, threshold: float = 5e-3, window: float = 0.1) ->
     w = max(1, int(round(window / dt)))
     kernel = np.ones(w) / w
     smooth = np.empty_like(dq)
+    # numpy's mode="same", also for a log shorter than the window (where "same" returns the
+    # window's length): the centred part of the full convolution
+    lo, N = (w - 1) // 2, len(dq)
     for j in range(dq.shape[1]):
-        smooth[:, j] = np.convolve(dq[:, j], kernel, mode="same")
+        smooth[:, j] = np.convolve(dq[:, j], kernel, mode="full")[lo : lo + N]
     return np.abs(smooth) > threshold
 
 

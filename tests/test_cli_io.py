@@ -228,3 +228,30 @@ def test_bare_command_prints_the_help(cli):
     r = cli()
     assert r.code == 2 and r.err == ""
     assert "Usage: ditherlab" in r.out and "diagnose" in r.out
+
+
+def test_logs_of_one_and_two_rows_end_cleanly(cli, tmp_path):
+    """A log of one or two rows, shorter than the 0.1 s motion window: moving_mask broadcast the
+    window into the log (a traceback in replay, identify and diagnose) and a fit on no rows
+    divided by zero. Now replay estimates them, identify and diagnose say in one line that the
+    log is too short, exit 2."""
+    from ditherlab.identify import identify
+    from ditherlab.sim import simulate
+
+    rec = simulate("excitation", seed=4, dither=False, blocks=1, pushes_per_block=1)
+    model = tmp_path / "m.toml"
+    identify([rec], n_boot=0).save(model)
+    for rows in (1, 2):
+        short = tmp_path / f"r{rows}.parquet"
+        dio.write(Recording(rec.data.iloc[:rows].reset_index(drop=True), rec.meta), short)
+        r = cli("replay", short, "--model", model, "-o", tmp_path / f"e{rows}.parquet", "-q")
+        assert r.code == 0, r.err
+        r = cli("identify", short, "-o", tmp_path / f"m{rows}.toml", "-q")
+        assert r.code == 2 and r.err.count("\n") == 1, r.err
+        assert "no joint has 200 samples in any regime" in r.err
+        r = cli("diagnose", short, "--model", model, "--no-history", "-q")
+        assert r.code == 2 and r.err == (
+            f"error: {short}: no sample left to score ({rows} rows; stick transitions, velocity "
+            "reversals and the first dither period are not scored); expected a longer "
+            "recording\n"
+        ), r.err

@@ -379,6 +379,14 @@ def diagnose(
                 "force, and there is no force error"
             )
     summary = residual.result()
+    if not summary["per_regime"]:
+        names = ", ".join(r.name or "<memory>" for r in recs)
+        raise ModelError(
+            f"{names}: no sample left to score ({sum(totals)} rows; stick transitions, velocity "
+            "reversals and the first dither period are not scored"
+            + (f", and only the regimes {', '.join(regimes)} were asked for" if regimes else "")
+            + "); expected a longer recording"
+        )
     windows.sort(key=lambda d: -d["energy"])
 
     cands, skipped = candidates(
