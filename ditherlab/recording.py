@@ -316,14 +316,12 @@ class Recording:
             object.__setattr__(self, "_robot", cached)
         return cached
 
-    def share_robot(self, other: Recording) -> None:
-        """Use ``other``'s :meth:`robot` as this recording's: ``other`` is another piece of the
+    def share_robot(self, robot: RobotModel) -> None:
+        """Use ``robot`` as this recording's :meth:`robot`: the robot of another piece of the
         same recording (the same metadata). Each piece would otherwise parse the URDF and build
         its own pinocchio model with its own result cache, which Python frees only at its next
         full collection (the model and its kernels refer to each other)."""
-        if other.meta is not self.meta and other.meta != self.meta:
-            raise ValueError("share_robot: the recordings' metadata differ")
-        object.__setattr__(self, "_robot", other.robot())
+        object.__setattr__(self, "_robot", robot)
 
     # ------------------------------------------------------------------ transformations
     def slice(self, t0: float | None = None, t1: float | None = None) -> Recording:

@@ -25,7 +25,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -47,6 +47,9 @@ from ditherlab.io.common import (
 from ditherlab.io.parquet import META_KEY, ROW_GROUP, file_metadata
 from ditherlab.recording import Recording, TimeBase, meta_dither_period
 from ditherlab.signal import PERIOD_SAMPLES, period_from_feedforward, period_from_spectrum, runs
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ditherlab.robot import RobotModel
 
 __all__ = [
     "CHUNK_ROWS",
@@ -334,19 +337,19 @@ class Source:
         a = 0
         k = 0
 
-        first: Recording | None = None  # the first piece: its robot serves every piece
+        robot: RobotModel | None = None  # the first piece's robot serves every piece
 
         def cut(a: int, b: int) -> Piece:
-            nonlocal first
+            nonlocal robot
             lo, hi = max(a - halo, 0), min(b + halo, N)
             assert buf is not None
             data = buf.iloc[lo - buf_start : hi - buf_start].reset_index(drop=True)
             rec = Recording(data, self.meta, name=self.name, timebase=tb)
-            if first is None:
+            if robot is None:
                 check_units(rec)
-                first = rec
+                robot = rec.robot()
             else:
-                rec.share_robot(first)
+                rec.share_robot(robot)
             return Piece(rec, lo, slice(a - lo, b - lo), k, count)
 
         for frame in self.frames(rows):
