@@ -26,6 +26,7 @@ from ditherlab.errors import ConfigError, DitherlabError
 from ditherlab.fleet.engine import TaskResult, run_tasks
 from ditherlab.fleet.job import COLUMNS, analyse_recording
 from ditherlab.fleet.summary import summarise, to_markdown
+from ditherlab.io import csv as csv_io
 from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text
 from ditherlab.io.stream import Source
 from ditherlab.model import TorqueModel
@@ -163,10 +164,12 @@ def _check_robots(
     ditherlab MCAP); bags, mapped logs and unreadable files are checked (or reported) in their
     task."""
     for p, _ in items:
-        if "mapping" in read or _is_bag(p) or p.suffix.lower() not in (".parquet", ".csv", ".mcap"):
+        suffix = p.suffix.lower()
+        if "mapping" in read or _is_bag(p) or suffix not in (".parquet", ".csv", ".mcap"):
             continue
-        try:
-            spec = Source(p, **read).meta.get("robot")
+        try:  # a CSV's sidecar alone (a Source would read its `t` column too)
+            meta = csv_io.read_meta(p, read) if suffix == ".csv" else Source(p, **read).meta
+            spec = meta.get("robot")
         except DitherlabError:
             continue  # its task reports what is wrong with it
         if spec is not None and not model.same_robot(spec):

@@ -157,13 +157,18 @@ def _pose(q, parent, R0, p0, prismatic, axis, iq, R, p, w):
             R[i, r, 2] = cs * b2 + sn * (b0 * ay - b1 * ax) + (1.0 - cs) * w[i, r] * az
 
 
+@njit(cache=True)
+def _scratch(J):
+    """:func:`_pose`'s outputs for ``J`` joints, the universe (joint 0) at the origin."""
+    R = np.zeros((J, 3, 3))
+    R[0, 0, 0] = R[0, 1, 1] = R[0, 2, 2] = 1.0
+    return R, np.zeros((J, 3)), np.zeros((J, 3))
+
+
 @njit(cache=True, fastmath=_FAST, error_model="numpy")
 def _gravity_kernel(qs, parent, R0, p0, prismatic, axis, iq, mass, com, g, out):
     J = len(parent)
-    R = np.zeros((J, 3, 3))
-    R[0, 0, 0] = R[0, 1, 1] = R[0, 2, 2] = 1.0
-    p = np.zeros((J, 3))
-    w = np.zeros((J, 3))
+    R, p, w = _scratch(J)
     M = np.empty(J)
     S = np.empty((J, 3))
     for s in range(qs.shape[0]):
@@ -199,10 +204,7 @@ def _gravity_kernel(qs, parent, R0, p0, prismatic, axis, iq, mass, com, g, out):
 @njit(cache=True, fastmath=_FAST, error_model="numpy")
 def _jacobian_kernel(qs, parent, R0, p0, prismatic, axis, iq, tool_joint, pf, carries, out):
     J = len(parent)
-    R = np.zeros((J, 3, 3))
-    R[0, 0, 0] = R[0, 1, 1] = R[0, 2, 2] = 1.0
-    p = np.zeros((J, 3))
-    w = np.zeros((J, 3))
+    R, p, w = _scratch(J)
     x = np.empty(3)
     for s in range(qs.shape[0]):
         _pose(qs[s], parent, R0, p0, prismatic, axis, iq, R, p, w)
