@@ -600,16 +600,37 @@ def smooth_series(seed=0, N=250, n=6):
     return args, F
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_set_membership_warm_start_matches_linprog_on_a_time_series(seed):
-    """On a smooth time series (the warm-started dual-simplex path) the bounds equal linprog's."""
-    args, _ = smooth_series(seed, N=100)
+@pytest.mark.parametrize(("seed", "n", "path"), [(0, 6, 5), (1, 6, 5), (0, 7, 4), (1, 7, 4)])
+def test_set_membership_warm_start_matches_linprog_on_a_time_series(seed, n, path):
+    """On a smooth time series the bounds equal linprog's: six joints take the torque
+    coordinates' path (status 5), seven the general kernel's warm-started dual simplex (4)."""
+    args, _ = smooth_series(seed, N=100, n=n)
     lo, hi = E.intervals(**args, method="set_membership")
     prob = E.problem(**args)
-    assert (_set_membership(prob, 0.95)[2] == 4).mean() > 0.5  # mostly the warm path
+    assert (_set_membership(prob, 0.95)[2] == path).mean() > 0.5  # mostly that path
     rlo, rhi = E.set_membership_reference(prob)
     np.testing.assert_allclose(lo, rlo, rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(hi, rhi, rtol=1e-8, atol=1e-8)
+
+
+@pytest.mark.parametrize("case", ["series", "random", "tiny_noise", "per_sample_bands_and_noise",
+                                  "no_prior_on_forces", "all_outside"])  # fmt: skip
+def test_square_set_membership_matches_the_general_kernel(case):
+    """The torque coordinates' LPs (square J) give the general kernel's bounds on thousands of
+    samples: the fast path against its reference, NaN and inf where it has them."""
+    if case == "series":  # a pushed robot: a slowly varying J (the warm starts), 3000 samples
+        args, _ = smooth_series(5, N=3000)
+    else:
+        args = _case(case)
+    prob = E.problem(**args)
+    lo, hi, st = _set_membership(prob, 0.95)
+    rlo, rhi, rst = _set_membership(prob, 0.95, square=False)
+    assert (rst < 5).all() and (st >= 5).mean() > 0.5, np.bincount(st)
+    for got, ref in ((lo, rlo), (hi, rhi)):
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+        np.testing.assert_array_equal(np.isinf(got), np.isinf(ref))
+        ok = np.isfinite(ref)
+        np.testing.assert_allclose(got[ok], ref[ok], rtol=1e-7, atol=1e-7)
 
 
 def test_profile_on_a_time_series_matches_sample_by_sample():

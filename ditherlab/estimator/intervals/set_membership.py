@@ -12,6 +12,7 @@ from numba import njit
 
 from ditherlab.errors import ConfigError
 from ditherlab.estimator.core import Problem, _chunks
+from ditherlab.estimator.intervals.sm_square import square_sample, square_state
 
 #: Half-width [N, N·m] of the artificial box of the set-membership LP for prior-less components.
 BIG_BOX = 1e9
@@ -276,8 +277,12 @@ def _dual_vertex(A, bv, rn, nrow, m, c, Wo, x, lam, M, piv, u, tmp, rhs, maxit):
 
 
 @njit(cache=True)
-def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_out, st_out):
+def _set_membership_kernel(
+    tb, J, a, b, sig, fb, halfbox, kk, ridge, SQ, square, lo_out, hi_out, st_out
+):
     N, m, n = J.shape
+    Lk = np.empty(n)
+    Uk = np.empty(n)
     nr = 2 * n + 2 * m
     d1 = m + 1
     A = np.zeros((nr + 1, d1))
@@ -299,6 +304,20 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
     wval = np.zeros(2 * m, np.bool_)
     for k in range(N):
         tbk, Jk = tb[k], J[k]
+        # square J: the LPs in torque coordinates (sm_square), when it can take the sample
+        if square and m == n:
+            finite = True
+            for j in range(n):
+                Lk[j] = tbk[j] - b[k, j] - kk * sig[k, j]
+                Uk[j] = tbk[j] - a[k, j] + kk * sig[k, j]
+                finite = finite and math.isfinite(Lk[j]) and math.isfinite(Uk[j])
+            if finite:
+                st = square_sample(
+                    Jk, Lk, Uk, fb, halfbox, ridge, BIG_BOX, SQ, lo_out[k], hi_out[k]
+                )
+                if st >= 0:
+                    st_out[k] = 5 + st
+                    continue
         nrow, nj = _sm_rows(tbk, Jk, a[k], b[k], sig[k], fb, halfbox, kk, ridge, 0, A, bv, m, n)
         for row in range(nrow):
             v = 1e-300
@@ -424,21 +443,25 @@ def _halfbox(prob: Problem, k: float) -> np.ndarray:
 
 
 def _set_membership(
-    prob: Problem, level: float, progress=None
+    prob: Problem, level: float, progress=None, square: bool = True
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The numba set-membership bounds ``lo, hi (N, m)`` and a status per sample: 0 solved
     cold with the prior box, 1 without it (empty with it), 2 empty (NaN), 3 failure (NaN),
-    4 solved by warm-started dual simplex pivots from the previous sample's vertices."""
+    4 solved by warm-started dual simplex pivots from the previous sample's vertices, 5 solved
+    in torque coordinates (square ``J``, :mod:`.sm_square`) with the prior box, 6 there without
+    it. ``square=False``: the general kernel for every sample (the reference of the torque
+    coordinates' path)."""
     ridge = prob.p_true == 0.0
     kk = interval_k(level, prob.n, int((~ridge).sum()))
     lo_m, hi_m = np.empty((prob.N, prob.m)), np.empty((prob.N, prob.m))
     st = np.zeros(prob.N, np.int64)
     sig = 1.0 / np.sqrt(prob.w)
     half = np.where(ridge, 0.0, _halfbox(prob, kk))
+    sq = square_state(prob.m)
     for sl in _chunks(prob.N, progress):
         _set_membership_kernel(
             prob.tau_bar[sl], prob.J[sl], prob.tau_min[sl], prob.tau_max[sl], sig[sl],
-            prob.prior_mean, half, kk, ridge, lo_m[sl], hi_m[sl], st[sl],
+            prob.prior_mean, half, kk, ridge, sq, square, lo_m[sl], hi_m[sl], st[sl],
         )  # fmt: skip
         if progress is not None:
             progress(sl.stop, prob.N)
