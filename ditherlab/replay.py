@@ -27,7 +27,7 @@ the sensor columns and ``dither`` copied, per variant ``V/f_x .. V/m_z``, ``V/<c
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -154,6 +154,30 @@ def replay(
         Unknown variant, component or interval method, or a level outside (0, 1); a dither
         variant requested for a recording without dither.
     """
+    cols, meta = replay_columns(
+        rec, model, variants=variants, level=level, interval=interval, components=components,
+        backend=backend, q_tol=q_tol, progress=progress,
+    )  # fmt: skip
+    return Estimates(pd.DataFrame(cols), plain(meta), name=None)
+
+
+def replay_columns(
+    rec: Recording,
+    model: TorqueModel,
+    *,
+    variants: Sequence[str] | None = None,
+    level: float = 0.95,
+    interval: str = "profile",
+    components: str | Sequence[str] | None = None,
+    backend: str = "exact",
+    q_tol: float = 0.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """What :func:`replay` computes, as the estimates file's columns (each (N,), in file order)
+    and its metadata before :func:`~ditherlab.io.atomic.plain` (``recording`` is ``rec.meta``
+    itself): :func:`replay_stream` writes the columns straight to Parquet without a DataFrame
+    and converts the metadata of its first piece only. Parameters and errors as
+    :func:`replay`."""
     model.check_robot(rec)
     model.validate()
     comps = parse_components(components)
@@ -224,7 +248,7 @@ def replay(
     if ext is not None:
         meta["dither_period"] = ext.period
     meta["moving_spans"] = time_spans(rec.t, (reg == MOVING).any(axis=1))
-    return Estimates(pd.DataFrame(cols), plain(meta), name=None)
+    return cols, meta
 
 
 def _check_options(
@@ -366,12 +390,12 @@ def replay_stream(
     tally = Tally()
     with EstimatesWriter(out) as writer:
         for piece in src.pieces(chunk_rows):
-            est = replay(piece.rec, model, **options)
-            rows = est.data.iloc[piece.keep].reset_index(drop=True)
+            cols, pmeta = replay_columns(piece.rec, model, **options)
+            rows = {k: v[piece.keep] for k, v in cols.items()}
             writer.write(rows)
-            tally.add(Estimates(rows, est.meta))
-            t = rows["t"].to_numpy(dtype=float)
-            for a, b in est.meta["moving_spans"]:
+            tally.add_columns(rows, pmeta["variants"])
+            t = rows["t"]
+            for a, b in pmeta["moving_spans"]:
                 a, b = max(a, t[0]), min(b, t[-1])
                 if a > b:
                     continue
@@ -380,8 +404,8 @@ def replay_stream(
                 else:
                     spans.append([a, b])
             last = float(t[-1])
-            if meta is None:
-                meta = est.meta
+            if meta is None:  # the recording's own is the source's, converted once below
+                meta = plain({**pmeta, "recording": None})
             if piece.count > 1:  # a piece of a long log: its robot quantities go now
                 release(piece.rec)
             if progress:
@@ -419,18 +443,26 @@ class Tally:
 
     def add(self, est: Estimates) -> None:
         """Count the rows of ``est`` (a whole file or one piece of it)."""
-        self.variants = est.variants
-        self.n += len(est.data)
-        if not est.has_wrench:
+        self.add_columns(est.data, est.variants)
+
+    def add_columns(self, cols: Mapping[str, Any], variants: Sequence[str]) -> None:
+        """Count rows given as the estimates file's columns (a DataFrame or a dict of (N,)
+        arrays) of the estimator ``variants``."""
+        self.variants = list(variants)
+        self.n += len(cols["t"])
+        if "f_x" not in cols:
             return
-        F = est.wrench[:, :3]
-        for v in est.variants:
-            Fh = est.F(v)[:, :3]
-            lo, hi = est.interval(v)
+
+        def stack(names: list[str]) -> np.ndarray:
+            return np.stack([np.asarray(cols[c], dtype=float) for c in names], axis=1)
+
+        F = stack(list(COMPONENTS[:3]))
+        for v in variants:
+            Fh = stack([f"{v}/{c}" for c in COMPONENTS[:3]])
+            lo = stack([f"{v}/{c}_lo" for c in COMPONENTS[:3]])
+            hi = stack([f"{v}/{c}_hi" for c in COMPONENTS[:3]])
             self.sse[v] = self.sse.get(v, 0.0) + ((Fh - F) ** 2).sum(axis=0)
-            self.covered[v] = self.covered.get(v, 0) + int(
-                ((lo[:, :3] <= F) & (F <= hi[:, :3])).sum()
-            )
+            self.covered[v] = self.covered.get(v, 0) + int(((lo <= F) & (F <= hi)).sum())
 
 
 def describe(est: Estimates | Replayed) -> str:

@@ -7,11 +7,11 @@ axis. Every other module imports these; they import nothing of ditherlab.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from enum import IntEnum
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from ditherlab.errors import ConfigError
 
@@ -103,8 +103,52 @@ def smooth_derivative(
     w = max(5, int(round(window_s / dt)) | 1)
     w = min(w, N - (1 - N % 2))
     if uniform:
-        return savgol_filter(x, w, 2, deriv=1, delta=dt, axis=0)
+        return savgol(x, w, deriv=1, delta=dt)
     return local_quadratic_derivative(t, x, w, span=dt * max(w // 2, 1))
+
+
+def savgol(x: np.ndarray, w: int, deriv: int = 0, delta: float = 1.0, order: int = 2) -> np.ndarray:
+    """Savitzky–Golay filter along the first axis: at each sample the value (``deriv = 0``) or
+    a derivative of the least-squares polynomial of degree ``order`` through the ``w`` samples
+    centred on it (``w`` odd, ``order < w <= N``); the first and last ``w // 2`` samples use the
+    polynomial of the first or last ``w`` samples (scipy's ``mode="interp"``).
+
+    What :func:`scipy.signal.savgol_filter` computes (tested against it to 1e-12), without
+    importing scipy.signal (about a second of every command's start).
+
+    Parameters
+    ----------
+    x : (N, ...) any unit u ; w : window [samples] ; deriv : derivative order ; delta : step [s]
+
+    Returns
+    -------
+    (N, ...) [u / s^deriv]
+    """
+    x = np.asarray(x, dtype=float)
+    N, h = len(x), w // 2
+    if w % 2 == 0 or not order < w <= N or not 0 <= deriv <= order:
+        raise ValueError(
+            f"savgol: window {w} must be odd, above {order} and at most {N}, and the "
+            f"derivative {deriv} at most {order}"
+        )
+    # the weights of the centred window: row `deriv` of the pseudo-inverse of the Vandermonde
+    V = np.arange(-h, h + 1, dtype=float)[None, :] ** np.arange(order + 1)[:, None]
+    e = np.zeros(order + 1)
+    e[deriv] = math.factorial(deriv) / delta**deriv
+    c, *_ = np.linalg.lstsq(V, e, rcond=None)
+    y = np.empty_like(x)
+    y[h : N - h] = c[0] * x[: N - 2 * h]
+    for m in range(1, w):
+        y[h : N - h] += c[m] * x[m : N - 2 * h + m]
+    # the edges: the polynomial of the first / last w samples, at their first / last h points
+    for start, at in ((0, np.arange(h)), (N - w, np.arange(w - h, w))):
+        seg = x[start : start + w].reshape(w, -1)
+        p = np.polyfit(np.arange(w, dtype=float), seg, order)
+        for _ in range(deriv):
+            p = p[:-1] * np.arange(len(p) - 1, 0, -1)[:, None]
+        vals = np.stack([np.polyval(p[:, k], at) for k in range(p.shape[1])], axis=1)
+        y[start + at] = (vals / delta**deriv).reshape((len(at), *x.shape[1:]))
+    return y
 
 
 def local_quadratic_derivative(
@@ -162,7 +206,7 @@ def smooth_wrench(
     w = int(round(window_s * sample_rate)) | 1
     if w < 5 or len(F) <= w:
         return np.asarray(F, dtype=float)
-    return savgol_filter(np.asarray(F, dtype=float), w, 2, axis=0)
+    return savgol(np.asarray(F, dtype=float), w)
 
 
 def causal_mean(x: np.ndarray, w: int) -> np.ndarray:

@@ -4,11 +4,11 @@ and the reference F/T sensor's bias and mounting frame.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
-from scipy.signal import lfilter
-from scipy.spatial.transform import Rotation
+from numba import njit
 
 from ditherlab.effects.base import Design, Effect, fmt
 from ditherlab.effects.signals import Signals
@@ -16,6 +16,43 @@ from ditherlab.model import REGIMES
 from ditherlab.recording import WRENCH_COLUMNS
 
 __all__ = ["AttenuationLag", "FtBias", "FtFrame"]
+
+
+@njit(cache=True)
+def _first_order_lag(x: np.ndarray, a: float) -> np.ndarray:
+    """``y_k = a x_k + (1 - a) y_(k-1)`` from rest at ``x_0`` (N,): what
+    ``scipy.signal.lfilter([a], [1, a - 1], x, zi=[x_0 (1 - a)])`` computes, in its order of
+    operations (tested against it)."""
+    y = np.empty_like(x)
+    z = x[0] * (1.0 - a)
+    for k in range(len(x)):
+        v = a * x[k] + z
+        y[k] = v
+        z = -(a - 1.0) * v
+    return y
+
+
+def rotvec_matrix(rot: np.ndarray) -> np.ndarray:
+    """The rotation matrix (3, 3) of a rotation vector ``rot`` (3,) [rad] (axis times angle), by
+    its unit quaternion as ``scipy.spatial.transform.Rotation.from_rotvec(rot).as_matrix()``
+    computes it (tested against it)."""
+    r = np.asarray(rot, dtype=float)
+    angle = math.sqrt(float(r @ r))
+    if angle <= 1e-3:  # Taylor series of sin(angle / 2) / angle
+        scale = 0.5 - angle**2 / 48.0 + angle**4 / 3840.0
+    else:
+        scale = math.sin(angle / 2.0) / angle
+    x, y, z = scale * r
+    w = math.cos(angle / 2.0)
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    return np.array(
+        [
+            [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
+            [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
+            [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2],
+        ]
+    )
 
 
 class AttenuationLag(Effect):
@@ -59,7 +96,7 @@ class AttenuationLag(Effect):
             out[:d] = X[:1]
         if lag > 0:
             a = 1.0 / (lag + 1.0)  # backward Euler of T dy/dt = x - y, T = lag samples
-            out, _ = lfilter([a], [1.0, a - 1.0], out, zi=[out[0] * (1.0 - a)])
+            out = _first_order_lag(np.ascontiguousarray(out, dtype=float), a)
         return out
 
     def grid(self, sig, j):
@@ -195,7 +232,7 @@ class FtFrame(Effect):
         rot = np.asarray(p["rotation"], dtype=float)
         d = np.asarray(p["offset"], dtype=float)
         R = sig.tool_rotation
-        Rs = Rotation.from_rotvec(rot).as_matrix()
+        Rs = rotvec_matrix(rot)
         Q = R @ Rs @ R.transpose(0, 2, 1)
         f = np.einsum("tab,tb->ta", Q, F[:, :3])
         m = np.einsum("tab,tb->ta", Q, F[:, 3:]) + np.cross(R @ d, f)

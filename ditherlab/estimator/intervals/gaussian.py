@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.core import Problem, problem
+from ditherlab.estimator.core import Problem, chi2_1_quantile, problem
 from ditherlab.estimator.intervals import problem_intervals
 
 
@@ -125,7 +125,6 @@ def gaussian_problem_intervals(
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`gaussian_profile_intervals` of a prepared :class:`Problem` (falls back to
     :func:`~ditherlab.estimator.intervals.problem_intervals` as it does)."""
-    from scipy.stats import chi2
 
     if not np.array_equal(prob.tau_min, prob.tau_max) or np.any(prob.p_true <= 0):
         return problem_intervals(prob, F_hat, method="profile", level=level)
@@ -134,7 +133,7 @@ def gaussian_problem_intervals(
     hi = lo.copy()
     if m == 0 or N == 0:
         return lo, hi
-    thr = float(chi2.ppf(level, 1))
+    thr = chi2_1_quantile(level)
     half = np.empty((N, m))
     for a in range(0, N, chunk):
         sl = slice(a, min(a + chunk, N))

@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.core import Problem, _chunks
+from ditherlab.estimator.core import Problem, _chunks, chi2_1_quantile
 from ditherlab.estimator.kernels import _cost, _dist, _givens_row, _sides
 
 #: Intervals whose half-width exceeds this many "information units" are reported as infinite.
@@ -431,12 +431,10 @@ def _run_profile(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bounds ``lo, hi (N, m)`` and which samples the fast kernel handed back (``fast``: the
     fast kernel, those samples redone by the reference; else the reference alone)."""
-    from scipy.stats import chi2
-
     N, m = prob.N, prob.m
     lo_m, hi_m = np.empty((N, m)), np.empty((N, m))
     ridge = prob.p_true == 0.0
-    thr = float(chi2.ppf(level, 1))
+    thr = chi2_1_quantile(level)
     seg = np.zeros(N, np.int64)
     mag = np.zeros(N)
     redone = np.zeros(N, np.bool_)

@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit
 
 from ditherlab.errors import ConfigError
-from ditherlab.estimator.core import Problem, _chunks
+from ditherlab.estimator.core import Problem, _chunks, normal_quantile
 from ditherlab.estimator.intervals.sm_square import square_sample, square_state
 
 #: Half-width [N, N·m] of the artificial box of the set-membership LP for prior-less components.
@@ -430,9 +430,7 @@ def interval_k(level: float, n: int, n_prior: int) -> float:
     ``k = Phi^-1(1 - (1 - level) / (2 q))`` with ``q = n + n_prior`` events (each joint's noise
     within ``+- k sigma``, each prior component within ``+- k prior_sigma``).
     """
-    from scipy.stats import norm
-
-    return float(norm.ppf(1.0 - (1.0 - level) / (2.0 * max(1, n + n_prior))))
+    return normal_quantile(1.0 - (1.0 - level) / (2.0 * max(1, n + n_prior)))
 
 
 def _halfbox(prob: Problem, k: float) -> np.ndarray:
