@@ -204,11 +204,14 @@ def replay_columns(
     ext = extract_dither(rec) if any(v.startswith("dither") for v in variants) else None
     tick()
 
+    def columns(X: np.ndarray) -> np.ndarray:  # (N, k) -> k contiguous (N,) columns
+        return np.ascontiguousarray(X.T)
+
     cols: dict[str, np.ndarray] = {"t": rec.t}
     if rec.has_wrench:
-        w = rec.wrench
+        w = columns(rec.wrench)
         for k, c in enumerate(COMPONENTS):
-            cols[c] = w[:, k]
+            cols[c] = w[k]
     if rec.dither is not None:
         cols["dither"] = rec.dither
     bits = (1 << np.arange(rec.n)).astype(np.int64)
@@ -223,18 +226,17 @@ def replay_columns(
         else:
             ilo, ihi = problem_intervals(prob, sol.F, method=interval, level=level)
         tick()
-        for k, c in enumerate(COMPONENTS):
-            cols[f"{v}/{c}"] = sol.F[:, k]
-        for k, c in enumerate(COMPONENTS):
-            cols[f"{v}/{c}_lo"] = ilo[:, k]
-        for k, c in enumerate(COMPONENTS):
-            cols[f"{v}/{c}_hi"] = ihi[:, k]
+        for suffix, X in (("", sol.F), ("_lo", ilo), ("_hi", ihi)):
+            Xc = columns(X)
+            for k, c in enumerate(COMPONENTS):
+                cols[f"{v}/{c}{suffix}"] = Xc[k]
         cols[f"{v}/active"] = np.asarray(sol.active, dtype=np.int64) @ bits
     if ext is not None:
+        up, low, sig = columns(ext.upper), columns(ext.lower), columns(ext.signal)
         for j in range(rec.n):
-            cols[f"extract/upper_{j + 1}"] = ext.upper[:, j]
-            cols[f"extract/lower_{j + 1}"] = ext.lower[:, j]
-            cols[f"extract/signal_{j + 1}"] = ext.signal[:, j]
+            cols[f"extract/upper_{j + 1}"] = up[j]
+            cols[f"extract/lower_{j + 1}"] = low[j]
+            cols[f"extract/signal_{j + 1}"] = sig[j]
     meta = {
         "schema": SCHEMA,
         "recording": rec.meta,

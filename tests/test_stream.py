@@ -94,6 +94,9 @@ def test_pieces_tile_the_recording_and_see_its_whole_time_base(campaign):
         assert np.array_equal(ext.valid[p.keep], ref_ext.valid[a:b])
     # one robot (URDF parsed once, one pinocchio model and result cache) for every piece
     assert all(p.rec.robot() is pieces[0].rec.robot() for p in pieces[1:])
+    # one metadata object, checked and copied once, equal to the whole recording's
+    assert all(p.rec.meta is pieces[0].rec.meta for p in pieces[1:])
+    assert pieces[0].rec.meta == whole.meta and pieces[0].rec.meta is not src.meta
     assert np.array_equal(
         np.concatenate([p.rec.robot().gravity(p.rec.q)[p.keep] for p in pieces]),
         whole.robot().gravity(whole.q),

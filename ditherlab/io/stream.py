@@ -45,7 +45,7 @@ from ditherlab.io.common import (
     meta_from_options,
 )
 from ditherlab.io.parquet import META_KEY, ROW_GROUP, file_metadata
-from ditherlab.recording import Recording, TimeBase, meta_dither_period
+from ditherlab.recording import Recording, TimeBase, meta_dither_period, share_meta
 from ditherlab.signal import PERIOD_SAMPLES, period_from_feedforward, period_from_spectrum, runs
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -338,13 +338,14 @@ class Source:
         k = 0
 
         robot: RobotModel | None = None  # the first piece's robot serves every piece
+        meta = share_meta(self.meta, self.name)  # checked and copied once for every piece
 
         def cut(a: int, b: int) -> Piece:
             nonlocal robot
             lo, hi = max(a - halo, 0), min(b + halo, N)
             assert buf is not None
             data = buf.iloc[lo - buf_start : hi - buf_start].reset_index(drop=True)
-            rec = Recording(data, self.meta, name=self.name, timebase=tb)
+            rec = Recording(data, meta, name=self.name, timebase=tb)
             if robot is None:
                 check_units(rec)
                 robot = rec.robot()
