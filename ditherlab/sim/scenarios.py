@@ -212,7 +212,8 @@ def push_campaign(
             "measured_mean": [
                 float(out.amp_meas[on, j].mean()) if on.any() and mask[j] else 0.0 for j in range(n)
             ],
-            "unit": "N·m (amplitude of the logged torque; feedforward = square-wave amplitude)",
+            "unit": "N·m (peak amplitude of the dither in the logged torque; feedforward = "
+            "the waveform's peak amplitude)",
         },
         "hidden": hp.truth,
     }
