@@ -643,7 +643,10 @@ def sweep(
         int, typer.Option("--pushes-per-direction", help="Pushes per axis and sign per campaign.")
     ] = 6,
     vibration_limit: Annotated[
-        float, typer.Option("--vibration-limit", help="Acceptable vibration [rad, arm side].")
+        float,
+        typer.Option(
+            "--vibration-limit", help="Acceptable arm vibration in rad (the paper: 1e-4)."
+        ),
     ] = 1e-4,
     bootstrap: Annotated[
         int, typer.Option("--bootstrap", help="Bootstrap replicates per detection curve.")
