@@ -28,9 +28,17 @@ def _save(fig, path: Path) -> Path:  # noqa: ANN001 - a matplotlib Figure
 
 
 def _short(table: pd.DataFrame, grid: Sequence[str], colour_key: str | None) -> list[str]:
-    """Each point's values of the grid keys other than the colour key, short."""
+    """Each point's values of the grid keys other than the colour key, short: the key's last
+    part cut to 4 letters, a per-joint list by its first value (``ampl=0.9…``)."""
     keys = [k for k in grid if k != colour_key]
-    return [" ".join(f"{k.split('.')[-1]}={r[k]}" for k in keys) for _, r in table.iterrows()]
+
+    def val(v: object) -> str:
+        s = f"{v:g}" if isinstance(v, float) else str(v)
+        return s.split(":")[0] + "…" if ":" in s else s
+
+    return [
+        " ".join(f"{k.split('.')[-1][:4]}={val(r[k])}" for k in keys) for _, r in table.iterrows()
+    ]
 
 
 def plot_tradeoff(table: pd.DataFrame, grid: Sequence[str], limit: float, path: str | Path) -> Path:
@@ -62,9 +70,7 @@ def plot_tradeoff(table: pd.DataFrame, grid: Sequence[str], limit: float, path: 
         ax.axhline(nd, color="grey", ls=":", lw=1, label=f"no dither, median F50 {nd:.0f} N")
     if len(ok) and (ok["vibration"] > 0).all():
         ax.set_xscale("log")
-    ax.set_xlabel(
-        "vibration: half peak-to-peak of the joint angle per dither period [rad, arm side]"
-    )
+    ax.set_xlabel("arm vibration: half peak-to-peak of the link angle per dither period [rad]")
     ax.set_ylabel("dithered F50, mean of x / y / z [N]")
     ax.set_title("Dither design: detection (F50) against vibration")
     ax.legend(fontsize=7)
