@@ -60,7 +60,10 @@ __all__ = ["COLUMNS", "VIBRATION_LIMIT", "parse_grid", "run_point", "run_sweep",
 VIBRATION_LIMIT = 1e-4
 
 #: The table's columns after the grid's own (one per grid key, named by the key). Units: N for
-#: forces, rad (arm side) for the vibration, fractions for coverage, s for seconds.
+#: forces, rad (arm side) for the vibration, fractions for coverage, s for seconds. ``f50_*``,
+#: ``f90_*``: the dithered evaluation campaign (``dither_band``), ``_bound`` ``below`` / ``above``
+#: when every / no push was seen (then the smallest / largest force), ``_lo`` / ``_hi`` F50's
+#: 90 % bootstrap interval over pushes; ``nodither_*``: the undithered one (``nodither_band``).
 COLUMNS = [
     "point",
     "ok",
@@ -68,6 +71,7 @@ COLUMNS = [
     *(f"f50_{a}" for a in FORCE_AXES),
     *(f"f90_{a}" for a in FORCE_AXES),
     *(f"f50_{a}_bound" for a in FORCE_AXES),
+    *(f"f50_{a}_{e}" for a in FORCE_AXES for e in ("lo", "hi")),
     "f50_mean",
     *(f"nodither_f50_{a}" for a in FORCE_AXES),
     "vibration",
@@ -308,15 +312,18 @@ def vibration(rec: Recording, angle: str = "link", settle: float = 0.8) -> np.nd
     return np.mean(amps, axis=0)
 
 
-def _f50(d: Mapping[str, Any] | None) -> tuple[float, float, str]:
-    """(F50, F90, bound) of one direction's detection curve: when every push (none) was seen,
-    F50 = F90 = the smallest (largest) force with bound ``below`` (``above``)."""
+def _f50(d: Mapping[str, Any] | None) -> tuple[float, float, str, float, float]:
+    """(F50, F90, bound, F50's 90 % bootstrap interval lo, hi) of one direction's detection
+    curve: when every push (none) was seen, F50 = F90 = the smallest (largest) force with bound
+    ``below`` (``above``) and no interval."""
     if not d:
-        return math.nan, math.nan, ""
+        return math.nan, math.nan, "", math.nan, math.nan
     c = d["curve"]
     if c.get("bound"):
-        return float(c["bound_force"]), float(c["bound_force"]), str(c["bound"])
-    return float(c["F50"]), float(c["F90"]), ""
+        f = float(c["bound_force"])
+        return f, f, str(c["bound"]), math.nan, math.nan
+    lo, hi = (float(v) for v in c.get("F50_ci", [math.nan, math.nan]))
+    return float(c["F50"]), float(c["F90"]), "", lo, hi
 
 
 def run_point(config: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]:
@@ -353,8 +360,9 @@ def run_point(config: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]
     plain = a["conditions"].get("nodither_band") or {}
     row: dict[str, Any] = {}
     for ax in FORCE_AXES:
-        f50, f90, bound = _f50((dith.get("directions") or {}).get(ax))
+        f50, f90, bound, lo, hi = _f50((dith.get("directions") or {}).get(ax))
         row[f"f50_{ax}"], row[f"f90_{ax}"], row[f"f50_{ax}_bound"] = f50, f90, bound
+        row[f"f50_{ax}_lo"], row[f"f50_{ax}_hi"] = lo, hi
         row[f"nodither_f50_{ax}"] = _f50((plain.get("directions") or {}).get(ax))[0]
     row["f50_mean"] = float(np.mean([row[f"f50_{ax}"] for ax in FORCE_AXES]))
     ev = recs["evaluation", True]
