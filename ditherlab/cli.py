@@ -652,6 +652,9 @@ def sweep(
         int, typer.Option("--bootstrap", help="Bootstrap replicates per detection curve.")
     ] = 50,
     seed: Seed = 0,
+    repeats: Annotated[
+        int, typer.Option("--repeats", help="Runs per point on seeds seed, seed+2, ... (mean).")
+    ] = 1,
     scheduler: Annotated[
         str | None, typer.Option("--scheduler", help="Dask scheduler (tcp://HOST:8786), 'serial'.")
     ] = None,
@@ -668,6 +671,7 @@ def sweep(
         config=config,
         pushes_per_direction=pushes,
         seed=seed,
+        repeats=repeats,
         curve_boot=bootstrap,
         vibration_limit=vibration_limit,
         scheduler=scheduler,

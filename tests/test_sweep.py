@@ -17,7 +17,7 @@ import pytest
 from conftest import run_cli
 
 from ditherlab.errors import ConfigError
-from ditherlab.fleet.sweep import COLUMNS, grid_points, parse_grid, vibration
+from ditherlab.fleet.sweep import COLUMNS, RUN_COLUMNS, grid_points, parse_grid, vibration
 from ditherlab.recording import Recording
 
 DITHER_KEYS = (
@@ -211,7 +211,9 @@ def test_small_sweep_table_and_failures(small_sweep):
     table = pd.read_parquet(out / "sweep.parquet")
     grid = ["dither.waveform", "push_campaign.pushes_per_direction"]
     assert list(table.columns) == grid + COLUMNS
-    assert len(table) == 4
+    assert len(table) == 4 and table["runs"].tolist() == [1, 0, 1, 0]
+    runs = pd.read_parquet(out / "sweep_runs.parquet")
+    assert list(runs.columns) == grid + RUN_COLUMNS and (runs["seed"] == 0).all()
     assert table["dither.waveform"].tolist() == ["square", "square", "sine", "sine"]
     assert table["push_campaign.pushes_per_direction"].tolist() == [2, 0, 2, 0]
     assert table["ok"].tolist() == [True, False, True, False]
@@ -256,3 +258,37 @@ def test_small_sweep_is_reproducible_in_the_serial_loop(small_sweep, tmp_path):
     for c in COLUMNS:
         if c != "seconds":
             assert a[c] == b[c] or (pd.isna(a[c]) and pd.isna(b[c])), c
+
+
+def test_aggregate_means_over_the_runs_that_did_not_fail():
+    """A point's row: the mean over its good runs, their standard error, a bound kept only when
+    every run had it, the limit on the mean vibration, failures named by seed."""
+    from ditherlab.fleet.sweep import METRICS, aggregate
+
+    def run(point, seed, ok, f50=(np.nan,) * 3, vib=np.nan, bound=("", "", ""), error=""):
+        r = dict.fromkeys(METRICS, np.nan)
+        r.update({f"f50_{a}_bound": b for a, b in zip("xyz", bound, strict=True)})
+        r.update({f"f50_{a}": f for a, f in zip("xyz", f50, strict=True)})
+        r.update(f50_mean=float(np.mean(f50)), vibration=vib, vibration_joint=1,
+                 vibration_motor_joint=2, within_limit=False, seconds=2.0)  # fmt: skip
+        return {"k": point, "point": f"k={point}", "seed": seed, "ok": ok, "error": error, **r}
+
+    runs = pd.DataFrame(
+        [
+            run("a", 0, True, (10.0, 4.0, 3.0), 5e-5, ("", "below", "below")),
+            run("a", 2, True, (14.0, 6.0, 4.0), 7e-5, ("", "below", "")),
+            run("a", 4, False, error="boom"),
+            run("b", 0, False, error="no pushes"),
+        ],
+        columns=["k", *RUN_COLUMNS],
+    )
+    t = aggregate(runs, ["k"], 1e-4)
+    assert list(t.columns) == ["k", *COLUMNS]
+    a, b = t.iloc[0], t.iloc[1]
+    assert a["runs"] == 2 and a["ok"] and a["error"] == "seed 4: boom"
+    assert a["f50_x"] == 12.0 and a["f50_y"] == 5.0 and a["f50_z"] == 3.5
+    assert a["f50_y_bound"] == "below" and a["f50_z_bound"] == ""
+    assert a["f50_mean_sem"] == pytest.approx(np.std([17 / 3, 8.0], ddof=1) / np.sqrt(2))
+    assert a["vibration"] == pytest.approx(6e-5) and a["within_limit"] and a["seconds"] == 6.0
+    assert not b["ok"] and b["runs"] == 0 and b["error"] == "no pushes"  # one run: no seed named
+    assert np.isnan(b["f50_x"]) and not b["within_limit"]

@@ -17,10 +17,13 @@ the paper's experiment in small, as ``make demo`` does (:mod:`ditherlab.demo`):
    the arm (the link angle; the paper's limit, 1e-4 rad, applies to it) and of the motor angle
    in arm-side units (what the paper measured), each on the joint that vibrates most.
 
-:func:`run_sweep` writes, atomically, ``sweep.parquet`` (one row per point, :data:`COLUMNS`
-after the grid's own columns), ``sweep.md`` (the printed table), ``sweep.json`` (the best
-design) and two figures (:mod:`ditherlab.fleet.sweep_figures`). A point that fails is a row
-with its error; the others go on. Grid mistakes (an unknown key, an empty grid, an unknown
+:func:`run_sweep` runs each point on ``repeats`` seeds (``seed, seed + 2, ...``: the design's
+effect against the campaigns' own scatter) and writes, atomically, ``sweep.parquet`` (one row
+per point, the mean over its runs, :data:`COLUMNS` after the grid's own columns),
+``sweep_runs.parquet`` (one row per run, :data:`RUN_COLUMNS`), ``sweep.md`` (the printed
+table), ``sweep.json`` (the best design under the vibration limit, overall and per waveform)
+and two figures (:mod:`ditherlab.fleet.sweep_figures`). A run that fails is reported with its
+error; the others go on. Grid mistakes (an unknown key, an empty grid, an unknown
 waveform, a value of the wrong type, a value the simulator rejects) are a
 :class:`~ditherlab.errors.ConfigError` before any task runs.
 """
@@ -53,21 +56,27 @@ from ditherlab.sim import simulate
 from ditherlab.sim.params import default_params, load_params
 from ditherlab.thresholds import analyse
 
-__all__ = ["COLUMNS", "VIBRATION_LIMIT", "parse_grid", "run_point", "run_sweep", "vibration"]
+__all__ = [
+    "COLUMNS",
+    "RUN_COLUMNS",
+    "VIBRATION_LIMIT",
+    "aggregate",
+    "parse_grid",
+    "run_point",
+    "run_sweep",
+    "vibration",
+]
 
 #: The paper's acceptable vibration (§III-B): "about one hundredth of a motor radian, which
 #: would correspond to 0.0001 arm radians" [rad, arm side]
 VIBRATION_LIMIT = 1e-4
 
-#: The table's columns after the grid's own (one per grid key, named by the key). Units: N for
-#: forces, rad (arm side) for the vibration, fractions for coverage, s for seconds. ``f50_*``,
-#: ``f90_*``: the dithered evaluation campaign (``dither_band``), ``_bound`` ``below`` / ``above``
-#: when every / no push was seen (then the smallest / largest force), ``_lo`` / ``_hi`` F50's
-#: 90 % bootstrap interval over pushes; ``nodither_*``: the undithered one (``nodither_band``).
-COLUMNS = [
-    "point",
-    "ok",
-    "error",
+#: What one run of a point measures. Units: N for forces, rad (arm side) for the vibration,
+#: fractions for coverage, s for seconds. ``f50_*``, ``f90_*``: the dithered evaluation campaign
+#: (``dither_band``), ``_bound`` ``below`` / ``above`` when every / no push was seen (then the
+#: smallest / largest force), ``_lo`` / ``_hi`` F50's 90 % bootstrap interval over pushes;
+#: ``nodither_*``: the undithered campaign (``nodither_band``).
+METRICS = [
     *(f"f50_{a}" for a in FORCE_AXES),
     *(f"f90_{a}" for a in FORCE_AXES),
     *(f"f50_{a}_bound" for a in FORCE_AXES),
@@ -86,6 +95,13 @@ COLUMNS = [
     "pushes",
     "seconds",
 ]
+#: ``sweep_runs.parquet``'s columns after the grid's own: one row per point and seed.
+RUN_COLUMNS = ["point", "seed", "ok", "error", *METRICS]
+#: ``sweep.parquet``'s columns after the grid's own (one per grid key, named by the key): one
+#: row per point, the mean over its runs that did not fail (``runs`` of them; a direction whose
+#: pushes were all / none seen counts its bound's force; ``_bound`` is kept when every run had
+#: it), ``f50_mean_sem`` the standard error of ``f50_mean`` over runs (NaN for one run).
+COLUMNS = ["point", "runs", "ok", "error", *METRICS, "f50_mean_sem"]
 
 
 # ------------------------------------------------------------------ the grid
@@ -474,7 +490,10 @@ def format_table(table: pd.DataFrame, grid: Sequence[str], limit: float = VIBRAT
         )
         cov = f"{r['coverage_push']:.0%} / {r['coverage_rest']:.0%}"
         status = "ok" if r["within_limit"] else f"vibrates > {limit:g} rad"
-        vals += [f50, _cell(r["f50_mean"]), nd, f90, vib, cov, status]
+        mean = _cell(r["f50_mean"])
+        if np.isfinite(r["f50_mean_sem"]):
+            mean += f" ± {r['f50_mean_sem']:.1f}"
+        vals += [f50, mean, nd, f90, vib, cov, status]
         lines.append("| " + " | ".join(vals) + " |")
     return "\n".join(lines)
 
@@ -499,10 +518,44 @@ def summary_text(s: Mapping[str, Any]) -> str:
             + (f"{p['point']}: F50 {p['f50_mean']:.1f} N" if p else "none within the limit")
         )
     n_fail = len(s["failures"])
-    lines.append(f"{s['points']} points, {n_fail} failed; {s['seconds']:.0f} s")
+    runs = f" × {len(s['seeds'])} seeds" if len(s["seeds"]) > 1 else ""
+    lines.append(f"{s['points']} points{runs}, {n_fail} failed; {s['seconds']:.0f} s")
     for f in s["failures"]:
         lines.append(f"  failed: {f['point']}: {f['error']}")
     return "\n".join(lines)
+
+
+def aggregate(runs: pd.DataFrame, grid: Sequence[str], limit: float) -> pd.DataFrame:
+    """One row per point (:data:`COLUMNS`) from the runs' rows (:data:`RUN_COLUMNS`): means
+    over the runs that did not fail, the vibration limit applied to the mean vibration."""
+    rows = []
+    for label, g in runs.groupby("point", sort=False):
+        good = g[g["ok"]]
+        n = len(good)
+        row: dict[str, Any] = {k: g.iloc[0][k] for k in grid}
+        errors = [(s, e) for s, e in zip(g["seed"], g["error"], strict=True) if e]
+        row.update(
+            point=label,
+            runs=n,
+            ok=n > 0,
+            error="; ".join(e if len(g) == 1 else f"seed {s}: {e}" for s, e in errors),
+        )
+        for c in METRICS:
+            if c.endswith("_bound"):
+                b = set(good[c])
+                row[c] = b.pop() if len(b) == 1 else ""
+            elif c.endswith("_joint"):
+                row[c] = int(good[c].mode().iloc[0]) if n else math.nan
+            elif c == "seconds":
+                row[c] = float(g[c].sum())
+            elif c != "within_limit":
+                row[c] = float(good[c].mean()) if n else math.nan
+        row["within_limit"] = bool(row["vibration"] <= limit)
+        row["f50_mean_sem"] = (
+            float(good["f50_mean"].std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
+        )
+        rows.append(row)
+    return pd.DataFrame(rows, columns=[*grid, *COLUMNS])
 
 
 def run_sweep(
@@ -512,6 +565,7 @@ def run_sweep(
     config: str | Path | None = None,
     pushes_per_direction: int | None = 6,
     seed: int = 0,
+    repeats: int = 1,
     curve_boot: int = 50,
     vibration_limit: float = VIBRATION_LIMIT,
     scheduler: str | None = None,
@@ -530,6 +584,8 @@ def run_sweep(
     pushes_per_direction : pushes per axis and sign in each of the four campaigns (None: the
         config's); a grid key ``push_campaign.pushes_per_direction`` overrides it
     seed : evaluation campaigns' seed (identification: ``seed + 1``), the same at every point
+    repeats : runs per point, on seeds ``seed, seed + 2, ...`` (each with its identification
+        seed one above); the point's row is their mean
     curve_boot : bootstrap replicates of each detection curve
     vibration_limit : [rad, arm side] the paper's 1e-4
     scheduler, workers, progress, on_result : as :func:`ditherlab.fleet.engine.run_tasks`
@@ -542,6 +598,8 @@ def run_sweep(
     grid = parse_grid(grid_specs)
     if int(seed) < 0:
         raise ConfigError(f"sweep: --seed {seed} is negative; expected an integer >= 0")
+    if int(repeats) < 1:
+        raise ConfigError(f"sweep: --repeats {repeats}; expected an integer >= 1")
     if pushes_per_direction is not None and pushes_per_direction < 1:
         raise ConfigError(
             f"sweep: --pushes-per-direction {pushes_per_direction}; expected an integer >= 1"
@@ -552,31 +610,38 @@ def run_sweep(
     points = grid_points(grid, base)
     out = Path(out_dir)
     _check_out(out, force)
-    options = {"seed": int(seed), "curve_boot": int(curve_boot), "vibration_limit": vibration_limit}
+    seeds = [int(seed) + 2 * r for r in range(int(repeats))]
+    options = {"curve_boot": int(curve_boot), "vibration_limit": vibration_limit}
+    runs = [(p, s) for p in points for s in seeds]
     t0 = time.perf_counter()
     results = run_tasks(
         run_point,
-        [(p.label, (p.config, options)) for p in points],
+        [
+            (p.label + (f" seed={s}" if len(seeds) > 1 else ""), (p.config, {**options, "seed": s}))
+            for p, s in runs
+        ],
         scheduler=scheduler,
         workers=workers,
         progress=progress,
         on_result=on_result,
     )
     rows = []
-    for p, r in zip(points, results, strict=True):
+    for (p, s), r in zip(runs, results, strict=True):
         row: dict[str, Any] = {
             k: _label(v) if isinstance(v, list) else v for k, v in p.values.items()
         }
-        row.update({"point": p.label, "ok": r.ok, "error": r.error or ""})
+        row.update({"point": p.label, "seed": s, "ok": r.ok, "error": r.error or ""})
         values = r.value if r.ok else {}
-        for c in COLUMNS[3:]:
+        for c in METRICS:
             row[c] = values.get(c, "" if c.endswith("_bound") else math.nan)
         row["within_limit"] = bool(values.get("within_limit", False))
         rows.append(row)
-    table = pd.DataFrame(rows, columns=[*grid, *COLUMNS])
+    run_table = pd.DataFrame(rows, columns=[*grid, *RUN_COLUMNS])
+    table = aggregate(run_table, list(grid), vibration_limit)
     out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out / "sweep.parquet") as tmp:
-        table.to_parquet(tmp, index=False)
+    for name, t in (("sweep.parquet", table), ("sweep_runs.parquet", run_table)):
+        with atomic_path(out / name) as tmp:
+            t.to_parquet(tmp, index=False)
     text = format_table(table, list(grid), vibration_limit)
     atomic_write_text(out / "sweep.md", text + "\n")
     figures = [
@@ -586,11 +651,13 @@ def run_sweep(
     summary = {
         "grid": {k: [_label(v) for v in vs] for k, vs in grid.items()},
         "points": len(points),
-        "seed": int(seed),
+        "seeds": seeds,
         "pushes_per_direction": pushes_per_direction,
         "vibration_limit": vibration_limit,
         **best_points(table, list(grid)),
-        "failures": [{"point": r["point"], "error": r["error"]} for r in rows if not r["ok"]],
+        "failures": [
+            {"point": r["point"], "error": r["error"]} for _, r in table.iterrows() if not r["ok"]
+        ],
         "seconds": time.perf_counter() - t0,
         "figures": [str(f) for f in figures],
         "table": str(out / "sweep.parquet"),
