@@ -275,6 +275,8 @@ def test_default_square_simulation_is_unchanged():
                                    [s, sa, x0, x1], rtol=1e-12)  # fmt: skip
     assert rec.meta["dither"] == {"waveform": "square", "omega": 80.0}
     assert D.dither_period(rec) == 2 * np.pi / 80.0
+    plain = simulate("push-campaign", seed=0, dither=False, pushes_per_direction=1)
+    assert "dither" not in plain.meta  # no dither applied, none stated
     same = simulate(
         "push-campaign", seed=0, dither=True, pushes_per_direction=4,
         config={"dither": {"waveform": "square"}},
