@@ -44,7 +44,7 @@ def _short(table: pd.DataFrame, grid: Sequence[str], colour_key: str | None) -> 
 def plot_tradeoff(table: pd.DataFrame, grid: Sequence[str], limit: float, path: str | Path) -> Path:
     """Mean dithered F50 over x, y, z [N] against the vibration [rad, arm side] per point (log
     axis), coloured by the waveform when it is swept (else by the first grid key), each point
-    labelled with its other values; the vibration limit as a dashed line and the undithered
+    labelled with its other values, with F50's standard error over seeds as a bar; the vibration limit as a dashed line and the undithered
     F50 (median over points) as a dotted one."""
     plt = pyplot()
     ok = table[table["ok"] & np.isfinite(table["vibration"])].reset_index(drop=True)
@@ -54,9 +54,12 @@ def plot_tradeoff(table: pd.DataFrame, grid: Sequence[str], limit: float, path: 
     labels = _short(ok, grid, key)
     for name in dict.fromkeys(groups):
         m = (groups == name).to_numpy()
-        ax.scatter(
+        sc = ax.scatter(
             ok["vibration"][m], ok["f50_mean"][m], s=40, label=f"{key}={name}" if key else name
         )
+        if "f50_mean_sem" in ok and np.isfinite(ok["f50_mean_sem"][m]).any():  # several seeds
+            ax.errorbar(ok["vibration"][m], ok["f50_mean"][m], yerr=ok["f50_mean_sem"][m],
+                        fmt="none", ecolor=sc.get_facecolor()[0], lw=0.8)  # fmt: skip
     for i, r in ok.iterrows():
         ax.annotate(labels[i], (r["vibration"], r["f50_mean"]), fontsize=6, xytext=(3, 3),
                     textcoords="offset points")  # fmt: skip
