@@ -34,7 +34,7 @@ from ditherlab.errors import DitherlabError, DitherlabWarning
 app = typer.Typer(
     name="ditherlab",
     help="Sensorless force estimation with dithering: identify, replay, report, diagnose, "
-    "simulate, view, info, convert, fleet.",
+    "simulate, view, info, convert, fleet, sweep.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -620,3 +620,64 @@ def fleet(
             f"{o['value']:.3g} (fleet median {o['fleet_median']:.3g}, z {o['z']:+.1f})"
         )
     echo(f"wrote {s['table']}, {out / 'fleet.md'}")
+
+
+# ---------------------------------------------------------------- sweep (helper "fleet.sweep")
+@app.command()
+def sweep(
+    grid: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--grid",
+            help="KEY=V1,V2,...: a key of the simulator's parameters (irb140.toml) and its "
+            "values, repeatable (per-joint lists: one value, or v1:v2:...:v6).",
+        ),
+    ] = None,
+    out: Annotated[
+        Path, typer.Option("-o", "--out", help="Output folder: sweep.parquet, .md, .json, PNG.")
+    ] = Path("sweep-out"),
+    config: Annotated[
+        Path | None, typer.Option("--config", help="Simulator TOML every point starts from.")
+    ] = None,
+    pushes: Annotated[
+        int, typer.Option("--pushes-per-direction", help="Pushes per axis and sign per campaign.")
+    ] = 6,
+    vibration_limit: Annotated[
+        float,
+        typer.Option(
+            "--vibration-limit", help="Acceptable arm vibration in rad (the paper: 1e-4)."
+        ),
+    ] = 1e-4,
+    bootstrap: Annotated[
+        int, typer.Option("--bootstrap", help="Bootstrap replicates per detection curve.")
+    ] = 50,
+    seed: Seed = 0,
+    repeats: Annotated[
+        int, typer.Option("--repeats", help="Runs per point on seeds seed, seed+2, ... (mean).")
+    ] = 1,
+    scheduler: Annotated[
+        str | None, typer.Option("--scheduler", help="Dask scheduler (tcp://HOST:8786), 'serial'.")
+    ] = None,
+    workers: Annotated[int | None, typer.Option("--workers", help="LocalCluster workers.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Write into a non-empty folder.")] = False,
+    quiet: Quiet = False,
+) -> None:
+    """Simulated paired campaigns over a grid of simulator parameters (dither design) as Dask tasks."""
+    from ditherlab.fleet.sweep import run_sweep, summary_text
+
+    s = run_sweep(
+        grid or [],
+        out,
+        config=config,
+        pushes_per_direction=pushes,
+        seed=seed,
+        repeats=repeats,
+        curve_boot=bootstrap,
+        vibration_limit=vibration_limit,
+        scheduler=scheduler,
+        workers=workers,
+        force=force,
+        progress=not quiet,
+    )
+    echo(summary_text(s))
+    echo(f"wrote {s['table']}, {out / 'sweep.md'}, {out / 'sweep.json'}, figures")

@@ -1,4 +1,4 @@
-"""Dither: the square wave, the extraction of the torque signal, and the band variants (§III-B, §IV).
+"""Dither: the waveforms, the extraction of the torque signal, and the band variants (§III-B, §IV).
 
 The paper (§III-B) computes, over a causal window holding an integer number of whole dither
 periods::
@@ -23,11 +23,36 @@ The window holds ``round(periods * period / dt)`` samples. At 80 rad/s and 250 H
 (``signal`` has no ripple) and only ``centre`` ripples, by one unbalanced sample, ``2 A / W``;
 through a 4 ms first-order lag (a servo-like edge) ``signal`` ripples by 3.7 % of A with one
 period per window, 1.6 % with two and 1.0 % with three (59 samples for 58.9).
+
+Waveforms (§VII left them open): ``square`` (the paper's), ``sine`` and ``triangle``
+(:data:`WAVEFORMS`, :func:`wave`), each of unit peak, zero mean over whole periods and
+positive on the first half period. A recording names its waveform in its metadata
+(``dither.waveform``, :func:`dither_waveform`); without the key it is square. What this module
+decides per waveform (measured in ``tests/test_dither_waveforms.py``):
+
+- the **signal**. Each waveform is symmetric about its mean, so ``(upper + lower) / 2`` and the
+  window mean both follow an external torque. For the square wave the paper's
+  ``(upper + lower) / 2`` stays (no ripple on a clean square wave, where the window mean
+  ripples by ``2 A / W``). For a sine or a triangle the split above / below the centre moves
+  with the partial period a 20-sample window holds (19.63 samples a period), and
+  ``(upper + lower) / 2`` ripples by 6.1 % (sine) and 5.0 % (triangle) of A, the whole-sample
+  window mean by 1.8 %; the signal is therefore the mean over *exactly* ``periods`` periods (the
+  oldest sample weighted by the fraction of it inside, :func:`_period_mean`): 0.2 % and 0.3 %.
+- the **amplitude**. ``(upper - lower) / 2`` is the mean of ``|w|``: ``A`` for a square wave of
+  peak ``A``, ``2 A / pi`` for a sine, ``A / 2`` for a triangle. What shrinks the friction band
+  is the peak (the joint slips once ``centre + tau_ext + peak`` reaches the band's edge), so
+  :attr:`DitherSignal.amplitude` is the peak, ``(upper - lower) / 2`` times :data:`PEAK_FACTOR`
+  (1, pi/2, 2), and every band variant built on it (:func:`dithered_band`, identify's shrunk
+  dither band, replay, view) is right for each waveform. ``upper``, ``lower`` and ``centre``
+  stay the paper's statistics for every waveform.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -52,17 +77,22 @@ class DitherSignal:
     upper, lower : (N, n) [N·m]
         Mean of the window's samples above / below its centre.
     signal : (N, n) [N·m]
-        ``(upper + lower) / 2``, the extracted torque signal (§IV-A).
+        The extracted torque signal: ``(upper + lower) / 2`` (§IV-A) for the square wave, the
+        mean over exactly ``periods`` whole periods for a sine or triangle (module docstring).
     centre : (N, n) [N·m]
         Mean of the window.
     amplitude : (N, n) [N·m]
-        ``(upper - lower) / 2``, the measured dither amplitude.
+        The measured dither amplitude (the peak): ``(upper - lower) / 2`` times the waveform's
+        :data:`PEAK_FACTOR` (1 for the square wave).
     window : int
         Samples per window (a whole number of dither periods, rounded).
     period : float [s]
         The dither period used.
     full : (N,) bool
-        True where the window is full; the first ``window - 1`` samples use the samples so far.
+        True where the window is full (``window`` samples, and for a sine or triangle the
+        fractional sample too); before, the samples so far are used.
+    waveform : str
+        The dither waveform (:data:`WAVEFORMS`).
     """
 
     upper: np.ndarray
@@ -73,6 +103,14 @@ class DitherSignal:
     window: int
     period: float
     full: np.ndarray
+    waveform: str = "square"
+
+
+#: The dither waveforms: the paper's square wave and the two §VII left to try.
+WAVEFORMS = ("square", "sine", "triangle")
+#: Peak over mean absolute value of each unit-peak waveform: the dither's peak amplitude is
+#: ``PEAK_FACTOR[w] * (upper - lower) / 2`` of the paper's window statistics [-].
+PEAK_FACTOR = {"square": 1.0, "sine": math.pi / 2, "triangle": 2.0}
 
 
 def square_wave(t, omega: float, amplitude, phase: float = 0.0) -> np.ndarray:
@@ -94,6 +132,59 @@ def square_wave(t, omega: float, amplitude, phase: float = 0.0) -> np.ndarray:
     s = np.where(np.sin(omega * t + phase) >= 0.0, 1.0, -1.0)
     amp = np.asarray(amplitude, dtype=float)
     return s * amp if amp.ndim == 0 else s[:, None] * amp[None, :]
+
+
+def check_waveform(name: Any, where: str = "dither.waveform") -> str:
+    """``name`` if it is one of :data:`WAVEFORMS`, else a ConfigError naming ``where`` and it."""
+    if not isinstance(name, str) or name not in WAVEFORMS:
+        raise ConfigError(f"{where} = {name!r}; expected one of {', '.join(WAVEFORMS)}")
+    return name
+
+
+def wave(t, omega: float, amplitude, waveform: str = "square", phase: float = 0.0) -> np.ndarray:
+    """The dither ``amplitude * w(omega t + phase)`` for a unit-peak waveform ``w``.
+
+    ``square``: ``sign(sin)`` with ``sign(0) = +1`` (:func:`square_wave`, bit for bit);
+    ``sine``: ``sin``; ``triangle``: ``(2 / pi) asin(sin)``, linear between its peaks at
+    ``omega t + phase = pi/2 (+1)`` and ``3 pi/2 (-1)``. The simulator's feedforward uses the
+    same formulas (:mod:`ditherlab.sim.plant`).
+
+    Parameters
+    ----------
+    t : (N,) [s]
+    omega : float [rad/s]
+    amplitude : float or (n,) [N·m] — the peak
+    waveform : one of :data:`WAVEFORMS`
+    phase : float [rad]
+
+    Returns
+    -------
+    (N,) or (N, n) [N·m]
+    """
+    check_waveform(waveform, "waveform")
+    if waveform == "square":
+        return square_wave(t, omega, amplitude, phase)
+    t = np.asarray(t, dtype=float)
+    s = np.sin(omega * t + phase)
+    if waveform == "triangle":
+        s = (2.0 / np.pi) * np.arcsin(s)
+    amp = np.asarray(amplitude, dtype=float)
+    return s * amp if amp.ndim == 0 else s[:, None] * amp[None, :]
+
+
+def dither_waveform(meta: Mapping[str, Any]) -> str:
+    """The dither waveform a recording's metadata states: ``dither.waveform``, else the
+    simulator's ``sim.params.dither.waveform``, else ``"square"`` (RECORDING.md: a recording
+    without the key is square). A name not in :data:`WAVEFORMS` is a ConfigError."""
+    d = meta.get("dither")
+    if isinstance(d, Mapping) and d.get("waveform") is not None:
+        return check_waveform(d["waveform"], "metadata key dither.waveform")
+    sim = meta.get("sim")
+    p = sim.get("params") if isinstance(sim, Mapping) else None
+    d = p.get("dither") if isinstance(p, Mapping) else None
+    if isinstance(d, Mapping) and d.get("waveform") is not None:
+        return check_waveform(d["waveform"], "metadata key sim.params.dither.waveform")
+    return "square"
 
 
 def full_window(on: np.ndarray, window: int) -> np.ndarray:
@@ -163,6 +254,37 @@ def _window_kernel(x, W):  # pragma: no cover - compiled
     return centre, upper, lower
 
 
+def _period_mean(x: np.ndarray, L: float) -> np.ndarray:
+    """Causal mean of every column of x (N, n) over exactly ``L`` samples (``L`` real >= 1): the
+    ``floor(L)`` newest samples and the one before weighted by ``L - floor(L)``, over ``L`` (the
+    mean over whole dither periods when ``L`` is their length in samples). Fewer samples than
+    that at the start: the mean of the samples so far. Each value comes from its own window
+    (no running sum), so a piece with ``floor(L)`` samples of history gives the whole's values.
+    """
+    return _period_mean_kernel(np.ascontiguousarray(x, dtype=float), float(L))
+
+
+@njit(cache=True)
+def _period_mean_kernel(x, L):  # pragma: no cover - compiled
+    N, n = x.shape
+    m = int(np.floor(L))
+    fr = L - m
+    out = np.empty((N, n))
+    for j in range(n):
+        for i in range(N):
+            if i < m:
+                s = 0.0
+                for k in range(i + 1):
+                    s += x[k, j]
+                out[i, j] = s / (i + 1)
+                continue
+            s = fr * x[i - m, j]
+            for k in range(i - m + 1, i + 1):
+                s += x[k, j]
+            out[i, j] = s / L
+    return out
+
+
 def _window_stats_reference(x: np.ndarray, W: int, chunk: int = 65536):
     """Causal window mean, and means above / below it, of every column of x (N, n), in numpy.
 
@@ -201,6 +323,7 @@ def extract(
     tau_ffw=None,
     periods: int = 1,
     dt: float | None = None,
+    waveform: str = "square",
 ) -> DitherSignal:
     """Extract the torque signal from a dithered torque (the paper's CALCDITHERSIGNALPARS).
 
@@ -220,6 +343,8 @@ def extract(
     dt : float [s], optional
         The sample step (default: the median step of ``t``; a piece of a longer recording
         passes the whole recording's, :attr:`ditherlab.recording.Recording.dt`).
+    waveform : one of :data:`WAVEFORMS`: scales ``amplitude`` to the peak
+        (:data:`PEAK_FACTOR`); the other statistics do not depend on it.
 
     Returns
     -------
@@ -240,6 +365,7 @@ def extract(
         raise ConfigError(f"dither: tau at sample {k} is not finite; expected finite torques")
     if int(periods) != periods or periods < 1:
         raise ConfigError(f"dither: periods is {periods!r}; expected a positive integer")
+    peak = PEAK_FACTOR[check_waveform(waveform, "dither: waveform")]
     if period is None:
         if tau_ffw is None:
             raise ConfigError("dither: neither period nor tau_ffw given; expected one of them")
@@ -250,15 +376,22 @@ def extract(
         dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     W = max(2, int(round(periods * period / dt)))
     centre, upper, lower = _window_stats(x, W)
+    amplitude = 0.5 * (upper - lower)
+    if waveform == "square":  # the paper's extraction (§IV-A)
+        signal, first = 0.5 * (upper + lower), W - 1
+    else:  # a smooth wave: the mean over exactly `periods` periods (module docstring)
+        L = max(1.0, periods * period / dt)
+        signal, first = _period_mean(x, L), max(W - 1, int(np.ceil(L)))
     out = DitherSignal(
         upper=upper,
         lower=lower,
-        signal=0.5 * (upper + lower),
+        signal=signal,
         centre=centre,
-        amplitude=0.5 * (upper - lower),
+        amplitude=amplitude if peak == 1.0 else peak * amplitude,
         window=W,
         period=float(period),
-        full=np.arange(len(t)) >= W - 1,
+        full=np.arange(len(t)) >= first,
+        waveform=waveform,
     )
     if one_d:
         for k in ("upper", "lower", "signal", "centre", "amplitude"):
@@ -325,13 +458,17 @@ class Extraction:
     Attributes
     ----------
     upper, lower, signal, centre, amplitude : (N, n) [N·m]
-        One-period means of the samples above / below the period mean, their average (the new
-        torque signal), the period mean, and half their difference (the dither amplitude).
+        One-period means of the samples above / below the period mean, the new torque signal
+        (their average for the square wave, the exact one-period mean for a sine or triangle:
+        :attr:`DitherSignal.signal`), the period mean, and the dither's peak amplitude (half
+        their difference times the waveform's :data:`PEAK_FACTOR`).
     on : (N,) bool
         Dither active.
     valid : (N,) bool
         Dither active over the whole one-period window ending at the sample.
     period : [s]
+    waveform : str
+        The recording's dither waveform (:func:`dither_waveform`).
     """
 
     upper: np.ndarray
@@ -342,6 +479,7 @@ class Extraction:
     on: np.ndarray
     valid: np.ndarray
     period: float
+    waveform: str = "square"
 
 
 def dither_on(rec: Recording) -> np.ndarray | None:
@@ -421,8 +559,9 @@ def extract_dither(rec: Recording, tau: np.ndarray | None = None) -> Extraction 
         return None
     on = dither_on(rec)
     period = dither_period(rec)
+    waveform = dither_waveform(rec.meta)
     x = rec.tau if tau is None else tau
-    sig = extract(x, rec.t, period, dt=rec.dt if len(rec) > 1 else None)
+    sig = extract(x, rec.t, period, dt=rec.dt if len(rec) > 1 else None, waveform=waveform)
     w = max(int(round(period * rec.sample_rate)), 1)
     valid = full_window(on, w)  # the dither was on for the whole window (t - period, t]
     return Extraction(
@@ -434,4 +573,5 @@ def extract_dither(rec: Recording, tau: np.ndarray | None = None) -> Extraction 
         on=on,
         valid=valid,
         period=period,
+        waveform=waveform,
     )

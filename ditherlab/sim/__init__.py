@@ -124,6 +124,14 @@ def simulate(
         "notes": f"ditherlab simulate {scenario} seed={seed} dither={'on' if dither else 'off'}",
         "sim": sim_meta_all,
     }
+    if dither:
+        # RECORDING.md: the dither's waveform and angular frequency (dither_period reads omega
+        # before measuring tau_ffw, whose zero crossings fail below ~6 samples a half period).
+        # Only when dithering: a streamed recording that states a period counts as dithered.
+        meta["dither"] = {
+            "waveform": params["dither"]["waveform"],
+            "omega": float(params["dither"]["frequency"]),
+        }
     return sc.to_recording(cols, meta)
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ditherlab.dither import PEAK_FACTOR, WAVEFORMS
 from ditherlab.sim import plant as K
 from ditherlab.sim.params import joint_array
 
@@ -141,6 +142,8 @@ class Engine:
         sp[K.SP_H] = sp[K.SP_DTS] / t["plant_substeps"]
         sp[K.SP_NSERVO], sp[K.SP_NSUB] = nservo, t["plant_substeps"]
         sp[K.SP_OMEGA] = d["frequency"]
+        sp[K.SP_WAVE] = WAVEFORMS.index(d["waveform"])
+        sp[K.SP_PEAK] = PEAK_FACTOR[d["waveform"]]
         period = 2 * np.pi / d["frequency"]
         self.window = max(1, round(d["periods"] * period * fs_hz))
         sp[K.SP_WIN] = self.window

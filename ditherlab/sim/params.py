@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ditherlab.dither import check_waveform
 from ditherlab.errors import ConfigError
 
 DEFAULTS_FILE = "irb140.toml"
@@ -61,6 +62,8 @@ def _check_value(default: Any, value: Any, key: str, where: str) -> Any:
                 f"or one value"
             )
         return [_check_value(d, v, key, where) for d, v in zip(default, value, strict=True)]
+    if isinstance(default, str) and not isinstance(value, str):
+        raise ConfigError(f"{where}: key '{key}' = {value!r}; expected text")
     return value
 
 
@@ -157,6 +160,7 @@ def _get(p: Mapping[str, Any], dotted: str) -> Any:
 
 
 def _validate(p: dict[str, Any], where: str) -> None:
+    check_waveform(p["dither"]["waveform"], f"{where}: key 'dither.waveform'")
     for key in _NON_NEGATIVE:
         v = np.asarray(_get(p, key), dtype=float)
         if np.any(v < 0) or not np.all(np.isfinite(v)):

@@ -25,16 +25,19 @@ Servo (paper Fig. 3), at ``servo_rate_hz``::
 
     vref = dq_ref + Kp (q_ref + offset - qm)       Kp = 0 while the joint dithers
     I   += Ki (vref - vm) dt
-    u    = g_ctrl(qm) + c + a sq(w t) + Kv (vref - vm) + I
+    u    = g_ctrl(qm) + c + a w(omega t) + Kv (vref - vm) + I
 
 ``u`` is the torque reference; it is what gets logged (plus noise). When Kp is switched back on,
 ``offset`` is set so that the joint holds where it is (bumpless transfer).
 
+``w`` is the unit-peak dither waveform (square, sine or triangle: ``sp[SP_WAVE]``).
+
 Dither loops (paper §III-B), once per sample with the logged torque: a ring buffer of the last
 ``periods`` whole dither periods; every ``update_every`` samples the centre (window mean) and the
 amplitude ((upper mean - lower mean)/2 of the samples above/below the centre, the paper's
-pseudo-code) are compared with their references and integrated into ``c`` and ``a`` unless the
-error is within ``hold`` of the band width. References ramp up over ``ramp`` samples (centre from
+pseudo-code, times the waveform's peak factor ``sp[SP_PEAK]``, 1 for the square wave) are
+compared with their references and integrated into ``c`` and ``a`` unless the error is within
+``hold`` of the band width. References ramp up over ``ramp`` samples (centre from
 the measured centre to the gravity torque, amplitude from 0); at stop ``c`` and ``a`` ramp to 0.
 
 Two implementations of the same step: :func:`run_kernel` (numba, scalar loops) and
@@ -90,8 +93,12 @@ N_JP = 21
     SP_RAMP,
     SP_DTS,
     SP_SWEEPS,
-) = range(12)
-N_SP = 12
+    SP_WAVE,
+    SP_PEAK,
+) = range(14)
+N_SP = 14
+#: ``sp[SP_WAVE]`` of each waveform (:data:`ditherlab.dither.WAVEFORMS`, in that order)
+WAVE_SQUARE, WAVE_SINE, WAVE_TRIANGLE = range(3)
 # rows of the continuous state ``x`` (shape (N_X, n))
 (
     X_QM,
@@ -191,9 +198,15 @@ def _ripple(amp, freq, qm):
 
 
 @njit(cache=True, inline="always")
-def _square_wave(omega, clock):
-    """The dither's square wave at the dither clock: +1 while ``sin(omega clock) >= 0``, else -1."""
-    return 1.0 if math.sin(omega * clock) >= 0.0 else -1.0
+def _dither_wave(omega, clock, shape):
+    """The unit-peak dither waveform at the dither clock (:func:`ditherlab.dither.wave`):
+    square +1 while ``sin(omega clock) >= 0``, else -1; sine; triangle ``(2/pi) asin(sin)``."""
+    s = math.sin(omega * clock)
+    if shape == WAVE_SQUARE:
+        return 1.0 if s >= 0.0 else -1.0
+    if shape == WAVE_SINE:
+        return s
+    return (2.0 / math.pi) * math.asin(s)
 
 
 @njit(cache=True, inline="always")
@@ -302,7 +315,7 @@ def _integrate_loops(jp, sp, x, hist, fill, r, gc0, Gc, qc_lin, dt_loop):
         if jp[DMASK, j] < 0.5:
             continue
         c, up, lo = _window_levels(hist, j, fill)
-        amp = 0.5 * (up - lo)
+        amp = 0.5 * (up - lo) * sp[SP_PEAK]
         g = _linear_gravity(gc0, Gc, qc_lin, x, X_QM, j)
         cref = (1.0 - r) * x[X_C0, j] + r * g
         aref = r * jp[AMP_SP, j]
@@ -457,6 +470,7 @@ def run_kernel(
     nsub = int(sp[SP_NSUB])
     dts = sp[SP_DTS]
     omega = sp[SP_OMEGA]
+    shape = int(sp[SP_WAVE])
     upd = int(sp[SP_UPD])
     dt_loop = upd * nservo * dts
     sweeps = int(sp[SP_SWEEPS])
@@ -471,7 +485,7 @@ def run_kernel(
         k = k0 + kk
         for i in range(nservo):
             loops_on = ist[I_MODE] != 0
-            sq = _square_wave(omega, fst[F_CLOCK])
+            sq = _dither_wave(omega, fst[F_CLOCK], shape)
             tau_in = i * dts
             _servo(
                 jp, x, q_ref, dq_ref, kp_on, kk, tau_in, dts, loops_on, sq, gc0, Gc, qc_lin, u, ffw
@@ -562,13 +576,13 @@ def run_reference(
     benchmark; it runs ``sweeps`` Gauss-Seidel sweeps instead of the kernel's few. Same
     arguments and in-place updates as :func:`run_kernel`.
     """
-    h, dts, omega = sp[SP_H], sp[SP_DTS], sp[SP_OMEGA]
+    h, dts, omega, shape = sp[SP_H], sp[SP_DTS], sp[SP_OMEGA], int(sp[SP_WAVE])
     nservo, nsub = int(sp[SP_NSERVO]), int(sp[SP_NSUB])
     for kk in range(push.shape[0]):
         k = k0 + kk
         for i in range(nservo):
             loops_on = ist[I_MODE] != 0
-            sq = _square_wave(omega, fst[F_CLOCK])
+            sq = _dither_wave(omega, fst[F_CLOCK], shape)
             u, ffw = _reference_servo(
                 jp,
                 x,
@@ -650,7 +664,7 @@ def _reference_dither_loops(jp, sp, x, ist, fst, hist, cmd, gc0, Gc, qc_lin):
     if action == ACT_UPDATE:
         r = fst[F_R]
         c, up, lo = _reference_levels(hist, fill)
-        amp = 0.5 * (up - lo)
+        amp = 0.5 * (up - lo) * sp[SP_PEAK]
         cref = (1 - r) * x[X_C0] + r * (gc0 + Gc @ (x[X_QM] - qc_lin))
         aref = r * jp[AMP_SP]
         hold = sp[SP_HOLD] * jp[BAND]

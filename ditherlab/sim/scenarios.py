@@ -187,7 +187,10 @@ def push_campaign(
 
     # F = wrench the robot exerts = -push
     wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
-    cols = scenario_columns(tt, out, wrench, hp, {"push": push_id})
+    extra = {"push": push_id}
+    if pc["log_link_angle"]:  # the arm's angle behind the gear spring: ground truth (sweeps)
+        extra.update({f"q_link_{j + 1}": out.q_link[:, j] for j in range(n)})
+    cols = scenario_columns(tt, out, wrench, hp, extra)
     on = out.dither & (tt >= t_dither_on + ramp + settle)
     dsp = joint_array(params, "dither.amplitude_fraction", n) * fs
     mask = np.asarray(params["dither"]["joints"][:n], dtype=bool)
@@ -212,7 +215,8 @@ def push_campaign(
             "measured_mean": [
                 float(out.amp_meas[on, j].mean()) if on.any() and mask[j] else 0.0 for j in range(n)
             ],
-            "unit": "N·m (amplitude of the logged torque; feedforward = square-wave amplitude)",
+            "unit": "N·m (peak amplitude of the dither in the logged torque; feedforward = "
+            "the waveform's peak amplitude)",
         },
         "hidden": hp.truth,
     }
