@@ -63,7 +63,7 @@ def noise_floor_sq(sigma: np.ndarray, half: np.ndarray, moving: np.ndarray) -> n
     """
     s = np.asarray(sigma, dtype=float)
     h = np.asarray(half, dtype=float)
-    z = 2 * h / s
+    z = np.divide(2 * h, s, out=np.full(np.broadcast(h, s).shape, np.inf), where=s > 0)
     edge = s**2 / 2 + (s**2 + 4 * h**2) * norm.cdf(-z) - 2 * h * s * norm.pdf(z)
     return np.where(moving, s**2, edge)
 
