@@ -53,6 +53,9 @@ RobotOpt = Annotated[
 ]
 JsonFlag = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON on stdout.")]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")]
+Force = Annotated[
+    bool, typer.Option("--force", help="Write into (or replace) an existing non-empty folder.")
+]
 Chunk = Annotated[
     int | None,
     typer.Option(
@@ -110,6 +113,22 @@ def progress_bar(desc: str, quiet: bool = False) -> Iterator[Callable[[int, int]
         bar.close()
 
 
+def guard(
+    out: Path,
+    *inputs: Path | None,
+    mapping: str | None = None,
+    folder: bool = False,
+    force: bool = False,
+) -> None:
+    """The output guard (:func:`ditherlab.io.atomic.check_output`), before any work: ``out``
+    not equal to, inside or containing an input (or the mapping file), writable, and an
+    existing non-empty folder only with ``--force``."""
+    from ditherlab.io.atomic import check_output
+
+    extra = [Path(mapping)] if mapping is not None and Path(mapping).exists() else []
+    check_output(out, [*inputs, *extra], folder=folder, force=force)
+
+
 def echo(msg: str = "") -> None:
     """Human-readable output on stdout."""
     typer.echo(msg)
@@ -119,17 +138,53 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:  # n
     return f"warning: {message}\n"
 
 
+@contextlib.contextmanager
+def held_warnings() -> Iterator[Callable[[], None]]:
+    """Hold the warnings of numerical libraries (numpy's RuntimeWarning on an overflow, ...)
+    while a command runs; yields ``release()``, which prints them (after a success). Left
+    unreleased (an error), they are dropped: the error line is the only line. DitherlabWarnings
+    (a note to the user, e.g. angles in degrees) are printed at once, as before."""
+    held: list[tuple] = []
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
+        if issubclass(category, DitherlabWarning):
+            shown(message, category, filename, lineno, file, line)
+        else:
+            held.append((message, category, filename, lineno, file, line))
+
+    def release() -> None:
+        for w in held:
+            shown(*w)
+        held.clear()
+
+    warnings.showwarning = show
+    try:
+        yield release
+    finally:
+        warnings.showwarning = shown
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the app; a DitherlabError becomes one line on stderr and exit 2.
 
     Usage errors (an unknown option, a missing argument, a value out of range) too: one line
     naming the command and what was wrong, exit status 2 (typer's own is a framed box of five
-    lines).
+    lines). Warnings of numerical libraries never precede that line (:func:`held_warnings`).
     """
     warnings.formatwarning = _format_warning
     warnings.simplefilter("default", DitherlabWarning)
+    with held_warnings() as release:
+        code = _run(argv)
+        release()
+    if isinstance(code, int) and code:
+        sys.exit(code)
+
+
+def _run(argv: list[str] | None) -> object:
+    """The app's return value; every error but a bug ends the process here (sys.exit)."""
     try:
-        code = app(args=argv, prog_name="ditherlab", standalone_mode=False)
+        return app(args=argv, prog_name="ditherlab", standalone_mode=False)
     except DitherlabError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
@@ -147,8 +202,6 @@ def main(argv: list[str] | None = None) -> None:
     except typer.Abort:
         typer.echo("aborted", err=True)
         sys.exit(1)
-    if isinstance(code, int) and code:
-        sys.exit(code)
 
 
 # ================================================================ commands
@@ -190,11 +243,13 @@ def convert(
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
     chunk: Chunk = None,
+    force: Force = False,
 ) -> None:
     """Convert a recording to another format (atomic; never over the input)."""
     from ditherlab.io import convert as _convert
 
-    echo(f"wrote {_convert(src, dst, rows=chunk, **_read_options(mapping, robot))}")
+    opts = _read_options(mapping, robot)
+    echo(f"wrote {_convert(src, dst, rows=chunk, force=force, **opts)}")
 
 
 @app.command()
@@ -223,6 +278,8 @@ def view(
     if spawn and serve:
         raise DitherlabError("view: choose one of --spawn and --serve")
     mode = "spawn" if spawn else "serve" if serve else None
+    if save is not None:
+        guard(save, recording, estimates, model, diagnosis, mapping=mapping)
     req = load_view_request(
         recording,
         estimates=estimates,
@@ -300,6 +357,7 @@ def diagnose(
     ] = None,
     json_out: JsonFlag = False,
     chunk: Chunk = None,
+    force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Where the model fails (residual vs noise floor, force error, worst windows) and which effect is missing."""
@@ -308,6 +366,10 @@ def diagnose(
     from ditherlab.io.atomic import json_default
     from ditherlab.loop import diagnose_files
 
+    if out is not None:
+        guard(out, *recordings, model, mapping=mapping, folder=True, force=force)
+    if not no_history and model.is_file():
+        guard(model)  # its history gains a row: the model file is an output too
     with progress_bar("diagnose", quiet or json_out) as progress:
         d = diagnose_files(
             recordings,
@@ -359,6 +421,7 @@ def identify(
     from ditherlab.identify import summary
     from ditherlab.loop import identify_files
 
+    guard(out, *recordings, model, mapping=mapping)
     with progress_bar("identify", quiet) as progress:
         m = identify_files(
             recordings,
@@ -411,12 +474,14 @@ def simulate(
             help="With --hidden temperature_friction: write temp_j columns.",
         ),
     ] = True,
+    force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Simulate the built-in IRB140 (gear springs, stick-slip friction, servo, dither) to a recording."""
-    from ditherlab.io import write
+    from ditherlab.io import check_recording_output, write
     from ditherlab.sim import simulate as run_sim
 
+    check_recording_output(out, [config], force=force)
     with progress_bar(f"simulate {scenario}", quiet) as progress:
         rec = run_sim(
             scenario,
@@ -463,6 +528,7 @@ def replay(
     """Replay the estimator (no dither / dither x with / without the uniform term) -> estimates Parquet."""
     from ditherlab.replay import describe, replay_file
 
+    guard(out, recording, model, mapping=mapping)
     with progress_bar("replay", quiet) as progress:
         est = replay_file(
             recording,
@@ -505,6 +571,7 @@ def report(
     seed: Seed = 0,
     chunk: Chunk = None,
     json_out: JsonFlag = False,
+    force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Detection thresholds per direction beside the paper's §VI-C numbers, curves, coverage, figures."""
@@ -513,6 +580,7 @@ def report(
     from ditherlab.io.atomic import json_default
     from ditherlab.report import make_report, summary_text
 
+    guard(out, *estimates, *(recording or []), folder=True, force=force)
     with progress_bar("report", quiet or json_out) as progress:
         a = make_report(
             estimates,
@@ -579,9 +647,7 @@ def fleet(
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
-    force: Annotated[
-        bool, typer.Option("--force", help="Write into an existing non-empty folder.")
-    ] = False,
+    force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Identify and diagnose many recordings as Dask tasks -> one table and a fleet report."""

@@ -43,6 +43,7 @@ from ditherlab.io.spill import SPILL_BYTES, Spill
 from ditherlab.io.stream import CHUNK_ROWS, Source, pieces_of
 from ditherlab.model import PAPER_PRIOR_SIGMA, Band, TorqueModel
 from ditherlab.recording import DITHER, MOVING, STILL, Recording, regimes
+from ditherlab.residual import check_noise
 from ditherlab.signal import REVERSAL_V, causal_mean, jtf, stick_transitions
 
 
@@ -238,6 +239,16 @@ def identify(
             f"{first.name or 'recording'}: no joint has {min_samples} samples in any regime "
             "(still, dither, moving); record longer"
         )
+    # a joint without noise in every regime fitted: its torque did not vary (refused)
+    check_noise(
+        first.name,
+        np.array(
+            [
+                max((f["sigma"][0] for (_, i), f in fits.items() if i == j), default=np.nan)
+                for j in range(n)
+            ]
+        ),
+    )
     out_regimes: dict[str, Band] = dict(base.regimes) if base is not None else {}
     borrowed: dict[str, list[int]] = {}
     for code in (STILL, DITHER, MOVING):

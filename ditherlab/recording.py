@@ -227,12 +227,11 @@ class Recording:
     @cached_property
     def ddq(self) -> np.ndarray:
         """Joint accelerations, (N, n) [rad/s²]: the quadratic Savitzky–Golay derivative of
-        :attr:`dq` over 40 ms (:func:`ditherlab.signal.smooth_derivative`); the one ``ddq`` of
+        :attr:`dq` over 40 ms (:func:`ditherlab.signal.smooth_derivative`), on each stretch
+        between gaps in ``t`` (:func:`derivative_by_segment`); the one ``ddq`` of
         identification, diagnosis and every effect."""
-        tb = self.timebase
-        if tb is None:
-            return smooth_derivative(self.t, self.dq)
-        return smooth_derivative(self.t, self.dq, dt=tb.dt, uniform=tb.uniform)
+        tb = self.timebase or TimeBase.of(self.t)
+        return derivative_by_segment(self.t, self.dq, tb.dt, tb.uniform)
 
     @property
     def tau_ffw(self) -> np.ndarray | None:
@@ -374,6 +373,41 @@ class Recording:
 
 
 # ---------------------------------------------------------------------- module functions
+#: a step in ``t`` longer than this many median steps, and than GAP_MIN_S, is a gap: the log
+#: stopped and resumed, and no derivative window spans it (:func:`derivative_by_segment`)
+GAP_STEPS = 100
+#: [s] the shortest gap
+GAP_MIN_S = 1.0
+
+
+def derivative_by_segment(t: np.ndarray, x: np.ndarray, dt: float, uniform: bool) -> np.ndarray:
+    """:func:`ditherlab.signal.smooth_derivative` of ``x`` on each stretch of ``t`` between
+    gaps (steps longer than ``GAP_STEPS`` median steps and ``GAP_MIN_S``); without a gap the
+    one call on the whole of ``t``. Across a gap of 10⁷ s a quadratic fit's normal equations
+    are singular, and a window spanning the gap means nothing anyway.
+
+    Parameters
+    ----------
+    t : (N,) [s], increasing ; x : (N, n) any unit u
+    dt : [s] the recording's median step ; uniform : its time base is uniform (TimeBase)
+
+    Returns
+    -------
+    (N, n) [u/s]; a stretch of fewer than 7 samples gives zeros
+    """
+    t = np.asarray(t, dtype=float)
+    if len(t) < 2 or not np.isfinite(dt):
+        return smooth_derivative(t, x, dt=dt, uniform=uniform)
+    cuts = np.flatnonzero(np.diff(t) > max(GAP_MIN_S, GAP_STEPS * dt)) + 1
+    if not cuts.size:
+        return smooth_derivative(t, x, dt=dt, uniform=uniform)
+    x = np.asarray(x, dtype=float)
+    out = np.empty_like(x)
+    for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t)], strict=True):
+        out[a:b] = smooth_derivative(t[a:b], x[a:b], dt=dt, uniform=uniform)
+    return out
+
+
 def differentiate(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Time derivative of sampled signals.
 

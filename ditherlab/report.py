@@ -22,7 +22,8 @@ import pandas as pd
 
 from ditherlab.dither import extract, extract_dither
 from ditherlab.effects import signals
-from ditherlab.estimates import COMPONENTS, Estimates, EstimatesSource
+from ditherlab.errors import RecordingError
+from ditherlab.estimates import COMPONENTS, Estimates, EstimatesSource, check_times_match
 from ditherlab.io.atomic import atomic_write_json, atomic_write_text, check_not_input, plain
 from ditherlab.io.stream import CHUNK_ROWS, HALO_S, open_source
 from ditherlab.model import TorqueModel
@@ -245,8 +246,11 @@ def make_report(
     for e in estimates:
         if not isinstance(e, Estimates):
             check_not_input(out / "report.json", [e])
-    # the recordings opened (and their time stamps read) before anything is written
+    # the recordings opened (and their time stamps read) before anything is written; each one
+    # must be behind one of the estimates (as ``view --estimates`` requires)
     logs = [_Log(r, chunk_rows) for r in recordings] if figures else []
+    for k, log in enumerate(logs):
+        log.check_behind(ests, k)
     steps = 3 + (4 if figures else 0)
     done = 0
 
@@ -416,6 +420,7 @@ class _Log:
         self.has_wrench = all(c in self.columns for c in COMPONENTS)
         self.dithered = self.dither is not None and bool(self.dither.any())
         self._pushes: list | None = None
+        self._fp: tuple[int, str, str | None, str | None] | None = None
 
     def blocks(self, cols: list[str]) -> Iterator[pd.DataFrame]:
         """Some columns in consecutive blocks of rows."""
@@ -468,7 +473,24 @@ class _Log:
 
     def fingerprint(self) -> tuple[int, str, str | None, str | None]:
         """(rows, and digests of ``t``, the dither flag and the F/T columns) to match estimates."""
-        return _fingerprint(self.blocks, self.columns, len(self.t))
+        if self._fp is None:
+            self._fp = _fingerprint(self.blocks, self.columns, len(self.t))
+        return self._fp
+
+    def check_behind(self, ests: Sequence[EstimatesSource], k: int) -> None:
+        """Raise RecordingError unless one of ``ests`` was computed from this recording
+        (:meth:`estimates_of`). The message is :func:`ditherlab.estimates.check_times_match`'s
+        (the one ``view --estimates`` gives) against the ``k``-th estimates (the only ones, or
+        those given in the same place), else one naming both files."""
+        if self.estimates_of(ests) is not None:
+            return
+        e = ests[k] if len(ests) > 1 and k < len(ests) else ests[0]
+        rname, ename = self.name or "the recording", e.name or "estimates"
+        check_times_match(self.t, self.meta, rname, e.column("t").astype(float), e.meta, ename)
+        raise RecordingError(
+            f"{ename}: the estimates come from another recording: the dither flag or the F/T "
+            f"columns differ from those of {rname}"
+        )
 
     def estimates_of(self, ests: Sequence[EstimatesSource]) -> EstimatesSource | None:
         """The estimates computed from this recording, or None: the same time stamps and

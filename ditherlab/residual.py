@@ -24,13 +24,15 @@ from ditherlab.effects import (
     signals,
     widening,
 )
-from ditherlab.errors import ModelError, where_prefix
+from ditherlab.errors import ModelError, RecordingError, where_prefix
 from ditherlab.io.spill import Spill
 from ditherlab.model import TorqueModel
 from ditherlab.recording import DITHER, MOVING, Recording, Regime
 from ditherlab.signal import REVERSAL_V, STICK_SETTLE_S, smooth_wrench, stick_transitions
 
 __all__ = [
+    "NO_NOISE",
+    "check_noise",
     "Local",
     "ScoreStats",
     "Scored",
@@ -144,6 +146,23 @@ class ScoreStats:
     few: np.ndarray
     shift: np.ndarray
     sigma_hf: np.ndarray
+
+
+#: [N·m] a noise (fitted or measured) below this is none: the joint's torque residual does not
+#: vary — a dead or unlogged channel, since a measured torque always has noise
+NO_NOISE = 1e-6
+
+
+def check_noise(name: str | None, sigma: np.ndarray) -> None:
+    """Raise RecordingError for the first joint whose noise ``sigma`` (n,) [N·m] (NaN: unknown,
+    skipped) lies below :data:`NO_NOISE`: identify and diagnose refuse such a log alike."""
+    for j, s in enumerate(np.asarray(sigma, dtype=float)):
+        if np.isfinite(s) and s < NO_NOISE:
+            raise RecordingError(
+                f"{name or 'recording'}: the torque residual of joint {j + 1} does not vary "
+                f"(noise {s:.1g} N·m); expected a measured tau_{j + 1}, which always has "
+                "noise: is it constant or not logged?"
+            )
 
 
 def local(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Local:

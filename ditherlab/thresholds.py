@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import DitherlabError, FormatError
+from ditherlab.errors import DitherlabError, FormatError, RecordingError
 from ditherlab.estimates import COMPONENTS, Estimates, EstimatesSource
 from ditherlab.recording import FORCE_AXES
 from ditherlab.signal import merge_runs, runs
@@ -488,6 +488,8 @@ def analyse(
     ------
     NoPushesError
         An estimates file without the F/T columns, or no pushes in any file.
+    RecordingError
+        A file with pushes but no rest (the robot always moves): no noise level to judge them.
     """
     groups: dict[str, Group] = {}
     recs_out = []
@@ -497,6 +499,12 @@ def analyse(
         rec_out, t, pushes, rest = _pushes_and_rest(src, rest_margin, chunk_rows)
         recs_out.append(rec_out)
         total_pushes += len(pushes)
+        if pushes and not rest.any():
+            raise RecordingError(
+                f"{src.name or 'estimates'}: {len(pushes)} pushes but no rest (the robot never "
+                f"stands still more than {rest_margin:g} s from a push); the noise level that "
+                "every detection is judged against is measured at rest"
+            )
         if pushes:
             dithered = rec_out["dithered"]
             args = (quantile, floor, lag, big, chunk_rows)

@@ -163,12 +163,13 @@ def test_convert_bad_input_writes_nothing(cli, tmp_path):
 
 
 def test_convert_failing_write_leaves_no_temp_file(cli, sample_copy, tmp_path):
-    """When the rename fails (a folder is in the way) the error is one line, no temp file."""
+    """A folder in the way of the output file: one line (the output guard refuses it before any
+    work), no temp file, the folder untouched."""
     blocker = tmp_path / "out.parquet"
     blocker.mkdir()
     (blocker / "keep").write_text("x")
     res = cli("convert", sample_copy, blocker)
-    assert_user_error(res, r"out\.parquet: cannot write the parquet file")
+    assert_user_error(res, r"out\.parquet: is a folder; expected a file name$")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.parquet", "out.parquet"]
     assert (blocker / "keep").read_text() == "x"
 

@@ -226,7 +226,10 @@ def test_bad_fleet_input_one_line_exit_2(fleet, cli, tmp_path):
             f"{other}: the recording's robot is ur10e but the model {base} is for irb140",
         ),
         ([str(tmp_path / "nothing*.parquet"), "-o", tmp_path / "o2"], "matches no file"),
-        ([d / "logs", "-o", d], "the output folder is, contains or lies inside the input"),
+        (
+            [d / "logs", "-o", d],
+            f"{d}: refusing to write a folder that holds the input file {d / 'logs'}",
+        ),
         (
             [
                 d / "logs" / "r01_2026-01-10.parquet",

@@ -63,6 +63,7 @@ from ditherlab.recording import REGIME_NAMES, Recording, Regime
 from ditherlab.residual import (
     Scored,
     StatsBuilder,
+    check_noise,
     local,
     noband_rows,
     score_notes,
@@ -342,6 +343,7 @@ def diagnose(
                 tick()
             _absent_regimes(model, built, regimes, r.name)
             stats = built.finish(regimes)
+        check_noise(r.name, stats.sigma_hf)
         t = r.t if isinstance(r, Recording) else r.times()
         win = Windows(name, t[0], t[-1], model.n)
         left = {"near": 0, "rev": 0, "no_extraction": False}

@@ -63,7 +63,7 @@ def noise_floor_sq(sigma: np.ndarray, half: np.ndarray, moving: np.ndarray) -> n
     """
     s = np.asarray(sigma, dtype=float)
     h = np.asarray(half, dtype=float)
-    z = 2 * h / s
+    z = np.divide(2 * h, s, out=np.full(np.broadcast(h, s).shape, np.inf), where=s > 0)
     edge = s**2 / 2 + (s**2 + 4 * h**2) * norm.cdf(-z) - 2 * h * s * norm.pdf(z)
     return np.where(moving, s**2, edge)
 
@@ -150,14 +150,18 @@ class ResidualSums:
 class Windows:
     """The worst windows of one recording: window ``k`` is ``[t0 + k·w/2, t0 + k·w/2 + w)``
     (``t0`` the recording's first time stamp, ``t_end`` its last); each sample falls in two,
-    found by one division, and the sums per half-window are gathered by ``np.bincount``."""
+    found by one division, and the sums per half-window are gathered by ``np.bincount``.
+
+    Only the half-windows that hold samples are kept (their slot numbers and sums, a piece at a
+    time): memory and time follow the samples, not the time span — a log with a gap of 10⁷ s
+    in ``t`` would otherwise need 2·10⁷ slots per joint and quantity."""
 
     def __init__(self, name: str, t0: float, t_end: float, n: int, width: float = 1.0):
         self.name, self.t0, self.width, self.half = name, float(t0), width, width / 2
         self.nwin = int(math.ceil((float(t_end) - self.t0) / self.half))
-        self.samples = np.zeros(self.nwin + 1)
-        self.tot = np.zeros((self.nwin + 1, n))
-        self.cnt = np.zeros((self.nwin + 1, n))
+        self.n = n
+        #: per piece: (occupied slots (m,), samples (m,), energy sums (m, n), counts (m, n))
+        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
 
     def add(self, sc: Scored, keep: slice = slice(None)) -> None:
         ex, fl = excess_and_floor(sc, keep)
@@ -166,36 +170,68 @@ class Windows:
             return
         r = np.where(np.isfinite(ex), ex**2 / np.where(fl > 0, fl, 1.0), np.nan)
         k = np.floor((t - self.t0) / self.half).astype(np.int64)
-        ok = np.isfinite(r)
-        rz = np.where(ok, r, 0.0)
-        L = self.nwin + 1
-        self.samples += np.bincount(k, minlength=L)[:L]
+        keep_k = (k >= 0) & (k <= self.nwin)
+        slots, inv = np.unique(k[keep_k], return_inverse=True)
+        ok = np.isfinite(r[keep_k])
+        rz = np.where(ok, r[keep_k], 0.0)
+        L = len(slots)
+        tot, cnt = np.empty((L, r.shape[1])), np.empty((L, r.shape[1]))
         for j in range(r.shape[1]):
-            self.tot[:, j] += np.bincount(k, weights=rz[:, j], minlength=L)[:L]
-            self.cnt[:, j] += np.bincount(k, weights=ok[:, j].astype(float), minlength=L)[:L]
+            tot[:, j] = np.bincount(inv, weights=rz[:, j], minlength=L)
+            cnt[:, j] = np.bincount(inv, weights=ok[:, j].astype(float), minlength=L)
+        self.parts.append((slots, np.bincount(inv, minlength=L).astype(float), tot, cnt))
+
+    def _slots(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The occupied slots (sorted) and their sums over every piece (added in piece order)."""
+        if not self.parts:
+            e = np.zeros((0, self.n))
+            return np.zeros(0, np.int64), np.zeros(0), e, e
+        allk = np.concatenate([p[0] for p in self.parts])
+        keys, inv = np.unique(allk, return_inverse=True)
+        L = len(keys)
+        samples = np.bincount(inv, weights=np.concatenate([p[1] for p in self.parts]), minlength=L)
+        sums = []
+        for q in (2, 3):
+            vals = np.concatenate([p[q] for p in self.parts])
+            sums.append(
+                np.stack(
+                    [np.bincount(inv, weights=vals[:, j], minlength=L) for j in range(self.n)],
+                    axis=1,
+                ).reshape(L, self.n)
+            )
+        return keys, samples, sums[0], sums[1]
 
     def result(self) -> list[dict[str, Any]]:
         """Every window with more than three samples and a finite energy."""
-        nw = self.nwin
+        keys, s_samples, s_tot, s_cnt = self._slots()
+        wins = np.unique(np.concatenate([keys, keys - 1]))
+        wins = wins[(wins >= 0) & (wins < self.nwin)]
+
+        def at(c: np.ndarray, ks: np.ndarray) -> np.ndarray:  # the slots' sums, 0 when empty
+            i = np.minimum(np.searchsorted(keys, ks), max(len(keys) - 1, 0))
+            hit = keys[i] == ks if len(keys) else np.zeros(len(ks), bool)
+            out = np.zeros((len(ks), *c.shape[1:]))
+            out[hit] = c[i[hit]]
+            return out
 
         def per_window(c: np.ndarray) -> np.ndarray:  # slot k is in windows k and k - 1
-            return c[:nw] + c[1 : nw + 1]
+            return at(c, wins) + at(c, wins + 1)
 
-        samples, tot, cnt = per_window(self.samples), per_window(self.tot), per_window(self.cnt)
+        samples, tot, cnt = per_window(s_samples), per_window(s_tot), per_window(s_cnt)
         with np.errstate(invalid="ignore", divide="ignore"):
             per = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
         out = []
-        for w in np.flatnonzero((samples > 3) & np.isfinite(per).any(axis=1)):
-            j = int(np.nanargmax(per[w]))
-            start = self.t0 + w * self.half
+        for i in np.flatnonzero((samples > 3) & np.isfinite(per).any(axis=1)):
+            j = int(np.nanargmax(per[i]))
+            start = self.t0 + int(wins[i]) * self.half
             out.append(
                 {
                     "recording": self.name,
                     "t0": float(start),
                     "t1": float(start + self.width),
-                    "energy": float(nanmean(per[w])),
+                    "energy": float(nanmean(per[i])),
                     "worst_joint": j + 1,
-                    "worst_joint_ratio": float(math.sqrt(per[w, j])),
+                    "worst_joint_ratio": float(math.sqrt(per[i, j])),
                 }
             )
         return out

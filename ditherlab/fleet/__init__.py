@@ -27,7 +27,7 @@ from ditherlab.fleet.engine import TaskResult, run_tasks
 from ditherlab.fleet.job import COLUMNS, analyse_recording
 from ditherlab.fleet.summary import summarise, to_markdown
 from ditherlab.io import csv as csv_io
-from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text
+from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text, check_output
 from ditherlab.io.stream import Source
 from ditherlab.model import TorqueModel
 from ditherlab.recording import robot_label
@@ -141,21 +141,6 @@ def collect_inputs(
     return out
 
 
-def _check_out(out: Path, inputs: list[Path], force: bool) -> None:
-    o = out.resolve()
-    for p in inputs:
-        r = p.resolve()
-        if o == r or r.is_relative_to(o) or o.is_relative_to(r):
-            raise ConfigError(
-                f"{out}: the output folder is, contains or lies inside the input {p}; choose "
-                "another folder"
-            )
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise ConfigError(f"{out}: the folder is not empty; use --force to write into it")
-
-
 def _check_robots(
     items: list[tuple[Path, dict[str, Any]]], model: TorqueModel, read: dict[str, Any]
 ) -> None:
@@ -228,7 +213,7 @@ def run_fleet(
     extra = [Path(manifest)] if manifest else []
     if base is not None:
         extra.append(Path(base))
-    _check_out(out, [p for p, _ in items] + extra, force)
+    check_output(out, [p for p, _ in items] + extra, folder=True, force=force)
     base_text = None
     if base is not None:
         b = Path(base)

@@ -25,16 +25,17 @@ unknown robot or a URDF that does not parse.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from ditherlab.errors import ConfigError, FormatError
 from ditherlab.io import csv, mapping
-from ditherlab.io.atomic import check_not_input
+from ditherlab.io.atomic import check_output
 from ditherlab.io.common import check_units
 from ditherlab.recording import Recording
 
-__all__ = ["read", "write", "convert", "detect_format", "FORMATS"]
+__all__ = ["read", "write", "convert", "check_recording_output", "detect_format", "FORMATS"]
 
 #: Formats ``write`` can produce, by name.
 FORMATS = ("parquet", "csv", "mcap", "rosbag")
@@ -152,23 +153,39 @@ def write(rec: Recording, path: str | Path, *, format: str | None = None, **opti
         raise FormatError(f"{p}: cannot write the {format} file ({exc.strerror or exc})") from None
 
 
-def convert(src: str | Path, dst: str | Path, *, rows: int | None = None, **options: Any) -> Path:
+def check_recording_output(
+    dst: str | Path, inputs: Sequence[str | Path | None] = (), *, force: bool = False
+) -> Path:
+    """:func:`ditherlab.io.atomic.check_output` for a recording written by :func:`write`: a
+    path without a suffix is a ROS 2 bag folder, replaced as a whole (an existing non-empty one
+    only with ``force``, and only when it is a bag); a CSV file brings its sidecar."""
+    p = Path(dst)
+    bag = p.suffix == ""
+    return check_output(p, inputs, folder=bag, replace=bag, force=force)
+
+
+def convert(
+    src: str | Path,
+    dst: str | Path,
+    *,
+    rows: int | None = None,
+    force: bool = False,
+    **options: Any,
+) -> Path:
     """Read ``src`` (with reader ``options``, e.g. ``mapping=``, ``robot=``) and write ``dst``.
 
-    Refuses to write over the input (or over a CSV input's sidecar); the output is written
-    atomically, so a failure leaves no partial file. Parquet, CSV and ditherlab MCAP are read
-    and written ``rows`` at a time (:func:`ditherlab.io.stream.write_stream`; default
+    Refuses an output that is, lies inside or contains the input (or a CSV input's sidecar, or
+    the mapping file), an unwritable location, and an existing non-empty bag folder unless
+    ``force`` (:func:`check_recording_output`); the output is written atomically, so a failure
+    leaves no partial file. Parquet, CSV and ditherlab MCAP are read and written ``rows`` at a
+    time (:func:`ditherlab.io.stream.write_stream`; default
     :data:`ditherlab.io.stream.CHUNK_ROWS`). Returns the path written.
     """
     src, dst = Path(src), Path(dst)
     inputs = [src]
-    if src.suffix.lower() == ".csv":
-        inputs.append(csv.sidecar_path(src))
     if options.get("mapping") is not None:
         inputs.append(mapping.mapping_path(options["mapping"]))
-    check_not_input(dst, inputs)
-    if dst.suffix.lower() == ".csv":
-        check_not_input(csv.sidecar_path(dst), inputs)
+    check_recording_output(dst, inputs, force=force)
     from ditherlab.io.stream import open_source, write_stream  # it builds on this module
 
     return write_stream(open_source(src, **options), dst, **({"rows": rows} if rows else {}))

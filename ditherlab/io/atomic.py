@@ -15,20 +15,127 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.errors import DitherlabError
+from ditherlab.errors import ConfigError, DitherlabError
+
+#: the files a path brings along: a CSV file's metadata sidecar ``<stem>.json``
+#: (:func:`ditherlab.io.csv.sidecar_path`, which this layer cannot import)
+_COMPANION_SUFFIX = {".csv": ".json"}
 
 
-def check_not_input(out: str | Path, inputs: Iterable[str | Path]) -> None:
-    """Raise DitherlabError when ``out`` is one of ``inputs`` (same file on disk)."""
+def companions(path: str | Path) -> list[Path]:
+    """``path`` and the files read or written with it (a CSV file's sidecar ``<stem>.json``)."""
+    p = Path(path)
+    side = _COMPANION_SUFFIX.get(p.suffix.lower())
+    return [p] + ([p.with_suffix(side)] if side else [])
+
+
+def _is_bag(folder: Path) -> bool:
+    """True when ``folder`` is a ROS 2 bag folder (it holds ``metadata.yaml``)."""
+    return (folder / "metadata.yaml").is_file()
+
+
+def _same(a: Path, b: Path) -> bool:
+    if a.resolve() == b.resolve():
+        return True
+    if a.exists() and b.exists():
+        with contextlib.suppress(OSError):
+            return os.path.samefile(a, b)
+    return False
+
+
+def check_not_input(out: str | Path, inputs: Iterable[str | Path | None]) -> None:
+    """Raise ConfigError when ``out`` (or a CSV output's sidecar) is, lies inside or
+    contains one of ``inputs`` (files or folders; a CSV input brings its sidecar, a ROS 2 bag's
+    storage file its bag folder). The input part of :func:`check_output`."""
+    for o in companions(out):
+        ro = o.resolve()
+        for given in inputs:
+            if given is None:
+                continue
+            for p in companions(given):
+                note = "" if p == Path(given) else f" (the sidecar of {given})"
+                if p.is_file() and _is_bag(p.parent):  # a bag's storage file: the bag folder
+                    p, note = p.parent, f" (the ROS 2 bag of {given})"
+                what = f"{'folder' if p.is_dir() else 'file'} {p}{note}"
+                rp = p.resolve()
+                if _same(o, p):
+                    raise ConfigError(f"{o}: refusing to write over the input {what}")
+                if p.is_dir() and ro.is_relative_to(rp):
+                    raise ConfigError(f"{o}: refusing to write inside the input {what}")
+                if rp.is_relative_to(ro):
+                    raise ConfigError(
+                        f"{o}: refusing to write a folder that holds the input {what}"
+                    )
+
+
+def _writable_ancestor(path: Path) -> None:
+    """Raise ConfigError unless the nearest existing ancestor of ``path`` is a folder this
+    process may create files in (``path`` named in the message)."""
+    a = path.parent
+    while not a.exists() and a != a.parent:
+        a = a.parent
+    if not a.is_dir():
+        raise ConfigError(f"{path}: cannot write there: {a} is a file, not a folder")
+    if not os.access(a, os.W_OK | os.X_OK):
+        why = "permission denied"
+        with contextlib.suppress(OSError):
+            if os.statvfs(a).f_flag & os.ST_RDONLY:
+                why = "read-only file system"
+        raise ConfigError(f"{path}: cannot write in the folder {a} ({why})")
+
+
+def check_output(
+    out: str | Path,
+    inputs: Iterable[str | Path | None] = (),
+    *,
+    folder: bool = False,
+    replace: bool = False,
+    force: bool = False,
+) -> Path:
+    """The one guard of every output, called before any work: refuse (DitherlabError, one
+    sentence naming the path) what would lose data or fail late.
+
+    Refused: ``out`` equal to, inside or containing one of ``inputs``
+    (:func:`check_not_input`); a location that cannot be written (under a regular file, in a
+    folder without write permission, on a read-only file system); an existing path of the wrong
+    kind (a folder where a file is written, a file where a folder is); an existing non-empty
+    output folder unless ``force``.
+
+    Parameters
+    ----------
+    out : the output file or folder
+    inputs : the files and folders the command reads (None entries are skipped)
+    folder : ``out`` is a folder (a report folder; a ROS 2 bag folder with ``replace``)
+    replace : the writer replaces the whole folder (a ROS 2 bag): with ``force`` only an
+        existing bag folder may be replaced, never another non-empty folder
+    force : allow an existing non-empty output folder
+
+    Returns
+    -------
+    ``Path(out)``
+    """
     o = Path(out)
-    for i in inputs:
-        p = Path(i)
-        same = o.resolve() == p.resolve()
-        if not same and o.exists() and p.exists():
-            with contextlib.suppress(OSError):
-                same = os.path.samefile(o, p)
-        if same:
-            raise DitherlabError(f"{o}: refusing to write over the input file {p}")
+    if not folder and o.is_dir():
+        raise ConfigError(f"{o}: is a folder; expected a file name")
+    check_not_input(o, inputs)
+    for p in companions(o):
+        _writable_ancestor(p)
+    if not folder:
+        return o
+    if o.exists() and not o.is_dir():
+        raise ConfigError(f"{o}: exists and is not a folder")
+    if o.is_dir():
+        if not os.access(o, os.W_OK | os.X_OK):
+            raise ConfigError(f"{o}: cannot write in the folder (permission denied)")
+        if any(o.iterdir()):
+            if not force:
+                raise ConfigError(f"{o}: the folder is not empty; use --force to write into it")
+            if replace and not _is_bag(o):
+                raise ConfigError(
+                    f"{o}: the folder is not empty and not a ROS 2 bag (no metadata.yaml); "
+                    "refusing to replace it, even with --force"
+                )
+    return o
 
 
 def current_umask() -> int:
@@ -46,12 +153,15 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     temporary file is removed and ``path`` is untouched.
     """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{target.name}.",
-        suffix=suffix if suffix is not None else target.suffix,
-        dir=target.parent,
-    )
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{target.name}.",
+            suffix=suffix if suffix is not None else target.suffix,
+            dir=target.parent,
+        )
+    except OSError as exc:  # a file in the way, no permission, read-only: one line
+        raise DitherlabError(f"{target}: cannot write ({exc.strerror or exc})") from None
     os.close(fd)
     os.chmod(tmp, 0o666 & ~current_umask())  # mkstemp makes 0600; give the file the usual mode
     tmp_path = Path(tmp)

@@ -55,7 +55,7 @@ def describe(rec: Recording | Source, chunk_rows: int | None = None) -> dict[str
 
     Keys: ``file``, ``samples``, ``duration_s``, ``t_start_s``, ``sample_rate_hz`` (1 / median
     interval), ``dt_median_ms``, ``dt_jitter_ms`` (standard deviation of the interval),
-    ``dt_min_ms``, ``dt_max_ms``, ``robot``, ``joints`` (count), ``joint_names``, ``columns``
+    ``dt_min_ms``, ``dt_max_ms`` (None for one sample), ``robot``, ``joints`` (count), ``joint_names``, ``columns``
     (which optional families exist), ``extra_columns``, ``regimes`` (:func:`regime_fractions`),
     ``q_range_rad`` and ``tau_range_nm`` (per joint ``[min, max]``), and the metadata keys
     ``source``, ``notes``, ``tool_offset``, ``payload`` when present. ``chunk_rows``: rows
@@ -114,6 +114,10 @@ def describe(rec: Recording | Source, chunk_rows: int | None = None) -> dict[str
     for key in ("source", "notes", "tool_offset", "payload"):
         if key in meta:
             out[key] = meta[key]
+    if len(t_all) < 2:  # one sample: no interval (None, i.e. null in JSON, not NaN)
+        out.update(
+            dict.fromkeys(("sample_rate_hz", *(k for k in out if k.startswith("dt_"))), None)
+        )
     return out
 
 
@@ -136,7 +140,9 @@ def format_info(d: dict[str, Any]) -> str:
         f"samples    {d['samples']} over {d['duration_s']:.3f} s (t = {d['t_start_s']:.3f} s "
         "onwards)",
         f"rate       {d['sample_rate_hz']:.2f} Hz (interval {d['dt_median_ms']:.3f} ms, jitter "
-        f"{d['dt_jitter_ms']:.3f} ms std, {d['dt_min_ms']:.3f}..{d['dt_max_ms']:.3f} ms)",
+        f"{d['dt_jitter_ms']:.3f} ms std, {d['dt_min_ms']:.3f}..{d['dt_max_ms']:.3f} ms)"
+        if d["samples"] > 1
+        else "rate       unknown (one sample)",
         f"columns    t, q, tau{''.join(', ' + k for k in present)}"
         + (f"; absent: {', '.join(absent)}" if absent else ""),
     ]
