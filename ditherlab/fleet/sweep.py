@@ -49,7 +49,7 @@ from ditherlab.errors import ConfigError
 from ditherlab.fleet.engine import TaskResult, run_tasks
 from ditherlab.fleet.sweep_figures import plot_points, plot_tradeoff
 from ditherlab.identify import identify
-from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text
+from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text, check_output
 from ditherlab.recording import FORCE_AXES, Recording
 from ditherlab.replay import replay
 from ditherlab.sim import simulate
@@ -407,13 +407,6 @@ def run_point(config: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]
 
 
 # ------------------------------------------------------------------ the sweep
-def _check_out(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise ConfigError(f"{out}: the folder is not empty; use --force to write into it")
-
-
 def _read_config(path: str | Path | None) -> dict[str, Any]:
     """The user's simulator TOML as a nested dict, checked (errors name the file and key)."""
     if path is None:
@@ -608,8 +601,7 @@ def run_sweep(
     if pushes_per_direction is not None:
         base = _merge(base, {"push_campaign": {"pushes_per_direction": int(pushes_per_direction)}})
     points = grid_points(grid, base)
-    out = Path(out_dir)
-    _check_out(out, force)
+    out = check_output(out_dir, [config], folder=True, force=force)
     seeds = [int(seed) + 2 * r for r in range(int(repeats))]
     options = {"curve_boot": int(curve_boot), "vibration_limit": vibration_limit}
     runs = [(p, s) for p in points for s in seeds]
