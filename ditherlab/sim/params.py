@@ -12,6 +12,7 @@ import copy
 import tomllib
 from collections.abc import Mapping
 from importlib import resources
+from math import isfinite
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,8 @@ def _read_config(config: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any]
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the simulator config ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not valid TOML (not UTF-8 text)") from None
     try:
         return tomllib.loads(text), str(path)
     except tomllib.TOMLDecodeError as exc:
@@ -48,10 +51,14 @@ def _check_value(default: Any, value: Any, key: str, where: str) -> Any:
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: key '{key}' = {value!r}; expected true or false")
         return value
-    if isinstance(default, int | float):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: key '{key}' = {value!r}; expected a number")
-        return type(default)(value) if isinstance(default, float) else value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: key '{key}' = {value!r}; expected an integer")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not isfinite(value):
+            raise ConfigError(f"{where}: key '{key}' = {value!r}; expected a finite number")
+        return float(value)
     if isinstance(default, list):
         if isinstance(value, int | float | bool) and default and not isinstance(default[0], list):
             value = [value] * len(default)
