@@ -52,6 +52,7 @@ __all__ = [
     "Table",
     "Text",
     "check",
+    "count",
     "shown",
 ]
 
@@ -68,6 +69,11 @@ def shown(value: Any, limit: int = 40) -> str:
     """``repr`` of a value, cut to ``limit`` characters (a URDF text can be 100 kB)."""
     r = repr(value)
     return r if len(r) <= limit else r[: limit - 3] + "..."
+
+
+def count(values: Any) -> str:
+    """``"1 value"``, ``"5 values"``: the length of a list, for messages."""
+    return f"{len(values)} value{'' if len(values) == 1 else 's'}"
 
 
 def _got(value: Any) -> str:
@@ -262,9 +268,9 @@ class ListOf(Node):
         n = self._n(ctx)
         if n is not None and len(value) != n:
             per = f" (one per {self.per})" if self.per else ""
-            raise _Fail(key, f"got {len(value)} values", f"expected {n}{per}")
+            raise _Fail(key, f"got {count(value)}", f"expected {n}{per}")
         if len(value) < self.min_length:
-            raise _Fail(key, f"got {len(value)} values", f"expected at least {self.min_length}")
+            raise _Fail(key, f"got {count(value)}", f"expected at least {self.min_length}")
         for i, v in enumerate(value):
             self.item.run(v, f"{key}[{i + 1}]", ctx)
 
