@@ -36,8 +36,9 @@ is a complete example)::
 
 The value of each recording column is ``raw × scale × Π factors × unit factor + offset``
 (e.g. motor current [A] × torque constant [N·m/A] × gear ratio → tau [N·m]). Every key is
-checked: an unknown table, key or unit, a list of the wrong length, a column out of range or not
-in the header raises ConfigError naming the mapping file and the key.
+checked (:data:`MAPPING_SCHEMA`, then against the log): an unknown table, key or unit, a value of
+the wrong kind, a list of the wrong length, a column out of range or not in the header raises
+ConfigError naming the mapping file and the key.
 """
 
 from __future__ import annotations
@@ -217,9 +218,7 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
 
     cols: dict[str, np.ndarray] = {}
     tspec = spec["time"]
-    tunit = tspec.get("unit", "s")
-    if tunit not in TIME_UNITS:
-        raise ConfigError(f"{mp}: time.unit is {tunit!r}, expected one of {', '.join(TIME_UNITS)}")
+    tunit = tspec.get("unit", "s")  # units, kinds and keys: checked by MAPPING_SCHEMA
     cols["t"] = reader.get(tspec.get("column"), "t", "time.column") * TIME_UNITS[tunit] + float(
         tspec.get("offset", 0.0)
     )
@@ -290,10 +289,7 @@ def _family(
         names = list(WRENCH_COLUMNS)
     else:
         units = FAMILY_UNITS[fam]
-        unit = sub.get("unit", next(iter(units)))
-        if unit not in units:
-            raise ConfigError(f"{mp}: {key}.unit is {unit!r}, expected one of {', '.join(units)}")
-        unit_factor = units[unit]
+        unit_factor = units[sub.get("unit", next(iter(units)))]
         names = [f"{fam}_{j + 1}" for j in range(n)]
     scale = _per_joint(sub.get("scale", 1.0), n, mp, f"{key}.scale")
     factors = sub.get("factors", [])
