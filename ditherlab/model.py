@@ -39,7 +39,18 @@ from ditherlab.errors import ModelError
 from ditherlab.io.atomic import atomic_write_text, plain
 from ditherlab.recording import PAYLOAD_NODE, ROBOT_NODE, TOOL_OFFSET_NODE
 from ditherlab.robot import builtin_robots, builtin_urdf
-from ditherlab.schema import Either, Integer, ListOf, MapOf, Number, Table, Text, check, count
+from ditherlab.schema import (
+    Either,
+    Integer,
+    ListOf,
+    MapOf,
+    Number,
+    Table,
+    Text,
+    check,
+    count,
+    join_key,
+)
 from ditherlab.signal import DITHER, MOVING, REGIME_NAMES, STILL, Regime
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -430,8 +441,8 @@ class TorqueModel:
                 # per-joint lists have one value per listed joint (shared effects list none)
                 if joints and isinstance(v, list) and len(v) != len(joints):
                     raise ModelError(
-                        f"{where}effects[{i + 1}].params.{k}: got {count(v)}; expected "
-                        f"{len(joints)} (one per joint in effects[{i + 1}].joints)"
+                        f"{where}{join_key(f'effects[{i + 1}].params', k)}: got {count(v)}; "
+                        f"expected {len(joints)} (one per joint in effects[{i + 1}].joints)"
                     )
             effects.append(EffectSpec(e["name"], joints, params, source=source))
         return cls(

@@ -53,6 +53,7 @@ __all__ = [
     "Text",
     "check",
     "count",
+    "join_key",
     "shown",
 ]
 
@@ -80,7 +81,12 @@ def _got(value: Any) -> str:
     return f"got {shown(value)}"
 
 
-def _join(key: str, sub: str) -> str:
+def join_key(key: str, sub: Any) -> str:
+    """``key.sub``; a key that is empty, not printable or holds a dot or a space is quoted
+    (``'\\r'``), so that a message stays one readable line."""
+    sub = str(sub)
+    if not sub or not sub.isprintable() or any(c in sub for c in ". []"):
+        sub = repr(sub)
     return f"{key}.{sub}" if key else sub
 
 
@@ -292,7 +298,7 @@ class MapOf(Node):
         if not self.accepts(value):
             raise _Fail(key, _got(value), self.expected(ctx))
         for k, v in value.items():
-            self.value.run(v, _join(key, str(k)), ctx)
+            self.value.run(v, join_key(key, k), ctx)
 
 
 @dataclass(frozen=True)
@@ -320,15 +326,15 @@ class Table(Node):
             for k in value:
                 if k not in self.keys:
                     raise _Fail(
-                        _join(key, str(k)),
+                        join_key(key, k),
                         "unknown key",
                         "one of " + ", ".join(sorted(self.keys)),
                     )
         for k, node in self.keys.items():
             if k in value:
-                node.run(value[k], _join(key, k), ctx)
+                node.run(value[k], join_key(key, k), ctx)
             elif k in self.required:
-                raise _Fail(_join(key, k), "missing", node.expected(ctx))
+                raise _Fail(join_key(key, k), "missing", node.expected(ctx))
 
 
 @dataclass(frozen=True)

@@ -171,6 +171,18 @@ def test_model_file_wrong_type_or_range_is_one_line(files, key, value, message):
     assert_one_line(replay(files, p), f"{p}: {message}")
 
 
+def test_a_key_with_a_line_break_stays_on_one_line(files):
+    """Found by the property test below: an unknown key "\\r" printed raw split the line."""
+    d = model_dict(files)
+    d["\r"] = ""
+    p = write_model(files["dir"] / "cr.toml", d)
+    assert_one_line(
+        replay(files, p),
+        f"{p}: '\\r': unknown key; expected one of effects, history, n_joints, notes, payload, "
+        "prior, regimes, robot, schema, tool_offset, version",
+    )
+
+
 def test_model_file_missing_key_and_not_utf8(files):
     """A missing required key and a file that is not text are one line each."""
     d = model_dict(files)
@@ -383,8 +395,22 @@ MAPPING = (
             "[columns.tau]\nscale = 'x'",
             "columns.tau.scale: got 'x'; expected a number or a list of numbers (one per column)",
         ),
+        (
+            "[columns.q]",
+            "[meta]\nsample_rate_hz = 'fast'\n[columns.q]",
+            "meta.sample_rate_hz: got 'fast'; expected a number in (0, 1e+06] [Hz]",
+        ),
     ],
-    ids=["header", "skip_rows", "encoding", "time.column", "time.offset", "payload", "scale"],
+    ids=[
+        "header",
+        "skip_rows",
+        "encoding",
+        "time.column",
+        "time.offset",
+        "payload",
+        "scale",
+        "meta",
+    ],
 )
 def test_mapping_file_wrong_type_is_one_line(files, old, new, message):
     """A mapping file's value of the wrong kind names the mapping file and the key."""

@@ -58,6 +58,7 @@ from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options, 
 from ditherlab.recording import (
     PAYLOAD_NODE,
     SCHEMA,
+    STORED_META_SCHEMA,
     TOOL_OFFSET_NODE,
     WRENCH_COLUMNS,
     Recording,
@@ -127,7 +128,7 @@ MAPPING_SCHEMA = Table(
                 "payload": PAYLOAD_NODE,
             }
         ),
-        "meta": MapOf(what="a table of metadata"),
+        "meta": STORED_META_SCHEMA,
         "columns": Table(
             keys={
                 **{fam: _family_node(tuple(units)) for fam, units in FAMILY_UNITS.items()},
