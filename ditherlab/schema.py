@@ -10,15 +10,16 @@ parsed value (TOML or JSON: dicts, lists, str, int, float, bool) and raises the 
 type at the first break, as one line::
 
     model.toml: n_joints: got 'six'; expected an integer in [1, 64]
-    run.json: payload.mass: got 'two'; expected a number >= 0 [kg]
     model.toml: regimes.still.tau_max[1]: got '9.4'; expected a number in [-1e+06, 1e+06] [N·m]
     model.toml: regimes.still.sigma: got 5 values; expected 6 (one per joint)
     model.toml: priors: unknown key; expected one of effects, history, n_joints, ...
-    model.toml: robot: missing; expected a built-in robot name or a table {urdf, tool_frame}
+    model.toml: robot: missing; expected a built-in robot name such as 'irb140' or an object ...
+    run.json: metadata key payload.mass: got 'two'; expected a number in [0, 10000] [kg]
 
 Keys are dotted paths; list positions count from 1 (like joints). Numbers are ints or floats,
-never bools or text, and always finite unless a node allows ``inf``; every number has a range, so
-nothing downstream overflows (a band of ±1e308 would make ``(b - a)**2`` infinite). A length may
+never bools or text, and always finite unless a node allows ``inf``; the numbers the estimator
+computes with have ranges, so nothing downstream overflows (a band of ±1e308 would make
+``(b - a)**2`` infinite, and numpy's overflow warning would precede the error line). A length may
 name a value bound earlier in the same file (``n_joints`` binds ``n``; ``regimes.*.sigma`` has
 ``n`` values).
 
@@ -27,8 +28,9 @@ Its schema is about as long as the one here, but its errors need translating int
 one line (union members appear in the key path, ``robot.str``; the wording is pydantic's, "Input
 should be a valid dictionary or instance of Effect"), a length that depends on another key needs a
 model validator whose message pydantic rewraps, the simulator's schema is derived from a TOML
-file at run time (``create_model``), and importing it costs 0.16 s at every start. This module is
-one small function per node type and nothing to translate.
+file at run time (``create_model``), and importing it costs 0.16 s at every start. msgspec is not
+installed (a new dependency) and its messages would need the same translation. This module is one
+small class per node type, its messages are the project's own, and it has no dependency.
 """
 
 from __future__ import annotations
