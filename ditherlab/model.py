@@ -37,6 +37,20 @@ import tomli_w
 
 from ditherlab.errors import ModelError
 from ditherlab.io.atomic import atomic_write_text, plain
+from ditherlab.recording import PAYLOAD_NODE, ROBOT_NODE, TOOL_OFFSET_NODE
+from ditherlab.robot import builtin_robots, builtin_urdf
+from ditherlab.schema import (
+    Either,
+    Integer,
+    ListOf,
+    MapOf,
+    Number,
+    Table,
+    Text,
+    check,
+    count,
+    join_key,
+)
 from ditherlab.signal import DITHER, MOVING, REGIME_NAMES, STILL, Regime
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -53,11 +67,69 @@ __all__ = [
     "STILL",
     "Band",
     "EffectSpec",
+    "MODEL_SCHEMA",
     "Regime",
     "TorqueModel",
 ]
 #: The paper's prior (§V): F_bar = 0, R_F = diag(20, 20, 20, 0.3, 0.3, 0.3)^2.
 PAPER_PRIOR_SIGMA = (20.0, 20.0, 20.0, 0.3, 0.3, 0.3)
+
+#: Largest band edge, sliding friction or prior value a model file may hold [N·m, N]: beyond
+#: any robot, and small enough that squares and sums of them stay finite.
+MAX_TORQUE = 1e6
+#: Smallest noise level [N·m]: below it 1/sigma^2 overflows in the estimator's sums.
+MIN_SIGMA = 1e-9
+MAX_JOINTS = 64
+_PER_JOINT = {"length": "n", "per": "joint"}
+_BAND = Table(
+    keys={
+        "tau_min": ListOf(item=Number(-MAX_TORQUE, MAX_TORQUE, "N·m"), **_PER_JOINT),
+        "tau_max": ListOf(item=Number(-MAX_TORQUE, MAX_TORQUE, "N·m"), **_PER_JOINT),
+        # positive and >= MIN_SIGMA: TorqueModel.validate, for files and in-memory models
+        "sigma": ListOf(item=Number(None, MAX_TORQUE, "N·m"), **_PER_JOINT),
+        "coulomb": ListOf(item=Number(-MAX_TORQUE, MAX_TORQUE, "N·m"), **_PER_JOINT),
+        "viscous": ListOf(item=Number(-MAX_TORQUE, MAX_TORQUE, "N·m·s/rad"), **_PER_JOINT),
+        # standard errors, only printed; -1 where none was estimated
+        "stderr": MapOf(value=ListOf(item=Number(-1.0, 1e12), **_PER_JOINT)),
+    },
+    required=("tau_min", "tau_max", "sigma"),
+)
+_PARAM = Number(-1e9, 1e9)
+#: The model file (see the module docstring); ``n_joints`` gives the lengths of the per-joint
+#: lists and the range of ``effects.joints``.
+MODEL_SCHEMA = Table(
+    keys={
+        "schema": Text(choices=(SCHEMA,)),
+        "robot": ROBOT_NODE,
+        "n_joints": Integer(1, MAX_JOINTS, bind="n"),
+        "version": Integer(1),
+        "notes": Text(),
+        "tool_offset": TOOL_OFFSET_NODE,
+        "payload": PAYLOAD_NODE,
+        "prior": Table(
+            keys={
+                "mean": ListOf(item=Number(-MAX_TORQUE, MAX_TORQUE, "N, N·m"), length=6),
+                "sigma": ListOf(item=Number(0.0, MAX_TORQUE, "N, N·m", inf=True), length=6),
+            }
+        ),
+        "regimes": Table(keys={name: _BAND for name in REGIME_NAMES}),
+        "effects": ListOf(
+            item=Table(
+                keys={
+                    "name": Text(nonempty=True, what="an effect name"),
+                    "joints": ListOf(item=Integer(1, "n")),
+                    "params": MapOf(
+                        value=Either(options=(_PARAM, ListOf(item=_PARAM))),
+                        what="a table of parameters (numbers or lists of numbers)",
+                    ),
+                },
+                required=("name",),
+            )
+        ),
+        "history": ListOf(item=MapOf(what="a table (one diagnose run)")),
+    },
+    required=("schema", "robot", "n_joints"),
+)
 
 
 @dataclass
@@ -130,6 +202,8 @@ class EffectSpec:
     name: str
     joints: list[int]
     params: dict[str, Any] = field(default_factory=dict)
+    #: the model file it was read from, for messages
+    source: str | None = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "joints": list(self.joints), "params": plain(self.params)}
@@ -171,7 +245,7 @@ class TorqueModel:
 
     # -------------------------------------------------------------- checks
     def validate(self) -> None:
-        """Raise ModelError for inverted bands, non-positive noise or wrong lengths."""
+        """Raise ModelError for inverted bands, noise below :data:`MIN_SIGMA` or wrong lengths."""
         where = f"{self.source}: " if self.source else ""
         if np.any(self.prior_sigma < 0) or np.any(np.isnan(self.prior_sigma)):
             raise ModelError(f"{where}prior.sigma is {self.prior_sigma.tolist()}, expected >= 0")
@@ -197,12 +271,12 @@ class TorqueModel:
                     f"{where}regimes.{name} band of joint {j + 1} is inverted: "
                     f"tau_min={b.tau_min[j]:g} > tau_max={b.tau_max[j]:g} N·m"
                 )
-            bad = np.flatnonzero(~(b.sigma > 0))
+            bad = np.flatnonzero(~(b.sigma >= MIN_SIGMA))
             if bad.size:
                 j = int(bad[0])
                 raise ModelError(
                     f"{where}regimes.{name}.sigma of joint {j + 1} is {b.sigma[j]:g} N·m, "
-                    "expected a positive noise level"
+                    f"expected a positive noise level (at least {MIN_SIGMA:g} N·m)"
                 )
         for e in self.effects:
             badj = [j for j in e.joints if not 1 <= int(j) <= self.n]
@@ -228,24 +302,33 @@ class TorqueModel:
         return copy.deepcopy(self)
 
     def same_robot(self, spec: str | dict) -> bool:
-        """Whether a recording's ``robot`` metadata entry is this model's robot (the same
-        built-in name, or the same URDF text)."""
+        """Whether a recording's ``robot`` metadata entry is this model's robot: the same
+        built-in name, or the same URDF text (a built-in name stands for its URDF, so a
+        recording that embeds the unchanged built-in URDF is that robot)."""
         m = self.robot
-        if isinstance(m, str) or isinstance(spec, str):
+        if isinstance(m, str) and isinstance(spec, str):
             return m == spec
-        return m.get("urdf") == spec.get("urdf")
+        a, b = _urdf_text(m), _urdf_text(spec)
+        return a is not None and b is not None and a.strip() == b.strip()
 
     def check_robot(self, rec: Recording) -> None:
         """Raise ModelError when the recording's robot is not the model's (name/URDF or joint
         count)."""
-        spec_m = self.robot
-        if not (self.n == rec.n and self.same_robot(rec.meta["robot"])):
-            mlabel = spec_m if isinstance(spec_m, str) else spec_m.get("name", "urdf")
-            where = f"{rec.name}: " if rec.name else ""
+        spec_m, spec_r = self.robot, rec.meta["robot"]
+        if self.n == rec.n and self.same_robot(spec_r):
+            return
+        mlabel = spec_m if isinstance(spec_m, str) else spec_m.get("name", "urdf")
+        where = f"{rec.name}: " if rec.name else ""
+        model = f"the model {self.source}" if self.source else "the model"
+        if self.n == rec.n and mlabel == rec.robot_label:
             raise ModelError(
-                f"{where}the recording's robot is {rec.robot_label} with {rec.n} joints but the "
-                f"model {self.source or ''} is for {mlabel} with {self.n} joints".replace("  ", " ")
+                f"{where}the recording's robot {rec.robot_label} ({_kind(spec_r)}) is not "
+                f"{model}'s {mlabel} ({_kind(spec_m)}): their URDF texts differ"
             )
+        raise ModelError(
+            f"{where}the recording's robot is {rec.robot_label} with {rec.n} joints but "
+            f"{model} is for {mlabel} with {self.n} joints"
+        )
 
     def sample_bands(
         self, reg: np.ndarray, dq: np.ndarray, *, dither: bool = False
@@ -332,43 +415,45 @@ class TorqueModel:
         return atomic_write_text(Path(path), self.dumps())
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any], source: str | None = None) -> TorqueModel:
+    def from_dict(cls, d: Any, source: str | None = None) -> TorqueModel:
+        """A model from a parsed model file, checked against :data:`MODEL_SCHEMA` first.
+
+        Raises ModelError naming ``source``, the key, the value and what was expected.
+        """
+        n = check(d, MODEL_SCHEMA, source, ModelError)["n"]
         where = f"{source}: " if source else ""
-        if d.get("schema") != SCHEMA:
-            raise ModelError(f"{where}key 'schema' is {d.get('schema')!r}, expected {SCHEMA!r}")
-        for key in ("robot", "n_joints"):
-            if key not in d:
-                raise ModelError(f"{where}key {key!r} is missing")
-        regimes = {}
-        for name, b in (d.get("regimes") or {}).items():
-            try:
-                regimes[name] = Band(
-                    tau_min=b["tau_min"],
-                    tau_max=b["tau_max"],
-                    sigma=b["sigma"],
-                    coulomb=b.get("coulomb"),
-                    viscous=b.get("viscous"),
-                    stderr=b.get("stderr", {}),
-                )
-            except KeyError as exc:
-                raise ModelError(f"{where}regimes.{name}.{exc.args[0]} is missing") from None
+        regimes = {
+            name: Band(
+                tau_min=b["tau_min"],
+                tau_max=b["tau_max"],
+                sigma=b["sigma"],
+                coulomb=b.get("coulomb"),
+                viscous=b.get("viscous"),
+                stderr=b.get("stderr", {}),
+            )
+            for name, b in (d.get("regimes") or {}).items()
+        }
         prior = d.get("prior", {})
         effects = []
         for i, e in enumerate(d.get("effects", [])):
-            if "name" not in e:
-                raise ModelError(f"{where}effects[{i}].name is missing")
-            effects.append(
-                EffectSpec(e["name"], [int(j) for j in e.get("joints", [])], e.get("params", {}))
-            )
+            joints, params = list(e.get("joints", [])), dict(e.get("params", {}))
+            for k, v in params.items():
+                # per-joint lists have one value per listed joint (shared effects list none)
+                if joints and isinstance(v, list) and len(v) != len(joints):
+                    raise ModelError(
+                        f"{where}{join_key(f'effects[{i + 1}].params', k)}: got {count(v)}; "
+                        f"expected {len(joints)} (one per joint in effects[{i + 1}].joints)"
+                    )
+            effects.append(EffectSpec(e["name"], joints, params, source=source))
         return cls(
             robot=d["robot"],
-            n=int(d["n_joints"]),
+            n=n,
             regimes=regimes,
             prior_mean=prior.get("mean", [0.0] * 6),
-            prior_sigma=[float(s) for s in prior.get("sigma", PAPER_PRIOR_SIGMA)],
+            prior_sigma=prior.get("sigma", PAPER_PRIOR_SIGMA),
             effects=effects,
             history=list(d.get("history", [])),
-            version=int(d.get("version", 1)),
+            version=d.get("version", 1),
             tool_offset=d.get("tool_offset"),
             payload=d.get("payload"),
             notes=d.get("notes", ""),
@@ -382,10 +467,27 @@ class TorqueModel:
         if not p.is_file():
             raise ModelError(f"{p}: no such model file")
         try:
-            d = tomllib.loads(p.read_text(encoding="utf-8"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            text = p.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ModelError(f"{p}: cannot read the model file ({exc.strerror})") from None
+        except UnicodeDecodeError:
+            raise ModelError(f"{p}: not a valid TOML file (not UTF-8 text)") from None
+        try:
+            d = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
             raise ModelError(f"{p}: not a valid TOML file ({exc})") from None
         return cls.from_dict(d, source=str(p))
+
+
+def _urdf_text(spec: str | dict) -> str | None:
+    """The URDF text a ``robot`` entry stands for (a built-in's file), or None."""
+    if isinstance(spec, str):
+        return builtin_urdf(spec) if spec in builtin_robots() else None
+    return spec.get("urdf")
+
+
+def _kind(spec: str | dict) -> str:
+    return "built-in" if isinstance(spec, str) else "URDF in the metadata"
 
 
 def _inf_safe(v: np.ndarray) -> list[float]:

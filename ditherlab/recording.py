@@ -8,6 +8,7 @@ gearbox): ``q: (N, n) [rad]``, ``tau: (N, n) [N·m]``, ``wrench: (N, 6) [N, N·m
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import re
 from collections.abc import Mapping
@@ -20,6 +21,7 @@ import pandas as pd
 
 from ditherlab.errors import RecordingError, where_prefix
 from ditherlab.robot import RobotModel
+from ditherlab.schema import Either, Flag, ListOf, Number, Table, Text, check
 from ditherlab.signal import DITHER, MOVING, REGIME_NAMES, STILL, Regime, smooth_derivative
 
 SCHEMA = "ditherlab.recording/1"
@@ -35,9 +37,70 @@ JOINT_FAMILIES: dict[str, tuple[bool, str]] = {
 }
 _JOINT_COL = re.compile(r"^(q|dq|tau|tau_ffw|temp)_(\d+)$")
 
+#: Longest tool offset or payload lever accepted [m], heaviest payload [kg], fastest rate [Hz]:
+#: far beyond any robot, small enough that nothing downstream overflows.
+MAX_LENGTH_M, MAX_MASS_KG, MAX_RATE_HZ = 100.0, 1e4, 1e6
+#: A recording's ``robot`` entry (also a model file's): a built-in name or an embedded URDF.
+ROBOT_NODE = Either(
+    options=(
+        Text(nonempty=True),
+        Table(
+            keys={
+                "urdf": Text(nonempty=True, what="URDF text"),
+                "tool_frame": Text(nonempty=True, what="the name of a URDF link"),
+                "name": Text(),
+            },
+            required=("urdf", "tool_frame"),
+        ),
+    ),
+    what="a built-in robot name such as 'irb140' or an object {urdf, tool_frame}",
+)
+#: ``tool_offset``: [x, y, z] in the tool frame [m].
+TOOL_OFFSET_NODE = ListOf(item=Number(-MAX_LENGTH_M, MAX_LENGTH_M, "m"), length=3, per="axis")
+#: ``payload``: a point mass [kg] at ``com`` [m] in the tool frame.
+PAYLOAD_NODE = Table(
+    keys={"mass": Number(0.0, MAX_MASS_KG, "kg"), "com": TOOL_OFFSET_NODE},
+    required=("mass",),
+)
+#: ``dither`` (and ``sim.dither``): whether the dither ran, or its period [s] / omega [rad/s]
+#: (:func:`meta_dither_period`).
+_DITHER_NODE = Either(
+    options=(
+        Flag(),
+        Table(
+            keys={
+                "period": Number(0.0, 1e6, "s", lo_open=True),
+                "omega": Number(0.0, 1e9, "rad/s", lo_open=True),
+            },
+            open=True,
+        ),
+    ),
+    what="true, false or a table {period [s], omega [rad/s]}",
+)
+#: The recording's metadata (RECORDING.md); other keys (``sim``, ``mapping``, ...) pass through.
+META_SCHEMA = Table(
+    keys={
+        "schema": Text(choices=(SCHEMA,)),
+        "robot": ROBOT_NODE,
+        "tool_offset": TOOL_OFFSET_NODE,
+        "payload": PAYLOAD_NODE,
+        "sample_rate_hz": Number(0.0, MAX_RATE_HZ, "Hz", lo_open=True),
+        "source": Text(),
+        "notes": Text(),
+        "dither": _DITHER_NODE,
+        "sim": Table(keys={"dither": _DITHER_NODE}, open=True),
+    },
+    required=("schema", "robot"),
+    open=True,
+)
+#: The metadata a file stores (a sidecar, Parquet's or MCAP's): ``schema`` and ``robot`` may
+#: come from reader options instead.
+STORED_META_SCHEMA = dataclasses.replace(META_SCHEMA, required=())
+
 __all__ = [
     "DITHER",
     "FORCE_AXES",
+    "META_SCHEMA",
     "MOVING",
     "REGIME_NAMES",
     "STILL",
@@ -548,58 +611,14 @@ def share_meta(meta: Mapping[str, Any], name: str | None = None) -> SharedMeta:
 
 
 def _checked_meta(meta: Any, where: str) -> dict[str, Any]:
-    """A deep copy of the metadata after the schema, robot, tool_offset and payload checks
-    (a :class:`SharedMeta` is already both: itself)."""
+    """A deep copy of the metadata after the check against :data:`META_SCHEMA` (a
+    :class:`SharedMeta` is already both: itself)."""
     if isinstance(meta, SharedMeta):
         return meta
     if not isinstance(meta, Mapping):
         raise RecordingError(f"{where}metadata must be a JSON object, got {type(meta).__name__}")
-    meta = copy.deepcopy(dict(meta))
-    _check_schema(meta.get("schema"), where)
-    _check_robot_entry(meta.get("robot"), where)
-    if "tool_offset" in meta:
-        _check_tool_offset(meta["tool_offset"], where)
-    if "payload" in meta:
-        _check_payload(meta["payload"], where)
-    return meta
-
-
-def _check_schema(schema: Any, where: str) -> None:
-    if schema is None:
-        raise RecordingError(f"{where}metadata key 'schema' is missing (expected {SCHEMA!r})")
-    if schema != SCHEMA:
-        raise RecordingError(f"{where}metadata key 'schema' is {schema!r}, expected {SCHEMA!r}")
-
-
-def _check_robot_entry(robot: Any, where: str) -> None:
-    """``robot`` is a name or an object with URDF text and a tool frame (not loaded here)."""
-    if robot is None:
-        raise RecordingError(
-            f"{where}metadata key 'robot' is missing (expected a built-in name such as 'irb140' "
-            "or {'urdf': ..., 'tool_frame': ...})"
-        )
-    if isinstance(robot, Mapping):
-        for key in ("urdf", "tool_frame"):
-            if not isinstance(robot.get(key), str) or not robot.get(key):
-                raise RecordingError(f"{where}metadata key 'robot.{key}' is missing or not text")
-    elif not isinstance(robot, str):
-        raise RecordingError(
-            f"{where}metadata key 'robot' is {robot!r}, expected a name or an object with 'urdf'"
-        )
-
-
-def _check_tool_offset(off: Any, where: str) -> None:
-    if not (isinstance(off, list | tuple) and len(off) == 3):
-        raise RecordingError(f"{where}metadata key 'tool_offset' is {off!r}, expected [x, y, z]")
-
-
-def _check_payload(p: Any, where: str) -> None:
-    if not (isinstance(p, Mapping) and "mass" in p):
-        raise RecordingError(
-            f"{where}metadata key 'payload' is {p!r}, expected {{'mass': kg, 'com': [x, y, z]}}"
-        )
-    if float(p["mass"]) < 0:
-        raise RecordingError(f"{where}metadata key 'payload.mass' is {p['mass']}, expected >= 0")
+    check(meta, META_SCHEMA, where.removesuffix(": "), RecordingError, label="metadata key ")
+    return copy.deepcopy(dict(meta))
 
 
 def _joint_columns(cols: list[Any], where: str) -> tuple[dict[str, set[int]], int]:

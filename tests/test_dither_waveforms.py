@@ -190,15 +190,17 @@ def test_params_reject_unknown_waveform_and_wrong_type():
     with pytest.raises(ConfigError) as e:
         load_params(overrides={"dither": {"waveform": "sawtooth"}})
     assert str(e.value) == (
-        "config: key 'dither.waveform' = 'sawtooth'; expected one of square, sine, triangle"
+        "options: dither.waveform: got 'sawtooth'; expected one of 'square', 'sine', 'triangle'"
     )
     with pytest.raises(ConfigError) as e:
         load_params(overrides={"dither": {"waveform": 3}})
-    assert str(e.value) == "options: key 'dither.waveform' = 3; expected text"
+    assert str(e.value) == (
+        "options: dither.waveform: got 3; expected one of 'square', 'sine', 'triangle'"
+    )
     with pytest.raises(ConfigError) as e:
         simulate("push-campaign", config={"dither": {"waveform": "saw"}}, pushes_per_direction=1)
     assert str(e.value) == (
-        "config: key 'dither.waveform' = 'saw'; expected one of square, sine, triangle"
+        "config: dither.waveform: got 'saw'; expected one of 'square', 'sine', 'triangle'"
     )
 
 

@@ -543,7 +543,7 @@ def test_mapping_errors_name_the_key(tmp_path, shared_data):
     cases = [
         (
             base.replace("[columns.q]", "[columns.q]\nscal = 2"),
-            r"unknown key columns\.q\.scal \(expected one of columns, factors, offset, scale, unit\)",
+            r"columns\.q\.scal: unknown key; expected one of columns, factors, offset, scale, unit$",
         ),
         (
             base.replace("scale = [10.0, 10.6956,", "scale = ["),
@@ -557,7 +557,7 @@ def test_mapping_errors_name_the_key(tmp_path, shared_data):
         ),
         (
             base.replace('unit = "rad"', 'unit = "grad"'),
-            r"columns\.q\.unit is 'grad', expected one of rad, deg",
+            r"columns\.q\.unit: got 'grad'; expected one of 'rad', 'deg'$",
         ),
     ]
     for i, (text_, pattern) in enumerate(cases):

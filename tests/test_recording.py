@@ -115,7 +115,7 @@ def test_unknown_schema():
     with pytest.raises(RecordingError) as exc:
         Recording(table(), {"schema": "ditherlab.recording/9", "robot": "irb140"}, name="r")
     assert str(exc.value) == (
-        "r: metadata key 'schema' is 'ditherlab.recording/9', expected 'ditherlab.recording/1'"
+        "r: metadata key schema: got 'ditherlab.recording/9'; expected 'ditherlab.recording/1'"
     )
 
 
@@ -124,8 +124,8 @@ def test_missing_robot():
     with pytest.raises(RecordingError) as exc:
         Recording(table(), {"schema": SCHEMA}, name="r")
     assert str(exc.value) == (
-        "r: metadata key 'robot' is missing (expected a built-in name such as 'irb140' or "
-        "{'urdf': ..., 'tool_frame': ...})"
+        "r: metadata key robot: missing; expected a built-in robot name such as 'irb140' or an "
+        "object {urdf, tool_frame}"
     )
 
 

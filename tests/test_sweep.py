@@ -112,8 +112,8 @@ def test_grid_points_cartesian_product_over_the_base_config():
         ),
         (
             ["--grid", "dither.frequency=-5"],
-            "sweep: --grid point dither.frequency=-5: key 'dither.frequency' = -5.0; expected "
-            "values >= 0",
+            "sweep: --grid point dither.frequency=-5: dither.frequency: got -5.0; expected a "
+            "number > 0",
         ),
         (["--grid", "dither"], "sweep: --grid 'dither' is not KEY=V1,V2,..."),
         (
@@ -150,7 +150,7 @@ def test_bad_config_names_the_file(tmp_path):
     r = run_cli("sweep", "--grid", "dither.frequency=80", "--config", cfg, "-o", tmp_path / "o")
     assert r.code == 2
     assert r.err == (
-        f"error: {cfg}: key 'dither.waveform' = 'saw'; expected one of square, sine, triangle\n"
+        f"error: {cfg}: dither.waveform: got 'saw'; expected one of 'square', 'sine', 'triangle'\n"
     )
 
 

@@ -16,8 +16,9 @@ import numpy as np
 
 from ditherlab.effects import drive, friction, rigid, sensor, transmission  # noqa: F401 (registers)
 from ditherlab.effects.base import EFFECTS, Effect
-from ditherlab.errors import ModelError
+from ditherlab.errors import ModelError, where_prefix
 from ditherlab.model import EffectSpec
+from ditherlab.schema import shown
 
 __all__ = [
     "EFFECTS",
@@ -50,7 +51,27 @@ REF_KEYS = ("load_ref", "friction_level", "x_ref", "base_columns")
 
 
 def spec_params(e: Effect, j: int, spec: EffectSpec) -> tuple[np.ndarray, Any, dict]:
-    """(w, h, ref) of joint j (0-based) from a model's EffectSpec."""
+    """(w, h, ref) of joint j (0-based) from a model's EffectSpec.
+
+    ModelError naming the model file and the parameter when one the effect reads is missing
+    or is not a number (or one number per listed joint).
+    """
+    try:
+        return _spec_params(e, j, spec)
+    except KeyError as exc:
+        got = "missing"
+        bad = f".{exc.args[0]}"
+    except (IndexError, TypeError, ValueError):
+        got, bad = f"got {shown(spec.params)}", ""
+    names = [*e.linear, *((e.hyper,) if isinstance(e.hyper, str) else e.hyper or ())]
+    what = f"numbers for {', '.join(names)}" if names else "the parameters the effect fitted"
+    per = "" if e.shared else f" (a number or one per joint in {spec.joints})"
+    raise ModelError(
+        f"{where_prefix(spec.source)}effect {spec.name!r} params{bad}: {got}; expected {what}{per}"
+    )
+
+
+def _spec_params(e: Effect, j: int, spec: EffectSpec) -> tuple[np.ndarray, Any, dict]:
     p = spec.params
     if e.shared:
         return e.weights(p), None, {key: p[key] for key in REF_KEYS if key in p}
@@ -129,4 +150,4 @@ def clean_none(spec: EffectSpec) -> EffectSpec:
         for k, v in spec.params.items()
         if not (v is None or (isinstance(v, list) and all(x is None for x in v)))
     }
-    return EffectSpec(spec.name, spec.joints, p)
+    return EffectSpec(spec.name, spec.joints, p, source=spec.source)

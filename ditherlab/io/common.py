@@ -9,11 +9,30 @@ from pathlib import Path
 from typing import Any
 
 from ditherlab.errors import ConfigError, FormatError
-from ditherlab.recording import SCHEMA, Recording
+from ditherlab.recording import (
+    PAYLOAD_NODE,
+    SCHEMA,
+    STORED_META_SCHEMA,
+    TOOL_OFFSET_NODE,
+    Recording,
+)
 from ditherlab.robot import RobotModel, resolve_spec
+from ditherlab.schema import MapOf, Table, Text, check
 
 #: Options every reader accepts: they fill in or override the recording's metadata.
 META_OPTIONS = ("robot", "tool_frame", "tool_offset", "payload", "source", "notes")
+#: Their values (``robot`` is checked where it is resolved); other options are the readers'.
+_OPTIONS_SCHEMA = Table(
+    keys={
+        "tool_frame": Text(nonempty=True, what="the name of a URDF link"),
+        "tool_offset": TOOL_OFFSET_NODE,
+        "payload": PAYLOAD_NODE,
+        "source": Text(),
+        "notes": Text(),
+        "meta": MapOf(what="a dict of metadata"),
+    },
+    open=True,
+)
 
 
 def robot_spec(
@@ -60,8 +79,12 @@ def meta_from_options(
     """Metadata from a file's own metadata (may be None) updated by reader options.
 
     ``robot``, ``tool_offset``, ``payload``, ``source``, ``notes`` override the file's values;
-    ``schema`` is filled in when absent.
+    ``schema`` is filled in when absent. ConfigError when an option's value is of the wrong
+    kind or out of range (``tool_offset`` [m] of 3 numbers, ``payload`` {mass [kg], com [m]}).
     """
+    given = {k: v.tolist() if hasattr(v, "tolist") else v for k, v in options.items()}
+    given = {k: v for k, v in given.items() if v is not None}
+    check(given, _OPTIONS_SCHEMA, where or "options", ConfigError, label="option ")
     out = copy.deepcopy(dict(meta)) if meta else {}
     out.setdefault("schema", SCHEMA)
     if options.get("robot") is not None:
@@ -114,7 +137,9 @@ def dumps_meta(meta: Mapping[str, Any]) -> str:
 
 
 def loads_meta(text: str | bytes, where: str) -> dict[str, Any]:
-    """Parse a metadata JSON string; FormatError naming ``where`` when it is not a JSON object."""
+    """Parse a metadata JSON string and check it against the recording's metadata schema
+    (:data:`ditherlab.recording.STORED_META_SCHEMA`: ``schema`` and ``robot`` may come from
+    reader options); FormatError naming ``where`` and the key at the first problem."""
     try:
         meta = json.loads(text)
     except (ValueError, UnicodeDecodeError) as exc:
@@ -123,4 +148,5 @@ def loads_meta(text: str | bytes, where: str) -> dict[str, Any]:
         raise FormatError(
             f"{where}: the ditherlab metadata is {type(meta).__name__}, expected a JSON object"
         )
+    check(meta, STORED_META_SCHEMA, where, FormatError, label="metadata key ")
     return meta

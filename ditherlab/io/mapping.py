@@ -36,12 +36,14 @@ is a complete example)::
 
 The value of each recording column is ``raw × scale × Π factors × unit factor + offset``
 (e.g. motor current [A] × torque constant [N·m/A] × gear ratio → tau [N·m]). Every key is
-checked: an unknown table, key or unit, a list of the wrong length, a column out of range or not
-in the header raises ConfigError naming the mapping file and the key.
+checked (:data:`MAPPING_SCHEMA`, then against the log): an unknown table, key or unit, a value of
+the wrong kind, a list of the wrong length, a column out of range or not in the header raises
+ConfigError naming the mapping file and the key.
 """
 
 from __future__ import annotations
 
+import codecs
 import difflib
 import math
 import tomllib
@@ -53,7 +55,15 @@ import pandas as pd
 
 from ditherlab.errors import ConfigError, FormatError
 from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options, robot_spec
-from ditherlab.recording import SCHEMA, WRENCH_COLUMNS, Recording
+from ditherlab.recording import (
+    PAYLOAD_NODE,
+    SCHEMA,
+    STORED_META_SCHEMA,
+    TOOL_OFFSET_NODE,
+    WRENCH_COLUMNS,
+    Recording,
+)
+from ditherlab.schema import Either, Flag, Integer, ListOf, MapOf, Number, Table, Text, check
 
 MAPPINGS_DIR = Path(__file__).parent / "mappings"
 FAMILY_UNITS: dict[str, dict[str, float]] = {
@@ -64,11 +74,78 @@ FAMILY_UNITS: dict[str, dict[str, float]] = {
     "temp": {"°C": 1.0, "degC": 1.0, "C": 1.0},
 }
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-_TABLES = {"input", "time", "robot", "meta", "columns", "extra"}
-_INPUT_KEYS = {"format", "header", "delimiter", "comment", "skip_rows", "encoding"}
-_COLUMN_KEYS = {"columns", "unit", "scale", "factors", "offset"}
-_EXTRA_KEYS = {"column", "scale", "offset", "unit"}
-_ROBOT_KEYS = {"name", "urdf", "tool_frame", "tool_offset", "payload"}
+_COLUMN = Either(
+    options=(Integer(1), Text(nonempty=True)),
+    what="a column number (1-based) or a header name",
+)
+_NUMBER = Number(-1e12, 1e12)
+_FACTOR = Either(
+    options=(_NUMBER, ListOf(item=_NUMBER)),
+    what="a number or a list of numbers (one per column)",
+)
+
+
+def _family_node(units: tuple[str, ...] = ()) -> Table:
+    return Table(
+        keys={
+            "columns": ListOf(item=_COLUMN, min_length=1),
+            "unit": Text(choices=units),
+            "scale": _FACTOR,
+            "factors": ListOf(item=_FACTOR),
+            "offset": _FACTOR,
+        },
+        required=("columns",),
+    )
+
+
+#: The mapping file (the module docstring shows it); lengths and columns are checked against
+#: the log when it is read.
+MAPPING_SCHEMA = Table(
+    keys={
+        "input": Table(
+            keys={
+                "format": Text(choices=("csv",)),
+                "header": Flag(),
+                "delimiter": Text(nonempty=True, what="one character or 'whitespace'"),
+                "comment": Text(nonempty=True),
+                "skip_rows": Integer(0),
+                "encoding": Text(nonempty=True, what="a text encoding such as 'utf-8'"),
+            }
+        ),
+        "time": Table(
+            keys={
+                "column": _COLUMN,
+                "unit": Text(choices=tuple(TIME_UNITS)),
+                "offset": Number(-1e12, 1e12, "s"),
+            }
+        ),
+        "robot": Table(
+            keys={
+                "name": Text(nonempty=True, what="a built-in robot name"),
+                "urdf": Text(nonempty=True, what="the path of a URDF file"),
+                "tool_frame": Text(nonempty=True, what="the name of a URDF link"),
+                "tool_offset": TOOL_OFFSET_NODE,
+                "payload": PAYLOAD_NODE,
+            }
+        ),
+        "meta": STORED_META_SCHEMA,
+        "columns": Table(
+            keys={
+                **{fam: _family_node(tuple(units)) for fam, units in FAMILY_UNITS.items()},
+                "wrench": _family_node(),
+                "dither": Table(keys={"column": _COLUMN}, required=("column",)),
+            },
+            required=("q", "tau"),
+        ),
+        "extra": MapOf(
+            value=Table(
+                keys={"column": _COLUMN, "scale": _NUMBER, "offset": _NUMBER, "unit": Text()},
+                required=("column",),
+            )
+        ),
+    },
+    required=("time", "robot", "columns"),
+)
 
 
 def builtin_mappings() -> list[str]:
@@ -96,38 +173,19 @@ def load_mapping(mapping: str | Path) -> tuple[dict[str, Any], Path]:
         spec = tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not a valid TOML file ({exc})") from None
-    _check_keys(spec, _TABLES, p, "")
-    for key in ("time", "robot", "columns"):
-        if key not in spec:
-            raise ConfigError(f"{p}: table [{key}] is missing")
-    _check_keys(spec.get("input", {}), _INPUT_KEYS, p, "input.")
-    _check_keys(spec["robot"], _ROBOT_KEYS, p, "robot.")
-    _check_keys(spec["time"], {"column", "unit", "offset"}, p, "time.")
-    allowed = {*FAMILY_UNITS, "wrench", "dither"}
-    _check_keys(spec["columns"], allowed, p, "columns.")
-    for fam in ("q", "tau"):
-        if fam not in spec["columns"]:
-            raise ConfigError(f"{p}: table [columns.{fam}] is missing (q and tau are required)")
-    for fam, sub in spec["columns"].items():
-        _check_keys(sub, {"column"} if fam == "dither" else _COLUMN_KEYS, p, f"columns.{fam}.")
-    for name, sub in spec.get("extra", {}).items():
-        if not isinstance(sub, dict):
-            raise ConfigError(f"{p}: extra.{name} is {sub!r}, expected {{ column = ... }}")
-        _check_keys(sub, _EXTRA_KEYS, p, f"extra.{name}.")
-    fmt = spec.get("input", {}).get("format", "csv")
-    if fmt != "csv":
-        raise ConfigError(f"{p}: input.format is {fmt!r}, expected 'csv'")
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a valid TOML file (not UTF-8 text)") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the mapping file ({exc.strerror})") from None
+    check(spec, MAPPING_SCHEMA, p, ConfigError)
+    encoding = spec.get("input", {}).get("encoding", "utf-8")
+    try:
+        codecs.lookup(encoding)
+    except LookupError:
+        raise ConfigError(
+            f"{p}: input.encoding: got {encoding!r}; expected a text encoding such as 'utf-8'"
+        ) from None
     return spec, p
-
-
-def _check_keys(table: Any, allowed: set[str], p: Path, prefix: str) -> None:
-    if not isinstance(table, dict):
-        raise ConfigError(f"{p}: {prefix.rstrip('.') or 'the file'} must be a table")
-    for key in table:
-        if key not in allowed:
-            raise ConfigError(
-                f"{p}: unknown key {prefix}{key} (expected one of {', '.join(sorted(allowed))})"
-            )
 
 
 def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
@@ -161,9 +219,7 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
 
     cols: dict[str, np.ndarray] = {}
     tspec = spec["time"]
-    tunit = tspec.get("unit", "s")
-    if tunit not in TIME_UNITS:
-        raise ConfigError(f"{mp}: time.unit is {tunit!r}, expected one of {', '.join(TIME_UNITS)}")
+    tunit = tspec.get("unit", "s")  # units, kinds and keys: checked by MAPPING_SCHEMA
     cols["t"] = reader.get(tspec.get("column"), "t", "time.column") * TIME_UNITS[tunit] + float(
         tspec.get("offset", 0.0)
     )
@@ -234,10 +290,7 @@ def _family(
         names = list(WRENCH_COLUMNS)
     else:
         units = FAMILY_UNITS[fam]
-        unit = sub.get("unit", next(iter(units)))
-        if unit not in units:
-            raise ConfigError(f"{mp}: {key}.unit is {unit!r}, expected one of {', '.join(units)}")
-        unit_factor = units[unit]
+        unit_factor = units[sub.get("unit", next(iter(units)))]
         names = [f"{fam}_{j + 1}" for j in range(n)]
     scale = _per_joint(sub.get("scale", 1.0), n, mp, f"{key}.scale")
     factors = sub.get("factors", [])

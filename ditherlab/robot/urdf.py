@@ -103,6 +103,7 @@ def build_model(urdf: str, where: str) -> pin.Model:
         raise RobotError(
             f"{where}robot URDF has root element <{root.tag}>, expected <robot name=...>"
         )
+    _check_inertials(root, where)
     got: Callable[[], str]
     try:
         with _captured_stderr_fd() as got:
@@ -123,6 +124,39 @@ def build_model(urdf: str, where: str) -> pin.Model:
             "expected revolute, continuous or prismatic joints"
         )
     return model
+
+
+#: Heaviest link [kg] and largest principal moment [kg m²] accepted: beyond any robot arm, and
+#: small enough that gravity torques and mass matrices stay finite.
+MAX_LINK_MASS, MAX_LINK_INERTIA = 1e5, 1e5
+
+
+def _check_inertials(root: ET.Element, where: str) -> None:
+    """RobotError for a link whose mass [kg] or principal moment (ixx, iyy, izz) [kg m²] is
+    negative, not a number or huge, or whose product of inertia is not a number or huge."""
+    moments, products = ("ixx", "iyy", "izz"), ("ixy", "ixz", "iyz")
+    for link in root.iter("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        mass, inertia = inertial.find("mass"), inertial.find("inertia")
+        values = [("mass", None if mass is None else mass.get("value"), 0.0, MAX_LINK_MASS, "kg")]
+        if inertia is not None:
+            for k in moments + products:
+                lo = -MAX_LINK_INERTIA if k in products else 0.0
+                values.append((f"inertia {k}", inertia.get(k), lo, MAX_LINK_INERTIA, "kg m²"))
+        for key, text, lo, hi, unit in values:
+            if text is None:
+                continue
+            try:
+                v = float(text)
+            except ValueError:
+                v = float("nan")
+            if not lo <= v <= hi:  # NaN fails too
+                raise RobotError(
+                    f"{where}robot URDF link {link.get('name', '?')!r} {key}: got "
+                    f"{short_repr(text)}; expected a number in [{lo:g}, {hi:g}] [{unit}]"
+                )
 
 
 def guess_tool_frame(model: pin.Model) -> str:

@@ -2,13 +2,17 @@
 overridden from a user TOML file or a dict.
 
 The merged parameters are a nested dict with the same tables and keys as ``irb140.toml``; every
-run writes it whole into ``meta["sim"]["params"]``. A key that the defaults do not have is a
-:class:`~ditherlab.errors.ConfigError` naming the key.
+run writes it whole into ``meta["sim"]["params"]``. A config is checked against
+:func:`config_schema`, derived from the defaults: a key that the defaults do not have, a value
+of another kind than the default's, a list of another length or a number out of the key's range
+is a :class:`~ditherlab.errors.ConfigError` naming the file and the key
+(``cfg.toml: servo.kp: got '30'; expected a number >= 0``).
 """
 
 from __future__ import annotations
 
 import copy
+import functools
 import tomllib
 from collections.abc import Mapping
 from importlib import resources
@@ -17,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.dither import check_waveform
+from ditherlab.dither import WAVEFORMS
 from ditherlab.errors import ConfigError
+from ditherlab.schema import Either, Flag, Integer, ListOf, Node, Number, Table, Text, check
 
 DEFAULTS_FILE = "irb140.toml"
 
@@ -37,48 +42,12 @@ def _read_config(config: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any]
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the simulator config ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not valid TOML (not UTF-8 text)") from None
     try:
         return tomllib.loads(text), str(path)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-
-
-def _check_value(default: Any, value: Any, key: str, where: str) -> Any:
-    """The override ``value`` if its type fits the default's; a list may be given as a scalar."""
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}: key '{key}' = {value!r}; expected true or false")
-        return value
-    if isinstance(default, int | float):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: key '{key}' = {value!r}; expected a number")
-        return type(default)(value) if isinstance(default, float) else value
-    if isinstance(default, list):
-        if isinstance(value, int | float | bool) and default and not isinstance(default[0], list):
-            value = [value] * len(default)
-        if not isinstance(value, list) or len(value) != len(default):
-            raise ConfigError(
-                f"{where}: key '{key}' = {value!r}; expected a list of {len(default)} values "
-                f"or one value"
-            )
-        return [_check_value(d, v, key, where) for d, v in zip(default, value, strict=True)]
-    if isinstance(default, str) and not isinstance(value, str):
-        raise ConfigError(f"{where}: key '{key}' = {value!r}; expected text")
-    return value
-
-
-def _merge(base: dict[str, Any], over: Mapping[str, Any], prefix: str, where: str) -> None:
-    for key, value in over.items():
-        name = f"{prefix}{key}"
-        if key not in base:
-            known = ", ".join(sorted(base))
-            raise ConfigError(f"{where}: unknown key '{name}' (known here: {known})")
-        if isinstance(base[key], dict):
-            if not isinstance(value, Mapping):
-                raise ConfigError(f"{where}: key '{name}' must be a table, got {value!r}")
-            _merge(base[key], value, f"{name}.", where)
-        else:
-            base[key] = _check_value(base[key], value, name, where)
 
 
 _NON_NEGATIVE = (
@@ -153,49 +122,100 @@ _POSITIVE = (
 )
 
 
+#: Fractions in [0, 1].
+_FRACTION = ("friction.motor_share", "friction.coulomb_ratio")
+#: (min, max) pairs of the scenario tables: min <= max.
+_PAIRS = (
+    ("magnitude_min", "magnitude_max"),
+    ("duration_min", "duration_max"),
+    ("rest_min", "rest_max"),
+    ("stroke_min_s", "stroke_max_s"),
+)
+
+
 def _get(p: Mapping[str, Any], dotted: str) -> Any:
     for part in dotted.split("."):
         p = p[part]
     return p
 
 
+def _scalar(default: Any, key: str) -> Node:
+    """The node of one value: the default's kind (true/false, integer, number) in the key's
+    range (:data:`_NON_NEGATIVE`, :data:`_POSITIVE`, :data:`_FRACTION`)."""
+    if isinstance(default, bool):
+        return Flag()
+    if isinstance(default, str):  # the one text key: the dither's waveform
+        return Text(choices=WAVEFORMS if key == "dither.waveform" else ())
+    lo, hi, lo_open = None, None, False
+    if key in _NON_NEGATIVE:
+        lo = 0
+    if key in _POSITIVE:
+        lo, lo_open = 0, True
+    if key in _FRACTION:
+        lo, hi = 0, 1
+    if isinstance(default, int):
+        return Integer(None if lo is None else lo + lo_open, hi)
+    return Number(lo, hi, lo_open=lo_open)
+
+
+def _node(default: Any, key: str) -> Node:
+    if isinstance(default, Mapping):
+        return Table(keys={k: _node(v, f"{key}.{k}" if key else k) for k, v in default.items()})
+    if isinstance(default, list) and default and isinstance(default[0], list):
+        return ListOf(item=_node(default[0], key), length=len(default))
+    if isinstance(default, list):
+        item = _scalar(default[0], key)
+        return Either(
+            options=(item, ListOf(item=item, length=len(default))),
+            what=f"{item.expected({})} or a list of {len(default)} of them",
+        )
+    return _scalar(default, key)
+
+
+@functools.cache
+def config_schema() -> Node:
+    """The schema of a simulator config, derived from the defaults (``irb140.toml``): its
+    tables and keys only, each value of the default's kind (a list of the default's length, or
+    one value for all) and in the key's range."""
+    return _node(default_params(), "")
+
+
+def _coerce(default: Any, value: Any) -> Any:
+    """A checked value in the default's form: one value spread over a list, ints as floats."""
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            value = [value] * len(default)
+        return [_coerce(d, v) for d, v in zip(default, value, strict=True)]
+    if isinstance(default, float):
+        return float(value)
+    return value
+
+
+def _merge(base: dict[str, Any], over: Mapping[str, Any]) -> None:
+    for key, value in over.items():
+        if isinstance(base[key], dict):
+            _merge(base[key], value)
+        else:
+            base[key] = _coerce(base[key], value)
+
+
 def _validate(p: dict[str, Any], where: str) -> None:
-    check_waveform(p["dither"]["waveform"], f"{where}: key 'dither.waveform'")
-    for key in _NON_NEGATIVE:
-        v = np.asarray(_get(p, key), dtype=float)
-        if np.any(v < 0) or not np.all(np.isfinite(v)):
-            raise ConfigError(f"{where}: key '{key}' = {_get(p, key)!r}; expected values >= 0")
-    for key in _POSITIVE:
-        v = np.asarray(_get(p, key), dtype=float)
-        if np.any(v <= 0):
-            raise ConfigError(f"{where}: key '{key}' = {_get(p, key)!r}; expected values > 0")
-    if p["friction"]["motor_share"] > 1:
-        raise ConfigError(
-            f"{where}: key 'friction.motor_share' = {p['friction']['motor_share']!r}; "
-            "expected a fraction in [0, 1]"
-        )
-    if p["friction"]["coulomb_ratio"] > 1:
-        raise ConfigError(
-            f"{where}: key 'friction.coulomb_ratio' = {p['friction']['coulomb_ratio']!r}; "
-            "expected Fc/Fs in [0, 1]"
-        )
-    ratio = p["timing"]["servo_rate_hz"] / p["timing"]["sample_rate_hz"]
+    """The checks that involve two keys (each key's own range is the schema's)."""
+    sr, servo = p["timing"]["sample_rate_hz"], p["timing"]["servo_rate_hz"]
+    ratio = servo / sr
     if abs(ratio - round(ratio)) > 1e-9:
         raise ConfigError(
-            f"{where}: key 'timing.servo_rate_hz' = {p['timing']['servo_rate_hz']!r}; expected "
-            "an integer multiple of timing.sample_rate_hz"
+            f"{where}: timing.servo_rate_hz: got {servo!r}; expected an integer multiple of "
+            f"timing.sample_rate_hz ({sr:g})"
         )
-    pc = p["push_campaign"]
-    for lo, hi in (
-        ("magnitude_min", "magnitude_max"),
-        ("duration_min", "duration_max"),
-        ("rest_min", "rest_max"),
-    ):
-        if pc[lo] > pc[hi]:
-            raise ConfigError(
-                f"{where}: key 'push_campaign.{lo}' = {pc[lo]!r} exceeds push_campaign.{hi} = "
-                f"{pc[hi]!r}"
-            )
+    for table in ("push_campaign", "excitation"):
+        t = p[table]
+        for lo, hi in _PAIRS:
+            if lo in t and t[lo] > t[hi]:
+                raise ConfigError(
+                    f"{where}: {table}.{lo}: got {t[lo]!r}; expected at most {table}.{hi} "
+                    f"({t[hi]!r})"
+                )
 
 
 def load_params(
@@ -221,13 +241,14 @@ def load_params(
         allowed; the message names the file and the key.
     """
     p = default_params()
+    where = "config"
     if config is not None:
         over, where = _read_config(config)
-        _merge(p, over, "", where)
-    else:
-        where = "config"
+        check(over, config_schema(), where, ConfigError)
+        _merge(p, over)
     if overrides:
-        _merge(p, overrides, "", "options")
+        check(overrides, config_schema(), "options", ConfigError)
+        _merge(p, overrides)
     _validate(p, where)
     return p
 
