@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import FormatError
+from ditherlab.errors import FormatError, one_line
 from ditherlab.io.atomic import atomic_path
 from ditherlab.io.common import (
     META_OPTIONS,
@@ -47,13 +47,34 @@ def read(path: Path, **options: Any) -> Recording:
     path = Path(path)
     check_options(options, OPTIONS, "CSV", str(path))
     meta = read_meta(path, options)
+    header(path)
     try:
         data = pd.read_csv(path, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: not a readable CSV file ({str(exc).strip()})") from None
+        raise FormatError(f"{path}: not a readable CSV file ({one_line(exc)})") from None
     check_numeric(data, path, header_lines=1)
     parse_dither(data)
     return Recording(data, meta, name=str(path))
+
+
+def header(path: Path) -> list[str]:
+    """The column names of a CSV file's header line, as written (pandas would rename a second
+    ``q_1`` to ``q_1.1``); FormatError for a name that appears more than once or a file that
+    cannot be parsed."""
+    try:
+        row = pd.read_csv(path, header=None, nrows=1, dtype=str, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{path}: not a readable CSV file ({one_line(exc)})") from None
+    names = ["" if pd.isna(v) else str(v) for v in row.iloc[0]] if len(row) else []
+    first: dict[str, int] = {}
+    for i, c in enumerate(names):
+        if c in first:
+            raise FormatError(
+                f"{path}: column {c or '(empty)'} appears more than once in the header line "
+                f"(fields {first[c] + 1} and {i + 1}); expected unique column names"
+            )
+        first[c] = i
+    return names
 
 
 def read_meta(path: Path, options: dict[str, Any]) -> dict[str, Any]:
