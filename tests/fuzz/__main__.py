@@ -22,7 +22,15 @@ from pathlib import Path
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import seed as hseed
 
-from tests.fuzz.harness import CLASSES, TIMEOUT_S, Result, reproduction, run_case, signature
+from tests.fuzz.harness import (
+    CLASSES,
+    TIMEOUT_S,
+    Result,
+    preload,
+    reproduction,
+    run_case,
+    signature,
+)
 from tests.fuzz.inputs import COMMANDS, KINDS, cases, prepare_base
 
 MARK = "<!-- campaign -->"
@@ -147,12 +155,14 @@ def run_campaign(
     commands: tuple[str, ...] = COMMANDS,
     kinds: tuple[str, ...] = KINDS,
     timeout: float = TIMEOUT_S,
-    inprocess: bool = False,
+    mode: str = "fork",
 ) -> Campaign:
     """Run about ``total`` cases spread over ``commands`` x ``kinds``."""
     work.mkdir(parents=True, exist_ok=True)
     base = prepare_base(work / "base")
     camp = Campaign(work, findings, seed)
+    if mode == "fork":
+        preload()
     cells = [(c, k) for k in kinds for c in commands]
     per = max(1, math.ceil(total / len(cells)))
     scratch = work / "cases"
@@ -169,7 +179,7 @@ def run_campaign(
         @given(cases(base, kind, command))
         def one(case):  # noqa: ANN001
             shutil.rmtree(scratch, ignore_errors=True)
-            camp.record(run_case(case, base, scratch, inprocess=inprocess, timeout=timeout))
+            camp.record(run_case(case, base, scratch, mode=mode, timeout=timeout))
 
         one()
     camp.write()
@@ -185,6 +195,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--commands", default=",".join(COMMANDS))
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--timeout", type=float, default=TIMEOUT_S)
+    ap.add_argument(
+        "--mode",
+        choices=("fork", "subprocess", "inprocess"),
+        default="fork",
+        help="each case in a process forked after the imports (default), in a fresh "
+        "'python -m ditherlab', or in this process (no hang detection)",
+    )
     a = ap.parse_args(argv)
     camp = run_campaign(
         a.cases,
@@ -194,6 +211,7 @@ def main(argv: list[str] | None = None) -> None:
         tuple(a.commands.split(",")),
         tuple(a.kinds.split(",")),
         a.timeout,
+        a.mode,
     )
     print(camp.summary())
     sys.exit(1 if camp.distinct else 0)

@@ -48,7 +48,7 @@ def _cli(*args: object, cwd: Path) -> None:
 
 
 def prepare_base(root: Path) -> Base:
-    """Make (once: kept in ``root``) the base files: a 3 s cut of ``ditherlab simulate
+    """Make (once: kept in ``root``) the base files: a 3.2 s cut (with a push) of ``ditherlab simulate
     push-campaign`` as Parquet, CSV, ditherlab MCAP and ROS 2 bags (MCAP and SQLite storage);
     models of the IRB140, the hopper and the UR10e; estimates of the cut."""
     root = Path(root)
@@ -70,7 +70,7 @@ def prepare_base(root: Path) -> Base:
             cwd=root,
         )
         rec = dio.read(root / "push.parquet")
-        cut = Recording(rec.data.iloc[1000:1750].reset_index(drop=True), rec.meta, name="sim")
+        cut = Recording(rec.data.iloc[1600:2400].reset_index(drop=True), rec.meta, name="sim")
         dio.write(cut, root / "sim.parquet")
         dio.write(cut, root / "sim.csv")
         dio.write(cut, root / "sim.mcap")

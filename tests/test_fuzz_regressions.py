@@ -1,0 +1,245 @@
+"""Regression tests of the readers' findings of the fuzz suite (``tests/fuzz``): each input that
+once broke the promise (a traceback, a hang, a multi-line error, a wrong acceptance) now ends in
+exactly one line ``error: ...`` on stderr and exit status 2, with the input untouched."""
+
+from __future__ import annotations
+
+import json
+import struct
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+import ditherlab.io as dio
+from ditherlab.io.stream import open_source
+from ditherlab.recording import Recording
+
+DATA = Path(__file__).resolve().parent / "data"
+META = {"schema": "ditherlab.recording/1", "robot": "irb140"}
+
+
+@pytest.fixture(scope="module")
+def rec() -> Recording:
+    """A small valid IRB140 recording: 300 rows at 250 Hz, q slowly moving, tau noisy."""
+    rng = np.random.default_rng(0)
+    t = np.arange(300) * 0.004
+    q = 0.3 * np.sin(np.outer(t, np.arange(1, 7)) * 0.5)
+    tau = rng.normal(0, 1, (300, 6))
+    return Recording.from_arrays(t, q, tau, META)
+
+
+def one_error(cli, *args) -> str:
+    """Run the CLI; assert exit 2, nothing on stdout, one stderr line; return that line."""
+    r = cli(*args)
+    assert r.code == 2, (r.code, r.out, r.err)
+    assert r.out == "" and "Traceback" not in r.err
+    lines = r.err.splitlines()
+    assert len(lines) == 1, r.err
+    return lines[0]
+
+
+def unchanged(path: Path, before: bytes) -> None:
+    assert path.read_bytes() == before
+
+
+# ------------------------------------------------------------------ Parquet
+def test_corrupt_parquet_page_header_is_one_line(cli, tmp_path, rec):
+    """A damaged page header: pyarrow's message ran over two lines ("Couldn't deserialize
+    thrift: ...\\nDeserializing page header failed.\\n"), printed as such; now its first line."""
+    p = tmp_path / "a.parquet"
+    dio.write(rec, p)
+    off = pq.ParquetFile(p).metadata.row_group(0).column(1).data_page_offset
+    data = bytearray(p.read_bytes())
+    data[off] ^= 0xFF
+    p.write_bytes(bytes(data))
+    for cmd in (["info"], ["convert"], ["view"]):
+        out = [tmp_path / "o.csv"] if cmd == ["convert"] else []
+        save = ["--save", tmp_path / "v.rrd"] if cmd == ["view"] else []
+        line = one_error(cli, *cmd, p, *out, *save)
+        assert line == (
+            f"error: {p}: not a readable Parquet file, truncated or corrupt (Couldn't "
+            "deserialize thrift: TProtocolException: Invalid data)"
+        ), line
+    unchanged(p, bytes(data))
+    assert not (tmp_path / "o.csv").exists() and not (tmp_path / "v.rrd").exists()
+    with pytest.raises(dio.FormatError) as exc:  # the whole-file reader: the same line
+        dio.read(p)
+    assert f"error: {exc.value}" == line
+
+
+def test_parquet_number_stored_as_text_is_refused(cli, tmp_path, rec):
+    """q_2 as text ("0.1", ...) was converted to numbers without a word; now refused naming the
+    column and its Parquet type, by the whole-file and the piece readers alike."""
+    table = pa.Table.from_pandas(rec.data, preserve_index=False)
+    i = table.schema.get_field_index("q_2")
+    table = table.set_column(i, "q_2", pa.array([repr(v) for v in rec.data["q_2"]]))
+    table = table.replace_schema_metadata({b"ditherlab": json.dumps(META).encode()})
+    p = tmp_path / "text.parquet"
+    pq.write_table(table, p)
+    want = f"error: {p}: column q_2 has Parquet type string, expected numbers (float64)"
+    assert one_error(cli, "info", p) == want
+    assert one_error(cli, "convert", p, tmp_path / "o.mcap") == want
+    with pytest.raises(dio.FormatError, match="column q_2 has Parquet type string"):
+        dio.read(p)
+    assert not (tmp_path / "o.mcap").exists()
+
+
+def test_parquet_duplicated_column_is_refused(cli, tmp_path, rec):
+    """Two columns named q_1 in a Parquet file: refused naming the column."""
+    table = pa.Table.from_pandas(rec.data, preserve_index=False)
+    table = table.append_column("q_1", table.column("q_1"))
+    table = table.replace_schema_metadata({b"ditherlab": json.dumps(META).encode()})
+    p = tmp_path / "dup.parquet"
+    pq.write_table(table, p)
+    assert one_error(cli, "info", p) == f"error: {p}: column q_1 appears more than once"
+
+
+# ------------------------------------------------------------------ CSV
+def test_csv_duplicated_column_is_refused(cli, tmp_path, rec):
+    """A second q_1 in the header became q_1.1 (pandas), then "required column q_3 is missing";
+    now the duplicate is named, with its two positions."""
+    p = tmp_path / "dup.csv"
+    dio.write(rec, p)
+    lines = p.read_text().splitlines()
+    names = lines[0].split(",")
+    names[3] = "q_1"  # t, q_1, q_2, q_3 -> t, q_1, q_2, q_1
+    lines[0] = ",".join(names)
+    p.write_text("\n".join(lines) + "\n")
+    want = (
+        f"error: {p}: column q_1 appears more than once in the header line (fields 2 and 4); "
+        "expected unique column names"
+    )
+    assert one_error(cli, "info", p) == want
+    assert one_error(cli, "convert", p, tmp_path / "o.parquet") == want
+    with pytest.raises(dio.FormatError, match="column q_1 appears more than once"):
+        dio.read(p)
+
+
+def test_csv_row_of_200000_extra_fields_fails_fast(cli, tmp_path, rec):
+    """One row with 200 000 extra fields: ``info`` read it column by column (pandas accepts a
+    ragged row when reading some columns, slowly: seconds per pass, several passes) and then
+    failed; now the first pass parses every field and stops at that row."""
+    p = tmp_path / "long.csv"
+    dio.write(rec, p)
+    lines = p.read_text().splitlines()
+    lines[3] += ",0" * 200_000
+    p.write_text("\n".join(lines) + "\n")
+    want = (
+        f"{p}: not a readable CSV file (Error tokenizing data. C error: Expected 13 fields in "
+        "line 4, saw 200013)"
+    )
+    t0 = time.perf_counter()
+    assert one_error(cli, "info", p) == f"error: {want}"
+    assert time.perf_counter() - t0 < 20
+    with pytest.raises(dio.FormatError) as exc:  # the first pass, which reads t, says so
+        open_source(p).times()
+    assert str(exc.value) == want
+
+
+# ------------------------------------------------------------------ time stamps
+def test_repeated_time_stamps_are_named_not_divided_by(cli, tmp_path, rec):
+    """Two rows with the same t: the piece reader divided by the median step (0) —
+    ZeroDivisionError in identify, replay, diagnose; now the contract's message."""
+    p = tmp_path / "two.parquet"
+    data = rec.data.iloc[:2].copy()
+    data.loc[1, "t"] = data.loc[0, "t"]
+    table = pa.Table.from_pandas(data, preserve_index=False)
+    pq.write_table(table.replace_schema_metadata({b"ditherlab": json.dumps(META).encode()}), p)
+    want = (
+        f"error: {p}: t is not strictly increasing: t=0.0 s in row 2 follows t=0.0 s "
+        "(expected increasing sample times)"
+    )
+    assert one_error(cli, "identify", p, "-o", tmp_path / "m.toml", "--bootstrap", "0") == want
+    assert one_error(cli, "info", p) == want
+    assert not (tmp_path / "m.toml").exists()
+
+
+# ------------------------------------------------------------------ MCAP
+def _chunk_offsets(path: Path) -> list[int]:
+    from mcap.reader import SeekingReader
+
+    with open(path, "rb") as f:
+        summary = SeekingReader(f).get_summary()
+    return sorted(c.chunk_start_offset for c in summary.chunk_indexes)
+
+
+def test_mcap_is_written_with_chunk_and_data_crcs(tmp_path, rec):
+    """Every chunk carries the CRC of its records, and the data section's end its CRC."""
+    from mcap.records import Chunk, DataEnd
+    from mcap.stream_reader import StreamReader
+
+    p = tmp_path / "a.mcap"
+    dio.write(rec, p)
+    with open(p, "rb") as f:
+        records = list(StreamReader(f, emit_chunks=True).records)
+    chunks = [r for r in records if isinstance(r, Chunk)]
+    assert chunks and all(c.uncompressed_crc != 0 for c in chunks)
+    (end,) = [r for r in records if isinstance(r, DataEnd)]
+    assert end.data_section_crc != 0
+
+
+def test_mcap_chunk_crc_is_checked_on_read(cli, tmp_path, rec):
+    """A chunk whose records no longer match its CRC: one line naming both CRCs."""
+    p = tmp_path / "a.mcap"
+    dio.write(rec, p)
+    data = bytearray(p.read_bytes())
+    off = _chunk_offsets(p)[0]
+    # opcode, record length, message start and end time, uncompressed size, then the CRC
+    crc_at = off + 1 + 8 + 8 + 8 + 8
+    (stored,) = struct.unpack_from("<I", data, crc_at)
+    struct.pack_into("<I", data, crc_at, stored ^ 1)
+    p.write_bytes(bytes(data))
+    line = one_error(cli, "info", p)
+    assert line == (
+        f"error: {p}: the MCAP file is truncated or corrupt (chunk CRC {stored} does not match "
+        f"the stored {stored ^ 1})"
+    )
+
+
+def test_mcap_chunk_without_crc_is_refused(cli, tmp_path, rec):
+    """ditherlab writes a CRC for every chunk: a chunk without one (the field zeroed) is not
+    read unchecked."""
+    p = tmp_path / "a.mcap"
+    dio.write(rec, p)
+    data = bytearray(p.read_bytes())
+    crc_at = _chunk_offsets(p)[0] + 1 + 8 + 8 + 8 + 8
+    struct.pack_into("<I", data, crc_at, 0)
+    p.write_bytes(bytes(data))
+    assert one_error(cli, "convert", p, tmp_path / "o.parquet") == (
+        f"error: {p}: the MCAP file is truncated or corrupt (a chunk has no CRC (ditherlab MCAP "
+        "files are written with chunk CRCs))"
+    )
+    assert not (tmp_path / "o.parquet").exists()
+
+
+def test_mcap_summary_crc_is_checked(cli, tmp_path, rec):
+    """A damaged byte in the summary section (channels, statistics, chunk indexes), which the
+    mcap library reads without its CRC: refused."""
+    p = tmp_path / "a.mcap"
+    dio.write(rec, p)
+    data = bytearray(p.read_bytes())
+    _op, _n, start, _offsets, crc = struct.unpack_from("<BQQQI", data, len(data) - 8 - 29)
+    # the message count of the statistics record (its first field), a plausible-looking change
+    stats = data.index(bytes([0x0B]), start)
+    data[stats + 9] ^= 0x01
+    p.write_bytes(bytes(data))
+    got = zlib.crc32(bytes(data[start : len(data) - 12]))
+    assert one_error(cli, "info", p) == (
+        f"error: {p}: the MCAP file is corrupt: its summary section has CRC {got}, the footer "
+        f"says {crc}"
+    )
+
+
+# ------------------------------------------------------------------ ROS 2 bags
+def test_bag_with_a_damaged_record_length_is_one_line(cli, tmp_path):
+    """rosbag2's own cdr_test_0.mcap with bytes 219..357 removed: rosbags read a record length
+    from the wrong place and asked for that many bytes (a MemoryError traceback)."""
+    src = (DATA / "rosbag2" / "cdr_test_0.mcap").read_bytes()
+    p = tmp_path / "cut.mcap"
+    p.write_bytes(src[:219] + src[357:])
+    assert one_error(cli, "info", p) == f"error: {p}: not a readable ROS 2 bag (MemoryError)"
