@@ -46,6 +46,7 @@ from ditherlab.io.common import (
 )
 from ditherlab.io.parquet import META_KEY, ROW_GROUP, check_schema, damaged, file_metadata
 from ditherlab.recording import Recording, TimeBase, meta_dither_period
+from ditherlab.recording import _check_increasing as check_increasing
 from ditherlab.signal import PERIOD_SAMPLES, period_from_feedforward, period_from_spectrum, runs
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -218,7 +219,10 @@ class Source:
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def times(self) -> np.ndarray:
-        """The whole ``t`` column, (N,) [s], read once and kept (8 bytes per sample)."""
+        """The whole ``t`` column, (N,) [s], read once and kept (8 bytes per sample).
+
+        RecordingError, as the Recording's, when a time stamp is not a finite number or ``t`` is
+        not strictly increasing: a reader of columns (``report``, ``view``) relies on it."""
         if self._t is None:
             if "t" not in self.columns:
                 raise RecordingError(f"{self.name}: column 't' is missing")
@@ -229,7 +233,9 @@ class Source:
                 t = np.concatenate(parts) if parts else np.zeros(0)
             else:
                 t = self.column("t")
-            self._t = pd.to_numeric(pd.Series(t), errors="coerce").to_numpy(float)
+            t = pd.to_numeric(pd.Series(t), errors="coerce").to_numpy(float)
+            check_times(t, self.name)
+            self._t = t
         return self._t
 
     def read(self) -> Recording:
@@ -246,7 +252,9 @@ class Source:
         """The whole recording's :class:`~ditherlab.recording.TimeBase` (read once)."""
         if self._timebase is None:
             t = self.times()
-            self._timebase = TimeBase.of(t, self._dither_period(t))
+            # numpy's warnings on absurd values (1e308 N·m): the pieces' checks report them
+            with np.errstate(all="ignore"):
+                self._timebase = TimeBase.of(t, self._dither_period(t))
         return self._timebase
 
     def _dither_period(self, t: np.ndarray) -> float | None:
@@ -372,6 +380,17 @@ class Source:
                 f"{self.name}: {buf_start + (0 if buf is None else len(buf))} rows read, "
                 f"{N} expected from the file's row count"
             )
+
+
+def check_times(t: np.ndarray, name: str) -> None:
+    """RecordingError, in the Recording's words, for a time stamp that is not a finite number
+    or ``t`` (N,) [s] that does not strictly increase."""
+    bad = ~np.isfinite(t)
+    if bad.any():
+        kind = "NaN" if np.isnan(t[bad]).all() else "NaN or infinite"
+        first = int(np.flatnonzero(bad)[0]) + 1
+        raise RecordingError(f"{name}: t has {int(bad.sum())} {kind} values in rows {first}..")
+    check_increasing(t, f"{name}: ")
 
 
 def pieces_of(

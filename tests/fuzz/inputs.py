@@ -47,10 +47,12 @@ def _cli(*args: object, cwd: Path) -> None:
     subprocess.run(cmd, cwd=cwd, check=True, capture_output=True, text=True)
 
 
-def prepare_base(root: Path) -> Base:
-    """Make (once: kept in ``root``) the base files: a 3.2 s cut (with a push) of ``ditherlab simulate
-    push-campaign`` as Parquet, CSV, ditherlab MCAP and ROS 2 bags (MCAP and SQLite storage);
-    models of the IRB140, the hopper and the UR10e; estimates of the cut."""
+def prepare_base(root: Path, simulate: bool = True) -> Base:
+    """Make (once: kept in ``root``) the base files: a 3.2 s cut (with a push) of ``ditherlab
+    simulate push-campaign`` as Parquet, CSV, ditherlab MCAP and ROS 2 bags (MCAP and SQLite
+    storage); models of the IRB140, the hopper and the UR10e; estimates of the cut.
+    ``simulate=False``: the cut is taken from the repository's ``recordings/sim-push-dither``
+    (made by the simulator too), and no models or estimates are made (for ``make test``)."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     done = root / ".ready"
@@ -58,41 +60,42 @@ def prepare_base(root: Path) -> Base:
         import ditherlab.io as dio
         from ditherlab.identify import identify
         from ditherlab.recording import Recording
+        from ditherlab.replay import replay_file
 
-        _cli(
-            "simulate",
-            "push-campaign",
-            "-o",
-            "push.parquet",
-            "--pushes-per-direction",
-            1,
-            "-q",
-            cwd=root,
-        )
-        rec = dio.read(root / "push.parquet")
-        cut = Recording(rec.data.iloc[1600:2400].reset_index(drop=True), rec.meta, name="sim")
+        if simulate:
+            args = ("push-campaign", "-o", "push.parquet", "--pushes-per-direction", 1, "-q")
+            _cli("simulate", *args, cwd=root)
+            rec = dio.read(root / "push.parquet")
+            (root / "push.parquet").unlink()
+            cut = Recording(rec.data.iloc[1600:2400].reset_index(drop=True), rec.meta, name="sim")
+        else:
+            rec = dio.read(REPO / "recordings" / "sim-push-dither.parquet")
+            cut = Recording(rec.data.iloc[1600:2400].reset_index(drop=True), rec.meta, name="sim")
         dio.write(cut, root / "sim.parquet")
         dio.write(cut, root / "sim.csv")
         dio.write(cut, root / "sim.mcap")
         dio.write(cut, root / "sim_bag_mcap", storage="mcap")
         dio.write(cut, root / "sim_bag_db3", storage="sqlite3")
-        identify([rec], n_boot=0).save(root / "irb140.toml")
-        hop = dio.read(DATA / "hopper" / "hopper_short.parquet")
-        identify([hop], n_boot=0).save(root / "hopper.toml")
-        ur = dio.read(DATA / "ur10e" / "no_torque.csv", mapping="ur10e")
-        identify([ur], n_boot=0, assume_no_force=True).save(root / "ur10e.toml")
-        _cli("replay", "sim.parquet", "--model", "irb140.toml", "-o", "est.parquet", "-q", cwd=root)
-        (root / "push.parquet").unlink()
+        if simulate:
+            identify([rec], n_boot=0).save(root / "irb140.toml")
+            hop = dio.read(DATA / "hopper" / "hopper_short.parquet")
+            identify([hop], n_boot=0).save(root / "hopper.toml")
+            ur = dio.read(DATA / "ur10e" / "no_torque.csv", mapping="ur10e")
+            identify([ur], n_boot=0, assume_no_force=True).save(root / "ur10e.toml")
+            replay_file(root / "sim.parquet", root / "irb140.toml", root / "est.parquet")
+        else:  # make test runs info, convert and view only: no model, no estimates
+            for r in ("irb140", "hopper", "ur10e"):
+                (root / f"{r}.toml").write_text("# no model\n")
         done.touch()
     base = Base(root)
     base.models = {r: root / f"{r}.toml" for r in ("irb140", "hopper", "ur10e")}
-    base.estimates = root / "est.parquet"
+    base.estimates = root / "est.parquet" if (root / "est.parquet").exists() else None
     base.sources = {
         "parquet": [
             ("sim.parquet", root / "sim.parquet", "irb140"),
             ("hopper_short.parquet", DATA / "hopper" / "hopper_short.parquet", "hopper"),
-            ("est.parquet", root / "est.parquet", "irb140"),
-        ],
+        ]
+        + ([("est.parquet", base.estimates, "irb140")] if base.estimates else []),
         "csv": [
             ("sim.csv", root / "sim.csv", "irb140"),
             ("no_torque.csv", DATA / "ur10e" / "no_torque.csv", "ur10e"),
