@@ -5,6 +5,7 @@ exactly one line ``error: ...`` on stderr and exit status 2, with the input unto
 from __future__ import annotations
 
 import json
+import re
 import struct
 import time
 import zlib
@@ -16,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import ditherlab.io as dio
+from ditherlab.errors import FormatError, RecordingError
 from ditherlab.io.stream import open_source
 from ditherlab.recording import Recording
 
@@ -67,7 +69,7 @@ def test_corrupt_parquet_page_header_is_one_line(cli, tmp_path, rec):
         ), line
     unchanged(p, bytes(data))
     assert not (tmp_path / "o.csv").exists() and not (tmp_path / "v.rrd").exists()
-    with pytest.raises(dio.FormatError) as exc:  # the whole-file reader: the same line
+    with pytest.raises(FormatError) as exc:  # the whole-file reader: the same line
         dio.read(p)
     assert f"error: {exc.value}" == line
 
@@ -84,7 +86,7 @@ def test_parquet_number_stored_as_text_is_refused(cli, tmp_path, rec):
     want = f"error: {p}: column q_2 has Parquet type string, expected numbers (float64)"
     assert one_error(cli, "info", p) == want
     assert one_error(cli, "convert", p, tmp_path / "o.mcap") == want
-    with pytest.raises(dio.FormatError, match="column q_2 has Parquet type string"):
+    with pytest.raises(FormatError, match="column q_2 has Parquet type string"):
         dio.read(p)
     assert not (tmp_path / "o.mcap").exists()
 
@@ -116,7 +118,7 @@ def test_csv_duplicated_column_is_refused(cli, tmp_path, rec):
     )
     assert one_error(cli, "info", p) == want
     assert one_error(cli, "convert", p, tmp_path / "o.parquet") == want
-    with pytest.raises(dio.FormatError, match="column q_1 appears more than once"):
+    with pytest.raises(FormatError, match="column q_1 appears more than once"):
         dio.read(p)
 
 
@@ -136,7 +138,7 @@ def test_csv_row_of_200000_extra_fields_fails_fast(cli, tmp_path, rec):
     t0 = time.perf_counter()
     assert one_error(cli, "info", p) == f"error: {want}"
     assert time.perf_counter() - t0 < 20
-    with pytest.raises(dio.FormatError) as exc:  # the first pass, which reads t, says so
+    with pytest.raises(FormatError) as exc:  # the first pass, which reads t, says so
         open_source(p).times()
     assert str(exc.value) == want
 
@@ -243,3 +245,65 @@ def test_bag_with_a_damaged_record_length_is_one_line(cli, tmp_path):
     p = tmp_path / "cut.mcap"
     p.write_bytes(src[:219] + src[357:])
     assert one_error(cli, "info", p) == f"error: {p}: not a readable ROS 2 bag (MemoryError)"
+
+
+def test_bag_record_longer_than_the_file_is_one_line(cli, tmp_path, rec):
+    """A ROS 2 bag (MCAP storage) whose header record claims 1 000 000 bytes: rosbags' own
+    ReaderError ("Truncated record") was not among the errors caught — a traceback."""
+    dio.write(rec, tmp_path / "bag", storage="mcap")
+    p = tmp_path / "bag" / "bag.mcap"
+    data = bytearray(p.read_bytes())
+    struct.pack_into("<Q", data, 9, 10**6)  # the Header record's length (after the magic)
+    p.write_bytes(bytes(data))
+    line = one_error(cli, "info", p)
+    assert re.fullmatch(
+        rf"error: {re.escape(str(p))}: not a readable ROS 2 bag \(Truncated record at offset "
+        r"17: expected 1000000 bytes, got \d+\.\)",
+        line,
+    ), line
+
+
+def test_csv_whose_header_lost_a_comma_is_one_line(cli, tmp_path, rec):
+    """``t,q_1`` became ``tq_1``: the rows have one field more than the header, and pandas,
+    asked for the first column only to count the rows, failed inside (a ValueError traceback
+    "zip() argument 2 is shorter than argument 1"); now the missing t is named."""
+    p = tmp_path / "a.csv"
+    dio.write(rec, p)
+    text = p.read_text()
+    p.write_text(text[:1] + text[2:])
+    assert one_error(cli, "info", p) == f"error: {p}: column 't' is missing"
+
+
+def test_nan_time_stamp_is_refused_by_a_reader_of_columns(cli, tmp_path, rec):
+    """report and view read a recording's columns without building a Recording: a NaN time
+    stamp went through; Source.times() now checks t as the Recording does."""
+    p = tmp_path / "nan.csv"
+    dio.write(rec, p)
+    lines = p.read_text().splitlines()
+    cells = lines[6].split(",")
+    cells[0] = "nan"
+    lines[6] = ",".join(cells)
+    p.write_text("\n".join(lines) + "\n")
+    want = f"{p}: t has 1 NaN values in rows 6.."
+    with pytest.raises(RecordingError) as exc:
+        open_source(p).times()
+    assert str(exc.value) == want
+    assert one_error(cli, "view", p, "--save", tmp_path / "v.rrd") == f"error: {want}"
+    assert not (tmp_path / "v.rrd").exists()
+
+
+def test_no_numpy_warning_before_the_column_error(cli, tmp_path, rec):
+    """A 5-joint log of an IRB140 with torques of 1e308 and a dither column: the search for the
+    dither period (over the whole log, before any piece is checked) printed three numpy
+    warnings ("overflow encountered in reduce", ...) above the error line."""
+    data = rec.data.drop(columns=["q_6", "tau_6"]).copy()
+    data[[f"tau_{j}" for j in range(1, 6)]] = 1e308
+    data["dither"] = (np.arange(len(data)) // 20) % 2 == 0
+    p = tmp_path / "five.parquet"
+    table = pa.Table.from_pandas(data, preserve_index=False)
+    pq.write_table(table.replace_schema_metadata({b"ditherlab": json.dumps(META).encode()}), p)
+    r = cli("convert", p, tmp_path / "o.csv")
+    assert r.code == 2 and r.err == (
+        f"error: {p}: robot 'irb140' has 6 joints but the recording has 5 (expected columns "
+        "q_1..q_6)\n"
+    ), r.err

@@ -50,7 +50,7 @@ def read(path: Path, **options: Any) -> Recording:
     header(path)
     try:
         data = pd.read_csv(path, skipinitialspace=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+    except (ValueError, pd.errors.EmptyDataError) as exc:  # ParserError, UnicodeDecodeError too
         raise FormatError(f"{path}: not a readable CSV file ({one_line(exc)})") from None
     check_numeric(data, path, header_lines=1)
     parse_dither(data)
@@ -63,7 +63,7 @@ def header(path: Path) -> list[str]:
     cannot be parsed."""
     try:
         row = pd.read_csv(path, header=None, nrows=1, dtype=str, skipinitialspace=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+    except (ValueError, pd.errors.EmptyDataError) as exc:  # ParserError, UnicodeDecodeError too
         raise FormatError(f"{path}: not a readable CSV file ({one_line(exc)})") from None
     names = ["" if pd.isna(v) else str(v) for v in row.iloc[0]] if len(row) else []
     first: dict[str, int] = {}

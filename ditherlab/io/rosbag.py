@@ -58,7 +58,7 @@ import apsw
 import numpy as np
 import pandas as pd
 from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from ditherlab.errors import ConfigError, DitherlabWarning, FormatError, one_line
@@ -128,6 +128,7 @@ _JOINT, _WRENCH, _URDF = 0, 1, 2
 #: what rosbags raises on a damaged bag
 _DAMAGE = (
     AnyReaderError,
+    ReaderError,
     OSError,
     ValueError,
     KeyError,

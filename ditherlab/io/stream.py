@@ -172,8 +172,9 @@ class Source:
         self.columns = csv_io.header(self.path)
         try:
             if "t" not in self.columns:  # counted here; Recording names the missing column
-                self.n_rows = len(pd.read_csv(self.path, skipinitialspace=True, usecols=[0]))
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+                blocks = pd.read_csv(self.path, skipinitialspace=True, chunksize=CHUNK_ROWS)
+                self.n_rows = sum(len(b) for b in blocks)
+        except (ValueError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
             raise FormatError(f"{self.name}: not a readable CSV file ({one_line(exc)})") from None
         if "t" in self.columns:
             self.n_rows = len(self.times())  # one pass: the rows counted as t is read
@@ -208,7 +209,7 @@ class Source:
                 csv_io.parse_dither(data)
                 start += len(data)
                 yield data
-        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        except ValueError as exc:  # pandas' ParserError and UnicodeDecodeError among them
             raise FormatError(f"{self.name}: not a readable CSV file ({one_line(exc)})") from None
 
     def column(self, name: str) -> np.ndarray:

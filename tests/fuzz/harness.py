@@ -332,6 +332,6 @@ def reproduction(res: Result, keep: Path) -> str:
     argv = [a.replace(str(inp), str(keep / "in")) for a in res.argv]
     argv = [re.sub(r"^.*/out/", str(keep / "out") + "/", a) if "/out/" in a else a for a in argv]
     return (
-        f"mkdir -p {keep}/out && PYTHONPATH={REPO} {shlex.quote(sys.executable)} -m ditherlab "
+        f"mkdir -p {keep}/out && cd {keep} && PYTHONPATH={REPO} {shlex.quote(sys.executable)} -m ditherlab "
         + " ".join(shlex.quote(a) for a in argv)
     )
