@@ -268,7 +268,34 @@ def run_case(
     code, sout, serr = runner(argv, work, timeout)
     res = Result(case, argv, code, sout, serr, time.perf_counter() - t0)
     res.findings = classify(res, before, _digest(inp), out)
+    lossless = Path(argv[-1] if case.command == "convert" else "").suffix in (".parquet", ".mcap")
+    if code == 0 and case.origin is not None and case.command == "convert" and lossless:
+        _check_same_data(res, Path(argv[2]))
     return res
+
+
+_ORIGINS: dict[Path, object] = {}
+
+
+def _check_same_data(res: Result, converted: Path) -> None:
+    """A damaged Parquet or ditherlab MCAP file that converts without an error must hold the
+    undamaged file's data (page checksums, chunk CRCs): else "wrongly accepted"."""
+    import ditherlab.io as dio
+
+    origin = res.case.origin
+    assert origin is not None
+    try:
+        if origin not in _ORIGINS:
+            _ORIGINS[origin] = dio.read(origin)
+        got = dio.read(converted)
+        same = got.data.equals(_ORIGINS[origin].data)  # type: ignore[attr-defined]
+    except Exception as exc:  # noqa: BLE001 - the output of an accepted conversion must read
+        same, why = False, f"its output does not read back: {type(exc).__name__}: {exc}"
+    else:
+        why = "the damaged file was read as different data"
+    if not same:
+        res.findings.append("wrongly accepted")
+        res.detail = res.detail or why
 
 
 def classify(res: Result, before: dict[str, str], after: dict[str, str], out: Path) -> list[str]:

@@ -132,6 +132,9 @@ class Case:
     args: list[str] = field(default_factory=list)
     must_refuse: str | None = None
     variant: int = 0
+    #: the undamaged file of a damaged Parquet or ditherlab MCAP recording: what a reader that
+    #: accepts the damaged one must read (both formats carry checksums)
+    origin: Path | None = None
 
 
 # ------------------------------------------------------------------ synthetic recordings
@@ -455,7 +458,11 @@ def mutated_case(draw, base: Base, kind: str, command: str) -> Case:
     if "/" in target_key and draw(st.booleans()):  # the bag's storage file instead of its folder
         target = next(k for k in keys if not k.endswith("metadata.yaml"))
     label = f"{name}: {victim.split('/')[-1]} {what}"
-    return Case(kind, command, label, files, target, robot, args, None, draw(st.integers(0, 7)))
+    v = draw(st.integers(0, 7))
+    # files ditherlab wrote (page checksums, chunk CRCs); the hopper's Parquet has no page
+    # checksums, so a damaged value in it cannot be told from a true one
+    origin = path if name in ("sim.parquet", "sim.mcap") else None
+    return Case(kind, command, label, files, target, robot, args, None, v, origin)
 
 
 def cases(base: Base, kind: str, command: str) -> st.SearchStrategy[Case]:
