@@ -28,7 +28,8 @@ from ditherlab.io.common import (
 from ditherlab.recording import WRENCH_COLUMNS, Recording
 
 OPTIONS = (*META_OPTIONS, "meta")
-_NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
+#: the recording columns that hold numbers (besides the wrench)
+NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
 
 
 def sidecar_path(path: Path) -> Path:
@@ -105,7 +106,7 @@ def check_numeric(
     ``row_offset`` is the file row of ``data``'s first row (a block of a longer file).
     """
     for c in data.columns:
-        if not (_NUMERIC.match(str(c)) or c in WRENCH_COLUMNS):
+        if not (NUMERIC.match(str(c)) or c in WRENCH_COLUMNS):
             continue
         col = data[c]
         if col.dtype.kind in "fiub":

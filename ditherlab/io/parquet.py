@@ -4,7 +4,6 @@ metadata)."""
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +19,10 @@ from ditherlab.io.common import (
     loads_meta,
     meta_from_options,
 )
+from ditherlab.io.csv import NUMERIC
 from ditherlab.recording import WRENCH_COLUMNS, Recording
 
 META_KEY = b"ditherlab"
-_NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
 #: rows per row group: a reader of pieces (:mod:`ditherlab.io.stream`) decodes one at a time
 ROW_GROUP = 131_072
 
@@ -60,7 +59,7 @@ def check_schema(schema: pa.Schema, path: Path | str) -> None:
     """FormatError for a recording column (``t``, ``q_j``, ..., ``f_x``..``m_z``) whose Parquet
     type is not a number (e.g. numbers stored as text), naming the column and its type."""
     for f in schema:
-        if not (_NUMERIC.match(f.name) or f.name in WRENCH_COLUMNS):
+        if not (NUMERIC.match(f.name) or f.name in WRENCH_COLUMNS):
             continue
         t = f.type
         if not (pa.types.is_integer(t) or pa.types.is_floating(t) or pa.types.is_decimal(t)):

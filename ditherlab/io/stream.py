@@ -174,7 +174,7 @@ class Source:
             if "t" not in self.columns:  # counted here; Recording names the missing column
                 blocks = pd.read_csv(self.path, skipinitialspace=True, chunksize=CHUNK_ROWS)
                 self.n_rows = sum(len(b) for b in blocks)
-        except (ValueError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        except (ValueError, pd.errors.EmptyDataError) as exc:  # UnicodeDecodeError too
             raise FormatError(f"{self.name}: not a readable CSV file ({one_line(exc)})") from None
         if "t" in self.columns:
             self.n_rows = len(self.times())  # one pass: the rows counted as t is read
