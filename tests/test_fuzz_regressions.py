@@ -307,3 +307,34 @@ def test_no_numpy_warning_before_the_column_error(cli, tmp_path, rec):
         f"error: {p}: robot 'irb140' has 6 joints but the recording has 5 (expected columns "
         "q_1..q_6)\n"
     ), r.err
+
+
+# ------------------------------------------------------------------ estimates (Parquet)
+def test_damaged_estimates_file_is_one_line_and_checked(tmp_path):
+    """``report`` on an estimates file with a damaged page header printed pyarrow's two-line
+    message; and estimates were written without page checksums, so a damaged value read as
+    another number. Now one line, and the pages carry checksums that are verified."""
+    from synthetic import push_recording
+
+    from ditherlab.estimates import Estimates
+    from ditherlab.identify import identify
+    from ditherlab.replay import replay
+
+    rec, _ = push_recording(0, magnitudes=(5.0,), axes=("x",), signs=(1.0,))
+    p = replay(rec.slice(0.0, 1.9), identify([rec], n_boot=0)).save(tmp_path / "e.parquet")
+    good = p.read_bytes()
+    col = pq.ParquetFile(p).metadata.row_group(0).column(1)
+    data = bytearray(good)
+    data[col.data_page_offset] ^= 0xFF
+    p.write_bytes(bytes(data))
+    with pytest.raises(FormatError) as exc:
+        Estimates.load(p)
+    assert str(exc.value) == (
+        f"{p}: not a readable Parquet file, truncated or corrupt (Couldn't deserialize thrift: "
+        "TProtocolException: Invalid data)"
+    )
+    data = bytearray(good)  # a byte of the page's values, its header intact
+    data[col.data_page_offset + col.total_compressed_size - 8] ^= 0x01
+    p.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match=r"^\S+: not a readable Parquet file, .*CRC checksum"):
+        Estimates.load(p)
