@@ -82,13 +82,13 @@ class Campaign:
                 "command": c.command,
                 "kind": c.kind,
                 "label": c.label,
-                "detail": res.detail or res.error_line,
+                "detail": res.details.get(cls) or res.error_line,
                 "stderr": res.err.strip()[-1500:],
                 "repro": reproduction(res, keep),
                 "count": 1,
             }
             print(
-                f"[{self.n}] {cls}: {c.command} {c.kind} {c.label} :: {res.detail[:200]}",
+                f"[{self.n}] {cls}: {c.command} {c.kind} {c.label} :: {res.details.get(cls, '')[:200]}",
                 flush=True,
             )
             self.write()

@@ -44,7 +44,13 @@ class Result:
     err: str
     seconds: float
     findings: list[str] = field(default_factory=list)
-    detail: str = ""
+    #: what was seen, per finding class
+    details: dict[str, str] = field(default_factory=dict)
+
+    def note(self, cls: str, detail: str) -> None:
+        """Record a finding of class ``cls``."""
+        self.findings.append(cls)
+        self.details.setdefault(cls, detail)
 
     @property
     def error_line(self) -> str:
@@ -267,7 +273,7 @@ def run_case(
     runner = {"inprocess": run_inprocess, "fork": run_forked, "subprocess": run_subprocess}[mode]
     code, sout, serr = runner(argv, work, timeout)
     res = Result(case, argv, code, sout, serr, time.perf_counter() - t0)
-    res.findings = classify(res, before, _digest(inp), out)
+    classify(res, before, _digest(inp), out)
     lossless = Path(argv[-1] if case.command == "convert" else "").suffix in (".parquet", ".mcap")
     if code == 0 and case.origin is not None and case.command == "convert" and lossless:
         _check_same_data(res, Path(argv[2]))
@@ -294,52 +300,46 @@ def _check_same_data(res: Result, converted: Path) -> None:
     else:
         why = "the damaged file was read as different data"
     if not same:
-        res.findings.append("wrongly accepted")
-        res.detail = res.detail or why
+        res.note("wrongly accepted", why)
 
 
 def classify(res: Result, before: dict[str, str], after: dict[str, str], out: Path) -> list[str]:
-    """The finding classes of one run (:data:`CLASSES`)."""
-    f: list[str] = []
+    """The finding classes of one run (:data:`CLASSES`), noted on ``res``."""
     lines = [x for x in res.err.splitlines() if x.strip() and not PROGRESS.match(x)]
     if res.code is None:
-        f.append("hang")
+        res.note("hang", f"no exit within the time limit; stderr: {' | '.join(lines[-2:])}")
     elif "Traceback" in res.err or res.code not in (0, 2):
-        f.append("traceback")
         tb = [x for x in res.err.splitlines() if x.strip()]
-        res.detail = tb[-1] if tb else f"exit status {res.code}"
+        res.note("traceback", tb[-1] if tb else f"exit status {res.code}")
     if before != after:
         changed = sorted(k for k in before.keys() | after.keys() if before.get(k) != after.get(k))
-        f.append("input modified")
-        res.detail = res.detail or f"changed: {', '.join(changed)}"
+        res.note("input modified", f"changed: {', '.join(changed)}")
     left = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
     if res.code != 0 and left:
-        f.append("partial output")
-        res.detail = res.detail or f"left: {', '.join(left[:5])}"
+        res.note("partial output", f"left: {', '.join(left[:5])}")
     elif res.code == 0:
         tmp = [x for x in left if re.search(r"(^|/)\.|\.tmp|tmp[a-z0-9_]{6,}", x)]
         if tmp:
-            f.append("partial output")
-            res.detail = res.detail or f"temporary files left: {', '.join(tmp[:5])}"
-    if res.code == 2 and "traceback" not in f:
+            res.note("partial output", f"temporary files left: {', '.join(tmp[:5])}")
+    if res.code == 2 and "traceback" not in res.findings:
         if len(lines) != 1:
             only_warnings = len(lines) > 1 and all(x.startswith("warning:") for x in lines[:-1])
-            f.append("warning before error" if only_warnings else "multi-line error")
-            res.detail = res.detail or " | ".join(lines[:4])[:400]
+            cls = "warning before error" if only_warnings else "multi-line error"
+            res.note(cls, " | ".join(lines[:4])[:400])
         elif not lines[0].startswith("error: "):
-            f.append("no 'error:' prefix")
+            res.note("no 'error:' prefix", lines[0])
         if res.out.strip():
-            f.append("stdout on error")
+            res.note("stdout on error", res.out.strip().splitlines()[0])
     if res.code == 0 and res.case.must_refuse:
-        f.append("wrongly accepted")
-        res.detail = res.detail or f"accepted despite {res.case.must_refuse}"
-    return f
+        res.note("wrongly accepted", f"accepted despite {res.case.must_refuse}")
+    return res.findings
 
 
 def signature(res: Result, cls: str) -> str:
     """What makes two findings the same: the class, the command and the message with numbers,
     paths and quoted values blurred."""
-    msg = res.detail if cls != "multi-line error" else res.detail.split(" | ")[0]
+    detail = res.details.get(cls, "")
+    msg = detail if cls != "multi-line error" else detail.split(" | ")[0]
     if cls in ("wrongly accepted",):
         msg = res.case.must_refuse or ""
     msg = re.sub(r"/\S+", "PATH", msg)
@@ -352,9 +352,7 @@ def reproduction(res: Result, keep: Path) -> str:
     """Keep the case's input in ``keep`` and return a shell command that reproduces it."""
     from tests.fuzz.inputs import copy_tree
 
-    src = Path(res.argv[1]).parent if res.argv[0] != "report" else None
-    inp = next(Path(a).parent for a in res.argv if "/in/" in a)
-    del src
+    inp = next(Path(a.split("/in/")[0]) / "in" for a in res.argv if "/in/" in a)
     copy_tree(inp, keep / "in")
     argv = [a.replace(str(inp), str(keep / "in")) for a in res.argv]
     argv = [re.sub(r"^.*/out/", str(keep / "out") + "/", a) if "/out/" in a else a for a in argv]
