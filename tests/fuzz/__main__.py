@@ -97,13 +97,14 @@ class Campaign:
         kinds = [k for k in KINDS if any(self.counts[(c, k)] for c in COMMANDS)]
         head = "| command | " + " | ".join(kinds) + " | all |"
         rows = [head, "|" + "---|" * (len(kinds) + 2)]
-        for cmd in COMMANDS:
+        commands = [c for c in COMMANDS if any(self.counts[(c, k)] for k in kinds)]
+        for cmd in commands:
             cells = [f"{self.counts[(cmd, k)]} ({self.failed[(cmd, k)]})" for k in kinds]
             tot = sum(self.counts[(cmd, k)] for k in kinds)
             bad = sum(self.failed[(cmd, k)] for k in kinds)
             rows.append(f"| {cmd} | " + " | ".join(cells) + f" | {tot} ({bad}) |")
-        tot = [sum(self.counts[(c, k)] for c in COMMANDS) for k in kinds]
-        bad = [sum(self.failed[(c, k)] for c in COMMANDS) for k in kinds]
+        tot = [sum(self.counts[(c, k)] for c in commands) for k in kinds]
+        bad = [sum(self.failed[(c, k)] for c in commands) for k in kinds]
         rows.append(
             "| all | "
             + " | ".join(f"{a} ({b})" for a, b in zip(tot, bad, strict=True))
