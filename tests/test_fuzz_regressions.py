@@ -101,6 +101,20 @@ def test_parquet_duplicated_column_is_refused(cli, tmp_path, rec):
     assert one_error(cli, "info", p) == f"error: {p}: column q_1 appears more than once"
 
 
+def test_parquet_duplicated_t_is_refused_before_t_is_read(cli, tmp_path, rec):
+    """Two columns named t: the piece reader took "the" t column as a 2-D array
+    (``ValueError: Data must be 1-dimensional``, a traceback in view, identify, replay); now
+    the Source refuses a repeated name when it opens the file."""
+    table = pa.Table.from_pandas(rec.data.iloc[:1], preserve_index=False)
+    table = table.append_column("t", table.column("t"))
+    p = tmp_path / "dup_t.parquet"
+    pq.write_table(table, p)  # no metadata: --robot
+    want = f"error: {p}: column t appears more than once"
+    assert one_error(cli, "view", p, "--robot", "irb140", "--save", tmp_path / "v.rrd") == want
+    assert one_error(cli, "info", p, "--robot", "irb140") == want
+    assert not (tmp_path / "v.rrd").exists()
+
+
 # ------------------------------------------------------------------ CSV
 def test_csv_duplicated_column_is_refused(cli, tmp_path, rec):
     """A second q_1 in the header became q_1.1 (pandas), then "required column q_3 is missing";

@@ -127,6 +127,9 @@ class Source:
             self._read_whole(options)
         self.bounded = self._rec is None
         self._timebase: TimeBase | None = None
+        dup = [c for i, c in enumerate(self.columns) if c in self.columns[:i]]
+        if dup:  # as the Recording says it (a column read alone would come back 2-D)
+            raise RecordingError(f"{self.name}: column {dup[0]} appears more than once")
 
     # ------------------------------------------------------------------ formats
     def _open_parquet(self, options: dict[str, Any]) -> None:
