@@ -232,7 +232,9 @@ def _apply(draw, s: Synth, d: str, rows: int, n: int) -> None:
         )
     elif d == "t_back" and rows > 1:
         r = max(r, 1)
-        s.columns[0][r] = s.columns[0][r - 1] - draw(st.sampled_from([1e-9, 0.5, 1e6]))
+        back = draw(st.sampled_from([1e-9, 0.5, 1e6]))
+        if _finite(s.columns[0][r - 1]):
+            s.columns[0][r] = s.columns[0][r - 1] - back
     elif d == "t_dup" and rows > 1:
         r = max(r, 1)
         s.columns[0][r] = s.columns[0][r - 1]
@@ -255,20 +257,25 @@ def _apply(draw, s: Synth, d: str, rows: int, n: int) -> None:
         s.columns[pick] = list(s.columns[pick])
         s.columns[pick][r] = draw(st.sampled_from(["abc", "1,5", "", "nan?", "0x10"]))
     elif d == "text_numbers":
-        s.columns[pick] = [repr(float(v)) for v in s.columns[pick]]
+        s.columns[pick] = [repr(float(v)) if _finite(v) else str(v) for v in s.columns[pick]]
     elif d == "no_meta":
         s.meta = None
     elif d == "int_dtype":
         s.columns[pick] = (
-            [int(round(v)) for v in s.columns[pick]] if s.names[pick] != "t" else s.columns[pick]
+            [int(round(v)) if _finite(v) else v for v in s.columns[pick]]
+            if s.names[pick] != "t"
+            else s.columns[pick]
         )
     elif d == "huge_gap" and rows > 1:
-        s.columns[0] = [v + (1e7 if i >= rows // 2 else 0) for i, v in enumerate(s.columns[0])]
+        gap = [1e7 if i >= rows // 2 and _finite(v) else 0 for i, v in enumerate(s.columns[0])]
+        s.columns[0] = [v + g if g else v for v, g in zip(s.columns[0], gap, strict=True)]
     elif d == "huge_values":
         tau = [i for i, c in enumerate(s.names) if c.startswith("tau_")]
         if tau:
             i = draw(st.sampled_from(tau))
-            s.columns[i] = [draw(st.sampled_from([1e308, -1e308, 1e300]))] * rows
+            big = draw(st.sampled_from([1e308, -1e308, 1e300]))
+            # a defect drawn before (NaN, a word) stays: it must still be refused
+            s.columns[i] = [big if _finite(v) else v for v in s.columns[i]]
     elif d == "extra_text_column":
         s.names.append(draw(st.sampled_from(["comment", "q_x", "Unnamed: 3", "tau"])))
         s.columns.append([f"note {i}" for i in range(rows)])
@@ -276,6 +283,10 @@ def _apply(draw, s: Synth, d: str, rows: int, n: int) -> None:
         s.meta_text = draw(st.sampled_from(['{"robot": "irb140"', "[1, 2]", "", "\x00\xff"]))
     elif d == "meta_robot_number" and s.meta is not None:
         s.meta["robot"] = draw(st.sampled_from([140, None, ["irb140"], {"urdf": 3}]))
+
+
+def _finite(v: object) -> bool:
+    return isinstance(v, int | float) and math.isfinite(v)
 
 
 def must_refuse(s: Synth, csv: bool) -> str | None:
