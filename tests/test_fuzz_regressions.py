@@ -285,7 +285,41 @@ def test_csv_whose_header_lost_a_comma_is_one_line(cli, tmp_path, rec):
     dio.write(rec, p)
     text = p.read_text()
     p.write_text(text[:1] + text[2:])
-    assert one_error(cli, "info", p) == f"error: {p}: column 't' is missing"
+    assert one_error(cli, "info", p) == f"error: {p}: required column t is missing"
+
+
+def test_csv_first_line_wider_than_the_header_is_refused(cli, tmp_path, rec):
+    """The first data line has more fields than the header: pandas took the leading fields of
+    every line as an index and shifted the values under the wrong names, silently (t got q_1's
+    values); report accepted such a file. Now refused by the whole-file and the piece reader."""
+    p = tmp_path / "wide.csv"
+    dio.write(rec, p)
+    lines = p.read_text().splitlines()
+    lines[1] += ",0,0"
+    p.write_text("\n".join(lines) + "\n")
+    want = (
+        f"{p}: line 2 has 15 fields but the header line has 13; expected one field per column "
+        "name on every line"
+    )
+    assert one_error(cli, "info", p) == f"error: {want}"
+    with pytest.raises(FormatError) as exc:
+        dio.read(p)
+    assert str(exc.value) == want
+
+
+def test_missing_joint_column_is_refused_by_a_reader_of_columns(cli, tmp_path, rec):
+    """q_5 missing: report (which reads t, the wrench and the dither flag through a Source,
+    never a Recording) accepted the file; the Source now checks the column names as the
+    Recording does when it opens the file."""
+    p = tmp_path / "no_q5.parquet"
+    dio.write(rec, tmp_path / "full.parquet")
+    table = pq.read_table(tmp_path / "full.parquet")
+    pq.write_table(table.drop_columns(["q_5"]), p)
+    want = f"{p}: required column q_5 is missing (found q_1..q_6, so q_1..q_6 [rad] are expected)"
+    with pytest.raises(RecordingError) as exc:
+        open_source(p)
+    assert str(exc.value) == want
+    assert one_error(cli, "view", p, "--save", tmp_path / "v.rrd") == f"error: {want}"
 
 
 def test_nan_time_stamp_is_refused_by_a_reader_of_columns(cli, tmp_path, rec):

@@ -53,9 +53,22 @@ def read(path: Path, **options: Any) -> Recording:
         data = pd.read_csv(path, skipinitialspace=True)
     except (ValueError, pd.errors.EmptyDataError) as exc:  # ParserError, UnicodeDecodeError too
         raise FormatError(f"{path}: not a readable CSV file ({one_line(exc)})") from None
+    check_fields(data, path)
     check_numeric(data, path, header_lines=1)
     parse_dither(data)
     return Recording(data, meta, name=str(path))
+
+
+def check_fields(data: pd.DataFrame, path: Path | str) -> None:
+    """FormatError when the first data line has more fields than the header: pandas then takes
+    the leading fields of every line as an index and shifts the values under the wrong names
+    (without a word)."""
+    if not isinstance(data.index, pd.RangeIndex):
+        n = len(data.columns)
+        raise FormatError(
+            f"{path}: line 2 has {n + data.index.nlevels} fields but the header line has {n}; "
+            "expected one field per column name on every line"
+        )
 
 
 def header(path: Path) -> list[str]:

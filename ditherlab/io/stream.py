@@ -47,6 +47,8 @@ from ditherlab.io.common import (
 from ditherlab.io.parquet import META_KEY, ROW_GROUP, check_schema, damaged, file_metadata
 from ditherlab.recording import Recording, TimeBase, meta_dither_period
 from ditherlab.recording import _check_increasing as check_increasing
+from ditherlab.recording import _joint_columns as joint_columns
+from ditherlab.recording import _wrench_columns as wrench_columns
 from ditherlab.signal import PERIOD_SAMPLES, period_from_feedforward, period_from_spectrum, runs
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -127,9 +129,11 @@ class Source:
             self._read_whole(options)
         self.bounded = self._rec is None
         self._timebase: TimeBase | None = None
-        dup = [c for i, c in enumerate(self.columns) if c in self.columns[:i]]
-        if dup:  # as the Recording says it (a column read alone would come back 2-D)
-            raise RecordingError(f"{self.name}: column {dup[0]} appears more than once")
+        # the column names as the Recording checks them (t, q_1..q_n, tau_1..tau_n, whole
+        # families, all six wrench columns or none), before any consumer reads a column alone
+        # (report, view): a repeated name would come back 2-D, a missing one unnoticed
+        joint_columns(self.columns, f"{self.name}: ")
+        wrench_columns(self.columns, f"{self.name}: ")
 
     # ------------------------------------------------------------------ formats
     def _open_parquet(self, options: dict[str, Any]) -> None:
@@ -208,6 +212,7 @@ class Source:
         try:
             reader = pd.read_csv(self.path, skipinitialspace=True, chunksize=rows, usecols=columns)
             for data in reader:
+                csv_io.check_fields(data, self.path)
                 csv_io.check_numeric(data, self.path, header_lines=1, row_offset=start)
                 csv_io.parse_dither(data)
                 start += len(data)
