@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 OUT    ?= demo-out
 JOBS   ?= 2
 
-.PHONY: setup demo test bench lint lock clean
+.PHONY: setup demo test bench fuzz lint lock clean
 
 $(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "ditherlab needs Python >= 3.11"'
@@ -25,6 +25,15 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) -m bench.run
+
+# The fuzz campaign (tests/fuzz): FUZZ_CASES cases over every command and input kind, one process
+# each, reproducible from FUZZ_SEED; findings with reproductions in fuzz-findings.md. `make test`
+# runs a small budget of it (tests/test_fuzz.py).
+FUZZ_CASES ?= 1000
+FUZZ_SEED  ?= 1
+fuzz: $(STAMP)
+	$(PY) -m tests.fuzz --cases $(FUZZ_CASES) --seed $(FUZZ_SEED) --work /tmp/ditherlab-fuzz \
+		--findings fuzz-findings.md
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check ditherlab tests bench

@@ -13,6 +13,12 @@ def where_prefix(where: object | None) -> str:
     return f"{where}: " if where else ""
 
 
+def one_line(exc: BaseException) -> str:
+    """A library's error message on one line (pyarrow's and pandas' can span several), or the
+    exception's type name when it has no message (MemoryError)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 class DitherlabError(Exception):
     """Base of all errors caused by bad input or bad options (CLI exit status 2)."""
 

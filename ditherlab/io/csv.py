@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import FormatError
+from ditherlab.errors import FormatError, one_line
 from ditherlab.io.atomic import atomic_path
 from ditherlab.io.common import (
     META_OPTIONS,
@@ -28,7 +28,8 @@ from ditherlab.io.common import (
 from ditherlab.recording import WRENCH_COLUMNS, Recording
 
 OPTIONS = (*META_OPTIONS, "meta")
-_NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
+#: the recording columns that hold numbers (besides the wrench)
+NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
 
 
 def sidecar_path(path: Path) -> Path:
@@ -47,13 +48,47 @@ def read(path: Path, **options: Any) -> Recording:
     path = Path(path)
     check_options(options, OPTIONS, "CSV", str(path))
     meta = read_meta(path, options)
+    header(path)
     try:
         data = pd.read_csv(path, skipinitialspace=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: not a readable CSV file ({str(exc).strip()})") from None
+    except (ValueError, pd.errors.EmptyDataError) as exc:  # ParserError, UnicodeDecodeError too
+        raise FormatError(f"{path}: not a readable CSV file ({one_line(exc)})") from None
+    check_fields(data, path)
     check_numeric(data, path, header_lines=1)
     parse_dither(data)
     return Recording(data, meta, name=str(path))
+
+
+def check_fields(data: pd.DataFrame, path: Path | str) -> None:
+    """FormatError when the first data line has more fields than the header: pandas then takes
+    the leading fields of every line as an index and shifts the values under the wrong names
+    (without a word)."""
+    if not isinstance(data.index, pd.RangeIndex):
+        n = len(data.columns)
+        raise FormatError(
+            f"{path}: line 2 has {n + data.index.nlevels} fields but the header line has {n}; "
+            "expected one field per column name on every line"
+        )
+
+
+def header(path: Path) -> list[str]:
+    """The column names of a CSV file's header line, as written (pandas would rename a second
+    ``q_1`` to ``q_1.1``); FormatError for a name that appears more than once or a file that
+    cannot be parsed."""
+    try:
+        row = pd.read_csv(path, header=None, nrows=1, dtype=str, skipinitialspace=True)
+    except (ValueError, pd.errors.EmptyDataError) as exc:  # ParserError, UnicodeDecodeError too
+        raise FormatError(f"{path}: not a readable CSV file ({one_line(exc)})") from None
+    names = ["" if pd.isna(v) else str(v) for v in row.iloc[0]] if len(row) else []
+    first: dict[str, int] = {}
+    for i, c in enumerate(names):
+        if c in first:
+            raise FormatError(
+                f"{path}: column {c or '(empty)'} appears more than once in the header line "
+                f"(fields {first[c] + 1} and {i + 1}); expected unique column names"
+            )
+        first[c] = i
+    return names
 
 
 def read_meta(path: Path, options: dict[str, Any]) -> dict[str, Any]:
@@ -84,7 +119,7 @@ def check_numeric(
     ``row_offset`` is the file row of ``data``'s first row (a block of a longer file).
     """
     for c in data.columns:
-        if not (_NUMERIC.match(str(c)) or c in WRENCH_COLUMNS):
+        if not (NUMERIC.match(str(c)) or c in WRENCH_COLUMNS):
             continue
         col = data[c]
         if col.dtype.kind in "fiub":

@@ -18,7 +18,9 @@ Layout, chosen so that any MCAP tool (Foxglove, ``mcap cat``, PlotJuggler) can s
   ``columns`` (JSON list of ``[name, dtype]`` in table order) and ``format``
   (``"ditherlab.mcap/1"``).
 
-The file is chunked (zstd), indexed, with CRCs and a summary. JSON numbers carry Python's
+The file is chunked (zstd), indexed, with a summary, and CRCs of every chunk, the data section
+and the summary; the reader checks every chunk's CRC (a chunk without one is refused) and the
+summary's, so a damaged byte is an error, not different data. JSON numbers carry Python's
 ``repr`` of each float, so the round trip is exact.
 """
 
@@ -46,7 +48,7 @@ from mcap.writer import CompressionType, Writer
 from zstandard import ZstdError
 
 import ditherlab
-from ditherlab.errors import ConfigError, FormatError
+from ditherlab.errors import ConfigError, FormatError, one_line
 from ditherlab.io.atomic import atomic_path
 from ditherlab.io.common import (
     META_OPTIONS,
@@ -259,7 +261,8 @@ def write_frames(
     where = name or str(path)
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         enc: _Encoder | None = None
-        w = Writer(f, compression=CompressionType.ZSTD)
+        # CRCs of every chunk, the data section and the summary: a reader finds a damaged byte
+        w = Writer(f, compression=CompressionType.ZSTD, enable_crcs=True, enable_data_crcs=True)
         channel: list[int] = []
         start = 0
         for data in frames:
@@ -299,7 +302,16 @@ def write_frames(
 
 # ------------------------------------------------------------------------------ read
 #: what a damaged file makes the mcap library (or zstandard, json) raise
-_DAMAGE = (McapError, ZstdError, struct.error, ValueError, EOFError, OSError, KeyError)
+_DAMAGE = (
+    McapError,
+    ZstdError,
+    struct.error,
+    ValueError,
+    EOFError,
+    OSError,
+    KeyError,
+    MemoryError,  # a damaged record length: the library reads that many bytes
+)
 _FAST_COMPRESSIONS = ("zstd", "")  # chunks _messages decompresses itself
 _RECORD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE = struct.Struct("<HI")  # channel id, sequence (then log time, publish time, data)
@@ -319,7 +331,7 @@ def header_profile(path: Path) -> tuple[str, set[str]]:
             except (McapError, struct.error, ValueError, EOFError):
                 summary = None
     except (McapError, struct.error, ValueError, EOFError, OSError) as exc:
-        raise FormatError(f"{path}: not a readable MCAP file ({exc})") from None
+        raise FormatError(f"{path}: not a readable MCAP file ({one_line(exc)})") from None
     encodings = {s.encoding for s in summary.schemas.values()} if summary else set()
     return profile, encodings
 
@@ -366,6 +378,7 @@ def layout(path: Path, **options: Any) -> Layout:
                     f"{path}: MCAP profile is {header.profile!r}, expected "
                     f"{PROFILE!r} (a ditherlab MCAP file)"
                 )
+            _check_summary_crc(f, path)
             records = [m for m in reader.iter_metadata() if m.name == "ditherlab"]
             counts: dict[str, int] = {}
             if summary.statistics is not None:
@@ -378,7 +391,9 @@ def layout(path: Path, **options: Any) -> Layout:
     except FormatError:
         raise
     except _DAMAGE as exc:
-        raise FormatError(f"{path}: the MCAP file is truncated or corrupt ({exc})") from None
+        raise FormatError(
+            f"{path}: the MCAP file is truncated or corrupt ({one_line(exc)})"
+        ) from None
     if not records:
         raise FormatError(f"{path}: MCAP metadata record 'ditherlab' is missing")
     info = records[-1].metadata
@@ -389,7 +404,7 @@ def layout(path: Path, **options: Any) -> Layout:
         columns = [[str(c), str(d)] for c, d in columns]
     except (ValueError, TypeError) as exc:
         raise FormatError(
-            f"{path}: MCAP metadata 'columns' is not a JSON list of [name, dtype] ({exc})"
+            f"{path}: MCAP metadata 'columns' is not a JSON list of [name, dtype] ({one_line(exc)})"
         ) from None
     n_rows = counts.get(JOINTS, 0)
     if not n_rows:
@@ -400,6 +415,28 @@ def layout(path: Path, **options: Any) -> Layout:
                 f"{path}: channel {topic} has {k} messages, expected one per sample ({n_rows})"
             )
     return Layout(path, meta, columns, counts, n_rows)
+
+
+_FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary start, summary offset start, CRC
+
+
+def _check_summary_crc(f: BinaryIO, path: Path) -> None:
+    """FormatError when the summary section (channels, statistics, chunk indexes) does not
+    match the CRC in the footer (the mcap library does not check it); a CRC of 0 means none was
+    written."""
+    f.seek(0, 2)
+    size = f.tell()
+    f.seek(size - 8 - _FOOTER.size)
+    _op, _n, start, _offsets, crc = _FOOTER.unpack(f.read(_FOOTER.size))
+    if not crc or not start:
+        return
+    f.seek(start)
+    got = zlib.crc32(f.read(size - 8 - 4 - start))
+    if got != crc:
+        raise FormatError(
+            f"{path}: the MCAP file is corrupt: its summary section has CRC {got}, the footer "
+            f"says {crc}"
+        )
 
 
 def _topic(column: str) -> str:
@@ -465,7 +502,9 @@ def frames(lay: Layout, rows: int, columns: list[str] | None = None) -> Iterator
     except FormatError:
         raise
     except _DAMAGE as exc:
-        raise FormatError(f"{path}: the MCAP file is truncated or corrupt ({exc})") from None
+        raise FormatError(
+            f"{path}: the MCAP file is truncated or corrupt ({one_line(exc)})"
+        ) from None
 
 
 def _messages(f: BinaryIO, topics: set[str]) -> Iterator[tuple[str, int, bytes]]:
@@ -521,8 +560,10 @@ def _chunk_bytes(chunk: Chunk) -> bytes:
         raise McapError(f"unknown chunk compression {chunk.compression!r}")
     if len(data) != chunk.uncompressed_size:
         raise McapError(f"a chunk holds {len(data)} bytes, {chunk.uncompressed_size} expected")
+    if not chunk.uncompressed_crc:  # ditherlab writes one for every chunk
+        raise McapError("a chunk has no CRC (ditherlab MCAP files are written with chunk CRCs)")
     crc = zlib.crc32(data)
-    if chunk.uncompressed_crc and crc != chunk.uncompressed_crc:
+    if crc != chunk.uncompressed_crc:
         raise McapError(f"chunk CRC {crc} does not match the stored {chunk.uncompressed_crc}")
     return data
 

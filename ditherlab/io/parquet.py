@@ -19,7 +19,8 @@ from ditherlab.io.common import (
     loads_meta,
     meta_from_options,
 )
-from ditherlab.recording import Recording
+from ditherlab.io.csv import NUMERIC
+from ditherlab.recording import WRENCH_COLUMNS, Recording
 
 META_KEY = b"ditherlab"
 #: rows per row group: a reader of pieces (:mod:`ditherlab.io.stream`) decodes one at a time
@@ -36,15 +37,35 @@ def read(path: Path, **options: Any) -> Recording:
     check_options(options, META_OPTIONS, "Parquet", str(path))
     try:
         pf = pq.ParquetFile(path, page_checksum_verification=True)
+        check_schema(pf.schema_arrow, path)
         table = pf.read()
     except (pa.ArrowException, OSError) as exc:
-        raise FormatError(
-            f"{path}: not a readable Parquet file, truncated or corrupt ({exc})"
-        ) from None
+        raise damaged(path, exc) from None
     kv = file_metadata(pf)
     stored = loads_meta(kv[META_KEY], str(path)) if META_KEY in kv else None
     meta = meta_from_options(stored, options, where=str(path))
     return Recording(table.to_pandas(), meta, name=str(path))
+
+
+def damaged(path: Path | str, exc: BaseException) -> FormatError:
+    """The error for a Parquet file pyarrow cannot read: one line, whatever pyarrow's message
+    (a corrupt page's runs over several lines: only its first, trimmed, is kept)."""
+    lines = [x.strip() for x in str(exc).splitlines() if x.strip()]
+    why = lines[0].rstrip(":") if lines else type(exc).__name__
+    return FormatError(f"{path}: not a readable Parquet file, truncated or corrupt ({why})")
+
+
+def check_schema(schema: pa.Schema, path: Path | str) -> None:
+    """FormatError for a recording column (``t``, ``q_j``, ..., ``f_x``..``m_z``) whose Parquet
+    type is not a number (e.g. numbers stored as text), naming the column and its type."""
+    for f in schema:
+        if not (NUMERIC.match(f.name) or f.name in WRENCH_COLUMNS):
+            continue
+        t = f.type
+        if not (pa.types.is_integer(t) or pa.types.is_floating(t) or pa.types.is_decimal(t)):
+            raise FormatError(
+                f"{path}: column {f.name} has Parquet type {t}, expected numbers (float64)"
+            )
 
 
 def file_metadata(pf: pq.ParquetFile) -> dict[bytes, bytes]:

@@ -58,10 +58,10 @@ import apsw
 import numpy as np
 import pandas as pd
 from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
-from ditherlab.errors import ConfigError, DitherlabWarning, FormatError
+from ditherlab.errors import ConfigError, DitherlabWarning, FormatError, one_line
 from ditherlab.io.atomic import current_umask
 from ditherlab.io.common import (
     META_OPTIONS,
@@ -128,6 +128,7 @@ _JOINT, _WRENCH, _URDF = 0, 1, 2
 #: what rosbags raises on a damaged bag
 _DAMAGE = (
     AnyReaderError,
+    ReaderError,
     OSError,
     ValueError,
     KeyError,
@@ -137,6 +138,7 @@ _DAMAGE = (
     apsw.Error,
     OverflowError,
     IndexError,
+    MemoryError,  # a damaged record length: rosbags reads that many bytes
 )
 
 
@@ -186,7 +188,7 @@ class _Bag:
         except FormatError:
             raise
         except _DAMAGE as exc:
-            raise FormatError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+            raise FormatError(f"{path}: not a readable ROS 2 bag ({one_line(exc)})") from None
 
 
 @dataclass
@@ -595,7 +597,7 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
             os.replace(path, old)
         os.replace(bag, path)
     except WriterError as exc:
-        raise FormatError(f"{path}: cannot write the ROS 2 bag ({exc})") from None
+        raise FormatError(f"{path}: cannot write the ROS 2 bag ({one_line(exc)})") from None
     finally:
         with contextlib.suppress(OSError):
             shutil.rmtree(tmpdir)

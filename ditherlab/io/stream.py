@@ -32,7 +32,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ditherlab.errors import ConfigError, FormatError, RecordingError
+from ditherlab.errors import ConfigError, FormatError, RecordingError, one_line
 from ditherlab.io import _module, detect_format, read, write
 from ditherlab.io import csv as csv_io
 from ditherlab.io.atomic import atomic_path
@@ -44,8 +44,11 @@ from ditherlab.io.common import (
     loads_meta,
     meta_from_options,
 )
-from ditherlab.io.parquet import META_KEY, ROW_GROUP, file_metadata
+from ditherlab.io.parquet import META_KEY, ROW_GROUP, check_schema, damaged, file_metadata
 from ditherlab.recording import Recording, TimeBase, meta_dither_period, share_meta
+from ditherlab.recording import _check_increasing as check_increasing
+from ditherlab.recording import _joint_columns as joint_columns
+from ditherlab.recording import _wrench_columns as wrench_columns
 from ditherlab.signal import PERIOD_SAMPLES, period_from_feedforward, period_from_spectrum, runs
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -126,6 +129,11 @@ class Source:
             self._read_whole(options)
         self.bounded = self._rec is None
         self._timebase: TimeBase | None = None
+        # the column names as the Recording checks them (t, q_1..q_n, tau_1..tau_n, whole
+        # families, all six wrench columns or none), before any consumer reads a column alone
+        # (report, view): a repeated name would come back 2-D, a missing one unnoticed
+        joint_columns(self.columns, f"{self.name}: ")
+        wrench_columns(self.columns, f"{self.name}: ")
 
     # ------------------------------------------------------------------ formats
     def _open_parquet(self, options: dict[str, Any]) -> None:
@@ -133,11 +141,9 @@ class Source:
         try:
             # pre_buffer=False: read one batch at a time (pre-buffering holds whole row groups)
             self._pf = pq.ParquetFile(self.path, page_checksum_verification=True, pre_buffer=False)
+            check_schema(self._pf.schema_arrow, self.name)
         except (pa.ArrowException, OSError) as exc:
-            raise FormatError(
-                f"{self.name}: not a readable Parquet file, truncated or corrupt "
-                f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
-            ) from None
+            raise damaged(self.name, exc) from None
         kv = file_metadata(self._pf)
         stored = loads_meta(kv[META_KEY], self.name) if META_KEY in kv else None
         self.meta = meta_from_options(stored, options, where=self.name)
@@ -170,16 +176,13 @@ class Source:
     def _open_csv(self, options: dict[str, Any]) -> None:
         check_options(options, csv_io.OPTIONS, "CSV", self.name)
         self.meta = csv_io.read_meta(self.path, options)
+        self.columns = csv_io.header(self.path)
         try:
-            self.columns = [
-                str(c) for c in pd.read_csv(self.path, skipinitialspace=True, nrows=0).columns
-            ]
             if "t" not in self.columns:  # counted here; Recording names the missing column
-                self.n_rows = len(pd.read_csv(self.path, skipinitialspace=True, usecols=[0]))
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-            raise FormatError(
-                f"{self.name}: not a readable CSV file ({str(exc).strip()})"
-            ) from None
+                blocks = pd.read_csv(self.path, skipinitialspace=True, chunksize=CHUNK_ROWS)
+                self.n_rows = sum(len(b) for b in blocks)
+        except (ValueError, pd.errors.EmptyDataError) as exc:  # UnicodeDecodeError too
+            raise FormatError(f"{self.name}: not a readable CSV file ({one_line(exc)})") from None
         if "t" in self.columns:
             self.n_rows = len(self.times())  # one pass: the rows counted as t is read
 
@@ -197,10 +200,7 @@ class Source:
                 for batch in self._pf.iter_batches(batch_size=rows, columns=columns):
                     yield batch.to_pandas()
             except (pa.ArrowException, OSError) as exc:
-                msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                raise FormatError(
-                    f"{self.name}: not a readable Parquet file, truncated or corrupt ({msg})"
-                ) from None
+                raise damaged(self.name, exc) from None
             return
         if self.kind == "mcap":
             yield from _module("mcap").frames(self._mcap, rows, columns)
@@ -212,14 +212,13 @@ class Source:
         try:
             reader = pd.read_csv(self.path, skipinitialspace=True, chunksize=rows, usecols=columns)
             for data in reader:
+                csv_io.check_fields(data, self.path)
                 csv_io.check_numeric(data, self.path, header_lines=1, row_offset=start)
                 csv_io.parse_dither(data)
                 start += len(data)
                 yield data
-        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-            raise FormatError(
-                f"{self.name}: not a readable CSV file ({str(exc).strip()})"
-            ) from None
+        except ValueError as exc:  # pandas' ParserError and UnicodeDecodeError among them
+            raise FormatError(f"{self.name}: not a readable CSV file ({one_line(exc)})") from None
 
     def column(self, name: str) -> np.ndarray:
         """One whole column, (N,)."""
@@ -229,11 +228,23 @@ class Source:
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def times(self) -> np.ndarray:
-        """The whole ``t`` column, (N,) [s], read once and kept (8 bytes per sample)."""
+        """The whole ``t`` column, (N,) [s], read once and kept (8 bytes per sample).
+
+        RecordingError, as the Recording's, when a time stamp is not a finite number or ``t`` is
+        not strictly increasing: a reader of columns (``report``, ``view``) relies on it."""
         if self._t is None:
             if "t" not in self.columns:
                 raise RecordingError(f"{self.name}: column 't' is missing")
-            self._t = pd.to_numeric(pd.Series(self.column("t")), errors="coerce").to_numpy(float)
+            if self.kind == "csv":
+                # every column parsed: a row with more fields than the header is an error here
+                # (pandas reads one column of a ragged file, slowly, without a word)
+                parts = [f["t"].to_numpy() for f in self.frames(CHUNK_ROWS)]
+                t = np.concatenate(parts) if parts else np.zeros(0)
+            else:
+                t = self.column("t")
+            t = pd.to_numeric(pd.Series(t), errors="coerce").to_numpy(float)
+            check_times(t, self.name)
+            self._t = t
         return self._t
 
     def read(self) -> Recording:
@@ -250,7 +261,9 @@ class Source:
         """The whole recording's :class:`~ditherlab.recording.TimeBase` (read once)."""
         if self._timebase is None:
             t = self.times()
-            self._timebase = TimeBase.of(t, self._dither_period(t))
+            # numpy's warnings on absurd values (1e308 N·m): the pieces' checks report them
+            with np.errstate(all="ignore"):
+                self._timebase = TimeBase.of(t, self._dither_period(t))
         return self._timebase
 
     def _dither_period(self, t: np.ndarray) -> float | None:
@@ -285,7 +298,10 @@ class Source:
         tau = self._rows(idx, [c for c in self.columns if c.startswith("tau_") and c[4:].isdigit()])
         fs = float(self.meta["sample_rate_hz"]) if "sample_rate_hz" in self.meta else None
         if fs is None:
-            fs = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+            step = float(np.median(np.diff(t))) if len(t) > 1 else math.nan
+            if not step > 0:
+                return None  # t does not increase: the first piece says where
+            fs = 1.0 / step
         try:
             return period_from_spectrum(tau, fs, self.name)
         except ConfigError:
@@ -323,12 +339,16 @@ class Source:
         context) and the Recording's own errors for a piece that breaks the contract.
         """
         tb = self.timebase()
-        halo = max(int(math.ceil(halo_s / tb.dt)), 1) if math.isfinite(tb.dt) else 1
+        # a median step of 0 or less (t repeats or goes back): one row, and the first piece's
+        # Recording names the row where t stops increasing
+        ok = math.isfinite(tb.dt) and tb.dt > 0
+        halo = max(int(math.ceil(halo_s / tb.dt)), 1) if ok else 1
         rows = int(rows)
         if rows < 4 * halo:
             raise ConfigError(
                 f"chunk size {rows} rows is below four times the {halo}-row context "
-                f"({halo_s:g} s at {1 / tb.dt:.4g} Hz); expected at least {4 * halo} rows"
+                f"({halo_s:g} s at {1 / tb.dt if ok else math.nan:.4g} Hz); expected at least "
+                f"{4 * halo} rows"
             )
         N = self.n_rows
         count = max(1, math.ceil(N / rows))
@@ -370,6 +390,17 @@ class Source:
                 f"{self.name}: {buf_start + (0 if buf is None else len(buf))} rows read, "
                 f"{N} expected from the file's row count"
             )
+
+
+def check_times(t: np.ndarray, name: str) -> None:
+    """RecordingError, in the Recording's words, for a time stamp that is not a finite number
+    or ``t`` (N,) [s] that does not strictly increase."""
+    bad = ~np.isfinite(t)
+    if bad.any():
+        kind = "NaN" if np.isnan(t[bad]).all() else "NaN or infinite"
+        first = int(np.flatnonzero(bad)[0]) + 1
+        raise RecordingError(f"{name}: t has {int(bad.sum())} {kind} values in rows {first}..")
+    check_increasing(t, f"{name}: ")
 
 
 def pieces_of(
@@ -435,7 +466,7 @@ def _parquet_pieces(src: Source, path: Path, rows: int) -> Path:
                 table = pa.Table.from_pandas(data, schema=schema, preserve_index=False)
             except (pa.ArrowInvalid, pa.ArrowTypeError) as exc:
                 raise FormatError(
-                    f"{src.name}: a column changes type at row {start + 1} ({exc}); expected "
+                    f"{src.name}: a column changes type at row {start + 1} ({one_line(exc)}); expected "
                     "one type per column"
                 ) from None
             writer.write_table(table, row_group_size=ROW_GROUP)
