@@ -363,14 +363,15 @@ def diagnose(
     """Where the model fails (residual vs noise floor, force error, worst windows) and which effect is missing."""
     import json
 
-    from ditherlab.io.atomic import json_default
+    from ditherlab.io.atomic import all_or_nothing, json_default
     from ditherlab.loop import diagnose_files
 
     if out is not None:
         guard(out, *recordings, model, mapping=mapping, folder=True, force=force)
     if not no_history and model.is_file():
         guard(model)  # its history gains a row: the model file is an output too
-    with progress_bar("diagnose", quiet or json_out) as progress:
+    undo = all_or_nothing(out) if out is not None else contextlib.nullcontext()
+    with progress_bar("diagnose", quiet or json_out) as progress, undo:
         d = diagnose_files(
             recordings,
             model,
@@ -577,11 +578,11 @@ def report(
     """Detection thresholds per direction beside the paper's §VI-C numbers, curves, coverage, figures."""
     import json
 
-    from ditherlab.io.atomic import json_default
+    from ditherlab.io.atomic import all_or_nothing, json_default
     from ditherlab.report import make_report, summary_text
 
     guard(out, *estimates, *(recording or []), folder=True, force=force)
-    with progress_bar("report", quiet or json_out) as progress:
+    with progress_bar("report", quiet or json_out) as progress, all_or_nothing(out):
         a = make_report(
             estimates,
             out,

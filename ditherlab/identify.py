@@ -31,6 +31,7 @@ The band-plus-noise fits themselves are :mod:`ditherlab.bandfit`.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -358,7 +359,8 @@ class _Samples:
         dq = rec.dq
         # the paper's model neglects dynamic torques ("slow velocities and low accelerations"):
         # the moving regime is fitted where the (0.1 s averaged) acceleration is low
-        slow = np.abs(causal_mean(rec.ddq, max(int(round(0.1 * rec.sample_rate)), 1)))
+        fs = rec.sample_rate if math.isfinite(rec.sample_rate) else 1.0  # NaN: one sample
+        slow = np.abs(causal_mean(rec.ddq, max(int(round(0.1 * fs)), 1)))
         slow = slow <= max_accel
         # break-away / stopping transients, short slips and velocity reversals are not on the
         # sliding line (the samples diagnose leaves out): the moving band is fitted without them

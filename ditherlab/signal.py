@@ -203,6 +203,8 @@ def smooth_wrench(
     effect that scales ``J^T F`` (``attenuation_lag`` with a gain below 1) "explains" that noise
     (errors in variables). Pushes and contacts last far longer than the window.
     """
+    if not math.isfinite(sample_rate):  # a one-sample log without a stated rate
+        return np.asarray(F, dtype=float)
     w = int(round(window_s * sample_rate)) | 1
     if w < 5 or len(F) <= w:
         return np.asarray(F, dtype=float)
@@ -312,6 +314,8 @@ def stick_transitions(
     """
     N, n = reg.shape
     out = np.zeros((N, n), dtype=bool)
+    if not math.isfinite(sample_rate):  # a one-sample log without a stated rate: no run
+        return out
     lmin = max(1, int(round(min_stick_s * sample_rate)))
     lmot = max(1, int(round(min_motion_s * sample_rate)))
     g = int(round(settle_s * sample_rate))

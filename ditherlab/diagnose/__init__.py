@@ -330,6 +330,8 @@ def diagnose(
     windows: list[dict[str, Any]] = []
     thinned: list[Scored] = []
     for r, total in zip(recs, totals, strict=True):
+        if total < 2:  # one sample: no step, no rate, nothing to score (said below if all are)
+            continue
         name = r.name or "<memory>"
         with Spill() as spill:
             built = StatsBuilder(model, MIN_REGIME_SAMPLES, spill)

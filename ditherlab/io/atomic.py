@@ -174,6 +174,28 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
         raise
 
 
+@contextlib.contextmanager
+def all_or_nothing(folder: str | Path) -> Iterator[Path]:
+    """A block that writes files into ``folder``: if it raises, the files and folders it
+    created there are removed (and ``folder`` itself when the block created it), so a command
+    that fails half-way leaves no partial output. Files it replaced stay replaced (each was
+    written atomically: whole, old or new)."""
+    out = Path(folder)
+    existed = out.exists()
+    before = set(out.rglob("*")) if existed else set()
+    try:
+        yield out
+    except BaseException:
+        if out.is_dir():
+            for p in sorted(set(out.rglob("*")) - before, key=lambda p: len(p.parts), reverse=True):
+                with contextlib.suppress(OSError):
+                    p.rmdir() if p.is_dir() and not p.is_symlink() else p.unlink()
+            if not existed:
+                with contextlib.suppress(OSError):
+                    out.rmdir()
+        raise
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically; returns the path."""
     with atomic_path(path) as tmp:

@@ -44,6 +44,7 @@ ConfigError naming the mapping file and the key.
 from __future__ import annotations
 
 import codecs
+import csv
 import difflib
 import math
 import tomllib
@@ -53,7 +54,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import ConfigError, FormatError
+from ditherlab.errors import ConfigError, FormatError, one_line
 from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options, robot_spec
 from ditherlab.recording import (
     PAYLOAD_NODE,
@@ -188,6 +189,37 @@ def load_mapping(mapping: str | Path) -> tuple[dict[str, Any], Path]:
     return spec, p
 
 
+def _check_widths(
+    path: Path, mp: Path, delim: str, skip: int, comment: str | None, encoding: str
+) -> None:
+    """The first two lines read (after ``skip`` and comments) must have the same number of
+    fields: pandas takes the first line's count for every row, so a first line of 200 000
+    fields would have it parse every row that wide (minutes) before any message."""
+    seen: list[tuple[int, int]] = []
+    try:
+        with open(path, encoding=encoding, newline="") as f:
+            for number, line in enumerate(f, start=1):
+                if number <= skip or not line.strip():
+                    continue
+                if comment and line.lstrip().startswith(comment):
+                    continue
+                if delim == "whitespace":
+                    width = len(line.split())
+                else:
+                    width = len(next(csv.reader([line], delimiter=delim, skipinitialspace=True)))
+                seen.append((number, width))
+                if len(seen) == 2:
+                    break
+    except (UnicodeDecodeError, csv.Error, StopIteration):
+        return  # pandas' own reading gives the message
+    if len(seen) == 2 and seen[0][1] != seen[1][1]:
+        (a, na), (b, nb) = seen
+        raise FormatError(
+            f"{path}: line {a} has {na} fields but line {b} has {nb}; expected the same number "
+            f"of fields on every line (as described by {mp})"
+        )
+
+
 def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
     """Read the foreign log ``path`` as described by ``mapping`` (file or built-in name).
 
@@ -201,6 +233,7 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
     header = bool(inp.get("header", True))
     delim = inp.get("delimiter", ",")
     skip = int(inp.get("skip_rows", 0))
+    _check_widths(path, mp, delim, skip, inp.get("comment"), inp.get("encoding", "utf-8"))
     try:
         raw = pd.read_csv(
             path,
@@ -214,7 +247,9 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
             skipinitialspace=True,
         )
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: cannot be parsed as described by {mp} ({exc})") from None
+        raise FormatError(
+            f"{path}: cannot be parsed as described by {mp} ({one_line(exc)})"
+        ) from None
     reader = _Columns(raw, path, mp, header)
 
     cols: dict[str, np.ndarray] = {}
