@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.dither import extract, extract_dither
+from ditherlab.dither import dither_waveform, extract, extract_dither
 from ditherlab.effects import signals
 from ditherlab.errors import RecordingError
 from ditherlab.estimates import COMPONENTS, Estimates, EstimatesSource, check_times_match
@@ -661,7 +661,9 @@ def _dither_figures(
     five_w = int(np.ceil(5 * period / _step(dith.t))) + 1
     rec, m = dith.window(i0, i1, context=five_w)
     g = _gravity_and_sensor_torque(rec)[0]
-    five = extract(rec.tau, rec.t, period, periods=5, dt=_step(dith.t))
+    five = extract(
+        rec.tau, rec.t, period, periods=5, dt=_step(dith.t), waveform=dither_waveform(dith.meta)
+    )
     ffw = rec.tau_ffw[m, j] if rec.tau_ffw is not None else None
     amp_ref = None
     sim = dith.meta.get("sim", {})

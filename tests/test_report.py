@@ -147,3 +147,28 @@ def test_cli_report_with_a_missing_recording_writes_nothing(tmp_path, cli, pair)
     r = cli("report", *paths, "-o", out, "--recording", tmp_path / "nope.parquet", "-q")
     assert r.code == 2 and r.err.count("\n") == 1 and "nope.parquet" in r.err, r.err
     assert not out.exists()
+
+
+def test_fig5_measures_a_sine_dither_as_its_peak(tmp_path, monkeypatch):
+    """Fig. 5's measured amplitude uses the recording's waveform: on a sine dither it settles on
+    the peak set-point (the loop's target), not on 2/pi of it (a square wave's reading)."""
+    from ditherlab.report import figs
+    from ditherlab.sim import simulate
+
+    seen = {}
+    real = figs.fig5_dither_control
+
+    def capture(t, centre, amplitude, ffw, tau, gravity, band, amp_ref, path, joint):
+        seen.update(amplitude=np.asarray(amplitude), amp_ref=amp_ref, t=np.asarray(t))
+        return real(t, centre, amplitude, ffw, tau, gravity, band, amp_ref, path, joint)
+
+    monkeypatch.setattr(figs, "fig5_dither_control", capture)
+    cfg = {"dither": {"waveform": "sine"}}
+    recs = [simulate("push-campaign", seed=31, dither=d, pushes_per_direction=2, config=cfg)
+            for d in (False, True)]  # fmt: skip
+    model = identify(recs, n_boot=0)
+    paths = [replay(r, model).save(tmp_path / f"{k}.parquet") for k, r in enumerate(recs)]
+    make_report(paths, tmp_path / "rep", recordings=recs, n_boot=5)
+    settled = seen["amplitude"][seen["t"] > seen["t"][-1] - 3.0]  # the last 3 s shown
+    assert seen["amp_ref"] is not None
+    assert np.median(settled) == pytest.approx(seen["amp_ref"], rel=0.1)
