@@ -31,7 +31,6 @@ The band-plus-noise fits themselves are :mod:`ditherlab.bandfit`.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -208,14 +207,15 @@ def identify(
                         samples.n = first.n
                         steps += 3 * first.n
                     samples.start(_times(r), piece.rec.t0, block)
-                samples.add(
-                    piece.rec,
-                    piece.keep,
-                    base,
-                    assume_no_force=assume_no_force,
-                    block=block,
-                    max_accel=max_accel,
-                )
+                if len(piece.rec) >= 2:  # one sample: no step, no rate, nothing to fit
+                    samples.add(
+                        piece.rec,
+                        piece.keep,
+                        base,
+                        assume_no_force=assume_no_force,
+                        block=block,
+                        max_accel=max_accel,
+                    )
                 if piece.count > 1:  # a piece of a long log: its robot quantities go now
                     release(piece.rec)
                 done += 1
@@ -359,8 +359,7 @@ class _Samples:
         dq = rec.dq
         # the paper's model neglects dynamic torques ("slow velocities and low accelerations"):
         # the moving regime is fitted where the (0.1 s averaged) acceleration is low
-        fs = rec.sample_rate if math.isfinite(rec.sample_rate) else 1.0  # NaN: one sample
-        slow = np.abs(causal_mean(rec.ddq, max(int(round(0.1 * fs)), 1)))
+        slow = np.abs(causal_mean(rec.ddq, max(int(round(0.1 * rec.sample_rate)), 1)))
         slow = slow <= max_accel
         # break-away / stopping transients, short slips and velocity reversals are not on the
         # sliding line (the samples diagnose leaves out): the moving band is fitted without them

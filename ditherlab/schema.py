@@ -36,6 +36,7 @@ small class per node type, its messages are the project's own, and it has no dep
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -93,18 +94,20 @@ def join_key(key: str, sub: Any) -> str:
 
 
 @dataclass(frozen=True)
-class Node:
-    """Base of the schema nodes. ``bind`` names the checked value in the context, for lengths
-    and ranges of keys checked after it (``n_joints`` binds ``n``)."""
+class Node(ABC):
+    """Base of the schema nodes (abstract: every kind says what it expects and what it
+    accepts). ``bind`` names the checked value in the context, for lengths and ranges of keys
+    checked after it (``n_joints`` binds ``n``)."""
 
     bind: str | None = field(default=None, kw_only=True)
 
+    @abstractmethod
     def expected(self, ctx: Mapping[str, Any]) -> str:
-        raise NotImplementedError
+        """What a value must be, as the message's ``expected ...`` part."""
 
+    @abstractmethod
     def accepts(self, value: Any) -> bool:
         """Whether ``value`` is of this node's kind (for :class:`Either` to choose a member)."""
-        raise NotImplementedError
 
     def _check(self, value: Any, key: str, ctx: dict[str, Any]) -> None:
         if not self.accepts(value):

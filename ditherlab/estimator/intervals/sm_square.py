@@ -117,9 +117,7 @@ def _inverse_t(Jk, m, B, M, p, col, w):
 
 
 @njit(cache=True, inline="always")
-def _lp(
-    B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua, rhs, w, warm, maxit, nit
-):
+def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua, rhs, w, warm, maxit):
     """``min sg B_i tau`` over ``L <= tau <= U`` and ``Fl_g <= B_g tau <= Fu_g`` (``box[g]``).
 
     The working set is ``sx`` (m,): -1 / +1 a variable at its lower / upper bound, 0 free; and
@@ -132,7 +130,6 @@ def _lp(
     for j in range(m):
         cn = max(cn, abs(B[i, j]))
     for it in range(maxit):
-        nit[0] += 1
         t = 0
         for j in range(m):
             if sx[j] == 0:
@@ -277,7 +274,7 @@ def square_sample(Jk, L, U, fb, half, ridge, big, S, lo, hi):
     without it (empty with it), -1 not taken (the general kernel solves the sample).
     """
     m = Jk.shape[0]
-    B, M, K, Fl, Fu, sxs, srs, warm, ints, vecs, box, cnt = S
+    B, M, K, Fl, Fu, sxs, srs, warm, ints, vecs, box = S
     rn = vecs[5]
     p, fr, tr = ints[0], ints[1], ints[2]
     tau, nu, ua, rhs, w = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
@@ -307,12 +304,11 @@ def square_sample(Jk, L, U, fb, half, ridge, big, S, lo, hi):
         st = 2
         if warm[o]:
             st, val = _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua,
-                          rhs, w, True, maxit, cnt)  # fmt: skip
+                          rhs, w, True, maxit)  # fmt: skip
         if st == 2:
-            cnt[1] += 1
             _cold(B, i, sg, m, sx, sr)
             st, val = _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua,
-                          rhs, w, False, maxit, cnt)  # fmt: skip
+                          rhs, w, False, maxit)  # fmt: skip
         warm[o] = st == 0
         if st == 2:
             return -1
@@ -342,8 +338,8 @@ def square_sample(Jk, L, U, fb, half, ridge, big, S, lo, hi):
 
 
 def square_state(m: int) -> tuple:
-    """Scratch arrays, warm-start working sets and counts (LP iterations, cold starts) of
-    :func:`square_sample` for ``m`` components."""
+    """Scratch arrays and warm-start working sets of :func:`square_sample` for ``m``
+    components."""
     return (
         np.empty((m, m)),  # B = J^-T
         np.empty((m, m)),  # LU of J^T
@@ -356,7 +352,6 @@ def square_state(m: int) -> tuple:
         np.empty((3, m), np.int64),
         np.empty((6, m)),
         np.empty(m, np.bool_),  # the rows with a prior box
-        np.zeros(2, np.int64),  # counts: iterations of the LPs, cold starts
     )
 
 
