@@ -42,7 +42,10 @@ from ditherlab.errors import ConfigError
 from ditherlab.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates, EstimatesWriter
 from ditherlab.estimator import problem, solve
 from ditherlab.estimator.intervals import problem_intervals
-from ditherlab.estimator.intervals.gaussian import gaussian_problem_intervals
+from ditherlab.estimator.intervals.gaussian import (
+    gaussian_problem_estimate,
+    gaussian_problem_intervals,
+)
 from ditherlab.io.atomic import check_not_input, plain
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.model import TorqueModel
@@ -219,18 +222,24 @@ def replay_columns(
         tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext)
         # one validated problem for the estimate and its intervals
         prob = problem(tb, J, a, b, s, model.prior_mean, model.prior_sigma, comps)
-        sol = solve(prob, backend)
-        tick()
-        if interval == "profile" and v.endswith("noband"):
-            ilo, ihi = gaussian_problem_intervals(prob, sol.F, level=level)
+        if interval == "profile" and v.endswith("noband") and backend == "exact":
+            # zero-width bands: the estimate and its interval from one factorisation
+            F, active, ilo, ihi = gaussian_problem_estimate(prob, level=level)
+            tick()
         else:
-            ilo, ihi = problem_intervals(prob, sol.F, method=interval, level=level)
+            sol = solve(prob, backend)
+            F, active = sol.F, sol.active
+            tick()
+            if interval == "profile" and v.endswith("noband"):
+                ilo, ihi = gaussian_problem_intervals(prob, F, level=level)
+            else:
+                ilo, ihi = problem_intervals(prob, F, method=interval, level=level)
         tick()
-        for suffix, X in (("", sol.F), ("_lo", ilo), ("_hi", ihi)):
+        for suffix, X in (("", F), ("_lo", ilo), ("_hi", ihi)):
             Xc = columns(X)
             for k, c in enumerate(COMPONENTS):
                 cols[f"{v}/{c}{suffix}"] = Xc[k]
-        cols[f"{v}/active"] = np.asarray(sol.active, dtype=np.int64) @ bits
+        cols[f"{v}/active"] = np.asarray(active, dtype=np.int64) @ bits
     if ext is not None:
         up, low, sig = columns(ext.upper), columns(ext.lower), columns(ext.signal)
         for j in range(rec.n):

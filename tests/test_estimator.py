@@ -432,6 +432,21 @@ def test_profile_fast_kernel_matches_the_reference_on_fuzzed_problems(seed):
     _assert_same_bounds(hi, rhi)
 
 
+def test_profile_fast_kernel_hands_near_singular_factors_to_the_reference():
+    """m_z's row of J nearly m_y's and weak priors on both: the Cholesky of H0 loses its pivots
+    (below MIN_PIVOT of the diagonal), so every sample takes the reference's Givens QR path and
+    the bounds are the reference's to the last bit."""
+    args, _ = model_data(28, N=80)
+    J = args["J"].copy()
+    J[:, 5] = J[:, 4] * (1 + 1e-5 * np.random.default_rng(1).normal(size=J[:, 4].shape))
+    args["J"] = J
+    args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, 1e3, 1e3])
+    (lo, hi), (rlo, rhi), redone = _profile_both(args)
+    assert redone.all()
+    np.testing.assert_array_equal(lo, rlo)
+    np.testing.assert_array_equal(hi, rhi)
+
+
 def test_profile_fast_kernel_edge_cases():
     """No band at all (every joint active along every path), every joint inside with a huge band
     (the prior alone: F_hat +- sqrt(thr) prior_sigma), an unobservable prior-less component
@@ -538,6 +553,70 @@ def test_gaussian_intervals_on_repeated_geometry():
     sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
     np.testing.assert_allclose(hi - sol.F, 1.959963984540054 * sd, rtol=1e-9)
     np.testing.assert_array_equal((hi - lo)[0::3], (hi - lo)[2::3])
+
+
+@pytest.mark.parametrize("case", ["plain", "tiny_noise", "repeat", "near_singular"])
+def test_gaussian_estimate_is_the_exact_solve_and_its_intervals(case):
+    """The one-factorisation estimate of zero-width bands (replay's no-band variants) equals the
+    exact backend's solution, its active joints and the closed-form intervals: with tiny noise,
+    on repeated geometry (the factor reused), and with m_z's row of J nearly m_y's and weak
+    priors (Cholesky pivots of 1e-7 of their diagonal: the QR of the stacked matrix instead,
+    the exact backend's own solve, so equal to the last bit)."""
+    from ditherlab.estimator.intervals.gaussian import (
+        MIN_PIVOT,
+        gaussian_problem_estimate,
+        gaussian_problem_intervals,
+    )
+
+    args, _ = model_data(28, N=80, zero_band=True)
+    args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, 0.3, 1e4])  # m_z nearly free
+    if case == "tiny_noise":
+        args["sigma"] = args["sigma"] * 1e-6
+    if case == "repeat":
+        args = _sub(args, np.repeat(np.arange(80), 3))
+    if case == "near_singular":
+        J = args["J"].copy()
+        J[:, 5] = J[:, 4] * (1 + 1e-5 * np.random.default_rng(1).normal(size=J[:, 4].shape))
+        args["J"] = J
+        args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, 1e3, 1e3])
+        prob = E.problem(**args)
+        H = np.einsum("kin,kn,kjn->kij", prob.J, prob.w, prob.J) + prob.p[:, :, None] * np.eye(6)
+        L = np.linalg.cholesky(H)
+        ratio = np.diagonal(L, axis1=1, axis2=2) ** 2 / np.diagonal(H, axis1=1, axis2=2)
+        assert (ratio.min(axis=1) < MIN_PIVOT).all()  # every sample takes the QR
+    prob = E.problem(**args)
+    sol = E.solve(prob, "exact")
+    F, active, lo, hi = gaussian_problem_estimate(prob, level=0.9)
+    rlo, rhi = gaussian_problem_intervals(prob, sol.F, level=0.9)
+    scale = np.abs(sol.F).max(axis=0) + 1.0
+    assert np.abs((F - sol.F) / scale).max() < 1e-9
+    np.testing.assert_array_equal(active, sol.active)
+    np.testing.assert_allclose(hi - F, rhi - sol.F, rtol=1e-9)
+    np.testing.assert_allclose(F - lo, sol.F - rlo, rtol=1e-9)
+    if case == "near_singular":
+        np.testing.assert_array_equal(F, sol.F)
+        return
+    W = 1.0 / np.broadcast_to(args["sigma"], F.shape) ** 2
+    H = np.einsum("kin,kn,kjn->kij", args["J"], W, args["J"]) + np.diag(
+        1 / args["prior_sigma"] ** 2
+    )
+    sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
+    np.testing.assert_allclose(hi - F, 1.6448536269514722 * sd, rtol=1e-6)
+
+
+def test_gaussian_estimate_falls_back_with_a_band():
+    """A band with width: the exact backend and the general profile search, bit for bit."""
+    from ditherlab.estimator.intervals.gaussian import gaussian_problem_estimate
+
+    args, _ = model_data(29, N=40)
+    prob = E.problem(**args)
+    F, active, lo, hi = gaussian_problem_estimate(prob)
+    sol = E.solve(prob, "exact")
+    np.testing.assert_array_equal(F, sol.F)
+    np.testing.assert_array_equal(active, sol.active)
+    ref = E.intervals(**args, F_hat=sol.F, method="profile")
+    np.testing.assert_array_equal(lo, ref[0])
+    np.testing.assert_array_equal(hi, ref[1])
 
 
 @pytest.mark.parametrize("change", ["band", "no_prior"])

@@ -167,6 +167,11 @@ def _profile_reference_kernel(
 #: 7e-10 at this threshold, 3.9e-9 at 2e5.
 MAX_MAGNIFICATION = 5e4
 
+#: The fast kernel factors ``H0`` by Cholesky; a pivot below this fraction of its diagonal entry
+#: (``H0`` near singular in that direction: the inverse's relative error grows as 1 / pivot)
+#: hands the sample to the reference kernel's Givens QR.
+MIN_PIVOT = 1e-5
+
 
 @njit(cache=True)
 def _profile_kernel(
@@ -175,7 +180,8 @@ def _profile_kernel(
     """The profile bounds along the path of :func:`_profile_reference_kernel`, without a
     factorisation per segment.
 
-    Each sample is factored once, at the active set of ``F_hat`` (the reference's ``R0``); from
+    Each sample is factored once, at the active set of ``F_hat`` (the reference's ``R0``, here by
+    Cholesky of ``H0``; a pivot below :data:`MIN_PIVOT` of its diagonal hands the sample back); from
     it come ``diag(H0^-1)``, ``H0^-1 grad``, ``G0 = H0^-1 U^T`` and ``M0 = U H0^-1 U^T``
     (``U_j = sqrt(w_j) J_j^T``, one row per joint). Along the path of component ``i`` a
     breakpoint adds or removes one joint, ``H -> H +- U_j U_j^T``, and all the path needs of
@@ -217,6 +223,7 @@ def _profile_kernel(
     ft = np.empty(maxseg)
     for k in range(N):
         tbk, Jk, ak, bk, wk, pk, Fk = tb[k], J[k], a[k], b[k], w[k], p[k], Fh[k]
+        bad = False
         # one pass over J: the cost at F_hat (as _cost), the residuals, sides, the gradient (zero
         # up to rounding: F_hat is the minimiser), the data information and U
         f0 = 0.0
@@ -267,9 +274,36 @@ def _profile_kernel(
                     M0[j, l] = v
                     M0[l, j] = v
         else:
-            _qr_factor(Jk, wk, pk, s0, m, n, R0, u)
+            # R0^T R0 = H0 = diag(p) + sum over joints outside their band of U_j U_j^T: H0 formed
+            # and Cholesky-factored (6 square roots, not a Givens QR's m per joint); a pivot
+            # that cancels to below MIN_PIVOT of its diagonal hands the sample to the reference
             for q in range(m):
-                u[q] = 1.0 / R0[q, q]
+                for c in range(q, m):
+                    v = pk[q] if c == q else 0.0
+                    for j in range(n):
+                        if s0[j] != 0:
+                            v += U[j, q] * U[j, c]
+                    R0[q, c] = v
+            for q in range(m):
+                d = R0[q, q]
+                v = d
+                for t in range(q):
+                    v -= R0[t, q] * R0[t, q]
+                if not v > MIN_PIVOT * d:
+                    bad = True
+                    break
+                rq = math.sqrt(v)
+                R0[q, q] = rq
+                u[q] = 1.0 / rq
+                for c in range(q + 1, m):
+                    v = R0[q, c]
+                    for t in range(q):
+                        v -= R0[t, q] * R0[t, c]
+                    R0[q, c] = v * u[q]
+            if bad:
+                seg_out[k] = -1
+                bad = False
+                continue
             for c in range(m):  # Z = R0^-T (lower triangular): column c solves R0^T z = e_c
                 for q in range(c):
                     Z[q, c] = 0.0
@@ -311,7 +345,6 @@ def _profile_kernel(
                     for t in range(i, m):
                         v += Z[t, i] * Wt[j, t]
                     G0[i, j] = v
-        bad = False
         for i in range(m):
             for side in range(2):
                 sg = 1.0 - 2.0 * side
