@@ -158,7 +158,7 @@ def solve(
     prob: Problem, backend: str = "exact", progress: Callable[[int, int], None] | None = None
 ) -> Solution:
     """Solve a prepared :class:`Problem` with one backend (see :func:`estimate`)."""
-    backends = _available()
+    backends = _available(references=backend != "exact")
     if backend not in backends:
         raise ConfigError(
             f"estimator: backend {backend!r} is not available; installed: "
