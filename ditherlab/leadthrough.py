@@ -21,11 +21,17 @@ false motion  path length of the tool point [mm] while the operator does not pus
               the smoothing's time constant is 0.3 s) to the next onset; and during the rise of
               each push while it is below the dead zone (the dead-zone law cannot move there; the
               interval law may, and whether that is *false* depends on the operator's intent).
+force steps   the force that drives the admittance, rebuilt from the logged estimate (dead zone)
+              or interval (interval law): the 99th percentile and the maximum of its change
+              between two controller updates ``|dP_cmd|`` [N] (the paper's §V worry: the
+              interval narrows when the robot starts to move, so the force jumps).
 delay         per push, the time from the onset until the tool moves at more than
               ``DELAY_SPEED`` along the pushed direction [s] (NaN when it never does).
 coverage      with the interval law's ``flo_x..z, fhi_x..z``: the share of samples whose true
               push lies inside the interval the controller acted on, per axis, at rest and
-              while pushing, and the mean width [N].
+              while pushing, the mean width [N], and the share of samples whose interval is
+              empty (NaN: the set membership found no force consistent with the data; the
+              interval law then commands 0).
 """
 
 from __future__ import annotations
@@ -38,7 +44,7 @@ import numpy as np
 from ditherlab.errors import ConfigError
 from ditherlab.recording import Recording
 from ditherlab.sim import simulate
-from ditherlab.sim.leadthrough import EDGE_S, operator_push
+from ditherlab.sim.leadthrough import EDGE_S, interval_command, operator_push
 from ditherlab.sim.params import LEAD_THROUGH_LAWS
 
 #: Start of the measured span: the first second settles and ramps the dither on [s].
@@ -62,6 +68,13 @@ def _smooth(x: np.ndarray, width: int) -> np.ndarray:
         den = np.convolve(np.ones(len(out)), k, mode="same")[:, None]
         out = num / den
     return out
+
+
+def _nanmean(values: Iterable[float]) -> float:
+    """The mean of the finite values; NaN (without numpy's warning) when there is none."""
+    v = np.asarray(list(values), dtype=float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if len(v) else float("nan")
 
 
 def _lead_meta(rec: Recording, name: str) -> dict[str, Any]:
@@ -93,9 +106,10 @@ def lead_metrics(rec: Recording, name: str = "recording") -> dict[str, Any]:
         ``pushes``: per push ``direction``, ``magnitude`` [N], ``along_mm``, ``off_axis_mm``,
         ``intended_mm``, ``along_share`` [-], ``delay_s``; ``summary``: ``along_share``,
         ``off_axis_mm`` and ``delay_s`` (means over the pushes), ``jerk_rms``, ``jerk_p99``
-        [m/s^3], ``rest_path_mm``, ``rest_s``, ``sub_dead_zone_path_mm``, ``fhat_rms_error`` [N]
+        [m/s^3], ``rest_path_mm``, ``rest_s``, ``sub_dead_zone_path_mm``, ``fhat_rms_error``,
+        ``cmd_step_p99``, ``cmd_step_max`` [N]
         and, with interval columns, ``coverage``, ``coverage_rest``, ``coverage_push``,
-        ``width_mean`` [N]; ``law``, ``dither``, ``seed``.
+        ``width_mean`` [N], ``empty_share``; ``law``, ``dither``, ``seed``.
 
     Raises
     ------
@@ -156,10 +170,22 @@ def lead_metrics(rec: Recording, name: str = "recording") -> dict[str, Any]:
     sub_path = float(step[rise[1:] & rise[:-1]].sum())
 
     fhat = np.column_stack([rec.data[f"fhat_{a}"].to_numpy(float) for a in AXES])
+    cols = [f"flo_{a}" for a in AXES] + [f"fhi_{a}" for a in AXES]
+    bounds = all(c in rec.data.columns for c in cols)
+    if bounds:
+        lo = np.column_stack([rec.data[f"flo_{a}"].to_numpy(float) for a in AXES])
+        hi = np.column_stack([rec.data[f"fhi_{a}"].to_numpy(float) for a in AXES])
+        cmd = interval_command(lo, hi)
+    else:
+        mag = np.linalg.norm(fhat, axis=1, keepdims=True)
+        beyond = np.maximum(mag - lt["dead_zone"], 0.0)
+        cmd = np.where(mag > 0, beyond * fhat / np.where(mag > 0, mag, 1.0), 0.0)
+    steps = np.linalg.norm(np.diff(cmd, axis=0), axis=1)[span[1:]]
+    steps = steps[steps > 0]  # the updates that changed the command
     summary: dict[str, Any] = {
-        "along_share": float(np.nanmean([p["along_share"] for p in pushes])),
+        "along_share": _nanmean(p["along_share"] for p in pushes),
         "off_axis_mm": float(np.mean([p["off_axis_mm"] for p in pushes])),
-        "delay_s": float(np.nanmean([p["delay_s"] for p in pushes])),
+        "delay_s": _nanmean(p["delay_s"] for p in pushes),
         "missed_pushes": int(sum(np.isnan(p["delay_s"]) for p in pushes)),
         "jerk_rms": float(np.sqrt(np.mean(jn**2))),
         "jerk_p99": float(np.percentile(jn, 99)),
@@ -167,16 +193,16 @@ def lead_metrics(rec: Recording, name: str = "recording") -> dict[str, Any]:
         "rest_s": float(rest.sum() * dt),
         "sub_dead_zone_path_mm": 1e3 * sub_path,
         "fhat_rms_error": float(np.sqrt(np.mean(np.sum((fhat - push)[span] ** 2, axis=1)))),
+        "cmd_step_p99": float(np.percentile(steps, 99)) if len(steps) else 0.0,
+        "cmd_step_max": float(steps.max()) if len(steps) else 0.0,
     }
-    cols = [f"flo_{a}" for a in AXES] + [f"fhi_{a}" for a in AXES]
-    if all(c in rec.data.columns for c in cols):
-        lo = np.column_stack([rec.data[f"flo_{a}"].to_numpy(float) for a in AXES])
-        hi = np.column_stack([rec.data[f"fhi_{a}"].to_numpy(float) for a in AXES])
+    if bounds:
         inside = (lo <= push) & (push <= hi)  # NaN bounds count as a miss
         pushing = span & (pnorm > 0)
         summary["coverage"] = [float(c) for c in inside[span].mean(0)]
         summary["coverage_rest"] = [float(c) for c in inside[rest].mean(0)]
         summary["coverage_push"] = [float(c) for c in inside[pushing].mean(0)]
+        summary["empty_share"] = float(np.isnan(hi - lo).any(axis=1)[span].mean())
         width_ok = np.isfinite(hi - lo)[span]
         summary["width_mean"] = [
             float((hi - lo)[span][width_ok[:, i], i].mean()) if width_ok[:, i].any() else np.nan
@@ -200,6 +226,8 @@ COMPARED = (
     ("jerk_p99", "jerk p99 [m/s³]", "{:.3f}", "lower"),
     ("rest_path_mm", "rest motion [mm]", "{:.2f}", "lower"),
     ("sub_dead_zone_path_mm", "motion < dead zone [mm]", "{:.2f}", "see text"),
+    ("cmd_step_p99", "force step p99 [N]", "{:.1f}", "lower"),
+    ("cmd_step_max", "force step max [N]", "{:.1f}", "lower"),
     ("fhat_rms_error", "F̂ RMS error [N]", "{:.1f}", "lower"),
 )
 
@@ -262,8 +290,10 @@ def compare_laws(
             sel = [r["summary"] for r in runs if r["law"] == law and r["dither"] == dither]
             row: dict[str, Any] = {"law": law, "dither": dither, "runs": len(sel)}
             for key, *_ in COMPARED:
-                row[key] = float(np.nanmean([s[key] for s in sel]))
+                row[key] = _nanmean(s[key] for s in sel)
             row["missed_pushes"] = int(sum(s["missed_pushes"] for s in sel))
+            if sel and "empty_share" in sel[0]:
+                row["empty_share"] = _nanmean(s["empty_share"] for s in sel)
             for key in ("coverage", "coverage_rest", "coverage_push", "width_mean"):
                 if sel and key in sel[0]:
                     row[key] = [float(c) for c in np.mean([s[key] for s in sel], 0)]
@@ -295,13 +325,15 @@ def _path_trace(rec: Recording, every: int = 5) -> dict[str, list[float]]:
 
 def means_table(result: Mapping[str, Any]) -> str:
     """The comparison's means as a Markdown table, one row per (dither, law)."""
-    head = ["dither", "law"] + [h for _, h, _, _ in COMPARED] + ["missed", "coverage x/y/z"]
+    head = ["dither", "law"] + [h for _, h, _, _ in COMPARED] + ["missed", "coverage x/y/z (empty)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in result["means"]:
         cells = ["on" if row["dither"] else "off", row["law"]]
         cells += [fmt.format(row[key]) for key, _, fmt, _ in COMPARED]
         cells.append(str(row["missed_pushes"]))
         cov = row.get("coverage")
-        cells.append("/".join(f"{c:.2f}" for c in cov) if cov else "–")
+        cells.append(
+            "/".join(f"{c:.2f}" for c in cov) + f" ({row['empty_share']:.2f})" if cov else "–"
+        )
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -170,6 +170,7 @@ def test_metrics_on_a_hand_made_trajectory(hand_made):
     assert s["coverage"][0] == 1.0
     assert s["coverage"][1] == pytest.approx(np.mean(t[span] >= 5.0))
     assert s["coverage"][2] == 0.0
+    assert s["empty_share"] == 1.0  # z's bounds are NaN throughout
 
 
 def test_jerk_of_a_sinusoid():
@@ -189,6 +190,33 @@ def test_jerk_of_a_sinusoid():
     span = (t >= 1.5) & (np.arange(len(t)) < len(t) - 2 * n)
     jerk = A * W**3 * gain**2 * np.abs(np.cos(W * (t[span] - dt)))
     assert m["summary"]["jerk_rms"] == pytest.approx(np.sqrt(np.mean(jerk**2)), rel=0.01)
+
+
+def test_force_steps_of_each_law():
+    t = np.arange(int(10 * FS)) / FS
+    robot = RobotModel.from_spec("irb140")
+    x0 = robot.evaluate(np.asarray(load_params()["pose"]["q0"]), ["tool_pose"])["tool_pose"][
+        0, :3, 3
+    ]
+    xs = np.tile(x0, (len(t), 1))
+    zero = np.zeros(len(t))
+    # dead zone: an estimate jumping 0 -> 30 N along x commands a 20 N step, then 4 N more
+    fx = np.where(t >= 3.0, 30.0, 0.0) + np.where(t >= 4.0, 4.0, 0.0)
+    m = lead_metrics(_recording(xs, t, {"fhat_x": fx, "fhat_y": zero, "fhat_z": zero}))
+    assert m["summary"]["cmd_step_max"] == pytest.approx(20.0)
+    # interval: [-20, 40] -> [25, 35] at 3 s (a 25 N step in x), y's [-3, -1] from 5 s (1 N)
+    lo_x = np.where(t >= 3.0, 25.0, -20.0)
+    extra = {
+        "flo_x": lo_x,
+        "fhi_x": lo_x + np.where(t >= 3.0, 10.0, 60.0),
+        "flo_y": np.where(t >= 5.0, -3.0, -1.0),
+        "fhi_y": np.where(t >= 5.0, -1.0, 1.0),
+        "flo_z": zero - 1.0,
+        "fhi_z": zero + 1.0,
+    }
+    m = lead_metrics(_recording(xs, t, extra))
+    assert m["summary"]["cmd_step_max"] == pytest.approx(25.0)
+    assert m["summary"]["cmd_step_p99"] == pytest.approx(1.0 + 0.99 * 24.0)
 
 
 # ---------------------------------------------------------------- the command
