@@ -310,15 +310,19 @@ def compare_laws(
 
 def _path_trace(rec: Recording, every: int = 5) -> dict[str, list[float]]:
     """Down-sampled tool displacement and true push of one run, for the figure: ``t`` [s],
-    ``x`` (N, 3) [mm] from the start, ``push`` (N, 3) [N], ``fhat`` (N, 3) [N]."""
+    ``x`` (N, 3) [mm] from the start, ``intended`` (N, 3) [mm] (the admittance driven by the true
+    push), ``push`` (N, 3) [N], ``fhat`` (N, 3) [N]."""
     sim = rec.meta["sim"]
     x = tool_path(rec)
     sl = slice(None, None, every)
     fhat = np.column_stack([rec.data[f"fhat_{a}"].to_numpy(float) for a in AXES])
+    push = operator_push(rec.t, sim["operator"])
+    intended = sim["params"]["lead_through"]["admittance"] * np.cumsum(push, axis=0) * rec.dt
     return {
         "t": rec.t[sl].tolist(),
         "x": (1e3 * (x - x[0]))[sl].tolist(),
-        "push": operator_push(rec.t, sim["operator"])[sl].tolist(),
+        "intended": (1e3 * intended)[sl].tolist(),
+        "push": push[sl].tolist(),
         "fhat": fhat[sl].tolist(),
     }
 

@@ -33,8 +33,9 @@ def _no_nan(x: Any) -> Any:
 
 def paths_figure(result: Mapping[str, Any], path: Path) -> Path:
     """One column per dither setting of the first seed: the operator's push and the estimate
-    [N] above, the tool's displacement from its start [mm] below, per base axis, each law in
-    its line style. Returns the path."""
+    [N] above, the tool's displacement from its start [mm] below (and the intended one: the
+    admittance driven by the true push), per base axis, each law in its line style. Returns
+    the path."""
     plt = pyplot()
     dithers = result["dithers"]
     fig, axes = plt.subplots(2, len(dithers), figsize=(7 * len(dithers), 6.5), squeeze=False)
@@ -51,8 +52,17 @@ def paths_figure(result: Mapping[str, Any], path: Path) -> Path:
                 bottom.plot(t, x[:, i], ls, color=f"C{i}", lw=1.2, label=f"{a}, {law}")
                 top.plot(t, fhat[:, i], ls, color=f"C{i}", lw=0.6, alpha=0.7, label=f"F̂{a}, {law}")
             push = np.asarray(tr["push"])
+        intended = np.asarray(tr["intended"])
         for i in range(3):
             top.plot(t, push[:, i], color="black", lw=0.8, label="operator" if i == 0 else None)
+            bottom.plot(
+                t,
+                intended[:, i],
+                ":",
+                color="black",
+                lw=0.8,
+                label="intended (true push)" if i == 0 else None,
+            )
         top.set_ylabel("push [N]")
         top.set_ylim(-60, 60)
         top.set_title(f"seed {result['seeds'][0]}, dither {'on' if dither else 'off'}")
