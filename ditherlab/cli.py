@@ -783,9 +783,9 @@ def leadthrough(
     choices = {"both": (True, False), "on": (True,), "off": (False,)}
     if dither not in choices:
         raise ConfigError(f"--dither: got {dither!r}; expected 'both', 'on' or 'off'")
+    guard(out, config, folder=True, force=force)
     if config is not None:
         load_params(config)  # a bad config is one line before any work
-    guard(out, config, folder=True, force=force)
     seeds = list(range(seed, seed + repeats))
     with progress_bar("leadthrough", quiet or json_out) as progress, all_or_nothing(out):
         result = compare_laws(seeds, choices[dither], config=config, progress=progress)

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from ditherlab.io import read
 from ditherlab.leadthrough import lead_metrics, tool_path
 from ditherlab.recording import Recording
 from ditherlab.robot import RobotModel
@@ -243,6 +244,25 @@ def test_cli_compares_both_laws(tmp_path, cli):
     assert (out / "leadthrough.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_simulate_with_the_interval_law_from_a_config(tmp_path, cli):
+    cfg = tmp_path / "law.toml"
+    cfg.write_text('[lead_through]\nlaw = "interval"\ninterval = "profile"\nlevel = 0.9\n')
+    out = tmp_path / "lt.parquet"
+    r = cli("simulate", "lead-through", "-o", out, "--config", cfg, "--seed", "5", "--no-dither")
+    assert r.code == 0, r.err
+    rec = read(out)
+    assert rec.meta["sim"]["lead_through"]["law"] == "interval"
+    assert rec.meta["sim"]["lead_through"]["level"] == 0.9
+    m = lead_metrics(rec)
+    assert m["law"] == "interval" and "coverage" in m["summary"]
+    # a 90 % interval is narrower than the 95 % one of the same run's start (still, no push)
+    ref = simulate("lead-through", seed=5, dither=False, law="interval", interval="profile")
+    quiet = rec.t < 3.0
+    w90 = (rec.data["fhi_z"] - rec.data["flo_z"]).to_numpy()[quiet]
+    w95 = (ref.data["fhi_z"] - ref.data["flo_z"]).to_numpy()[quiet]
+    assert np.all(w90 < w95)
+
+
 def test_cli_bad_input_is_one_line(tmp_path, cli):
     bad = tmp_path / "bad.toml"
     bad.write_text('[lead_through]\nlaw = "pid"\n')
@@ -267,6 +287,11 @@ def test_cli_bad_input_is_one_line(tmp_path, cli):
     assert (r.code, r.err) == (2, "error: --dither: got 'maybe'; expected 'both', 'on' or 'off'\n")
     r = cli("leadthrough", "-o", tmp_path / "o", "--repeats", "0")
     assert r.code == 2 and r.err.count("\n") == 1 and "--repeats" in r.err
+    good = tmp_path / "law.toml"
+    good.write_text('[lead_through]\nlaw = "interval"\n')
+    r = cli("leadthrough", "-o", good, "--config", good)
+    assert (r.code, r.err) == (2, f"error: {good}: refusing to write over the input file {good}\n")
+    assert good.read_text() == '[lead_through]\nlaw = "interval"\n'
     full = tmp_path / "full"
     full.mkdir()
     (full / "keep.txt").write_text("x")
