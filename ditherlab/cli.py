@@ -753,29 +753,17 @@ def sweep(
 # ---------------------------------------------------------------- leadthrough (helper "leadthrough")
 @app.command()
 def leadthrough(
-    out: Annotated[
-        Path,
-        typer.Option("-o", "--out", help="Output folder: leadthrough.md, .json, .png."),
-    ],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Output folder: .md, .json, .png.")],
     seed: Annotated[int, typer.Option("--seed", min=0, help="First simulator seed.")] = 0,
-    repeats: Annotated[
-        int, typer.Option("--repeats", min=1, help="Seeds seed, seed+1, ... (mean over them).")
-    ] = 3,
-    dither: Annotated[
-        str, typer.Option("--dither", help="'both', 'on' or 'off': with and/or without dither.")
-    ] = "both",
-    config: Annotated[
-        Path | None, typer.Option("--config", help="Simulator TOML every run starts from.")
-    ] = None,
-    json_out: JsonFlag = False,
+    repeats: Annotated[int, typer.Option("--repeats", min=1, help="Seeds seed, seed+1, ...")] = 3,
+    dither: Annotated[str, typer.Option("--dither", help="'both', 'on' or 'off'.")] = "both",
+    config: Annotated[Path | None, typer.Option("--config", help="Simulator TOML.")] = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Lead-through with the 10 N dead zone vs the confidence interval (paper §V), same pushes."""
-    import json
-
     from ditherlab.errors import ConfigError
-    from ditherlab.io.atomic import all_or_nothing, json_default
+    from ditherlab.io.atomic import all_or_nothing
     from ditherlab.leadthrough import compare_laws, means_table
     from ditherlab.sim.params import load_params
     from ditherlab.viz.leadthrough import write_comparison
@@ -787,11 +775,7 @@ def leadthrough(
     if config is not None:
         load_params(config)  # a bad config is one line before any work
     seeds = list(range(seed, seed + repeats))
-    with progress_bar("leadthrough", quiet or json_out) as progress, all_or_nothing(out):
+    with progress_bar("leadthrough", quiet) as progress, all_or_nothing(out):
         result = compare_laws(seeds, choices[dither], config=config, progress=progress)
         files = write_comparison(result, out)
-    if json_out:
-        echo(json.dumps(result["means"], indent=1, default=json_default))
-    else:
-        echo(means_table(result))
-        echo(f"wrote {', '.join(str(f) for f in files)}")
+    echo(means_table(result) + f"\nwrote {', '.join(str(f) for f in files)}")
