@@ -748,3 +748,34 @@ def sweep(
     )
     echo(summary_text(s))
     echo(f"wrote {s['table']}, {out / 'sweep.md'}, {out / 'sweep.json'}, figures")
+
+
+# ---------------------------------------------------------------- leadthrough (helper "leadthrough")
+@app.command()
+def leadthrough(
+    out: Annotated[Path, typer.Option("-o", "--out", help="Output folder: .md, .json, .png.")],
+    seed: Annotated[int, typer.Option("--seed", min=0, help="First simulator seed.")] = 0,
+    repeats: Annotated[int, typer.Option("--repeats", min=1, help="Seeds seed, seed+1, ...")] = 3,
+    dither: Annotated[str, typer.Option("--dither", help="'both', 'on' or 'off'.")] = "both",
+    config: Annotated[Path | None, typer.Option("--config", help="Simulator TOML.")] = None,
+    force: Force = False,
+    quiet: Quiet = False,
+) -> None:
+    """Lead-through with the 10 N dead zone vs the confidence interval (paper §V), same pushes."""
+    from ditherlab.errors import ConfigError
+    from ditherlab.io.atomic import all_or_nothing
+    from ditherlab.leadthrough import compare_laws, means_table
+    from ditherlab.sim.params import load_params
+    from ditherlab.viz.leadthrough import write_comparison
+
+    choices = {"both": (True, False), "on": (True,), "off": (False,)}
+    if dither not in choices:
+        raise ConfigError(f"--dither: got {dither!r}; expected 'both', 'on' or 'off'")
+    guard(out, config, folder=True, force=force)
+    if config is not None:
+        load_params(config)  # a bad config is one line before any work
+    seeds = list(range(seed, seed + repeats))
+    with progress_bar("leadthrough", quiet) as progress, all_or_nothing(out):
+        result = compare_laws(seeds, choices[dither], config=config, progress=progress)
+        files = write_comparison(result, out)
+    echo(means_table(result) + f"\nwrote {', '.join(str(f) for f in files)}")

@@ -23,9 +23,20 @@ import numpy as np
 
 from ditherlab.dither import WAVEFORMS
 from ditherlab.errors import ConfigError
+from ditherlab.estimator import INTERVAL_METHODS
 from ditherlab.schema import Either, Flag, Integer, ListOf, Node, Number, Table, Text, check
 
 DEFAULTS_FILE = "irb140.toml"
+
+#: The lead-through's admittance laws (ditherlab.sim.leadthrough): the paper's 10 N dead zone on
+#: the estimate's magnitude, or its §V alternative driven by the confidence interval.
+LEAD_THROUGH_LAWS = ("dead-zone", "interval")
+#: The text keys and their choices.
+_TEXT_CHOICES = {
+    "dither.waveform": WAVEFORMS,
+    "lead_through.law": LEAD_THROUGH_LAWS,
+    "lead_through.interval": INTERVAL_METHODS,
+}
 
 
 def default_params() -> dict[str, Any]:
@@ -144,8 +155,10 @@ def _scalar(default: Any, key: str) -> Node:
     range (:data:`_NON_NEGATIVE`, :data:`_POSITIVE`, :data:`_FRACTION`)."""
     if isinstance(default, bool):
         return Flag()
-    if isinstance(default, str):  # the one text key: the dither's waveform
-        return Text(choices=WAVEFORMS if key == "dither.waveform" else ())
+    if isinstance(default, str):  # the dither's waveform, the lead-through's law and interval
+        return Text(choices=_TEXT_CHOICES.get(key, ()))
+    if key == "lead_through.level":  # a confidence level a controller may act on
+        return Number(0.5, 0.999)
     lo, hi, lo_open = None, None, False
     if key in _NON_NEGATIVE:
         lo = 0
