@@ -12,7 +12,7 @@ from numba import njit
 
 from ditherlab.errors import ConfigError
 from ditherlab.estimator.core import Problem, _chunks, normal_quantile
-from ditherlab.estimator.intervals.sm_square import square_sample, square_state
+from ditherlab.estimator.intervals.sm_square import square_block, square_state
 
 #: Half-width [N, N·m] of the artificial box of the set-membership LP for prior-less components.
 BIG_BOX = 1e9
@@ -277,12 +277,8 @@ def _dual_vertex(A, bv, rn, nrow, m, c, Wo, x, lam, M, piv, u, tmp, rhs, maxit):
 
 
 @njit(cache=True)
-def _set_membership_kernel(
-    tb, J, a, b, sig, fb, halfbox, kk, ridge, SQ, square, lo_out, hi_out, st_out
-):
+def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_out, st_out):
     N, m, n = J.shape
-    Lk = np.empty(n)
-    Uk = np.empty(n)
     nr = 2 * n + 2 * m
     d1 = m + 1
     A = np.zeros((nr + 1, d1))
@@ -304,20 +300,8 @@ def _set_membership_kernel(
     wval = np.zeros(2 * m, np.bool_)
     for k in range(N):
         tbk, Jk = tb[k], J[k]
-        # square J: the LPs in torque coordinates (sm_square), when it can take the sample
-        if square and m == n:
-            finite = True
-            for j in range(n):
-                Lk[j] = tbk[j] - b[k, j] - kk * sig[k, j]
-                Uk[j] = tbk[j] - a[k, j] + kk * sig[k, j]
-                finite = finite and math.isfinite(Lk[j]) and math.isfinite(Uk[j])
-            if finite:
-                st = square_sample(
-                    Jk, Lk, Uk, fb, halfbox, ridge, BIG_BOX, SQ, lo_out[k], hi_out[k]
-                )
-                if st >= 0:
-                    st_out[k] = 5 + st
-                    continue
+        if st_out[k] >= 5:  # solved in torque coordinates (sm_square.square_block)
+            continue
         nrow, nj = _sm_rows(tbk, Jk, a[k], b[k], sig[k], fb, halfbox, kk, ridge, 0, A, bv, m, n)
         for row in range(nrow):
             v = 1e-300
@@ -455,11 +439,15 @@ def _set_membership(
     st = np.zeros(prob.N, np.int64)
     sig = 1.0 / np.sqrt(prob.w)
     half = np.where(ridge, 0.0, _halfbox(prob, kk))
+    square = square and prob.m == prob.n
     sq = square_state(prob.m)
     for sl in _chunks(prob.N, progress):
+        args = (prob.tau_bar[sl], prob.J[sl], prob.tau_min[sl], prob.tau_max[sl], sig[sl])
+        if square:  # the samples it can take; st = -1 for the others
+            square_block(*args, kk, prob.prior_mean, half, ridge, BIG_BOX, sq, lo_m[sl],
+                         hi_m[sl], st[sl])  # fmt: skip
         _set_membership_kernel(
-            prob.tau_bar[sl], prob.J[sl], prob.tau_min[sl], prob.tau_max[sl], sig[sl],
-            prob.prior_mean, half, kk, ridge, sq, square, lo_m[sl], hi_m[sl], st[sl],
+            *args, prob.prior_mean, half, kk, ridge, lo_m[sl], hi_m[sl], st[sl]
         )  # fmt: skip
         if progress is not None:
             progress(sl.stop, prob.N)

@@ -19,6 +19,8 @@ limit) are left to the general kernel.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -91,15 +93,15 @@ def _lu_solve_t(K, t, p, rhs, w, out):
         out[p[a]] = w[a]
 
 
-@njit(cache=True)
-def _inverse_t(Jk, m, B, M, p, col, w):
-    """``B = (Jk^T)^-1`` (m x m); False if singular or ill-conditioned (:data:`MAX_CONDITION`)."""
+@njit(cache=True, inline="always")
+def _inverse_t(J, k, m, B, M, p, col, w):
+    """``B = (J_k^T)^-1`` (m x m); False if singular or ill-conditioned (:data:`MAX_CONDITION`)."""
     nj = 0.0
     for j in range(m):
         v = 0.0
         for i in range(m):
-            M[j, i] = Jk[i, j]
-            v += abs(Jk[i, j])
+            M[j, i] = J[k, i, j]
+            v += abs(J[k, i, j])
         nj = max(nj, v)  # ||J^T||_1: the largest column sum of J^T (row j of J^T is J[:, j])
     if not _lu(M, m, p):
         return False
@@ -117,11 +119,13 @@ def _inverse_t(Jk, m, B, M, p, col, w):
 
 
 @njit(cache=True, inline="always")
-def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua, rhs, w, warm, maxit):
+def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sxs, srs, o, K, p, fr, tr, tau, nu, ua, rhs, w, warm,
+        maxit):
     """``min sg B_i tau`` over ``L <= tau <= U`` and ``Fl_g <= B_g tau <= Fu_g`` (``box[g]``).
 
-    The working set is ``sx`` (m,): -1 / +1 a variable at its lower / upper bound, 0 free; and
-    ``sr`` (m,): -1 / +1 a box row held at ``Fl`` / ``Fu``, 0 not held; updated in place. A
+    The working set is row ``o`` of ``sxs`` (2m, m): -1 / +1 a variable at its lower / upper
+    bound, 0 free; and of ``srs``: -1 / +1 a box row held at ``Fl`` / ``Fu``, 0 not held; updated
+    in place (rows, not views: a view per LP cost a fifth of the time in reference counts). A
     ``warm`` start must be dual feasible (else status 2). Returns ``(status, value)``: 0 optimal
     (the value ``B_i tau``), 1 the polytope is empty, 2 gave up (inconsistent or singular
     working set, not dual feasible, iteration limit).
@@ -132,16 +136,16 @@ def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua, r
     for it in range(maxit):
         t = 0
         for j in range(m):
-            if sx[j] == 0:
+            if sxs[o, j] == 0:
                 fr[t] = j
                 t += 1
-            elif sx[j] < 0:
+            elif sxs[o, j] < 0:
                 tau[j] = L[j]
             else:
                 tau[j] = U[j]
         ta = 0
         for g in range(m):
-            if sr[g] != 0:
+            if srs[o, g] != 0:
                 tr[ta] = g
                 ta += 1
         if ta != t:
@@ -149,9 +153,9 @@ def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua, r
         # the free variables: the held rows at their bounds, K tau_free = d - B_T,fixed tau_fixed
         for a in range(t):
             g = tr[a]
-            v = Fu[g] if sr[g] > 0 else Fl[g]
+            v = Fu[g] if srs[o, g] > 0 else Fl[g]
             for j in range(m):
-                if sx[j] != 0:
+                if sxs[o, j] != 0:
                     v -= B[g, j] * tau[j]
             rhs[a] = v
             for b in range(t):
@@ -167,14 +171,14 @@ def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua, r
         _lu_solve_t(K, t, p, rhs, w, nu)
         if it == 0 and warm:
             for a in range(t):
-                if sr[tr[a]] * nu[a] > 1e-10 * cn:
+                if srs[o, tr[a]] * nu[a] > 1e-10 * cn:
                     return 2, 0.0
             for j in range(m):
-                if sx[j] != 0:
+                if sxs[o, j] != 0:
                     mu = sg * B[i, j]
                     for a in range(t):
                         mu -= nu[a] * B[tr[a], j]
-                    if sx[j] * mu > 1e-10 * cn:
+                    if sxs[o, j] * mu > 1e-10 * cn:
                         return 2, 0.0
         # the most violated bound or row enters (violation in its own units over the row norm)
         worst = 0.0
@@ -191,7 +195,7 @@ def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua, r
             if v > worst:
                 worst, ent, es = v, j, s
         for g in range(m):
-            if not box[g] or sr[g] != 0:
+            if not box[g] or srs[o, g] != 0:
                 continue
             f = 0.0
             for j in range(m):
@@ -223,136 +227,158 @@ def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua, r
         theta = np.inf
         leave = -1
         for a in range(t):  # held rows: multiplier nu_a + es theta u_a keeps its sign
-            sw = sr[tr[a]]
+            sw = srs[o, tr[a]]
             q = sw * es * ua[a]
             if q > 1e-11 * an:
                 th = max(-sw * nu[a], 0.0) / q
                 if th < theta:
                     theta, leave = th, m + tr[a]
         for j in range(m):  # fixed variables
-            if sx[j] == 0:
+            if sxs[o, j] == 0:
                 continue
             uj = 0.0 if ent < m else B[ent - m, j]
             mu = sg * B[i, j]
             for a in range(t):
                 uj -= ua[a] * B[tr[a], j]
                 mu -= nu[a] * B[tr[a], j]
-            q = sx[j] * es * uj
+            q = sxs[o, j] * es * uj
             if q > 1e-11 * an:
-                th = max(-sx[j] * mu, 0.0) / q
+                th = max(-sxs[o, j] * mu, 0.0) / q
                 if th < theta:
                     theta, leave = th, j
         if leave < 0:
             return 1, 0.0  # no multiplier can take the violated row: the polytope is empty
         if leave < m:
-            sx[leave] = 0
+            sxs[o, leave] = 0
         else:
-            sr[leave - m] = 0
+            srs[o, leave - m] = 0
         if ent < m:
-            sx[ent] = es
+            sxs[o, ent] = es
         else:
-            sr[ent - m] = es
+            srs[o, ent - m] = es
     return 2, 0.0
 
 
 @njit(cache=True, inline="always")
-def _cold(B, i, sg, m, sx, sr):
+def _cold(B, i, sg, m, sxs, srs, o):
     """The vertex of the bounds alone: each variable at the bound its cost prefers."""
     for j in range(m):
-        sx[j] = -1 if sg * B[i, j] >= 0.0 else 1
-        sr[j] = 0
+        sxs[o, j] = -1 if sg * B[i, j] >= 0.0 else 1
+        srs[o, j] = 0
 
 
 @njit(cache=True)
-def square_sample(Jk, L, U, fb, half, ridge, big, S, lo, hi):
-    """The ``2m`` set-membership LPs of one sample in torque coordinates (module docstring).
+def square_block(tb, J, a, b, sig, kk, fb, half, ridge, big, S, lo_out, hi_out, st_out):
+    """The ``2m`` set-membership LPs of every sample of a block in torque coordinates (module
+    docstring), where this path can take them.
 
-    ``Jk (m, m)``; ``L, U (m,)`` [N·m] the bounds of ``J^T F`` (finite); ``fb, half (m,)`` the
-    prior box ``fb +- half`` [N, N·m] of the components with a prior (``ridge`` False); ``big``
-    the general kernel's artificial box half-width; ``S`` the scratch and warm-start state of
-    :func:`square_state`. Writes ``lo, hi (m,)``. Returns 0 solved with the prior box, 1 solved
-    without it (empty with it), -1 not taken (the general kernel solves the sample).
+    ``tb (N, m)``, ``J (N, m, m)``, ``a, b, sig (N, m)`` [N·m] as the general kernel's; the
+    bounds of ``J^T F`` are ``tb - b - kk sig <= J^T F <= tb - a + kk sig``; ``fb, half (m,)``
+    the prior box ``fb +- half`` [N, N·m] of the components with a prior (``ridge`` False);
+    ``big`` the general kernel's artificial box half-width; ``S`` the warm-start state of
+    :func:`square_state` (kept from block to block). Writes ``lo_out, hi_out (N, m)`` and
+    ``st_out (N,)``: 5 solved with the prior box, 6 solved without it (empty with it), -1 not
+    taken (an infinite band edge, an ill-conditioned ``J``, a bound beyond the artificial box, a
+    singular basis, the iteration limit: the general kernel solves the sample).
     """
-    m = Jk.shape[0]
-    B, M, K, Fl, Fu, sxs, srs, warm, ints, vecs, box = S
-    rn = vecs[5]
-    p, fr, tr = ints[0], ints[1], ints[2]
-    tau, nu, ua, rhs, w = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
-    if not _inverse_t(Jk, m, B, M, p, nu, w):
-        return -1
-    # no vertex of the torque box may reach the artificial box (where the general kernel would
-    # report an infinite bound): |B_g (tau - mid)| + |B_g mid - fb_g| < big
+    N, m = tb.shape
+    sxs, srs, warm = S
+    B = np.empty((m, m))
+    M = np.empty((m, m))
+    K = np.empty((m, m))
+    L = np.empty(m)
+    U = np.empty(m)
+    Fl = np.empty(m)
+    Fu = np.empty(m)
+    box = np.empty(m, np.bool_)
+    p = np.empty(m, np.int64)
+    fr = np.empty(m, np.int64)
+    tr = np.empty(m, np.int64)
+    tau = np.empty(m)
+    nu = np.empty(m)
+    ua = np.empty(m)
+    rhs = np.empty(m)
+    w = np.empty(m)
+    rn = np.empty(m)
+    maxit = 4 * m + 8
     for g in range(m):
-        c = 0.0
-        r = 0.0
-        rn[g] = 1e-300
-        for j in range(m):
-            c += B[g, j] * 0.5 * (L[j] + U[j])
-            r += abs(B[g, j]) * 0.5 * (U[j] - L[j])
-            rn[g] += abs(B[g, j])
-        if not abs(c - fb[g]) + r < big:
-            return -1
         box[g] = not ridge[g]
         Fl[g] = fb[g] - half[g]
         Fu[g] = fb[g] + half[g]
-    maxit = 4 * m + 8
-    status = 0
-    for o in range(2 * m):
-        i = o // 2
-        sg = 1.0 if o % 2 == 0 else -1.0
-        sx, sr = sxs[o], srs[o]
-        st = 2
-        if warm[o]:
-            st, val = _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua,
-                          rhs, w, True, maxit)  # fmt: skip
-        if st == 2:
-            _cold(B, i, sg, m, sx, sr)
-            st, val = _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sx, sr, K, p, fr, tr, tau, nu, ua,
-                          rhs, w, False, maxit)  # fmt: skip
-        warm[o] = st == 0
-        if st == 2:
-            return -1
-        if st == 1:
-            status = 1
-            break
-        if sg > 0:
-            lo[i] = val
-        else:
-            hi[i] = val
-    if status == 1:  # empty with the prior box: the torque box alone (each bound's vertex)
-        for i in range(m):
-            a = 0.0
-            b = 0.0
+    for k in range(N):
+        st_out[k] = -1
+        finite = True
+        for j in range(m):
+            L[j] = tb[k, j] - b[k, j] - kk * sig[k, j]
+            U[j] = tb[k, j] - a[k, j] + kk * sig[k, j]
+            finite = finite and math.isfinite(L[j]) and math.isfinite(U[j])
+        if not finite or not _inverse_t(J, k, m, B, M, p, nu, w):
+            continue
+        # no vertex of the torque box may reach the artificial box (where the general kernel
+        # would report an infinite bound): |B_g (tau - mid)| + |B_g mid - fb_g| < big
+        far = False
+        for g in range(m):
+            c = 0.0
+            r = 0.0
+            rn[g] = 1e-300
             for j in range(m):
-                if B[i, j] >= 0.0:
-                    a += B[i, j] * L[j]
-                    b += B[i, j] * U[j]
-                else:
-                    a += B[i, j] * U[j]
-                    b += B[i, j] * L[j]
-            lo[i] = a
-            hi[i] = b
+                c += B[g, j] * 0.5 * (L[j] + U[j])
+                r += abs(B[g, j]) * 0.5 * (U[j] - L[j])
+                rn[g] += abs(B[g, j])
+            if not abs(c - fb[g]) + r < big:
+                far = True
+        if far:
+            continue
+        status = 5
         for o in range(2 * m):
-            warm[o] = False
-    return status
+            i = o // 2
+            sg = 1.0 if o % 2 == 0 else -1.0
+            st = 2
+            val = 0.0
+            if warm[o]:
+                st, val = _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sxs, srs, o, K, p, fr, tr, tau,
+                              nu, ua, rhs, w, True, maxit)  # fmt: skip
+            if st == 2:
+                _cold(B, i, sg, m, sxs, srs, o)
+                st, val = _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sxs, srs, o, K, p, fr, tr, tau,
+                              nu, ua, rhs, w, False, maxit)  # fmt: skip
+            warm[o] = st == 0
+            if st == 2:
+                status = -1
+                break
+            if st == 1:
+                status = 6
+                break
+            if sg > 0:
+                lo_out[k, i] = val
+            else:
+                hi_out[k, i] = val
+        if status == 6:  # empty with the prior box: the torque box alone (each bound's vertex)
+            for i in range(m):
+                lo = 0.0
+                hi = 0.0
+                for j in range(m):
+                    if B[i, j] >= 0.0:
+                        lo += B[i, j] * L[j]
+                        hi += B[i, j] * U[j]
+                    else:
+                        lo += B[i, j] * U[j]
+                        hi += B[i, j] * L[j]
+                lo_out[k, i] = lo
+                hi_out[k, i] = hi
+            for o in range(2 * m):
+                warm[o] = False
+        st_out[k] = status
 
 
 def square_state(m: int) -> tuple:
-    """Scratch arrays and warm-start working sets of :func:`square_sample` for ``m``
-    components."""
+    """The warm-start state of :func:`square_block` for ``m`` components: each LP's working set
+    (variables' and rows' sides) and whether it is the previous sample's optimum."""
     return (
-        np.empty((m, m)),  # B = J^-T
-        np.empty((m, m)),  # LU of J^T
-        np.empty((m, m)),  # LU of the held rows' block
-        np.empty(m),  # Fl
-        np.empty(m),  # Fu
         np.zeros((2 * m, m), np.int8),  # variables' sides per LP
         np.zeros((2 * m, m), np.int8),  # rows' sides per LP
         np.zeros(2 * m, np.bool_),  # the working set is from the previous sample's optimum
-        np.empty((3, m), np.int64),
-        np.empty((6, m)),
-        np.empty(m, np.bool_),  # the rows with a prior box
     )
 
 
-__all__ = ["MAX_CONDITION", "square_sample", "square_state"]
+__all__ = ["MAX_CONDITION", "square_block", "square_state"]
