@@ -30,6 +30,7 @@ import typer
 import typer._click.exceptions as UsageErrors  # typer vendors click: its exceptions are here
 
 from ditherlab.errors import DitherlabError, DitherlabWarning
+from ditherlab.runtime import reuse_freed_memory
 
 app = typer.Typer(
     name="ditherlab",
@@ -174,6 +175,7 @@ def main(argv: list[str] | None = None) -> None:
     """
     warnings.formatwarning = _format_warning
     warnings.simplefilter("default", DitherlabWarning)
+    reuse_freed_memory()
     with held_warnings() as release:
         code = _run(argv)
         release()
