@@ -2,12 +2,13 @@
 a library: they are the embedding program's choice).
 
 :func:`reuse_freed_memory`: the commands work piece by piece (``io.stream``), and every piece
-allocates arrays of a few MB (``(N, 6, 6)`` Jacobians, ``(N, 6)`` columns). glibc's malloc hands
-allocations above its mmap threshold (128 KB, raised adaptively) to fresh ``mmap`` pages and
-returns them on ``free``: every piece then page-faults its memory in again (measured: replay of
-the one-hour log spent ~1 s of system time so, and cache misses in user time). With the
-threshold at 32 MB (glibc's maximum on 64-bit) and trimming above 1 GB, freed pieces are reused
-from the heap: replay of the hour 5 % less CPU (farm-bench, 3 alternating runs), the same peak.
+allocates arrays of a few to 20 MB (``(N, 6, 6)`` Jacobians, ``(N, 6)`` columns). glibc's malloc
+hands allocations above its mmap threshold (128 KB, raised adaptively up to 32 MB) to fresh
+``mmap`` pages and returns them on ``free``, and trims the heap's free top above twice that
+threshold: pieces then page-fault their memory in again (replay of the one-hour log spent ~1 s
+of system time so, and cache misses in user time). With the threshold fixed at 32 MB (glibc's
+maximum on 64-bit) and trimming above 1 GB, freed pieces are reused from the heap: replay of the
+hour 5 % less CPU (farm-bench, 3 alternating runs), the same peak (10 h: 999 MB).
 """
 
 from __future__ import annotations
