@@ -301,6 +301,10 @@ def view(
 
 
 # ---------------------------------------------------------------- robot (helper "robot")
+def _opt(flag: str, text: str) -> typer.models.OptionInfo:
+    return typer.Option(flag, help=text)
+
+
 @app.command()
 def robot(
     spec: Annotated[
@@ -319,15 +323,52 @@ def robot(
             help="Tool frame of a URDF (default: tool0, flange, ... or the last link).",
         ),
     ] = None,
+    sensitivity: Annotated[
+        bool, _opt("--sensitivity", "Predicted F50/F90 per push direction.")
+    ] = False,
+    model: Annotated[
+        Path | None, _opt("--model", "Model from identify (else the simulator's).")
+    ] = None,
+    dither: Annotated[
+        bool | None, _opt("--dither/--no-dither", "One condition (else both).")
+    ] = None,
+    map_out: Annotated[
+        Path | None, _opt("--map", "Over --grid: table .csv/.parquet + PNG.")
+    ] = None,
+    grid: Annotated[
+        str | None, _opt("--grid", "Map poses qJ=START:STOP:COUNT[,qK=...] rad.")
+    ] = None,
+    force_range: Annotated[str, _opt("--force-range", "Push magnitudes MIN:MAX [N].")] = "5:60",
+    seed: Seed = 0,
+    quiet: Quiet = False,
     json_out: JsonFlag = False,
 ) -> None:
-    """Joints, limits and masses of a robot; tool point, gravity and lever arms at a pose."""
+    """Joints, limits and masses of a robot; tool point, gravity and lever arms at a pose;
+    with --sensitivity the predicted detection thresholds per push direction (--map: over a
+    grid of poses)."""
     import json
 
     from ditherlab.robot import RobotModel, format_description, resolve_spec
 
-    model = RobotModel.from_spec(resolve_spec(spec, tool_frame=tool_frame))
-    summary = model.describe(model.parse_pose(q))
+    if not sensitivity and (map_out or grid or model or dither is not None):
+        from ditherlab.errors import ConfigError
+
+        raise ConfigError("robot: --map, --grid, --model and --dither need --sensitivity")
+    resolved = resolve_spec(spec, tool_frame=tool_frame)
+    if sensitivity:
+        from ditherlab.io.atomic import plain
+        from ditherlab.robot.sensitivity import run_sensitivity
+
+        if map_out is not None:
+            guard(map_out, model)
+            guard(map_out.with_suffix(".png"), model, map_out)
+        with progress_bar("map", quiet or map_out is None) as prog:
+            args = (resolved, q, model, dither, map_out, grid, force_range, seed)
+            res = run_sensitivity(*args, progress=prog)
+        echo(json.dumps(plain(res["json"]), indent=1) if json_out else res["text"])
+        return
+    rm = RobotModel.from_spec(resolved)
+    summary = rm.describe(rm.parse_pose(q))
     echo(json.dumps(summary, indent=1) if json_out else format_description(summary))
 
 

@@ -26,7 +26,14 @@ LAYERS: list[tuple[str, ...]] = [
     ("ditherlab.residual", "ditherlab.fit"),
     ("ditherlab.estimator",),
     ("ditherlab.sim",),
-    ("ditherlab.scoring", "ditherlab.identify", "ditherlab.replay", "ditherlab.thresholds"),
+    (
+        "ditherlab.scoring",
+        "ditherlab.identify",
+        "ditherlab.replay",
+        "ditherlab.thresholds",
+        # a prediction from the estimator and the simulator's parameters, for robot --sensitivity
+        "ditherlab.robot.sensitivity",
+    ),
     ("ditherlab.diagnose",),
     ("ditherlab.report", "ditherlab.viz"),
     ("ditherlab.loop", "ditherlab.fleet"),
