@@ -540,12 +540,13 @@ def _cell(v: float, bound: str = "") -> str:
 
 def format_table(table: pd.DataFrame, grid: Sequence[str], limit: float = VIBRATION_LIMIT) -> str:
     """The sweep's table as Markdown: the grid's values, F50 per direction (``<`` every push
-    seen, ``>`` none), F50 without dither, F90, vibration, coverage, per point."""
+    seen, ``>`` none) and the predicted (:mod:`ditherlab.robot.sensitivity`), F50 without
+    dither and the predicted, F90, vibration, coverage, per point."""
     head = [
         *grid,
-        "F50 x / y / z [N]",
+        "F50 x / y / z [N] (predicted)",
         "mean",
-        "no dither F50 x / y / z",
+        "no dither F50 x / y / z (predicted)",
         "F90 x / y / z",
         "vibration arm / motor [1e-4 rad]",
         "coverage push / rest",
@@ -570,6 +571,12 @@ def format_table(table: pd.DataFrame, grid: Sequence[str], limit: float = VIBRAT
         mean = _cell(r["f50_mean"])
         if np.isfinite(r["f50_mean_sem"]):
             mean += f" ± {r['f50_mean_sem']:.1f}"
+        for c in ("", "nodither_"):
+            pred = " / ".join(_cell(r[f"pred_{c}f50_{a}"]) for a in FORCE_AXES)
+            if c:
+                nd += f" ({pred})"
+            else:
+                f50 += f" ({pred})"
         vals += [f50, mean, nd, f90, vib, cov, status]
         lines.append("| " + " | ".join(vals) + " |")
     return "\n".join(lines)
