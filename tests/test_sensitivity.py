@@ -21,11 +21,13 @@ from ditherlab.model import Band, TorqueModel
 from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.robot.sensitivity import (
     Bands,
+    centre_loop_gain,
     condition_bands,
     noise_levels,
     peak_noise_factor,
     predict,
 )
+from ditherlab.sim.params import load_params
 
 ROBOT = RobotModel.from_spec("irb140")
 
@@ -71,6 +73,21 @@ def test_peak_noise_lowers_the_threshold_by_the_noise_maximum():
     noisy = predict(ROBOT, q, b, noise_level=[1.0] * 3, draws=400, forces=400)
     drop = quiet["directions"]["+y"]["f50"] - noisy["directions"]["+y"]["f50"]
     assert drop == pytest.approx(z * sigma / 0.45, rel=0.03)
+
+
+def test_centre_loop_gain_high_passes_the_push():
+    """The dither's centre loop eats part of a push: none without the loop, more for a faster
+    loop and for longer pushes (a first-order high-pass of time constant 1/Kc); the
+    simulator's loop and 0.5-2 s pushes keep 0.87 of it at the peak; the dithered bands carry
+    it, the undithered do not."""
+    p = load_params()
+    g = centre_loop_gain(p)
+    assert g == pytest.approx(0.873, abs=0.005)
+    assert centre_loop_gain(load_params(overrides={"dither": {"centre_gain": 0.0}})) == 1.0
+    assert centre_loop_gain(load_params(overrides={"dither": {"centre_gain": 2.0}})) < g - 0.05
+    longer = {"push_campaign": {"duration_min": 3.0, "duration_max": 4.0}}
+    assert centre_loop_gain(load_params(overrides=longer)) < g - 0.1
+    assert condition_bands(6, dither=True).gain == g and condition_bands(6).gain == 1.0
 
 
 def test_noise_level_at_rest_floor_and_edges():

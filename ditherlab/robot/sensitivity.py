@@ -40,6 +40,10 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    residual is moved towards detection by the median of the largest of ``K`` noise values
    (:func:`peak_noise_factor`; ``K`` the samples of the push's top, one per dither period with
    dither, whose extraction averages over a period).
+   With dither the push reaches the extracted signal through the dither's centre loop, which
+   drives the signal back to the gravity torque while the push lasts (integral gain 1/s): at
+   the push's peak the signal shows a share ``g`` of it (:func:`centre_loop_gain`, 0.87 for the
+   simulator's loop and push lengths), so ``r = s - g P l``.
 4. *Response.* :mod:`ditherlab.thresholds` counts a push as a response when that estimate
    exceeds the **noise level**: the 99.9 % quantile of ``|F̂_axis|`` at rest, at least 1 N. At
    rest ``r = s + e``; without dither ``s`` uniform in the band, so states within a few
@@ -61,7 +65,7 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
 What it leaves out: the servo's dynamics during a slip (overshoot, the time the position loop
 needs to return the joint within a short push), the states' true distribution (without dither
 they cluster near the sliding level ``±Fc``, inside the band; this changes F90 more than F50),
-and the dither's extraction lag and attenuation beyond the shrunk band.
+and the dither's extraction lag.
 
 Bands come from a model file written by ``ditherlab identify`` (``still`` and ``dither``
 regimes; ``dither`` missing: the still band shrunk by the simulator's dither amplitude) or,
@@ -94,6 +98,7 @@ from ditherlab.sim.params import load_params
 __all__ = [
     "DIRECTIONS",
     "Bands",
+    "centre_loop_gain",
     "condition_bands",
     "format_prediction",
     "map_columns",
@@ -147,6 +152,8 @@ class Bands:
     source : where the numbers come from (a model file, or the simulator's defaults)
     prior_mean, prior_sigma : (6,) [N, N·m] the estimator's prior (the model's, else the
         paper's)
+    gain : [-] the share of a push's torque the residual shows at the push's peak: 1 without
+        dither; with dither the dither's centre loop eats part of it (:func:`centre_loop_gain`)
     """
 
     lo: np.ndarray
@@ -156,6 +163,7 @@ class Bands:
     source: str
     prior_mean: np.ndarray
     prior_sigma: np.ndarray
+    gain: float = 1.0
 
 
 def condition_bands(
@@ -195,10 +203,11 @@ def condition_bands(
         pm, ps = model.prior_mean.copy(), model.prior_sigma.copy()
         if not dither:
             return Bands(still.tau_min, still.tau_max, still.sigma, False, src, pm, ps)
+        p = load_params(params)
+        g = centre_loop_gain(p)
         if "dither" in model.regimes:
             d = model.regimes["dither"]
-            return Bands(d.tau_min, d.tau_max, d.sigma, True, f"{src} [regimes.dither]", pm, ps)
-        p = load_params(params)
+            return Bands(d.tau_min, d.tau_max, d.sigma, True, f"{src} [regimes.dither]", pm, ps, g)
         amp = (
             np.asarray(p["dither"]["amplitude_fraction"], float)[:n]
             * np.asarray(p["friction"]["static"], float)[:n]
@@ -207,7 +216,7 @@ def condition_bands(
         lo, hi = np.minimum(still.tau_min + amp, mid), np.maximum(still.tau_max - amp, mid)
         return Bands(
             lo, hi, _period_noise(still.sigma, p), True,
-            f"{src} (still band shrunk by the simulator's dither amplitude)", pm, ps,
+            f"{src} (still band shrunk by the simulator's dither amplitude)", pm, ps, g,
         )  # fmt: skip
     p = load_params(params)
     fs = np.asarray(p["friction"]["static"], float)
@@ -222,9 +231,37 @@ def condition_bands(
     if not dither:
         return Bands(-fs, fs, sig, False, "simulator defaults (irb140.toml)", pm, ps)
     half = np.maximum(1.0 - np.asarray(p["dither"]["amplitude_fraction"], float), 0.0) * fs
-    return Bands(
-        -half, half, _period_noise(sig, p), True, "simulator defaults (irb140.toml)", pm, ps
-    )
+    src = "simulator defaults (irb140.toml)"
+    return Bands(-half, half, _period_noise(sig, p), True, src, pm, ps, centre_loop_gain(p))
+
+
+def centre_loop_gain(p: Mapping[str, Any]) -> float:
+    """The share [-] of a push the extracted signal shows at the push's largest response, mean
+    over the campaign's push lengths: the dither's centre loop (``dither.centre_gain`` Kc
+    [1/s], updated every ``dither.update_every`` samples from the mean of the last
+    ``dither.periods`` periods) drives the signal's centre back to the gravity torque, so a
+    push reaches the signal high-passed. Simulated on a raised-cosine push of each length in
+    ``push_campaign.duration_min .. duration_max`` [s] (six lengths), its peak taken over the
+    push and the report's 0.3 s after it. 1 for a loop gain of 0."""
+    d = p["dither"]
+    kc = float(d["centre_gain"])
+    if kc <= 0.0:
+        return 1.0
+    dt = 1.0 / float(p["timing"]["sample_rate_hz"])
+    every = max(int(d["update_every"]), 1)
+    win = max(int(round(float(d["periods"]) * 2 * math.pi / float(d["frequency"]) / dt)), 1)
+    pc = p["push_campaign"]
+    peaks = []
+    for D in np.linspace(float(pc["duration_min"]), float(pc["duration_max"]), 6):
+        t = np.arange(0.0, D + 0.3, dt)
+        e = np.where(t < D, 0.5 * (1.0 - np.cos(2 * np.pi * t / D)), 0.0)
+        c, y = 0.0, np.zeros_like(t)
+        for k in range(len(t)):
+            y[k] = e[k] + c
+            if k and k % every == 0:
+                c -= kc * y[max(0, k - win + 1) : k + 1].mean() * every * dt
+        peaks.append(float(y.max()))
+    return float(np.mean(peaks))
 
 
 def _period_noise(sigma: np.ndarray, p: Mapping[str, Any]) -> np.ndarray:
@@ -394,7 +431,7 @@ def predict(
         # the report takes the largest estimate of the push: the noise's median maximum over
         # the push's top, on every joint in the direction the push drives its residual
         s = s - np.sign(lev) * z_peak * bands.sigma
-        r = (s[None, :, :] - P[:, None, None] * lev).reshape(-1, n)
+        r = (s[None, :, :] - bands.gain * P[:, None, None] * lev).reshape(-1, n)
         F = _estimates(r, J, bands, components)
         resp = -(F @ u).reshape(forces, draws)
         p = np.mean(resp > nl[ax], axis=1)
