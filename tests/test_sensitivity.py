@@ -26,6 +26,7 @@ from ditherlab.robot.sensitivity import (
     noise_levels,
     peak_noise_factor,
     predict,
+    shared_fraction,
 )
 from ditherlab.sim.params import load_params
 
@@ -88,6 +89,24 @@ def test_centre_loop_gain_high_passes_the_push():
     longer = {"push_campaign": {"duration_min": 3.0, "duration_max": 4.0}}
     assert centre_loop_gain(load_params(overrides=longer)) < g - 0.1
     assert condition_bands(6, dither=True).gain == g and condition_bands(6).gain == 1.0
+
+
+def test_shared_fraction_counts_the_pushes_two_joints_share():
+    """Two joints with the same levers are slipped by the same pushes (1); a joint seeing x
+    only and one seeing x and y equally share the x pushes and not the y ones (1/2); the mixed
+    draw lies between the shared and the independent limits."""
+    b = Bands(np.full(2, -5.0), np.full(2, 5.0), np.full(2, 0.1), False, "t", np.zeros(6),
+              np.full(6, 20.0))  # fmt: skip
+    J = np.zeros((6, 2))
+    J[0] = [0.3, 0.3]
+    assert shared_fraction(J, b, (5.0, 60.0), 2)["+x"] == pytest.approx(1.0)
+    J[1] = [0.0, 0.3]
+    rho = shared_fraction(J, b, (5.0, 60.0), 2)
+    assert rho["+x"] == pytest.approx(0.5) and rho["+y"] == 1.0  # y: joint 2 alone
+    bands = condition_bands(6)
+    f = {s: predict(ROBOT, PAPER_POSE, bands, states=s)["axes"]["x"]["f50"]
+         for s in ("shared", "mixed", "independent")}  # fmt: skip
+    assert f["independent"] < f["mixed"] < f["shared"]
 
 
 def test_noise_level_at_rest_floor_and_edges():
