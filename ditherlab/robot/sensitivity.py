@@ -600,7 +600,7 @@ def parse_map_grid(text: str, robot: RobotModel, where: str = "--grid") -> dict[
                 f"{where} {key}={rng}: [{a:g}, {b:g}] rad leaves joint {j}'s limits "
                 f"[{lo:.4g}, {hi:.4g}] rad"
             )
-        grid[j - 1] = np.linspace(a, b, c)
+        grid[j - 1] = np.round(np.linspace(a, b, c), 12) + 0.0  # no -1e-16 for 0
     if len(grid) > 2:
         raise ConfigError(f"{where} varies {len(grid)} joints; expected one or two")
     return grid
