@@ -357,7 +357,7 @@ def robot(
     resolved = resolve_spec(spec, tool_frame=tool_frame)
     if sensitivity:
         from ditherlab.io.atomic import plain
-        from ditherlab.robot.sensitivity import run_sensitivity
+        from ditherlab.robot.sensitivity_map import run_sensitivity
 
         if map_out is not None:
             guard(map_out, model)

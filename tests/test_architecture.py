@@ -33,6 +33,7 @@ LAYERS: list[tuple[str, ...]] = [
         "ditherlab.thresholds",
         # a prediction from the estimator and the simulator's parameters, for robot --sensitivity
         "ditherlab.robot.sensitivity",
+        "ditherlab.robot.sensitivity_map",
     ),
     ("ditherlab.diagnose",),
     ("ditherlab.report", "ditherlab.viz"),
