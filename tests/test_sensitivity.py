@@ -256,6 +256,26 @@ def test_model_of_another_robot_and_robot_without_defaults(tmp_path):
     )
 
 
+def test_map_output_guard(tmp_path):
+    """The map's outputs go through the output guard before any work: never over the model it
+    reads (even with a table's suffix), never under a regular file."""
+    mpath = paper_model().save(tmp_path / "m.parquet")
+    before = mpath.read_bytes()
+    r = run_cli("robot", "irb140", "--sensitivity", "--model", mpath, "--map", mpath,
+                "--grid", "q2=0:1:2")  # fmt: skip
+    assert (
+        r.code == 2 and r.err == f"error: {mpath}: refusing to write over the input file {mpath}\n"
+    )
+    assert mpath.read_bytes() == before
+    (tmp_path / "f").write_text("x")
+    r = run_cli("robot", "irb140", "--sensitivity", "--map", tmp_path / "f" / "x.csv",
+                "--grid", "q2=0:1:2")  # fmt: skip
+    assert r.code == 2 and r.err == (
+        f"error: {tmp_path / 'f' / 'x.csv'}: cannot write there: {tmp_path / 'f'} is a file, "
+        "not a folder\n"
+    )
+
+
 # ------------------------------------------------------------------ against the simulator
 @pytest.mark.slow
 def test_prediction_against_a_simulated_campaign_at_another_pose(tmp_path):
