@@ -2,9 +2,9 @@
 
 The prediction against a case derived by hand (one joint alone carries a direction: F50 =
 (W/2 + m)/l, F90 = (0.9 W + m)/l, so the threshold scales with 1/lever), the bands' sources,
-the CLI's table, JSON and map, every bad input as one line with exit status 2, and (slow) the
-prediction against a small simulated campaign at a pose other than the paper's, through
-``ditherlab sweep``.
+the CLI's table, JSON and map, every bad input as one line with exit status 2, and the
+prediction against a small simulated campaign at a pose other than the paper's through
+``ditherlab sweep`` (10-20 s, so not marked slow).
 """
 
 from __future__ import annotations
@@ -277,7 +277,6 @@ def test_map_output_guard(tmp_path):
 
 
 # ------------------------------------------------------------------ against the simulator
-@pytest.mark.slow
 def test_prediction_against_a_simulated_campaign_at_another_pose(tmp_path):
     """Paired campaigns (identification seed 41, evaluation seed 40, 20 pushes per direction
     and sign, 5-60 N, one seed) at a pose far from the paper's, through ``ditherlab sweep``.
