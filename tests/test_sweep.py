@@ -270,7 +270,8 @@ def test_small_sweep_table_and_failures(small_sweep):
     assert ((good["vibration_motor"] > 1e-7) & (good["vibration_motor"] < 1e-3)).all()
     assert good["within_limit"].tolist() == (good["vibration"] <= 1e-4).tolist()
     assert good["coverage_push"].between(0, 1).all() and good["coverage_rest"].between(0, 1).all()
-    for f in ("sweep.md", "sweep.json", "f50_vs_vibration.png", "f50_per_point.png"):
+    for f in ("sweep.md", "sweep.json", "f50_vs_vibration.png", "f50_per_point.png",
+              "f50_predicted.png"):  # fmt: skip
         assert (out / f).stat().st_size > 0
     s = json.loads((out / "sweep.json").read_text())
     assert s["points"] == 4 and len(s["failures"]) == 2

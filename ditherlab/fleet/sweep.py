@@ -48,7 +48,7 @@ import pandas as pd
 from ditherlab.dither import WAVEFORMS, dither_period
 from ditherlab.errors import ConfigError
 from ditherlab.fleet.engine import TaskResult, run_tasks
-from ditherlab.fleet.sweep_figures import plot_points, plot_tradeoff
+from ditherlab.fleet.sweep_figures import plot_points, plot_prediction, plot_tradeoff
 from ditherlab.fleet.sweep_pose import (
     DIRECTION_NAMES,
     check_pose,
@@ -737,6 +737,7 @@ def run_sweep(
     figures = [
         plot_tradeoff(table, list(grid), vibration_limit, out / "f50_vs_vibration.png"),
         plot_points(table, vibration_limit, out / "f50_per_point.png"),
+        plot_prediction(table, out / "f50_predicted.png"),
     ]
     summary = {
         "grid": {k: [_label(v) for v in vs] for k, vs in grid.items()},
