@@ -21,9 +21,10 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    the lever of each joint for a unit force along ``u`` (``J_f`` the force rows of the
    tool-point Jacobian), so ``r = s - P l`` with ``s`` the state before the push. Joint ``j``
    shows the push once ``P |l_j|`` exceeds the distance ``d_j`` from ``s_j`` to the band edge
-   the push drives ``r_j`` towards. (In the simulator the servo's position loop, a P loop
-   around a PI velocity loop, returns a slipping joint to its reference, so the servo, not the
-   friction, ends up carrying the push, and the friction stays near where it was.)
+   the push drives ``r_j`` towards. This is the estimator's own model; in the simulator the
+   servo's response to a slip (a P position loop around a PI velocity loop) decides how much
+   of the push the torque shows, and a push from the favourable side of the band was seen to
+   respond only at about half the band: one reason the prediction comes out low on average.
 2. *Friction state before a push.* Pushes in shuffled directions and signs leave the state
    anywhere in the band: ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
    Joints slipped by the same earlier push sit alike (one ``v`` for both); joints last slipped
@@ -31,10 +32,11 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    joints with the probability that the two joints which see the direction first were last
    slipped by the same push (:func:`shared_fraction`, from the levers of all six directions
    and the campaign's push magnitudes), independent ones otherwise; ``"shared"`` and
-   ``"independent"`` are the two limits. Measured on the simulator (README, "Pose
-   sensitivity"): shared 13 of 15 axes within 25 % but up to +52 % where two joints with
-   similar thresholds and different push histories carry a direction, independent 20–40 % low,
-   mixed 14 of 15 within 25 %, at most 30 % off, 12 % low on average.
+   ``"independent"`` are the two limits. Against the simulator (README, "Pose sensitivity";
+   five poses, the mean of up to five measured seed sets): mixed 13 of 15 axes within 25 %,
+   at most 30 % off, 13 % low on average; shared 13 of 15, 6 % high on average but up to 52 %
+   off where two joints with similar thresholds and different push histories carry a
+   direction; independent 4 of 15, 30 % low.
 3. *The estimate.* The estimator of eq. (3) itself (:func:`ditherlab.estimator.estimate`, with
    the model's prior and the components the replay estimates, ``fxyz`` as ``sweep`` and
    ``fleet``) turns ``r`` into ``F̂``: a joint inside its band contributes nothing, a joint
