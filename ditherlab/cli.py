@@ -5,8 +5,9 @@ Each command parses its options and calls one library function. User mistakes ra
 exit status 2, never a traceback. Long work reports progress through a callback that the library
 calls as ``progress(done, total)``; here it drives a progress bar on stderr.
 
-Shared pieces for every command live at the top of this file; commands follow, one function
-each. Add a command as a new function below; keep it ~10 lines.
+Shared pieces for every command live in :mod:`ditherlab.cli_shared` (and the output guard at the
+top of this file); commands follow, one function each. Add a command as a new function below;
+keep it ~10 lines.
 """
 
 from __future__ import annotations
@@ -22,13 +23,25 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import contextlib
 import sys
 import warnings
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated
 
 import typer
 import typer._click.exceptions as UsageErrors  # typer vendors click: its exceptions are here
 
+from ditherlab.cli_shared import (
+    Chunk,
+    Force,
+    JsonFlag,
+    OutPath,
+    Quiet,
+    RobotOpt,
+    Seed,
+    _format_warning,
+    echo,
+    held_warnings,
+    progress_bar,
+)
 from ditherlab.errors import DitherlabError, DitherlabWarning
 from ditherlab.runtime import reuse_freed_memory
 
@@ -40,78 +53,6 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-
-# ---------------------------------------------------------------- shared option aliases
-OutPath = Annotated[Path, typer.Option("-o", "--out", help="Output file (written atomically).")]
-Seed = Annotated[
-    int, typer.Option("--seed", help="Random seed; the same seed gives the same output.")
-]
-RobotOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--robot", help="Robot for files without metadata: a built-in name or a URDF path."
-    ),
-]
-JsonFlag = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON on stdout.")]
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")]
-Force = Annotated[
-    bool, typer.Option("--force", help="Write into (or replace) an existing non-empty folder.")
-]
-Chunk = Annotated[
-    int | None,
-    typer.Option(
-        "--chunk",
-        min=1,
-        help="Rows read and processed at a time (default 65536, about 4.4 min at 250 Hz; "
-        "memory grows with it, not with the log's length).",
-    ),
-]
-
-
-@contextlib.contextmanager
-def progress_bar(desc: str, quiet: bool = False) -> Iterator[Callable[[int, int], None]]:
-    """A ``progress(done, total)`` callback drawing a bar on stderr (nothing when quiet)."""
-    if quiet:
-        yield lambda done, total: None
-        return
-    if not sys.stderr.isatty():
-        # A log file or CI: a line when the work starts reporting, one when it has finished,
-        # instead of a redrawn bar; nothing at all when the command fails before it starts.
-        import time
-
-        t0 = time.perf_counter()
-        started = []
-
-        def note(done: int, total: int) -> None:
-            if not started:
-                started.append(True)
-                print(f"{desc} ...", file=sys.stderr, flush=True)
-
-        yield note
-        if started:
-            print(f"{desc}: done in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
-        return
-    from tqdm import tqdm
-
-    bar = tqdm(
-        desc=desc,
-        total=1,
-        unit="",
-        file=sys.stderr,
-        leave=False,
-        dynamic_ncols=True,
-        bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}",
-    )
-    try:
-
-        def update(done: int, total: int) -> None:
-            bar.total = max(int(total), 1)
-            bar.n = min(int(done), bar.total)
-            bar.refresh()
-
-        yield update
-    finally:
-        bar.close()
 
 
 def guard(
@@ -128,42 +69,6 @@ def guard(
 
     extra = [Path(mapping)] if mapping is not None and Path(mapping).exists() else []
     check_output(out, [*inputs, *extra], folder=folder, force=force)
-
-
-def echo(msg: str = "") -> None:
-    """Human-readable output on stdout."""
-    typer.echo(msg)
-
-
-def _format_warning(message, category, filename, lineno, line=None) -> str:  # noqa: ANN001
-    return f"warning: {message}\n"
-
-
-@contextlib.contextmanager
-def held_warnings() -> Iterator[Callable[[], None]]:
-    """Hold the warnings of numerical libraries (numpy's RuntimeWarning on an overflow, ...)
-    while a command runs; yields ``release()``, which prints them (after a success). Left
-    unreleased (an error), they are dropped: the error line is the only line. DitherlabWarnings
-    (a note to the user, e.g. angles in degrees) are printed at once, as before."""
-    held: list[tuple] = []
-    shown = warnings.showwarning
-
-    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
-        if issubclass(category, DitherlabWarning):
-            shown(message, category, filename, lineno, file, line)
-        else:
-            held.append((message, category, filename, lineno, file, line))
-
-    def release() -> None:
-        for w in held:
-            shown(*w)
-        held.clear()
-
-    warnings.showwarning = show
-    try:
-        yield release
-    finally:
-        warnings.showwarning = shown
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -303,6 +208,10 @@ def view(
 
 
 # ---------------------------------------------------------------- robot (helper "robot")
+def _opt(flag: str, text: str) -> typer.models.OptionInfo:
+    return typer.Option(flag, help=text)
+
+
 @app.command()
 def robot(
     spec: Annotated[
@@ -321,15 +230,52 @@ def robot(
             help="Tool frame of a URDF (default: tool0, flange, ... or the last link).",
         ),
     ] = None,
+    sensitivity: Annotated[
+        bool, _opt("--sensitivity", "Predicted F50/F90 per push direction.")
+    ] = False,
+    model: Annotated[
+        Path | None, _opt("--model", "Model from identify (else the simulator's).")
+    ] = None,
+    dither: Annotated[
+        bool | None, _opt("--dither/--no-dither", "One condition (else both).")
+    ] = None,
+    map_out: Annotated[
+        Path | None, _opt("--map", "Over --grid: table .csv/.parquet + PNG.")
+    ] = None,
+    grid: Annotated[
+        str | None, _opt("--grid", "Map poses qJ=START:STOP:COUNT[,qK=...] rad.")
+    ] = None,
+    force_range: Annotated[str, _opt("--force-range", "Push magnitudes MIN:MAX [N].")] = "5:60",
+    seed: Seed = 0,
+    quiet: Quiet = False,
     json_out: JsonFlag = False,
 ) -> None:
-    """Joints, limits and masses of a robot; tool point, gravity and lever arms at a pose."""
+    """Joints, limits and masses of a robot; tool point, gravity and lever arms at a pose;
+    with --sensitivity the predicted detection thresholds per push direction (--map: over a
+    grid of poses)."""
     import json
 
     from ditherlab.robot import RobotModel, format_description, resolve_spec
 
-    model = RobotModel.from_spec(resolve_spec(spec, tool_frame=tool_frame))
-    summary = model.describe(model.parse_pose(q))
+    if not sensitivity and (map_out or grid or model or dither is not None):
+        from ditherlab.errors import ConfigError
+
+        raise ConfigError("robot: --map, --grid, --model and --dither need --sensitivity")
+    resolved = resolve_spec(spec, tool_frame=tool_frame)
+    if sensitivity:
+        from ditherlab.io.atomic import plain
+        from ditherlab.robot.sensitivity_map import run_sensitivity
+
+        if map_out is not None:
+            guard(map_out, model)
+            guard(map_out.with_suffix(".png"), model, map_out)
+        with progress_bar("map", quiet or map_out is None) as prog:
+            args = (resolved, q, model, dither, map_out, grid, force_range, seed)
+            res = run_sensitivity(*args, progress=prog)
+        echo(json.dumps(plain(res["json"]), indent=1) if json_out else res["text"])
+        return
+    rm = RobotModel.from_spec(resolved)
+    summary = rm.describe(rm.parse_pose(q))
     echo(json.dumps(summary, indent=1) if json_out else format_description(summary))
 
 

@@ -32,6 +32,9 @@ LAYERS: list[tuple[str, ...]] = [
         "ditherlab.replay",
         "ditherlab.thresholds",
         "ditherlab.leadthrough",
+        # a prediction from the estimator and the simulator's parameters, for robot --sensitivity
+        "ditherlab.robot.sensitivity",
+        "ditherlab.robot.sensitivity_map",
     ),
     ("ditherlab.diagnose",),
     ("ditherlab.report", "ditherlab.viz"),

@@ -64,6 +64,24 @@ def test_grid_points_cartesian_product_over_the_base_config():
         parse_grid([])
 
 
+def test_pose_joints_as_grid_keys():
+    """``pose.qJ`` and ``KEY[J]`` sweep one joint of a per-joint list; the other joints keep the
+    base config's (or the default's) values, and two joints of one list combine."""
+    g = parse_grid(["pose.q2=-0.3,0.3", "pose.q0[3]=0.5", "dither.amplitude_fraction[1]=0.8"])
+    assert g == {
+        "pose.q2": [-0.3, 0.3],
+        "pose.q0[3]": [0.5],
+        "dither.amplitude_fraction[1]": [0.8],
+    }
+    pts = grid_points(g, {"pose": {"q0": [0.1, 0.0, 0.0, 0.2, 1.2, 0.0]}})
+    assert [p.label for p in pts] == [
+        "pose.q2=-0.3 pose.q0[3]=0.5 dither.amplitude_fraction[1]=0.8",
+        "pose.q2=0.3 pose.q0[3]=0.5 dither.amplitude_fraction[1]=0.8",
+    ]
+    assert pts[1].config["pose"]["q0"] == [0.1, 0.3, 0.5, 0.2, 1.2, 0.0]
+    assert pts[1].config["dither"]["amplitude_fraction"] == [0.8, 0.9, 0.85, 0.7, 0.7, 0.7]
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -130,6 +148,30 @@ def test_grid_points_cartesian_product_over_the_base_config():
         (
             ["--grid", "dither.frequency=80", "--grid", "dither.frequency=40"],
             "sweep: --grid key 'dither.frequency' is given twice; expected it once",
+        ),
+        (
+            ["--grid", "pose.q0=0:0:0:0:3:0"],
+            "sweep: --grid point pose.q0=0:0:0:0:3:0: pose.q0 joint 5 is 3 rad, outside its "
+            "limits [-2.007, 2.007] rad",
+        ),
+        (
+            ["--grid", "pose.q2=0,2"],
+            "sweep: --grid point pose.q2=2: pose.q0 joint 2 is 2 rad, outside its limits "
+            "[-1.571, 1.92] rad",
+        ),
+        (
+            ["--grid", "pose.q7=0"],
+            "sweep: --grid key 'pose.q7': joint 7 does not exist; expected 1..6",
+        ),
+        (
+            ["--grid", "dither.frequency[1]=40"],
+            "sweep: --grid key 'dither.frequency[1]': dither.frequency is not a per-joint list; "
+            "expected KEY[J] of a list such as dither.amplitude_fraction[1] or pose.q2",
+        ),
+        (
+            ["--grid", "pose.q0=0", "--grid", "pose.q3=0.2"],
+            "sweep: --grid keys 'pose.q0' and 'pose.q3' both set pose.q0; expected the whole "
+            "list or single joints of it",
         ),
     ],
 )
@@ -228,7 +270,8 @@ def test_small_sweep_table_and_failures(small_sweep):
     assert ((good["vibration_motor"] > 1e-7) & (good["vibration_motor"] < 1e-3)).all()
     assert good["within_limit"].tolist() == (good["vibration"] <= 1e-4).tolist()
     assert good["coverage_push"].between(0, 1).all() and good["coverage_rest"].between(0, 1).all()
-    for f in ("sweep.md", "sweep.json", "f50_vs_vibration.png", "f50_per_point.png"):
+    for f in ("sweep.md", "sweep.json", "f50_vs_vibration.png", "f50_per_point.png",
+              "f50_predicted.png"):  # fmt: skip
         assert (out / f).stat().st_size > 0
     s = json.loads((out / "sweep.json").read_text())
     assert s["points"] == 4 and len(s["failures"]) == 2

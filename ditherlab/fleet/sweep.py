@@ -33,6 +33,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+import re
 import time
 import tomllib
 import warnings
@@ -47,7 +48,14 @@ import pandas as pd
 from ditherlab.dither import WAVEFORMS, dither_period
 from ditherlab.errors import ConfigError
 from ditherlab.fleet.engine import TaskResult, run_tasks
-from ditherlab.fleet.sweep_figures import plot_points, plot_tradeoff
+from ditherlab.fleet.sweep_figures import plot_points, plot_prediction, plot_tradeoff
+from ditherlab.fleet.sweep_pose import (
+    DIRECTION_NAMES,
+    check_pose,
+    direction_f50,
+    predicted,
+    without_ramp_down,
+)
 from ditherlab.identify import identify
 from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text, check_output
 from ditherlab.recording import FORCE_AXES, Recording
@@ -75,7 +83,12 @@ VIBRATION_LIMIT = 1e-4
 #: fractions for coverage, s for seconds. ``f50_*``, ``f90_*``: the dithered evaluation campaign
 #: (``dither_band``), ``_bound`` ``below`` / ``above`` when every / no push was seen (then the
 #: smallest / largest force), ``_lo`` / ``_hi`` F50's 90 % bootstrap interval over pushes;
-#: ``nodither_*``: the undithered campaign (``nodither_band``).
+#: ``nodither_*``: the undithered campaign (``nodither_band``); ``f50_+x`` ..: F50 of one push
+#: direction (the pushes of one sign, no bootstrap; a bound's force when every / no push was
+#: seen); ``pred_*``: F50 predicted at the point's pose from the identified model
+#: (:func:`ditherlab.robot.sensitivity.predict`; per axis the report's logistic fit over the
+#: campaign's push magnitudes, else the smaller direction's crossing; per direction the crossing
+#: of one half).
 METRICS = [
     *(f"f50_{a}" for a in FORCE_AXES),
     *(f"f90_{a}" for a in FORCE_AXES),
@@ -94,6 +107,9 @@ METRICS = [
     "amplitude_reached",
     "pushes",
     "seconds",
+    *(f"{c}f50_{d}" for c in ("", "nodither_") for d in DIRECTION_NAMES),
+    *(f"pred_{c}f50_{a}" for c in ("", "nodither_") for a in FORCE_AXES),
+    *(f"pred_{c}f50_{d}" for c in ("", "nodither_") for d in DIRECTION_NAMES),
 ]
 #: ``sweep_runs.parquet``'s columns after the grid's own: one row per point and seed.
 RUN_COLUMNS = ["point", "seed", "ok", "error", *METRICS]
@@ -200,12 +216,16 @@ def parse_grid(specs: Sequence[str]) -> dict[str, list[Any]]:
         )
     defaults = default_params()
     grid: dict[str, list[Any]] = {}
+    lists: dict[str, str] = {}  # a swept list's key -> the grid key that sweeps (part of) it
     for spec in specs:
         key, eq, values = str(spec).partition("=")
         key = key.strip()
         if not eq or not key:
             raise ConfigError(f"sweep: --grid '{spec}' is not KEY=V1,V2,...")
-        default = _leaf(defaults, key)
+        base, index = _element(key)
+        default = _leaf(defaults, base)
+        if index is not None:
+            default = _element_default(default, key, base, index)
         texts = [v for v in values.split(",") if v.strip()]
         if not texts:
             raise ConfigError(
@@ -213,8 +233,55 @@ def parse_grid(specs: Sequence[str]) -> dict[str, list[Any]]:
             )
         if key in grid:
             raise ConfigError(f"sweep: --grid key '{key}' is given twice; expected it once")
+        other = lists.get(base)
+        if other is not None and (index is None or _element(other)[1] is None):
+            raise ConfigError(
+                f"sweep: --grid keys '{other}' and '{key}' both set {base}; expected the whole "
+                "list or single joints of it"
+            )
+        lists[base] = key
         grid[key] = [_value(default, t, key) for t in texts]
     return grid
+
+
+#: ``pose.qJ`` (J = 1, 2, ...) is joint J of the start pose ``pose.q0`` [rad]
+_POSE_JOINT = re.compile(r"^pose\.q([1-9][0-9]*)$")
+_INDEXED = re.compile(r"^(.+)\[([0-9]+)\]$")
+
+
+def _element(key: str) -> tuple[str, int | None]:
+    """The parameter a grid key sets and the joint (0-based) of a per-joint list it sets alone:
+    ``KEY[J]`` (J = 1, 2, ...) and ``pose.qJ`` (= ``pose.q0[J]``); ``(key, None)`` otherwise."""
+    m = _POSE_JOINT.match(key)
+    if m:
+        return "pose.q0", int(m.group(1)) - 1
+    m = _INDEXED.match(key)
+    if m:
+        return m.group(1), int(m.group(2)) - 1
+    return key, None
+
+
+def _element_default(default: Any, key: str, base: str, index: int) -> Any:
+    """The default of joint ``index`` of the per-joint list ``base``, or a ConfigError."""
+    if not isinstance(default, list) or not default or isinstance(default[0], list):
+        raise ConfigError(
+            f"sweep: --grid key '{key}': {base} is not a per-joint list; expected KEY[J] of a "
+            "list such as dither.amplitude_fraction[1] or pose.q2"
+        )
+    if not 0 <= index < len(default):
+        raise ConfigError(
+            f"sweep: --grid key '{key}': joint {index + 1} does not exist; expected 1.."
+            f"{len(default)}"
+        )
+    return default[index]
+
+
+def _get(config: Mapping[str, Any], key: str, defaults: Mapping[str, Any]) -> Any:
+    """The value of a dotted key in ``config``, else in ``defaults`` (a copy)."""
+    node: Any = _merge(dict(defaults), config)
+    for part in key.split("."):
+        node = node[part]
+    return copy.deepcopy(node)
 
 
 def _nest(key: str, value: Any) -> dict[str, Any]:
@@ -261,17 +328,28 @@ def grid_points(
     grid key and value."""
     points = []
     keys = list(grid)
+    defaults = default_params()
     for combo in itertools.product(*(grid[k] for k in keys)):
         values = dict(zip(keys, combo, strict=True))
         config = dict(copy.deepcopy(base or {}))
         for k, v in values.items():
-            config = _merge(config, _nest(k, v))
+            target, index = _element(k)
+            if index is not None:  # one joint of a per-joint list: the rest from the config
+                whole = _get(config, target, defaults)
+                n = len(_get({}, target, defaults))
+                v = [
+                    *(whole if isinstance(whole, list) else [whole] * n)[:index],
+                    v,
+                    *(whole if isinstance(whole, list) else [whole] * n)[index + 1 :],
+                ]
+            config = _merge(config, _nest(target, v))
         label = " ".join(f"{k}={_label(v)}" for k, v in values.items())
         try:
             load_params(config)
         except ConfigError as exc:
             msg = str(exc).removeprefix("config: ")
             raise ConfigError(f"sweep: --grid point {label}: {msg}") from None
+        check_pose(config, label)
         points.append(Point(values, label, config))
     return points
 
@@ -349,7 +427,7 @@ def run_point(config: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]
     ----------
     config : the point's simulator parameters (nested dict over ``irb140.toml``)
     options : ``seed``, ``curve_boot`` (bootstrap replicates of the detection curves),
-        ``vibration_limit`` [rad]
+        ``vibration_limit`` [rad], ``exclude_dither_ramp`` (default True)
 
     Returns
     -------
@@ -364,9 +442,12 @@ def run_point(config: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]
                 "push-campaign", seed=s, dither=d, config=config, log_link_angle=True
             )
     model = identify([recs["identification", False], recs["identification", True]], n_boot=0)
+    ev_dither = recs["evaluation", True]
+    if options.get("exclude_dither_ramp", True):
+        ev_dither = without_ramp_down(ev_dither)
     ests = [
         replay(recs["evaluation", False], model, variants=["nodither_band"], components="fxyz"),
-        replay(recs["evaluation", True], model, variants=["dither_band"], components="fxyz"),
+        replay(ev_dither, model, variants=["dither_band"], components="fxyz"),
     ]
     ests[0].name, ests[1].name = "evaluation without dither", "evaluation with dither"
     with warnings.catch_warnings():  # a condition without rest samples: its width is NaN
@@ -402,6 +483,9 @@ def run_point(config: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]
     reached = [m / s for m, s in zip(amps["measured_mean"], amps["set_point"], strict=True) if s]
     row["amplitude_reached"] = float(min(reached)) if reached else math.nan
     row["pushes"] = len(ev.meta["sim"]["pushes"])
+    for prefix, cond in (("", dith), ("nodither_", plain)):
+        row.update({f"{prefix}f50_{d}": v for d, v in direction_f50(cond).items()})
+    row.update(predicted(ev, model, config, seed))
     row["seconds"] = time.perf_counter() - t0
     return row
 
@@ -456,12 +540,13 @@ def _cell(v: float, bound: str = "") -> str:
 
 def format_table(table: pd.DataFrame, grid: Sequence[str], limit: float = VIBRATION_LIMIT) -> str:
     """The sweep's table as Markdown: the grid's values, F50 per direction (``<`` every push
-    seen, ``>`` none), F50 without dither, F90, vibration, coverage, per point."""
+    seen, ``>`` none) and the predicted (:mod:`ditherlab.robot.sensitivity`), F50 without
+    dither and the predicted, F90, vibration, coverage, per point."""
     head = [
         *grid,
-        "F50 x / y / z [N]",
+        "F50 x / y / z [N] (predicted)",
         "mean",
-        "no dither F50 x / y / z",
+        "no dither F50 x / y / z (predicted)",
         "F90 x / y / z",
         "vibration arm / motor [1e-4 rad]",
         "coverage push / rest",
@@ -486,6 +571,12 @@ def format_table(table: pd.DataFrame, grid: Sequence[str], limit: float = VIBRAT
         mean = _cell(r["f50_mean"])
         if np.isfinite(r["f50_mean_sem"]):
             mean += f" ± {r['f50_mean_sem']:.1f}"
+        for c in ("", "nodither_"):
+            pred = " / ".join(_cell(r[f"pred_{c}f50_{a}"]) for a in FORCE_AXES)
+            if c:
+                nd += f" ({pred})"
+            else:
+                f50 += f" ({pred})"
         vals += [f50, mean, nd, f90, vib, cov, status]
         lines.append("| " + " | ".join(vals) + " |")
     return "\n".join(lines)
@@ -561,6 +652,7 @@ def run_sweep(
     repeats: int = 1,
     curve_boot: int = 50,
     vibration_limit: float = VIBRATION_LIMIT,
+    exclude_dither_ramp: bool = True,
     scheduler: str | None = None,
     workers: int | None = None,
     force: bool = False,
@@ -581,6 +673,8 @@ def run_sweep(
         seed one above); the point's row is their mean
     curve_boot : bootstrap replicates of each detection curve
     vibration_limit : [rad, arm side] the paper's 1e-4
+    exclude_dither_ramp : evaluate the dithered campaign without its final ramp-down
+        (:func:`without_ramp_down`)
     scheduler, workers, progress, on_result : as :func:`ditherlab.fleet.engine.run_tasks`
 
     Returns
@@ -603,7 +697,11 @@ def run_sweep(
     points = grid_points(grid, base)
     out = check_output(out_dir, [config], folder=True, force=force)
     seeds = [int(seed) + 2 * r for r in range(int(repeats))]
-    options = {"curve_boot": int(curve_boot), "vibration_limit": vibration_limit}
+    options = {
+        "curve_boot": int(curve_boot),
+        "vibration_limit": vibration_limit,
+        "exclude_dither_ramp": bool(exclude_dither_ramp),
+    }
     runs = [(p, s) for p in points for s in seeds]
     t0 = time.perf_counter()
     results = run_tasks(
@@ -639,6 +737,7 @@ def run_sweep(
     figures = [
         plot_tradeoff(table, list(grid), vibration_limit, out / "f50_vs_vibration.png"),
         plot_points(table, vibration_limit, out / "f50_per_point.png"),
+        plot_prediction(table, out / "f50_predicted.png"),
     ]
     summary = {
         "grid": {k: [_label(v) for v in vs] for k, vs in grid.items()},

@@ -1,5 +1,5 @@
 """The sweep's figures (matplotlib, Agg; each PNG written atomically): detection against
-vibration, and F50 per direction per grid point.
+vibration, F50 per direction per grid point, and the measured F50 against the predicted.
 
 Both read the sweep's table (:data:`ditherlab.fleet.sweep.COLUMNS` after the grid's columns);
 failed points are left out.
@@ -17,7 +17,7 @@ from ditherlab.io.atomic import atomic_path
 from ditherlab.recording import FORCE_AXES
 from ditherlab.viz.figures import pyplot
 
-__all__ = ["plot_points", "plot_tradeoff"]
+__all__ = ["plot_points", "plot_prediction", "plot_tradeoff"]
 
 
 def _save(fig, path: Path) -> Path:  # noqa: ANN001 - a matplotlib Figure
@@ -107,3 +107,50 @@ def plot_points(table: pd.DataFrame, limit: float, path: str | Path) -> Path:
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     return _save(fig, Path(path))
+
+
+def plot_prediction(table: pd.DataFrame, path: Path) -> Path:
+    """Measured F50 against the F50 predicted at each point's pose
+    (:mod:`ditherlab.robot.sensitivity`), per axis, without and with dither [N], on log axes,
+    with the line of equality and ±25 %; a direction whose pushes were all (none) seen is
+    drawn hollow at its bound's force."""
+    plt = pyplot()
+    from matplotlib import ticker  # after pyplot(), which selects the Agg backend
+
+    fig, axs = plt.subplots(1, 2, figsize=(10, 4.6), constrained_layout=True)
+    ok = table[table["ok"]]
+    conds = (("nodither_", "without dither"), ("", "with dither"))
+    for ax, (prefix, title) in zip(axs, conds, strict=True):
+        lo, hi = np.inf, 0.0
+        for a, colour in zip(FORCE_AXES, ("C0", "C1", "C2"), strict=True):
+            m = ok[f"{prefix}f50_{a}"].to_numpy(float)
+            p = ok[f"pred_{prefix}f50_{a}"].to_numpy(float)
+            bound = (
+                ok[f"f50_{a}_bound"].astype(bool).to_numpy()
+                if not prefix
+                else np.zeros(len(ok), bool)
+            )
+            good = np.isfinite(m) & np.isfinite(p) & (m > 0) & (p > 0)
+            for sel, face in ((good & ~bound, colour), (good & bound, "none")):
+                ax.scatter(p[sel], m[sel], edgecolors=colour, facecolors=face, label=None)
+            ax.scatter([], [], color=colour, label=a)
+            if good.any():
+                lo, hi = (
+                    min(lo, p[good].min(), m[good].min()),
+                    max(hi, p[good].max(), m[good].max()),
+                )
+        if np.isfinite(lo):
+            x = np.geomspace(lo / 1.3, hi * 1.3, 50)
+            ax.plot(x, x, "k-", lw=0.8)
+            ax.fill_between(x, x / 1.25, x * 1.25, color="0.85", zorder=0, label="±25 %")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            for axis in (ax.xaxis, ax.yaxis):
+                axis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+                axis.set_major_formatter(ticker.ScalarFormatter())
+                axis.set_minor_formatter(ticker.NullFormatter())
+        ax.set_xlabel("predicted F50 [N]")
+        ax.set_ylabel("measured F50 [N]")
+        ax.set_title(title)
+        ax.legend(fontsize=8)
+    return _save(fig, path)

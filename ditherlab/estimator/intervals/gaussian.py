@@ -15,7 +15,6 @@ from ditherlab.estimator.backends.exact import _newton_piece, _solve_exact
 from ditherlab.estimator.core import Problem, chi2_1_quantile, complete, problem
 from ditherlab.estimator.intervals import problem_intervals
 
-
 #: A Cholesky pivot below this fraction of its diagonal entry (``H`` near singular in that
 #: direction: the normal equations' relative error grows as 1 / pivot) sends the sample to the
 #: QR of the stacked least-squares matrix instead (the exact backend's :func:`_newton_piece`).

@@ -119,8 +119,9 @@ def _inverse_t(J, k, m, B, M, p, col, w):
 
 
 @njit(cache=True, inline="always")
-def _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sxs, srs, o, K, p, fr, tr, tau, nu, ua, rhs, w, warm,
-        maxit):
+def _lp(
+    B, rn, L, U, Fl, Fu, box, i, sg, m, sxs, srs, o, K, p, fr, tr, tau, nu, ua, rhs, w, warm, maxit
+):
     """``min sg B_i tau`` over ``L <= tau <= U`` and ``Fl_g <= B_g tau <= Fu_g`` (``box[g]``).
 
     The working set is row ``o`` of ``sxs`` (2m, m): -1 / +1 a variable at its lower / upper

@@ -1,0 +1,86 @@
+"""The pose as a sweep axis (:mod:`ditherlab.fleet.sweep`): the start pose's limits, the
+dithered campaign without its ramp-down, and the per-direction and predicted F50 columns
+(:func:`ditherlab.robot.sensitivity.predict` at each point's pose, beside the measured)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ditherlab.errors import ConfigError
+from ditherlab.recording import FORCE_AXES, Recording
+from ditherlab.robot import RobotModel
+from ditherlab.robot.sensitivity import condition_bands, predict
+from ditherlab.sim.params import load_params
+from ditherlab.thresholds import fit_logistic
+
+__all__ = ["DIRECTION_NAMES", "check_pose", "direction_f50", "predicted", "without_ramp_down"]
+
+#: the robot the simulator simulates
+SIM_ROBOT = "irb140"
+#: push directions of the per-direction columns: axis and sign of the applied force
+DIRECTION_NAMES = ("+x", "-x", "+y", "-y", "+z", "-z")
+
+
+def check_pose(config: Mapping[str, Any], label: str) -> None:
+    """ConfigError when a point's start pose ``pose.q0`` [rad] leaves the simulated robot's
+    joint limits (the URDF's)."""
+    q0 = np.asarray(load_params(config)["pose"]["q0"], dtype=float)
+    robot = RobotModel.from_spec(SIM_ROBOT)
+    bad = np.flatnonzero((q0 < robot.q_lower) | (q0 > robot.q_upper))
+    if bad.size:
+        j = int(bad[0])
+        raise ConfigError(
+            f"sweep: --grid point {label}: pose.q0 joint {j + 1} is {q0[j]:g} rad, outside its "
+            f"limits [{robot.q_lower[j]:.4g}, {robot.q_upper[j]:.4g}] rad"
+        )
+
+
+def without_ramp_down(rec: Recording) -> Recording:
+    """A dithered campaign without the dither's final ramp-down (``meta["sim"]["timeline"]
+    ["dither_off"]`` on): while the amplitude ramps to zero the dither flag is still on, so the
+    report would count those samples as rest with dither, where the extracted signal moves by
+    the centre's feedforward (up to ~8 N·m) and sets the noise level (measured at the paper's
+    pose: 10.6 N in x instead of 1 N; README, "Pose sensitivity")."""
+    off = ((rec.meta.get("sim") or {}).get("timeline") or {}).get("dither_off")
+    return rec.slice(t1=float(off)) if off is not None else rec
+
+
+def direction_f50(cond: Mapping[str, Any]) -> dict[str, float]:
+    """F50 [N] per push direction (``+x`` ..) from one condition of
+    :func:`ditherlab.thresholds.analyse`: the logistic fit to the pushes of one sign (no
+    bootstrap); the smallest (largest) force when every (no) push was seen; NaN without
+    pushes."""
+    pushes = cond.get("pushes") or []
+    out = {}
+    for d in DIRECTION_NAMES:
+        sel = [p for p in pushes if p["axis"] == d[1] and p["sign"] == (1 if d[0] == "+" else -1)]
+        c = fit_logistic(
+            np.array([p["peak"] for p in sel]), np.array([p["detected"] for p in sel]), n_boot=0
+        )
+        out[d] = float(c["bound_force"]) if c.get("bound") else float(c["F50"])
+    return out
+
+
+def predicted(rec: Recording, model: Any, config: Mapping[str, Any], seed: int) -> dict[str, float]:
+    """The ``pred_*`` columns: :func:`ditherlab.robot.sensitivity.predict` at the point's pose
+    (``pose.q0``) from the identified ``model``, with and without dither, fitted over the
+    campaign's push magnitudes."""
+    p = load_params(config)
+    pc = p["push_campaign"]
+    fr = (float(pc["magnitude_min"]), float(pc["magnitude_max"]))
+    robot = rec.robot()
+    out: dict[str, float] = {}
+    for prefix, d in (("", True), ("nodither_", False)):
+        bands = condition_bands(robot.n, model, dither=d, params=p, robot_name=robot.name)
+        pr = predict(robot, p["pose"]["q0"], bands, force_range=fr, seed=seed)
+        for a in FORCE_AXES:
+            f = pr["axes"][a]["f50"]
+            if not np.isfinite(f):
+                f = min(pr["directions"][f"+{a}"]["f50"], pr["directions"][f"-{a}"]["f50"])
+            out[f"pred_{prefix}f50_{a}"] = float(f)
+        for dn in DIRECTION_NAMES:
+            out[f"pred_{prefix}f50_{dn}"] = float(pr["directions"][dn]["f50"])
+    return out

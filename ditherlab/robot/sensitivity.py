@@ -1,0 +1,544 @@
+"""Pose sensitivity: the detection threshold of a push, per direction, predicted at a pose.
+
+``ditherlab robot irb140 --q paper --sensitivity`` predicts, for a push applied at the tool
+along ±x, ±y, ±z of the base frame, the force at which half (F50) and nine tenths (F90) of the
+pushes give a *response* in the sense of :mod:`ditherlab.thresholds`, from the Jacobian at the
+pose, the friction bands, the noise and the estimator of eq. (3) itself;
+:mod:`ditherlab.robot.sensitivity_map` does it over a grid of poses.
+
+Derivation
+----------
+Model (:mod:`ditherlab.model`, the paper's §II): per joint the gravity-compensated torque is
+``r = J^T F + tau_f + e`` with ``F`` the wrench the robot exerts (the F/T sensor's sign: an
+applied force ``P u``, ``u`` a unit axis, reads ``F = -P u``), ``tau_f`` the friction inside the
+band ``[lo, hi]`` and ``e ~ N(0, sigma^2)``. Without dither the band is the ``still`` band and
+``r`` the raw torque; with dither the band is the dithered one (the still band shrunk by the
+dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dither]``, which
+``identify`` makes exactly so) and ``r`` the extracted signal (:func:`ditherlab.dither.extract`).
+
+1. *The push, as eq. (3) models it.* The friction ``tau_f`` is an unknown constant in the band
+   while the robot stands; a push changes ``J^T F`` by ``-P l`` with ``l = J_f^T u`` (n,) [m]
+   the lever of each joint for a unit force along ``u`` (``J_f`` the force rows of the
+   tool-point Jacobian), so ``r = s - P l`` with ``s`` the state before the push. Joint ``j``
+   shows the push once ``P |l_j|`` exceeds the distance ``d_j`` from ``s_j`` to the band edge
+   the push drives ``r_j`` towards. This is the estimator's own model; in the simulator the
+   servo's response to a slip (a P position loop around a PI velocity loop) decides how much
+   of the push the torque shows, and a push from the favourable side of the band was seen to
+   respond only at about half the band: one reason the prediction comes out low on average.
+2. *Friction state before a push.* Pushes in shuffled directions and signs leave the state
+   anywhere in the band: ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
+   Joints slipped by the same earlier push sit alike (one ``v`` for both); joints last slipped
+   by different pushes independently. ``states="mixed"`` (the default) draws one ``v`` for all
+   joints with the probability that the two joints which see the direction first were last
+   slipped by the same push (:func:`shared_fraction`, from the levers of all six directions
+   and the campaign's push magnitudes), independent ones otherwise; ``"shared"`` and
+   ``"independent"`` are the two limits. Against the simulator (README, "Pose sensitivity";
+   five poses, the mean of up to five measured seed sets): mixed 13 of 15 axes within 25 %,
+   at most 30 % off, 13 % low on average; shared 13 of 15, 6 % high on average but up to 52 %
+   off where two joints with similar thresholds and different push histories carry a
+   direction; independent 4 of 15, 30 % low.
+3. *The estimate.* The estimator of eq. (3) itself (:func:`ditherlab.estimator.estimate`, with
+   the model's prior and the components the replay estimates, ``fxyz`` as ``sweep`` and
+   ``fleet``) turns ``r`` into ``F̂``: a joint inside its band contributes nothing, a joint
+   beyond it its distance to the edge, and the joints still inside their band hold ``F̂`` in
+   the directions they see. The response along the push axis is ``-u·F̂`` (the sensor's sign).
+   The report takes the largest estimate over the push, so the noise helps: each joint's
+   residual is moved towards detection by the median of the largest of ``K`` noise values
+   (:func:`peak_noise_factor`; ``K`` the samples of the push's top, one per dither period with
+   dither, whose extraction averages over a period).
+   With dither the push reaches the extracted signal through the dither's centre loop, which
+   drives the signal back to the gravity torque while the push lasts (integral gain 1/s): at
+   the push's peak the signal shows a share ``g`` of it (:func:`centre_loop_gain`, 0.87 for the
+   simulator's loop and push lengths), so ``r = s - g P l``.
+4. *Response.* :mod:`ditherlab.thresholds` counts a push as a response when that estimate
+   exceeds the **noise level**: the 99.9 % quantile of ``|F̂_axis|`` at rest, at least 1 N. At
+   rest ``r = s + e``; without dither ``s`` uniform in the band, so states within a few
+   ``sigma`` of an edge give a non-zero estimate; with dither the centre loop holds the
+   extracted signal at the band's middle (:func:`noise_levels`).
+5. *Detection probability and thresholds.* ``p(P) = Prob_v(-u·F̂(P, v) > noise level)``, by
+   stratified draws of ``v`` (``draws`` per force, seeded). ``F50`` and ``F90`` per direction
+   are where ``p`` crosses 0.5 and 0.9. For one joint alone carrying a direction (lever ``l``,
+   band width ``W``), ``p(P) = (P l - m) / W`` between ``m / l`` and ``(W + m) / l``, with ``m``
+   the torque beyond the edge that gives an estimate at the noise level (less the peak noise),
+   so ``F50 = (W / 2 + m) / l`` and ``F90 = (0.9 W + m) / l``: the paper's "the configuration
+   of the robot is of high importance", the threshold scales with 1 / lever. Several joints
+   seeing a direction lower it (each gives a chance, as far as their states are independent).
+6. *As the report measures it.* The report fits a logistic curve per axis to pushes of both
+   signs with magnitudes spread evenly over the campaign's range; ``curve_f50/curve_f90`` (per
+   direction) and ``axes`` (per axis, both signs) are that fit made to ``p(P)`` over
+   ``force_range`` by expected log-likelihood on the report's grid.
+
+What it leaves out: the servo's dynamics during a slip (overshoot, the time the position loop
+needs to return the joint within a short push), the states' true distribution (without dither
+they cluster near the sliding level ``±Fc``, inside the band; this changes F90 more than F50),
+and the dither's extraction lag.
+
+Bands come from a model file written by ``ditherlab identify`` (``still`` and ``dither``
+regimes; ``dither`` missing: the still band shrunk by the simulator's dither amplitude) or,
+without a model, from the built-in simulator's parameters (``ditherlab/sim/irb140.toml``):
+still band ``±Fs`` (``friction.static``), noise ``noise.tau_sigma_fraction·Fs``, dither band
+``±(1 - dither.amplitude_fraction)·Fs`` with the noise averaged over one dither period's
+samples. :attr:`Bands.source` says which.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ditherlab.errors import ConfigError, ModelError, RobotError
+from ditherlab.estimator import estimate
+from ditherlab.estimator.core import normal_quantile
+from ditherlab.model import PAPER_PRIOR_SIGMA, TorqueModel
+from ditherlab.replay import parse_components
+from ditherlab.robot.model import RobotModel
+from ditherlab.sim.params import load_params
+
+__all__ = [
+    "DIRECTIONS",
+    "Bands",
+    "centre_loop_gain",
+    "condition_bands",
+    "format_prediction",
+    "predict",
+    "shared_fraction",
+]
+
+#: The six push directions: (name, axis index, sign of the applied force).
+DIRECTIONS: tuple[tuple[str, int, int], ...] = (
+    ("+x", 0, 1),
+    ("-x", 0, -1),
+    ("+y", 1, 1),
+    ("-y", 1, -1),
+    ("+z", 2, 1),
+    ("-z", 2, -1),
+)
+AXES = ("x", "y", "z")
+#: the report's response definition (:func:`ditherlab.thresholds.analyse`)
+QUANTILE = 0.999
+FLOOR = 1.0
+#: the simulator's robot
+SIM_ROBOT = "irb140"
+#: lighter settings of :func:`predict` for every pose of a map (a few tenths of a second each)
+MAP_OPTIONS = {"forces": 80, "draws": 120, "rest_samples": 5000}
+#: the simulator's push magnitudes (``push_campaign.magnitude_min/max``) [N]
+DEFAULT_RANGE = (5.0, 60.0)
+#: how the friction states of the joints before a push are drawn (module docstring)
+STATES = ("mixed", "shared", "independent")
+#: the simulator's mean push length (``push_campaign.duration_min/max``) [s], log rate [Hz] and
+#: dither period (2 pi / 80 rad/s) [s]
+PUSH_DURATION = 1.25
+SAMPLE_RATE = 250.0
+DITHER_PERIOD = 2 * math.pi / 80.0
+#: the top of a push: where the raised cosine is within this fraction of its peak
+PEAK_TOP = 0.05
+
+
+@dataclass
+class Bands:
+    """The disturbance model of one condition, per joint.
+
+    Attributes
+    ----------
+    lo, hi : (n,) [N·m] band edges (of the gravity-compensated torque, or of the extracted
+        signal with dither)
+    sigma : (n,) [N·m] noise standard deviation
+    dithered : whether this is the dithered condition
+    source : where the numbers come from (a model file, or the simulator's defaults)
+    prior_mean, prior_sigma : (6,) [N, N·m] the estimator's prior (the model's, else the
+        paper's)
+    gain : [-] the share of a push's torque the residual shows at the push's peak: 1 without
+        dither; with dither the dither's centre loop eats part of it (:func:`centre_loop_gain`)
+    """
+
+    lo: np.ndarray
+    hi: np.ndarray
+    sigma: np.ndarray
+    dithered: bool
+    source: str
+    prior_mean: np.ndarray
+    prior_sigma: np.ndarray
+    gain: float = 1.0
+
+
+def condition_bands(
+    n: int,
+    model: TorqueModel | None = None,
+    *,
+    dither: bool = False,
+    params: Mapping[str, Any] | None = None,
+    robot_name: str = "irb140",
+) -> Bands:
+    """The band and noise the estimator uses in one condition (module docstring).
+
+    Parameters
+    ----------
+    n : number of joints of the robot
+    model : a model from ``ditherlab identify`` (None: the simulator's parameters)
+    dither : the dithered condition (the ``dither`` band) or not (``still``)
+    params : simulator parameters (a nested dict over ``irb140.toml``; None: the defaults),
+        used without a model, and for the dither amplitude when a model has no dither band
+    robot_name : the robot's name; without a model it must be the simulator's (``irb140``)
+
+    Raises
+    ------
+    ModelError
+        The model has another number of joints, or no ``still`` band.
+    RobotError
+        No model and the robot is not the simulator's IRB140.
+    """
+    if model is not None:
+        if model.n != n:
+            raise ModelError(
+                f"{model.source or 'model'}: the model has {model.n} joints, the robot {n}; "
+                "expected a model of this robot"
+            )
+        still = model.band("still")
+        src = f"model {model.source}" if model.source else "model"
+        pm, ps = model.prior_mean.copy(), model.prior_sigma.copy()
+        if not dither:
+            return Bands(still.tau_min, still.tau_max, still.sigma, False, src, pm, ps)
+        p = load_params(params)
+        g = centre_loop_gain(p)
+        if "dither" in model.regimes:
+            d = model.regimes["dither"]
+            return Bands(d.tau_min, d.tau_max, d.sigma, True, f"{src} [regimes.dither]", pm, ps, g)
+        amp = (
+            np.asarray(p["dither"]["amplitude_fraction"], float)[:n]
+            * np.asarray(p["friction"]["static"], float)[:n]
+        )
+        mid = 0.5 * (still.tau_min + still.tau_max)
+        lo, hi = np.minimum(still.tau_min + amp, mid), np.maximum(still.tau_max - amp, mid)
+        return Bands(
+            lo, hi, _period_noise(still.sigma, p), True,
+            f"{src} (still band shrunk by the simulator's dither amplitude)", pm, ps, g,
+        )  # fmt: skip
+    p = load_params(params)
+    fs = np.asarray(p["friction"]["static"], float)
+    if n != len(fs) or robot_name != SIM_ROBOT:
+        raise RobotError(
+            f"the simulator's friction and noise are those of its {len(fs)}-joint "
+            f"{SIM_ROBOT}, not of robot {robot_name!r}; expected --model (a model file of this "
+            "robot from ditherlab identify)"
+        )
+    sig = float(p["noise"]["tau_sigma_fraction"]) * fs
+    pm, ps = np.zeros(6), np.array(PAPER_PRIOR_SIGMA)
+    if not dither:
+        return Bands(-fs, fs, sig, False, "simulator defaults (irb140.toml)", pm, ps)
+    half = np.maximum(1.0 - np.asarray(p["dither"]["amplitude_fraction"], float), 0.0) * fs
+    src = "simulator defaults (irb140.toml)"
+    return Bands(-half, half, _period_noise(sig, p), True, src, pm, ps, centre_loop_gain(p))
+
+
+def centre_loop_gain(p: Mapping[str, Any]) -> float:
+    """The share [-] of a push the extracted signal shows at the push's largest response, mean
+    over the campaign's push lengths: the dither's centre loop (``dither.centre_gain`` Kc
+    [1/s], updated every ``dither.update_every`` samples from the mean of the last
+    ``dither.periods`` periods) drives the signal's centre back to the gravity torque, so a
+    push reaches the signal high-passed. Simulated on a raised-cosine push of each length in
+    ``push_campaign.duration_min .. duration_max`` [s] (six lengths), its peak taken over the
+    push and the report's 0.3 s after it. 1 for a loop gain of 0."""
+    d = p["dither"]
+    kc = float(d["centre_gain"])
+    if kc <= 0.0:
+        return 1.0
+    dt = 1.0 / float(p["timing"]["sample_rate_hz"])
+    every = max(int(d["update_every"]), 1)
+    win = max(int(round(float(d["periods"]) * 2 * math.pi / float(d["frequency"]) / dt)), 1)
+    pc = p["push_campaign"]
+    peaks = []
+    for D in np.linspace(float(pc["duration_min"]), float(pc["duration_max"]), 6):
+        t = np.arange(0.0, D + 0.3, dt)
+        e = np.where(t < D, 0.5 * (1.0 - np.cos(2 * np.pi * t / D)), 0.0)
+        c, y = 0.0, np.zeros_like(t)
+        for k in range(len(t)):
+            y[k] = e[k] + c
+            if k and k % every == 0:
+                c -= kc * y[max(0, k - win + 1) : k + 1].mean() * every * dt
+        peaks.append(float(y.max()))
+    return float(np.mean(peaks))
+
+
+def _period_noise(sigma: np.ndarray, p: Mapping[str, Any]) -> np.ndarray:
+    """The noise of the extracted signal [N·m] (n,): white torque noise ``sigma`` averaged over
+    the samples of one dither period."""
+    per = 2 * math.pi / float(p["dither"]["frequency"]) * float(p["timing"]["sample_rate_hz"])
+    return np.asarray(sigma, float) / math.sqrt(max(per, 1.0))
+
+
+# ------------------------------------------------------------------ the prediction
+def _estimates(r: np.ndarray, J: np.ndarray, bands: Bands, components: str) -> np.ndarray:
+    """``F̂`` (N, 3) [N] of eq. (3) for residuals ``r`` (N, n) [N·m] at one pose ``J`` (6, n)."""
+    Jb = np.broadcast_to(J, (len(r), *J.shape))
+    sol = estimate(
+        r, Jb, bands.lo, bands.hi, bands.sigma, bands.prior_mean, bands.prior_sigma,
+        components=parse_components(components),
+    )  # fmt: skip
+    return sol.F[:, :3]
+
+
+def _strata(rng: np.random.Generator, draws: int, n: int) -> np.ndarray:
+    """Stratified uniform draws on [0, 1) (draws, n): one per stratum, shuffled per joint."""
+    u = (np.arange(draws)[:, None] + rng.random((draws, n))) / draws
+    for j in range(n):
+        rng.shuffle(u[:, j])
+    return u
+
+
+def noise_levels(
+    J: np.ndarray,
+    bands: Bands,
+    *,
+    components: str = "fxyz",
+    rest_samples: int = 20_000,
+    quantile: float = QUANTILE,
+    floor: float = FLOOR,
+    seed: int = 0,
+) -> np.ndarray:
+    """The predicted noise level per axis (3,) [N]: the ``quantile`` of ``|F̂_axis|`` at rest,
+    at least ``floor``: ``rest_samples`` residuals of the friction state plus Gaussian noise,
+    the state uniform in the band without dither and at the band's middle with dither (the
+    dither's centre loop drives the extracted signal back to the gravity torque at rest).
+    ``J`` (6, n) the pose's Jacobian."""
+    rng = np.random.default_rng(seed)
+    u = _strata(rng, rest_samples, len(bands.lo))
+    if bands.dithered:  # the centre loop holds the extracted signal at the band's middle
+        u = np.full_like(u, 0.5)
+    r = bands.lo + u * (bands.hi - bands.lo) + rng.standard_normal(u.shape) * bands.sigma
+    F = _estimates(r, J, bands, components)
+    return np.maximum(np.quantile(np.abs(F), quantile, axis=0), floor)
+
+
+def shared_fraction(
+    J: np.ndarray, bands: Bands, force_range: tuple[float, float], n: int
+) -> dict[str, float]:
+    """Per push direction, the probability [-] that the two joints which see it first (the two
+    lowest single-joint thresholds ``W_j / |l_j|``) were last slipped by the same push, so that
+    their friction states sit alike: ``sum_d min(a_i(d), a_j(d)) / sum_d max(a_i(d), a_j(d))``
+    over the six push directions ``d``, with ``a_j(d)`` the chance that a push along ``d``
+    (magnitude uniform over ``force_range`` [N]) crosses joint ``j``'s band,
+    ``E[min(1, P |l_j(d)| / W_j)]``; a larger push slips every joint a smaller one does, so
+    the most recent push that slipped either slipped both with the ratio of the smaller to the
+    larger chance. 1 when one joint alone sees the direction. ``J`` (6, n) at the pose."""
+    P = np.linspace(force_range[0], force_range[1], 41)
+    width = np.maximum(bands.hi - bands.lo, 1e-12)
+    a = {}
+    for name, ax, _ in DIRECTIONS:
+        lev = np.abs(J[ax, :n])
+        a[name] = np.minimum(1.0, P[:, None] * lev[None, :] / width).mean(axis=0)  # (n,)
+    A = np.array([a[d] for d, _, _ in DIRECTIONS])  # (6, n)
+    out = {}
+    for name, ax, _ in DIRECTIONS:
+        lev = np.abs(J[ax, :n])
+        thr = np.where(lev > 0, width / np.maximum(lev, 1e-300), np.inf)
+        i, j = np.argsort(thr)[:2]
+        if not np.isfinite(thr[j]):
+            out[name] = 1.0
+            continue
+        hi = np.maximum(A[:, i], A[:, j]).sum()
+        out[name] = float(np.minimum(A[:, i], A[:, j]).sum() / hi) if hi > 0 else 1.0
+    return out
+
+
+def peak_noise_factor(
+    bands: Bands,
+    push_duration: float = PUSH_DURATION,
+    sample_rate: float = SAMPLE_RATE,
+    period: float = DITHER_PERIOD,
+) -> float:
+    """The median of the largest of the independent noise values over a push's top, in
+    standard deviations: ``Phi^-1(0.5^(1/K))`` with ``K`` the samples [-] where a raised-cosine
+    push of ``push_duration`` [s] is within :data:`PEAK_TOP` of its peak (``2 D acos(1 - 2
+    PEAK_TOP) / (2 pi)`` seconds at ``sample_rate`` [Hz]), counted once per dither ``period``
+    [s] with dither (the extraction averages over one period, so its noise is correlated over
+    it); 0 when ``K <= 1``."""
+    top = push_duration * math.acos(1.0 - 2.0 * PEAK_TOP) / math.pi  # [s]
+    k = top / period if bands.dithered else top * sample_rate
+    if k <= 1.0:
+        return 0.0
+    return normal_quantile(0.5 ** (1.0 / k))
+
+
+def _logistic_fit(force: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+    """(F50, F90) [N] of the logistic ``1 / (1 + exp(-(F - F50) / s))`` that maximises the
+    expected log-likelihood of hits with probability ``p`` (P,) at forces ``force`` (P,) [N],
+    on the report's grid (:func:`ditherlab.thresholds.fit_logistic`); NaN where ``p`` is all
+    0 or all 1 (no transition: the report gives a bound then)."""
+    if np.all(p >= 1.0 - 1e-9) or np.all(p <= 1e-9):
+        return math.nan, math.nan
+    g50 = np.linspace(0.0, 1.5 * float(force.max()), 300)
+    gs = np.geomspace(0.25, 50.0, 60)
+    z = (force[None, None, :] - g50[:, None, None]) / gs[None, :, None]
+    lp = -np.logaddexp(0.0, -z)  # log sigma(z)
+    lq = -np.logaddexp(0.0, z)  # log (1 - sigma(z))
+    ll = (p * lp + (1.0 - p) * lq).sum(axis=2)
+    i, j = np.unravel_index(int(np.argmax(ll)), ll.shape)
+    return float(g50[i]), float(g50[i] + gs[j] * math.log(9.0))
+
+
+def _crossing(force: np.ndarray, p: np.ndarray, level: float) -> float:
+    """The force [N] where the (non-decreasing) ``p`` first reaches ``level``, interpolated;
+    inf when it never does."""
+    k = np.flatnonzero(p >= level)
+    if not len(k):
+        return math.inf
+    i = int(k[0])
+    if i == 0:
+        return float(force[0])
+    f0, f1, p0, p1 = force[i - 1], force[i], p[i - 1], p[i]
+    return float(f0 + (level - p0) / (p1 - p0) * (f1 - f0)) if p1 > p0 else float(f1)
+
+
+def predict(
+    robot: RobotModel,
+    q: Sequence[float] | np.ndarray,
+    bands: Bands,
+    *,
+    components: str = "fxyz",
+    force_range: tuple[float, float] = DEFAULT_RANGE,
+    max_force: float = 200.0,
+    forces: int = 120,
+    draws: int = 300,
+    rest_samples: int = 20_000,
+    noise_level: Sequence[float] | None = None,
+    states: str = "mixed",
+    push_duration: float = PUSH_DURATION,
+    sample_rate: float = SAMPLE_RATE,
+    period: float = DITHER_PERIOD,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Predicted detection thresholds per push direction at pose ``q`` (module docstring).
+
+    Parameters
+    ----------
+    robot : the robot (its tool-point Jacobian at ``q``)
+    q : (n,) [rad] the pose
+    bands : :func:`condition_bands`
+    components : estimated wrench components (as ``replay --components``)
+    force_range : (min, max) [N] push magnitudes of the campaign the report's curve is fitted to
+    max_force : largest force searched [N]
+    forces, draws : force grid points over ``(0, max_force]`` and friction-state draws per force
+    rest_samples : draws of the state at rest for the noise level
+    noise_level : (3,) [N] use these noise levels instead of predicting them
+    states : how the joints' friction states are drawn: ``"mixed"``, ``"shared"`` or
+        ``"independent"`` (module docstring, step 2)
+    push_duration, sample_rate, period : the push's mean length [s], the log's rate [Hz] and the
+        dither period [s] (:func:`peak_noise_factor`)
+    seed : the draws' seed (the same seed gives the same numbers)
+
+    Returns
+    -------
+    dict (JSON-ready): ``q`` [rad], ``levers`` (3, n) [m] (``|J_f|``), ``noise_level`` per
+    axis [N], ``directions``: per direction ``f50``, ``f90`` (crossings of the detection
+    probability, inf when never reached), ``curve_f50``, ``curve_f90`` (the report's logistic
+    fit over ``force_range``), ``joints`` (the joints whose lever exceeds 1 % of the largest);
+    ``axes``: per axis ``f50``, ``f90`` of that fit to both signs; ``source``, ``dithered``.
+    """
+    q = np.asarray(q, float).reshape(robot.n)
+    J = robot.jacobian(q[None, :])[0]  # (6, n)
+    nl = (
+        np.asarray(noise_level, float).reshape(3)
+        if noise_level is not None
+        else noise_levels(J, bands, components=components, rest_samples=rest_samples, seed=seed)
+    )
+    if states not in STATES:
+        raise ConfigError(f"states {states!r} is unknown; expected one of {', '.join(STATES)}")
+    rng = np.random.default_rng(seed + 1)
+    n = robot.n
+    P = np.linspace(max_force / forces, max_force, forces)
+    shared_u = _strata(rng, draws, 1)  # (draws, 1)
+    own_u = _strata(rng, draws, n)  # (draws, n)
+    rho = shared_fraction(J, bands, force_range, n) if states == "mixed" else None
+    z_peak = peak_noise_factor(bands, push_duration, sample_rate, period)
+    width = bands.hi - bands.lo
+    fr = np.linspace(force_range[0], force_range[1], 41)
+    out: dict[str, Any] = {}
+    curves: dict[str, np.ndarray] = {}
+    for name, ax, sign in DIRECTIONS:
+        u = np.zeros(3)
+        u[ax] = sign
+        lev = J[:3].T @ u  # (n,) [m] joint torque per newton applied along u
+        # the state's distance to the edge the push drives the residual towards is u·W
+        if states == "shared":
+            u01 = shared_u
+        elif states == "independent":
+            u01 = own_u
+        else:  # the first round(rho·draws) draws shared, the rest independent
+            u01 = np.where(np.arange(draws)[:, None] < round(rho[name] * draws), shared_u, own_u)
+        s = np.where(lev > 0, bands.lo + u01 * width, bands.hi - u01 * width)  # (draws, n)
+        # the report takes the largest estimate of the push: the noise's median maximum over
+        # the push's top, on every joint in the direction the push drives its residual
+        s = s - np.sign(lev) * z_peak * bands.sigma
+        r = (s[None, :, :] - bands.gain * P[:, None, None] * lev).reshape(-1, n)
+        F = _estimates(r, J, bands, components)
+        resp = -(F @ u).reshape(forces, draws)
+        p = np.mean(resp > nl[ax], axis=1)
+        p = np.maximum.accumulate(p)  # the response grows with P; ties of the draws aside
+        curves[name] = np.interp(fr, P, p, left=0.0)
+        c50, c90 = _logistic_fit(fr, curves[name])
+        big = np.abs(lev).max()
+        out[name] = {
+            "f50": _crossing(P, p, 0.5),
+            "f90": _crossing(P, p, 0.9),
+            "curve_f50": c50,
+            "curve_f90": c90,
+            "joints": [j + 1 for j in range(n) if big > 0 and abs(lev[j]) >= 0.01 * big],
+        }
+    axes = {}
+    for ax, a in enumerate(AXES):
+        both = np.concatenate([curves[f"+{a}"], curves[f"-{a}"]])
+        f50, f90 = _logistic_fit(np.concatenate([fr, fr]), both)
+        axes[a] = {"f50": f50, "f90": f90}
+        del ax
+    return {
+        "q": q.tolist(),
+        "levers": np.abs(J[:3]).tolist(),
+        "noise_level": dict(zip(AXES, nl.tolist(), strict=True)),
+        "directions": out,
+        "axes": axes,
+        "source": bands.source,
+        "dithered": bands.dithered,
+        "force_range": list(force_range),
+        "components": components,
+    }
+
+
+def _num(x: float, width: int = 7) -> str:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return f"{'–':>{width}}"
+    if math.isinf(x):
+        return f"{'never':>{width}}"
+    return f"{x:{width}.1f}"
+
+
+def format_prediction(pred: Mapping[str, Any]) -> str:
+    """The per-direction table of :func:`predict` as text."""
+    qd = ", ".join(f"{math.degrees(x):.1f}" for x in pred["q"])
+    nl = pred["noise_level"]
+    lines = [
+        f"pose sensitivity at q = ({qd}) deg, "
+        f"{'with dither' if pred['dithered'] else 'without dither'}; bands from {pred['source']}",
+        "noise level (99.9 % of |F̂| at rest, >= 1 N): "
+        + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES),
+        f"{'direction':<10}{'F50 [N]':>9}{'F90 [N]':>9}{'curve F50':>11}{'curve F90':>11}  joints",
+    ]
+    for name, _, _ in DIRECTIONS:
+        d = pred["directions"][name]
+        lines.append(
+            f"{name:<10}{_num(d['f50'], 9)}{_num(d['f90'], 9)}{_num(d['curve_f50'], 11)}"
+            f"{_num(d['curve_f90'], 11)}  {', '.join(str(j) for j in d['joints']) or '-'}"
+        )
+    lo, hi = pred["force_range"]
+    lines.append(
+        f"per axis, both signs (the report's logistic fit to pushes of {lo:g}–{hi:g} N): "
+        + "  ".join(
+            f"{a} F50 {_num(pred['axes'][a]['f50'], 0).strip()} / F90 "
+            f"{_num(pred['axes'][a]['f90'], 0).strip()} N"
+            for a in AXES
+        )
+    )
+    return "\n".join(lines)

@@ -1,0 +1,350 @@
+"""``ditherlab robot --sensitivity`` over a grid of poses (``--map``) and the command itself:
+the grid's parsing, one row per pose, the text summary, the PNG heat map and
+:func:`run_sensitivity` (what the CLI calls). The prediction is :mod:`ditherlab.robot.sensitivity`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ditherlab.errors import ConfigError, ModelError, RobotError
+from ditherlab.io.atomic import atomic_path
+from ditherlab.model import TorqueModel
+from ditherlab.robot.model import RobotModel
+from ditherlab.robot.sensitivity import (
+    AXES,
+    DIRECTIONS,
+    MAP_OPTIONS,
+    Bands,
+    condition_bands,
+    format_prediction,
+    predict,
+)
+
+__all__ = [
+    "check_pose",
+    "format_map",
+    "map_columns",
+    "parse_force_range",
+    "parse_map_grid",
+    "plot_map",
+    "prediction_row",
+    "run_sensitivity",
+    "sensitivity_map",
+]
+
+
+# ------------------------------------------------------------------ a grid of poses
+def parse_map_grid(text: str, robot: RobotModel, where: str = "--grid") -> dict[int, np.ndarray]:
+    """``"q2=-0.5:0.5:11,q3=-1:0.2:6"`` -> ``{1: values (11,), 2: values (6,)}`` [rad]:
+    per joint (1-based ``qJ``) ``start:stop:count`` evenly spaced, inclusive, within the joint's
+    limits; one or two joints.
+
+    Raises
+    ------
+    ConfigError
+        A malformed entry, an unknown joint, a joint given twice, a count below 2, ``start >=
+        stop``, values outside the joint's limits, more than two joints.
+    """
+    grid: dict[int, np.ndarray] = {}
+    parts = [p for p in str(text).split(",") if p.strip()]
+    if not parts:
+        raise ConfigError(f"{where} is empty; expected qJ=START:STOP:COUNT[,qK=...]")
+    for part in parts:
+        key, eq, rng = part.partition("=")
+        key = key.strip().lower()
+        if not eq or not key.startswith("q") or not key[1:].isdigit():
+            raise ConfigError(
+                f"{where} entry {part.strip()!r} is not qJ=START:STOP:COUNT (e.g. q2=-0.5:0.5:11)"
+            )
+        j = int(key[1:])
+        if not 1 <= j <= robot.n:
+            raise ConfigError(
+                f"{where} joint {key!r} is unknown; expected q1..q{robot.n} ({robot.name})"
+            )
+        if j - 1 in grid:
+            raise ConfigError(f"{where} joint {key!r} is given twice; expected it once")
+        bits = rng.split(":")
+        try:
+            a, b, c = float(bits[0]), float(bits[1]), int(bits[2])
+            ok = len(bits) == 3 and math.isfinite(a) and math.isfinite(b)
+        except (ValueError, IndexError):
+            ok = False
+        if not ok:
+            raise ConfigError(
+                f"{where} {key}={rng!r} is not START:STOP:COUNT (rad, rad, an integer)"
+            )
+        if c < 2 or not a < b:
+            raise ConfigError(
+                f"{where} {key}={rng}: expected START < STOP and COUNT >= 2 (got {a:g}, {b:g}, {c})"
+            )
+        lo, hi = robot.q_lower[j - 1], robot.q_upper[j - 1]
+        if a < lo or b > hi:
+            raise ConfigError(
+                f"{where} {key}={rng}: [{a:g}, {b:g}] rad leaves joint {j}'s limits "
+                f"[{lo:.4g}, {hi:.4g}] rad"
+            )
+        grid[j - 1] = np.round(np.linspace(a, b, c), 12) + 0.0  # no -1e-16 for 0
+    if len(grid) > 2:
+        raise ConfigError(f"{where} varies {len(grid)} joints; expected one or two")
+    return grid
+
+
+def check_pose(robot: RobotModel, q: np.ndarray, where: str = "--q") -> None:
+    """RobotError when a joint of ``q`` (n,) [rad] lies outside its limits."""
+    bad = np.flatnonzero((q < robot.q_lower) | (q > robot.q_upper))
+    if bad.size:
+        j = int(bad[0])
+        raise RobotError(
+            f"{where}: q{j + 1} = {q[j]:.4g} rad is outside joint {j + 1}'s limits "
+            f"[{robot.q_lower[j]:.4g}, {robot.q_upper[j]:.4g}] rad"
+        )
+
+
+def map_columns() -> list[str]:
+    """The columns of a map row after the joint angles ``q1..qn``."""
+    cols = []
+    for name, _, _ in DIRECTIONS:
+        cols += [f"f50_{name}", f"f90_{name}"]
+    cols += [f"f50_{a}" for a in AXES] + [f"f90_{a}" for a in AXES]
+    cols += [f"noise_{a}" for a in AXES]
+    return cols
+
+
+def prediction_row(pred: Mapping[str, Any]) -> dict[str, float]:
+    """One map row (:func:`map_columns`) from :func:`predict`'s result."""
+    row: dict[str, float] = {}
+    for name, _, _ in DIRECTIONS:
+        d = pred["directions"][name]
+        row[f"f50_{name}"], row[f"f90_{name}"] = d["f50"], d["f90"]
+    for a in AXES:
+        row[f"f50_{a}"] = pred["axes"][a]["f50"]
+        row[f"f90_{a}"] = pred["axes"][a]["f90"]
+        row[f"noise_{a}"] = pred["noise_level"][a]
+    return row
+
+
+def sensitivity_map(
+    robot: RobotModel,
+    q: np.ndarray,
+    grid: Mapping[int, np.ndarray],
+    bands: Bands,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+    **options: Any,
+) -> list[dict[str, float]]:
+    """:func:`predict` at every pose of ``grid`` (joint index -> values [rad], the first joint
+    varying slowest; the other joints at ``q`` (n,) [rad]): one row per pose, the angles
+    ``q1..qn`` [rad] then :func:`map_columns`. ``options`` go to :func:`predict` (default
+    :data:`MAP_OPTIONS`)."""
+    keys = list(grid)
+    mesh = np.meshgrid(*(grid[k] for k in keys), indexing="ij")
+    poses = np.stack([m.ravel() for m in mesh], axis=1)
+    rows = []
+    options = {**MAP_OPTIONS, **options}
+    for i, vals in enumerate(poses):
+        qi = np.array(q, float)
+        qi[keys] = vals
+        pred = predict(robot, qi, bands, **options)
+        rows.append({**{f"q{j + 1}": float(qi[j]) for j in range(robot.n)}, **prediction_row(pred)})
+        if progress:
+            progress(i + 1, len(poses))
+    return rows
+
+
+def parse_force_range(text: str, where: str = "--force-range") -> tuple[float, float]:
+    """``"5:60"`` -> ``(5.0, 60.0)`` [N]: the campaign's push magnitudes, ``0 <= MIN < MAX``."""
+    try:
+        lo, hi = (float(x) for x in str(text).split(":"))
+        ok = math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo < hi
+    except ValueError:
+        ok = False
+    if not ok:
+        raise ConfigError(f"{where} is {text!r}; expected MIN:MAX in N with 0 <= MIN < MAX")
+    return lo, hi
+
+
+def format_map(table: Any, joints: Sequence[int], conditions: Sequence[bool]) -> str:
+    """A short text summary of a map (a DataFrame of :func:`sensitivity_map` rows with a
+    ``dither`` column): per condition and axis the smallest and largest F50 and their poses."""
+    lines = []
+    names = [f"q{j + 1}" for j in joints]
+    for d in conditions:
+        t = table[table["dither"] == d]
+        lines.append(
+            f"{'with dither' if d else 'without dither'}: F50 per axis over {len(t)} poses"
+        )
+        for a in AXES:
+            col = t[f"f50_{a}"].to_numpy(float)
+            if not np.isfinite(col).any():
+                lines.append(f"  {a}: no transition in the force range at any pose")
+                continue
+            i, k = int(np.nanargmin(col)), int(np.nanargmax(col))
+            at_i, at_k = (", ".join(f"{n}={t.iloc[r][n]:.3g}" for n in names) for r in (i, k))
+            lines.append(f"  {a}: {col[i]:.1f} N ({at_i}) .. {col[k]:.1f} N ({at_k})")
+    return "\n".join(lines)
+
+
+def plot_map(
+    table: Any,
+    joints: Sequence[int],
+    path: Any,
+    conditions: Sequence[bool],
+    robot_name: str,
+    bands: Mapping[bool, Bands],
+) -> None:
+    """A PNG of F50 per push direction over the grid: a heat map per direction and condition
+    for two varied joints, curves for one.
+
+    Parameters
+    ----------
+    table : DataFrame of :func:`sensitivity_map` rows with a ``dither`` column
+    joints : the varied joints (0-based), in grid order
+    path : the PNG to write
+    conditions : the conditions in the table (False: no dither, True: dither)
+    robot_name, bands : for the titles
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [f"q{j + 1}" for j in joints]
+    nr = len(conditions)
+    fig, axs = plt.subplots(nr, 6, figsize=(20, 3.4 * nr), constrained_layout=True, squeeze=False)
+    for i, d in enumerate(conditions):
+        t = table[table["dither"] == d]
+        for k, (name, _, _) in enumerate(DIRECTIONS):
+            ax = axs[i, k]
+            z = t[f"f50_{name}"].to_numpy(float)
+            z = np.where(np.isfinite(z), z, np.nan)
+            if len(joints) == 1:
+                ax.plot(t[names[0]].to_numpy(float), z, "o-")
+                ax.set_xlabel(f"{names[0]} [rad]")
+                ax.set_ylabel("F50 [N]")
+            else:
+                x = np.unique(t[names[0]].to_numpy(float))
+                y = np.unique(t[names[1]].to_numpy(float))
+                im = ax.pcolormesh(
+                    y, x, z.reshape(len(x), len(y)), shading="nearest", cmap="viridis"
+                )
+                fig.colorbar(im, ax=ax, label="F50 [N]")
+                ax.set_xlabel(f"{names[1]} [rad]")
+                ax.set_ylabel(f"{names[0]} [rad]")
+            ax.set_title(f"push {name}, {'dither' if d else 'no dither'}", fontsize=9)
+    fig.suptitle(
+        f"{robot_name}: predicted F50 per push direction; bands from {bands[conditions[0]].source}"
+    )
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def run_sensitivity(
+    spec: str | dict,
+    q: str | None,
+    model_path: str | Path | None,
+    dither: bool | None,
+    map_out: str | Path | None,
+    grid: str | None,
+    force_range: str,
+    seed: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """``ditherlab robot SPEC --sensitivity``: the prediction at a pose, or ``--map`` over a
+    grid of poses written as a table and a PNG (atomically; the caller checked both outputs
+    with :func:`ditherlab.io.atomic.check_output`).
+
+    Parameters
+    ----------
+    spec : a resolved robot spec (:func:`ditherlab.robot.resolve_spec`)
+    q : the pose as text (:meth:`RobotModel.parse_pose`)
+    model_path : a model file from ``identify`` (None: the simulator's defaults)
+    dither : one condition, or None for both
+    map_out : the map's table (``.csv`` or ``.parquet``; the PNG beside it), or None
+    grid : the map's poses (:func:`parse_map_grid`)
+    force_range : ``MIN:MAX`` [N] (:func:`parse_force_range`)
+    seed : the draws' seed
+    progress : ``progress(done, total)`` over the map's poses
+
+    Returns
+    -------
+    ``{"text": printed result, "json": JSON-ready result}``
+
+    Raises
+    ------
+    ConfigError, ModelError, RobotError
+        A bad option (one line naming it), a model of another robot, a pose outside the limits.
+    """
+    tm = None
+    if model_path is not None:
+        tm = TorqueModel.load(model_path)
+        if not tm.same_robot(spec):
+            label = spec if isinstance(spec, str) else spec.get("name", "urdf")
+            mlabel = tm.robot if isinstance(tm.robot, str) else tm.robot.get("name", "urdf")
+            raise ModelError(
+                f"{model_path}: the model is for robot {mlabel}, not {label}; expected a model "
+                "identified on this robot"
+            )
+    rm = RobotModel.from_spec(
+        spec, tool_offset=tm.tool_offset if tm else None, payload=tm.payload if tm else None
+    )
+    pose = rm.parse_pose(q)
+    check_pose(rm, pose)
+    fr = parse_force_range(force_range)
+    conds = [dither] if dither is not None else [False, True]
+    bands = {d: condition_bands(rm.n, tm, dither=d, robot_name=rm.name) for d in conds}
+    if map_out is None:
+        if grid is not None:
+            raise ConfigError("--grid needs --map FILE (the table to write)")
+        preds = [predict(rm, pose, bands[d], force_range=fr, seed=seed) for d in conds]
+        return {
+            "text": "\n\n".join(format_prediction(p) for p in preds),
+            "json": {"robot": rm.name, "predictions": preds},
+        }
+    map_out = Path(map_out)
+    if grid is None:
+        raise ConfigError("--map needs --grid qJ=START:STOP:COUNT[,qK=...] (the poses)")
+    fmt = map_out.suffix.lower()
+    if fmt not in (".csv", ".parquet"):
+        raise ConfigError(f"--map {map_out}: expected a .csv or .parquet table path")
+    g = parse_map_grid(grid, rm)
+    total = len(conds) * int(np.prod([len(v) for v in g.values()]))
+    frames = []
+    for i, d in enumerate(conds):
+        done = i * total // len(conds)
+
+        def tick(k: int, _n: int, done: int = done) -> None:
+            if progress:
+                progress(done + k, total)
+
+        df = pd.DataFrame(
+            sensitivity_map(rm, pose, g, bands[d], progress=tick, force_range=fr, seed=seed)
+        )
+        df.insert(0, "dither", d)
+        frames.append(df)
+    table = pd.concat(frames, ignore_index=True)
+    png = map_out.with_suffix(".png")
+    with atomic_path(map_out) as tmp:
+        if fmt == ".csv":
+            table.to_csv(tmp, index=False)
+        else:
+            table.to_parquet(tmp, index=False)
+    with atomic_path(png) as tmp:
+        plot_map(table, list(g), tmp, conds, rm.name, bands)
+    src = bands[conds[0]].source
+    text = format_map(table, list(g), conds)
+    text += f"\nwrote {map_out} ({len(table)} rows) and {png}; bands from {src}"
+    summary = {
+        "table": str(map_out),
+        "figure": str(png),
+        "rows": len(table),
+        "conditions": ["dither" if d else "no dither" for d in conds],
+        "source": src,
+    }
+    return {"text": text, "json": summary}
