@@ -550,12 +550,47 @@ def pushes_of(src: EstimatesSource, chunk_rows: int = CHUNK_ROWS) -> tuple[np.nd
     return t, pushes
 
 
+#: A dithering joint's extracted amplitude below this fraction of its median over the dither-on
+#: samples marks the dither as ramping (in at the start, out at the end) or not yet settled.
+STEADY_FRACTION = 0.8
+#: ... counted for joints whose median amplitude exceeds this fraction of the model's still band
+#: half-width (the others do not dither; their "amplitude" is the noise's spread).
+DITHERS_FRACTION = 0.2
+
+
+def steady_dither(src: EstimatesSource, dith: np.ndarray) -> np.ndarray:
+    """(N,) bool: the dither at its working amplitude on every joint that dithers — each one's
+    extracted amplitude ``(upper - lower) / 2`` (the estimates' ``extract/`` columns) at least
+    :data:`STEADY_FRACTION` of its median over the samples flagged ``dither`` (``dith (N,)``).
+
+    A log's ``dither`` flag is true while the feedforward is on, its ramps included (RECORDING.md);
+    while it ramps out the centre term moves the extracted signal by up to the band (~8 N·m on
+    the simulator's joint 1), which counted as rest set the dithered noise level at 10.6 N
+    instead of 1 N. All True when the file has no extraction columns.
+    """
+    steady = np.ones(len(dith), dtype=bool)
+    still = (src.meta.get("model") or {}).get("regimes", {}).get("still", {})
+    lo, hi = still.get("tau_min"), still.get("tau_max")
+    j = 1
+    while f"extract/upper_{j}" in src.columns and f"extract/lower_{j}" in src.columns:
+        amp = 0.5 * (src.column(f"extract/upper_{j}") - src.column(f"extract/lower_{j}"))
+        on = dith & np.isfinite(amp)
+        level = float(np.median(amp[on])) if on.any() else 0.0
+        # a joint that dithers: its amplitude a sizeable part of its band (the paper's set-points
+        # are 50-90 % of it); one that does not shows the noise's spread (a few %)
+        half = 0.5 * (hi[j - 1] - lo[j - 1]) if lo and hi and len(lo) >= j else 0.0
+        if level > DITHERS_FRACTION * half and level > 0.0:
+            steady &= np.isfinite(amp) & (amp >= STEADY_FRACTION * level)
+        j += 1
+    return steady
+
+
 def _pushes_and_rest(
     src: EstimatesSource, rest_margin: float, chunk_rows: int
 ) -> tuple[dict[str, Any], np.ndarray, list[Push], np.ndarray]:
     """One estimates file's summary row, time stamps (N,) [s], pushes (from its F/T columns)
-    and rest mask (N,): away from pushes, the robot still, and the dither on where the file has
-    it."""
+    and rest mask (N,): away from pushes, the robot still, and the dither on at its working
+    amplitude (:func:`steady_dither`) where the file has it."""
     where = src.name or "estimates"
     if not src.has_wrench:
         raise NoPushesError(
@@ -569,7 +604,7 @@ def _pushes_and_rest(
     for t0, t1 in src.meta.get("moving_spans", []):
         _clear(rest, t, t0 - 0.5, t1 + 0.5)
     if dithered:
-        rest &= dith
+        rest &= dith & steady_dither(src, dith)
     row = {
         "file": where,
         "dithered": dithered,

@@ -141,3 +141,30 @@ def test_logistic_without_transition_reports_a_bound():
     assert c["bound"] == "below" and c["bound_force"] == 6.0 and np.isnan(c["F50"])
     c = fit_logistic(f, np.zeros(4, bool))
     assert c["bound"] == "above" and c["bound_force"] == 40.0
+
+
+def test_rest_with_dither_leaves_out_the_ramps():
+    """The dither flag covers its ramps (RECORDING.md: true while the feedforward is on); rest with
+    dither is where every dithering joint's extracted amplitude is at least 80 % of its median:
+    the ramp in and out are left out, a joint that does not dither (its amplitude the noise's
+    spread) is ignored, and a file without extraction columns keeps every dithered sample."""
+    from ditherlab.estimates import Estimates, EstimatesSource
+    from ditherlab.thresholds import steady_dither
+
+    t = np.arange(2000) / 250.0
+    dith = np.ones(2000, dtype=bool)
+    ramp = np.clip(np.minimum(t / 1.0, (t[-1] - t) / 1.0), 0.0, 1.0)  # 1 s in, 1 s out
+    rng = np.random.default_rng(3)
+    cols = {"t": t, "dither": dith}
+    for j, amp in ((1, 8.0 * ramp), (2, 0.2 + 0.05 * rng.random(2000))):  # joint 2: noise only
+        centre = rng.normal(size=2000)
+        cols[f"extract/upper_{j}"] = centre + amp
+        cols[f"extract/lower_{j}"] = centre - amp
+    band = {"tau_min": [-10.0, -9.0], "tau_max": [10.0, 9.0], "sigma": [0.3, 0.3]}
+    meta = {"model": {"regimes": {"still": band}}, "variants": []}
+    src = EstimatesSource.of(Estimates(pd.DataFrame(cols), meta))
+    steady = steady_dither(src, dith)
+    np.testing.assert_array_equal(steady, ramp >= 0.8)  # joint 2 plays no part
+    assert steady.sum() == 1600 and not steady[:199].any() and not steady[-199:].any()
+    bare = EstimatesSource.of(Estimates(pd.DataFrame({"t": t, "dither": dith}), meta))
+    assert steady_dither(bare, dith).all()
