@@ -188,12 +188,7 @@ def test_stribeck_values_match_the_plant(loops):
     fr = rec.meta["sim"]["params"]["friction"]
     truth = 0.4 * fr["coulomb_ratio"] * np.array(fr["static"])
     vs = np.array(p["vs"])
-    # within one step of the effect's grid (16 points over a factor 100: x 1.359) of 0.02 rad/s
-    # (written 0.015-0.027 before session 11; the wrist joints 5 and 6 now land on 0.0270 and
-    # 0.0271: their friction sits mostly behind the gear spring, at the link's velocity, while
-    # the fit reads the motor's)
-    step = 100 ** (1 / 15)
-    assert np.all((vs > 0.02 / step) & (vs < 0.02 * step)), vs
+    assert np.all((vs > 0.015) & (vs < 0.027)), vs
     np.testing.assert_allclose(p["fs_minus_fc"], truth, rtol=0.25)
 
 
