@@ -145,15 +145,18 @@ def test_logistic_without_transition_reports_a_bound():
 
 def test_rest_with_dither_leaves_out_the_ramps():
     """The dither flag covers its ramps (RECORDING.md: true while the feedforward is on); rest with
-    dither is where every dithering joint's extracted amplitude is at least 80 % of its median:
-    the ramp in and out are left out, a joint that does not dither (its amplitude the noise's
-    spread) is ignored, and a file without extraction columns keeps every dithered sample."""
+    dither starts when every dithering joint's extracted amplitude has reached 80 % of its median
+    and ends when it last had: the ramp in and out are left out, a dip inside (a joint slipping)
+    is kept, a joint that does not dither (its amplitude the noise's spread) is ignored, and a
+    file without extraction columns keeps every dithered sample."""
     from ditherlab.estimates import Estimates, EstimatesSource
     from ditherlab.thresholds import steady_dither
 
     t = np.arange(2000) / 250.0
     dith = np.ones(2000, dtype=bool)
     ramp = np.clip(np.minimum(t / 1.0, (t[-1] - t) / 1.0), 0.0, 1.0)  # 1 s in, 1 s out
+    dip = (t > 4.0) & (t < 4.2)
+    ramp[dip] = 0.3  # a dip inside the stretch: still rest
     rng = np.random.default_rng(3)
     cols = {"t": t, "dither": dith}
     for j, amp in ((1, 8.0 * ramp), (2, 0.2 + 0.05 * rng.random(2000))):  # joint 2: noise only
@@ -164,7 +167,7 @@ def test_rest_with_dither_leaves_out_the_ramps():
     meta = {"model": {"regimes": {"still": band}}, "variants": []}
     src = EstimatesSource.of(Estimates(pd.DataFrame(cols), meta))
     steady = steady_dither(src, dith)
-    np.testing.assert_array_equal(steady, ramp >= 0.8)  # joint 2 plays no part
+    np.testing.assert_array_equal(steady, (ramp >= 0.8) | dip)  # joint 2 plays no part
     assert steady.sum() == 1600 and not steady[:199].any() and not steady[-199:].any()
     bare = EstimatesSource.of(Estimates(pd.DataFrame({"t": t, "dither": dith}), meta))
     assert steady_dither(bare, dith).all()
