@@ -155,6 +155,7 @@ def lead_through(
     )
     period = max(1, round(2 * np.pi / params["dither"]["frequency"] * fs_hz))
     still_after = int(lt["still_s"] * fs_hz)
+    ramp_n = int(round(float(params["dither"]["ramp_s"]) * fs_hz))
     fhat = np.zeros((N, 3))
     interval_law = lt["law"] == "interval"
     flo = np.full((N, 3), np.nan)
@@ -173,7 +174,10 @@ def lead_through(
         k = k1 - 1
         q, dq = out[K.O_QM, k], out[K.O_VM, k]
         lo = max(0, k - period + 1)
-        if out[K.O_DITHER, k, 0] > 0.5 and k - lo + 1 == period:
+        # the extraction once the dither has ramped in: on for its ramp and a whole period (while
+        # it ramps the centre term moves the extracted signal, read as a push of 16-24 N)
+        settled = max(0, k - ramp_n - period + 1)
+        if k - settled + 1 == ramp_n + period and (out[K.O_DITHER, settled : k + 1, 0] > 0.5).all():
             w = out[K.O_TAU, lo : k + 1]
             c = w.mean(axis=0)
             up = np.where(w > c, w, 0).sum(0) / np.maximum((w > c).sum(0), 1)
