@@ -150,7 +150,7 @@ def test_rest_with_dither_leaves_out_the_ramps():
     is kept, a joint that does not dither (its amplitude the noise's spread) is ignored, and a
     file without extraction columns keeps every dithered sample."""
     from ditherlab.estimates import Estimates, EstimatesSource
-    from ditherlab.thresholds import steady_dither
+    from ditherlab.steady import steady_dither
 
     t = np.arange(2000) / 250.0
     dith = np.ones(2000, dtype=bool)
