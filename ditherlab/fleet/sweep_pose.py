@@ -29,9 +29,8 @@ def check_pose(config: Mapping[str, Any], label: str) -> None:
     joint limits (the URDF's)."""
     q0 = np.asarray(load_params(config)["pose"]["q0"], dtype=float)
     robot = RobotModel.from_spec(SIM_ROBOT)
-    bad = np.flatnonzero((q0 < robot.q_lower) | (q0 > robot.q_upper))
-    if bad.size:
-        j = int(bad[0])
+    j = robot.outside_limits(q0)
+    if j is not None:
         raise ConfigError(
             f"sweep: --grid point {label}: pose.q0 joint {j + 1} is {q0[j]:g} rad, outside its "
             f"limits [{robot.q_lower[j]:.4g}, {robot.q_upper[j]:.4g}] rad"
