@@ -317,11 +317,6 @@ class RobotModel:
         the tool pose, gravity and lever arms (:func:`~.describe.describe_robot`)."""
         return describe_robot(self, q)
 
-    def outside_limits(self, q: np.ndarray) -> int | None:
-        """The first joint (0-based) of a pose ``q (n,) [rad]`` outside its limits, else None."""
-        bad = np.flatnonzero((q < self.q_lower) | (q > self.q_upper))
-        return int(bad[0]) if bad.size else None
-
     def check_units(self, q: np.ndarray, where: str | None = None, margin: float = np.pi) -> bool:
         """Warn (DitherlabWarning) when joint angles ``q (N, n) or (n,) [rad]`` lie more than
         ``margin`` [rad] outside the limits, as if in degrees; True when it warned
