@@ -674,7 +674,7 @@ def sweep(
         str | None, typer.Option("--scheduler", help="Dask scheduler (tcp://HOST:8786), 'serial'.")
     ] = None,
     workers: Annotated[int | None, typer.Option("--workers", help="LocalCluster workers.")] = None,
-    force: Annotated[bool, typer.Option("--force", help="Write into a non-empty folder.")] = False,
+    force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Simulated paired campaigns over a grid of simulator parameters (dither design) as Dask tasks."""

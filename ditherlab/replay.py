@@ -222,15 +222,15 @@ def replay_columns(
         tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext)
         # one validated problem for the estimate and its intervals
         prob = problem(tb, J, a, b, s, model.prior_mean, model.prior_sigma, comps)
-        if interval == "profile" and v.endswith("noband") and backend == "exact":
-            # zero-width bands: the estimate and its interval from one factorisation
+        closed = interval == "profile" and v.endswith("noband")  # zero-width bands
+        if closed and backend == "exact":  # the estimate and its interval, one factorisation
             F, active, ilo, ihi = gaussian_problem_estimate(prob, level=level)
             tick()
         else:
             sol = solve(prob, backend)
             F, active = sol.F, sol.active
             tick()
-            if interval == "profile" and v.endswith("noband"):
+            if closed:
                 ilo, ihi = gaussian_problem_intervals(prob, F, level=level)
             else:
                 ilo, ihi = problem_intervals(prob, F, method=interval, level=level)

@@ -570,7 +570,7 @@ def _pushes_and_rest(
     for t0, t1 in src.meta.get("moving_spans", []):
         _clear(rest, t, t0 - 0.5, t1 + 0.5)
     if dithered:
-        rest &= dith & steady_dither(src, dith)
+        rest &= steady_dither(src, dith)  # within the flag
     row = {
         "file": where,
         "dithered": dithered,

@@ -12,6 +12,7 @@ import numpy as np
 from ditherlab.errors import ConfigError
 from ditherlab.recording import FORCE_AXES, Recording
 from ditherlab.robot import RobotModel
+from ditherlab.robot.poses import outside_limits
 from ditherlab.robot.sensitivity import condition_bands, predict
 from ditherlab.sim.params import load_params
 from ditherlab.thresholds import fit_logistic
@@ -29,9 +30,8 @@ def check_pose(config: Mapping[str, Any], label: str) -> None:
     joint limits (the URDF's)."""
     q0 = np.asarray(load_params(config)["pose"]["q0"], dtype=float)
     robot = RobotModel.from_spec(SIM_ROBOT)
-    bad = np.flatnonzero((q0 < robot.q_lower) | (q0 > robot.q_upper))
-    if bad.size:
-        j = int(bad[0])
+    j = outside_limits(q0, robot.q_lower, robot.q_upper)
+    if j is not None:
         raise ConfigError(
             f"sweep: --grid point {label}: pose.q0 joint {j + 1} is {q0[j]:g} rad, outside its "
             f"limits [{robot.q_lower[j]:.4g}, {robot.q_upper[j]:.4g}] rad"

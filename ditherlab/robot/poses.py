@@ -9,7 +9,7 @@ import numpy as np
 
 from ditherlab.errors import DitherlabWarning, RobotError, where_prefix
 
-__all__ = ["PAPER_POSE", "check_units", "parse_pose"]
+__all__ = ["PAPER_POSE", "check_units", "outside_limits", "parse_pose"]
 
 #: The pose of the paper's Fig. 1 for the IRB140, ``(6,) [rad]``: q1 = 0, upper arm vertical,
 #: forearm horizontal along +x, q5 = 90° so the flange points down (flange centre at
@@ -44,6 +44,13 @@ def parse_pose(text: str | None, n: int, robot_name: str, where: str = "--q") ->
             f"{where} is {text!r}, expected {n} comma-separated angles in rad (or 'zero', 'paper')"
         )
     return q
+
+
+def outside_limits(q: np.ndarray, q_lower: np.ndarray, q_upper: np.ndarray) -> int | None:
+    """The first joint (0-based) of a pose ``q (n,) [rad]`` outside ``[q_lower, q_upper]``
+    (n,) [rad], else None."""
+    bad = np.flatnonzero((q < q_lower) | (q > q_upper))
+    return int(bad[0]) if bad.size else None
 
 
 def check_units(

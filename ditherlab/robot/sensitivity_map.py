@@ -17,6 +17,7 @@ from ditherlab.errors import ConfigError, ModelError, RobotError
 from ditherlab.io.atomic import atomic_path
 from ditherlab.model import TorqueModel
 from ditherlab.robot.model import RobotModel
+from ditherlab.robot.poses import outside_limits
 from ditherlab.robot.sensitivity import (
     AXES,
     DIRECTIONS,
@@ -98,9 +99,8 @@ def parse_map_grid(text: str, robot: RobotModel, where: str = "--grid") -> dict[
 
 def check_pose(robot: RobotModel, q: np.ndarray, where: str = "--q") -> None:
     """RobotError when a joint of ``q`` (n,) [rad] lies outside its limits."""
-    bad = np.flatnonzero((q < robot.q_lower) | (q > robot.q_upper))
-    if bad.size:
-        j = int(bad[0])
+    j = outside_limits(q, robot.q_lower, robot.q_upper)
+    if j is not None:
         raise RobotError(
             f"{where}: q{j + 1} = {q[j]:.4g} rad is outside joint {j + 1}'s limits "
             f"[{robot.q_lower[j]:.4g}, {robot.q_upper[j]:.4g}] rad"

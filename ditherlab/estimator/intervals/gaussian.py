@@ -88,27 +88,20 @@ def _gaussian_kernel(tb, J, a, w, p, fb, thr, solve, F_out, half, active):
                         H[i, q] = v / H[q, q]
                 if not fresh:
                     break
-            if fresh:
-                for c in range(m):  # L^-1, column by column
-                    for i in range(c):
-                        Li[i, c] = 0.0
-                    Li[c, c] = 1.0 / H[c, c]
-                    for i in range(c + 1, m):
-                        v = 0.0
-                        for t in range(c, i):
-                            v -= H[i, t] * Li[t, c]
-                        Li[i, c] = v / H[i, i]
-        if not fresh:  # ill-conditioned: the QR of the stacked matrix, R^T R = H
-            _newton_piece(tb[k], J[k], a[k], a[k], w[k], p[k], fb, s, m, n, R, z, Bm, bb, x)
-            for c in range(m):  # Li = R^-T (lower), column by column
+            if not fresh:  # ill-conditioned: the QR of the stacked matrix, L = R^T (R^T R = H)
+                _newton_piece(tb[k], J[k], a[k], a[k], w[k], p[k], fb, s, m, n, R, z, Bm, bb, x)
+                for i in range(m):
+                    for q in range(i + 1):
+                        H[i, q] = R[q, i]
+            for c in range(m):  # L^-1, column by column
                 for i in range(c):
                     Li[i, c] = 0.0
-                Li[c, c] = 1.0 / R[c, c]
+                Li[c, c] = 1.0 / H[c, c]
                 for i in range(c + 1, m):
                     v = 0.0
                     for t in range(c, i):
-                        v -= R[t, i] * Li[t, c]
-                    Li[i, c] = v / R[i, i]
+                        v -= H[i, t] * Li[t, c]
+                    Li[i, c] = v / H[i, i]
         for c in range(m):
             v = 0.0
             for i in range(c, m):

@@ -300,9 +300,8 @@ def _profile_kernel(
                     for t in range(q):
                         v -= R0[t, q] * R0[t, c]
                     R0[q, c] = v * u[q]
-            if bad:
+            if bad:  # the reference redoes it
                 seg_out[k] = -1
-                bad = False
                 continue
             for c in range(m):  # Z = R0^-T (lower triangular): column c solves R0^T z = e_c
                 for q in range(c):
