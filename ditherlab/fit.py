@@ -313,6 +313,14 @@ class Stack:
     o: np.ndarray
     block: np.ndarray  # (M,) row of the whole recordings, concatenated (for folds)
     k: int  # number of effect columns (the rest are intercepts)
+    joint: np.ndarray | None = None  # (M,) joint of each row (time order: lexsort by joint, block)
+
+    def time_order(self) -> np.ndarray:
+        """(M,) row order by joint, then row of the recordings: the same however the
+        recordings were cut into pieces (the stack itself runs piece by piece)."""
+        if self.joint is None:
+            return np.argsort(self.block, kind="stable")
+        return np.lexsort((self.block, self.joint))
 
     def signs(self, eff: Sequence[int]) -> tuple[int, ...]:
         """The signs of all columns: the effect's (free where it gives fewer, e.g. an effect
@@ -337,7 +345,7 @@ def stack(
     of a recording (:meth:`Signals.take`) the lags count those rows, and ``block`` numbers the
     samples by their rows in the whole recordings.
     """
-    es, hs, ss, Cs, Ws, os_, bs, gs = [], [], [], [], [], [], [], []
+    es, hs, ss, Cs, Ws, os_, bs, gs, js = [], [], [], [], [], [], [], [], []
     ns: list[tuple[int, np.ndarray]] = []
     t0 = 0
     for i, s in enumerate(sc):
@@ -362,6 +370,7 @@ def stack(
             os_.append(np.zeros(int(m.sum())) if o is None else o[m])
             bs.append(t0 + s.sig.index[m])
             gs.append(jj * 3 + s.sig.regime[m, jj].astype(np.int64))
+            js.append(np.full(int(m.sum()), jj, np.int64))
             # sliding-friction nuisance (moving only): joint jj's sign(dq) and dq columns
             dqm = np.where(mv, s.sig.dq[:, jj], 0.0)[m]
             cols = []
@@ -387,7 +396,8 @@ def stack(
     S = S[:, np.any(S != 0, axis=0)]
     N_ = np.hstack([G, S])
     k = C_.shape[1]
-    return Stack(e_, h_, s_, np.hstack([C_, N_]), np.hstack([W_, np.zeros_like(N_)]), o_, b_, k)
+    W = np.hstack([W_, np.zeros_like(N_)])
+    return Stack(e_, h_, s_, np.hstack([C_, N_]), W, o_, b_, k, np.concatenate(js))
 
 
 #: Smallest :func:`identifiability` for which add_effect accepts a fit.

@@ -62,6 +62,8 @@ BIC_THRESHOLD = -10.0
 SURROGATE_RATIO = 2.0
 #: surrogates per candidate joint (lags of the design, each fitted like the effect)
 SURROGATES = 3
+#: relative difference of held-out losses below which a fold is a tie (rounding), not better
+TIE = 1e-9
 
 
 @dataclass
@@ -279,9 +281,12 @@ def _score(
     assert folds is not None and base_st is not None and full is not None
     test_l0, L0, b0 = _baseline(base_st, folds)
     L1 = full.loss
-    active = (b0 != 0) | (full_resid != 0)
+    # samples outside the band (in sigma units; beyond rounding, which differs with the order of
+    # the sums when the log is read in pieces)
+    active = (np.abs(b0) > TIE) | (np.abs(full_resid) > TIE)
     n_act = int(active.sum())
-    tau = _tau_int(full_resid[active]) if n_act > 10 else 1.0
+    order = base_st.time_order()  # the autocorrelation along time, however the log was cut
+    tau = _tau_int(full_resid[order][active[order]]) if n_act > 10 else 1.0
     n_eff = max(n_act / tau, 1.0)
     # parameters: the design's columns that act on these samples (an effect's count may follow
     # the robot, e.g. one offset per joint), plus the searched ones
@@ -291,7 +296,9 @@ def _score(
         dbic = n_eff * math.log(L1 / L0) + k_par * math.log(max(n_eff, 2.0))
     else:
         dbic = 0.0
-    better = sum(1 for a, b in zip(test_l0, test_l1, strict=True) if b < a)
+    # a fold counts as better only beyond rounding: an effect that changes nothing on a fold
+    # (equal losses, summed in another order when the log is read in pieces) is not better there
+    better = sum(1 for a, b in zip(test_l0, test_l1, strict=True) if b < a - TIE * abs(a))
     return JointScore(j, sum(test_l0), sum(test_l1), better, K, dbic, n_eff, full)
 
 
