@@ -123,7 +123,7 @@ def test_bands_from_the_simulator_and_from_a_model():
     model its still and dither regimes (a model without a dither regime: the still band shrunk
     by the simulator's dither amplitude)."""
     fs = np.array([10.0, 9.5, 8.4, 2.5, 2.5, 1.5])
-    a = np.array([0.9, 0.9, 0.85, 0.7, 0.7, 0.7])
+    a = np.array([0.7, 0.8, 0.5, 0.6, 0.6, 0.6])  # irb140.toml dither.amplitude_fraction
     still = condition_bands(6)
     assert np.allclose(still.hi, fs) and np.allclose(still.lo, -fs)
     assert np.allclose(still.sigma, 0.03 * fs) and "simulator defaults" in still.source
@@ -279,13 +279,15 @@ def test_map_output_guard(tmp_path):
 # ------------------------------------------------------------------ against the simulator
 def test_prediction_against_a_simulated_campaign_at_another_pose(tmp_path):
     """Paired campaigns (identification seed 41, evaluation seed 40, 20 pushes per direction
-    and sign, 5-60 N, one seed) at a pose far from the paper's, through ``ditherlab sweep``.
-    The friction-state mix was chosen after this pose's first result (shared states: z +52 %);
-    with it, without dither, x 21.1 / 27.6 N, y 13.8 / 21.5 N, z 14.4 / 12.3 N (predicted /
-    measured; -24, -36, +17 %): y is carried by joint 1 with joint 2 at a third of its lever,
-    and whether their friction states are alike decides (README, "Pose sensitivity"). Checked:
-    every axis within 55 % without dither, and dither lowering the threshold, predicted (below a
-    third) as measured (below 0.6; every push seen in y and z)."""
+    and sign, one seed) at a pose far from the paper's, through ``ditherlab sweep``.
+    The friction-state mix was chosen after this pose's first result on session 10's plant
+    (shared states: z +52 %); there, without dither, x 21.1 / 27.6 N, y 13.8 / 21.5 N, z 14.4 /
+    12.3 N (predicted / measured). On the session-12 plant (the band behind the gear spring,
+    10-60 N pushes at the operator's pace) the prediction is low on every axis: x 19.6 / 33.0 N,
+    y 14.1 / 21.6 N, z 14.1 / 23.1 N (-41, -35, -39 %; README, "Pose sensitivity"). Checked:
+    every axis within 55 % without dither, and dither lowering the threshold, predicted (below
+    0.7: 0.47 / 0.62 / 0.32 here; the dither band is (1 - a) Fs with a = 0.5-0.8) as measured
+    (below 0.6)."""
     out = tmp_path / "sw"
     r = run_cli(
         "sweep", "--grid", "pose.q0=-0.4:0.35:-0.6:0.5:1.1:0.4", "--pushes-per-direction", "20",
@@ -296,4 +298,4 @@ def test_prediction_against_a_simulated_campaign_at_another_pose(tmp_path):
     for a in "xyz":
         meas, pred = row[f"nodither_f50_{a}"], row[f"pred_nodither_f50_{a}"]
         assert abs(pred - meas) <= 0.55 * meas, (a, pred, meas)
-        assert row[f"pred_f50_{a}"] < pred / 3 and row[f"f50_{a}"] < 0.6 * meas
+        assert row[f"pred_f50_{a}"] < 0.7 * pred and row[f"f50_{a}"] < 0.6 * meas

@@ -67,19 +67,19 @@ def test_grid_points_cartesian_product_over_the_base_config():
 def test_pose_joints_as_grid_keys():
     """``pose.qJ`` and ``KEY[J]`` sweep one joint of a per-joint list; the other joints keep the
     base config's (or the default's) values, and two joints of one list combine."""
-    g = parse_grid(["pose.q2=-0.3,0.3", "pose.q0[3]=0.5", "dither.amplitude_fraction[1]=0.8"])
+    g = parse_grid(["pose.q2=-0.3,0.3", "pose.q0[3]=0.5", "dither.amplitude_fraction[1]=0.95"])
     assert g == {
         "pose.q2": [-0.3, 0.3],
         "pose.q0[3]": [0.5],
-        "dither.amplitude_fraction[1]": [0.8],
+        "dither.amplitude_fraction[1]": [0.95],
     }
     pts = grid_points(g, {"pose": {"q0": [0.1, 0.0, 0.0, 0.2, 1.2, 0.0]}})
     assert [p.label for p in pts] == [
-        "pose.q2=-0.3 pose.q0[3]=0.5 dither.amplitude_fraction[1]=0.8",
-        "pose.q2=0.3 pose.q0[3]=0.5 dither.amplitude_fraction[1]=0.8",
+        "pose.q2=-0.3 pose.q0[3]=0.5 dither.amplitude_fraction[1]=0.95",
+        "pose.q2=0.3 pose.q0[3]=0.5 dither.amplitude_fraction[1]=0.95",
     ]
     assert pts[1].config["pose"]["q0"] == [0.1, 0.3, 0.5, 0.2, 1.2, 0.0]
-    assert pts[1].config["dither"]["amplitude_fraction"] == [0.8, 0.9, 0.85, 0.7, 0.7, 0.7]
+    assert pts[1].config["dither"]["amplitude_fraction"] == [0.95, 0.8, 0.5, 0.6, 0.6, 0.6]
 
 
 @pytest.mark.parametrize(
