@@ -101,6 +101,7 @@ from ditherlab.sim.params import load_params
 __all__ = [
     "DIRECTIONS",
     "Bands",
+    "campaign_states",
     "centre_loop_gain",
     "condition_bands",
     "format_prediction",
@@ -128,7 +129,7 @@ MAP_OPTIONS = {"forces": 80, "draws": 120, "rest_samples": 5000}
 #: the simulator's push magnitudes (``push_campaign.magnitude_min/max``) [N]
 DEFAULT_RANGE = (5.0, 60.0)
 #: how the friction states of the joints before a push are drawn (module docstring)
-STATES = ("mixed", "shared", "independent")
+STATES = ("auto", "campaign", "mixed", "shared", "independent")
 #: the simulator's mean push length (``push_campaign.duration_min/max``) [s], log rate [Hz] and
 #: dither period (2 pi / 80 rad/s) [s]
 PUSH_DURATION = 1.25
@@ -153,6 +154,11 @@ class Bands:
         paper's)
     gain : [-] the share of a push's torque the residual shows at the push's peak: 1 without
         dither; with dither the dither's centre loop eats part of it (:func:`centre_loop_gain`)
+    link_share : [-] the share of the band behind the gear spring (the simulator's
+        ``1 - friction.motor_share``): a push must break that part to move the link
+        (:func:`campaign_states`)
+    sliding : [-] the sliding friction over the static one (``friction.coulomb_ratio``): where
+        the servo's return after a slip leaves the state, as a share of the half band
     """
 
     lo: np.ndarray
@@ -163,6 +169,17 @@ class Bands:
     prior_mean: np.ndarray
     prior_sigma: np.ndarray
     gain: float = 1.0
+    link_share: float = 0.9
+    sliding: float = 0.85
+
+
+def _plant_shares(p: Mapping[str, Any]) -> dict[str, float]:
+    """``link_share`` and ``sliding`` [-] of :class:`Bands` from simulator parameters ``p``."""
+    f = p["friction"]
+    return {
+        "link_share": 1.0 - float(f["motor_share"]),
+        "sliding": float(f["coulomb_ratio"]),
+    }
 
 
 def condition_bands(
@@ -200,13 +217,16 @@ def condition_bands(
         still = model.band("still")
         src = f"model {model.source}" if model.source else "model"
         pm, ps = model.prior_mean.copy(), model.prior_sigma.copy()
-        if not dither:
-            return Bands(still.tau_min, still.tau_max, still.sigma, False, src, pm, ps)
         p = load_params(params)
+        sh = _plant_shares(p)
+        if not dither:
+            return Bands(still.tau_min, still.tau_max, still.sigma, False, src, pm, ps, **sh)
         g = centre_loop_gain(p)
         if "dither" in model.regimes:
             d = model.regimes["dither"]
-            return Bands(d.tau_min, d.tau_max, d.sigma, True, f"{src} [regimes.dither]", pm, ps, g)
+            return Bands(
+                d.tau_min, d.tau_max, d.sigma, True, f"{src} [regimes.dither]", pm, ps, g, **sh
+            )
         amp = (
             np.asarray(p["dither"]["amplitude_fraction"], float)[:n]
             * np.asarray(p["friction"]["static"], float)[:n]
@@ -215,7 +235,7 @@ def condition_bands(
         lo, hi = np.minimum(still.tau_min + amp, mid), np.maximum(still.tau_max - amp, mid)
         return Bands(
             lo, hi, _period_noise(still.sigma, p), True,
-            f"{src} (still band shrunk by the simulator's dither amplitude)", pm, ps, g,
+            f"{src} (still band shrunk by the simulator's dither amplitude)", pm, ps, g, **sh,
         )  # fmt: skip
     p = load_params(params)
     fs = np.asarray(p["friction"]["static"], float)
@@ -227,11 +247,13 @@ def condition_bands(
         )
     sig = float(p["noise"]["tau_sigma_fraction"]) * fs
     pm, ps = np.zeros(6), np.array(PAPER_PRIOR_SIGMA)
+    sh = _plant_shares(p)
     if not dither:
-        return Bands(-fs, fs, sig, False, "simulator defaults (irb140.toml)", pm, ps)
+        return Bands(-fs, fs, sig, False, "simulator defaults (irb140.toml)", pm, ps, **sh)
     half = np.maximum(1.0 - np.asarray(p["dither"]["amplitude_fraction"], float), 0.0) * fs
     src = "simulator defaults (irb140.toml)"
-    return Bands(-half, half, _period_noise(sig, p), True, src, pm, ps, centre_loop_gain(p))
+    g = centre_loop_gain(p)
+    return Bands(-half, half, _period_noise(sig, p), True, src, pm, ps, g, **sh)
 
 
 def centre_loop_gain(p: Mapping[str, Any]) -> float:
@@ -298,17 +320,22 @@ def noise_levels(
     quantile: float = QUANTILE,
     floor: float = FLOOR,
     seed: int = 0,
+    rest_states: np.ndarray | None = None,
 ) -> np.ndarray:
     """The predicted noise level per axis (3,) [N]: the ``quantile`` of ``|F̂_axis|`` at rest,
     at least ``floor``: ``rest_samples`` residuals of the friction state plus Gaussian noise,
-    the state uniform in the band without dither and at the band's middle with dither (the
-    dither's centre loop drives the extracted signal back to the gravity torque at rest).
-    ``J`` (6, n) the pose's Jacobian."""
+    the state ``rest_states`` (K, n) [N·m] taken in turn when given (the states a campaign
+    leaves, :func:`campaign_states`), else uniform in the band without dither and at the
+    band's middle with dither (the dither's centre loop drives the extracted signal back to
+    the gravity torque at rest). ``J`` (6, n) the pose's Jacobian."""
     rng = np.random.default_rng(seed)
     u = _strata(rng, rest_samples, len(bands.lo))
     if bands.dithered:  # the centre loop holds the extracted signal at the band's middle
         u = np.full_like(u, 0.5)
-    r = bands.lo + u * (bands.hi - bands.lo) + rng.standard_normal(u.shape) * bands.sigma
+    state = bands.lo + u * (bands.hi - bands.lo)
+    if rest_states is not None and len(rest_states):
+        state = np.asarray(rest_states, float)[np.arange(rest_samples) % len(rest_states)]
+    r = state + rng.standard_normal(u.shape) * bands.sigma
     F = _estimates(r, J, bands, components)
     return np.maximum(np.quantile(np.abs(F), quantile, axis=0), floor)
 
@@ -342,6 +369,61 @@ def shared_fraction(
         hi = np.maximum(A[:, i], A[:, j]).sum()
         out[name] = float(np.minimum(A[:, i], A[:, j]).sum() / hi) if hi > 0 else 1.0
     return out
+
+
+def campaign_states(
+    J: np.ndarray,
+    bands: Bands,
+    force_range: tuple[float, float],
+    pushes: int = 3000,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The friction states a push campaign leaves before each push, without dither: the
+    campaign's pushes (direction one of the six at random, magnitude uniform over
+    ``force_range`` [N]) played on every joint at once from the middle of the band.
+
+    The plant's band sits mostly behind the gear spring (``bands.link_share`` of it): a push
+    moves the link, and so the logged torque, only once its torque ``P |l_j|`` breaks the
+    link's friction, ``link_share · W_j / 2 - sign(l_j) (s_j - mid_j)`` with ``s_j`` the logged
+    residual before the push (at rest the spring carries the link's friction, so the logged
+    state mirrors it: a residual on the edge the push drives towards is a link friction on the
+    far edge). After a push that slipped the joint the position loop returns the motor to its
+    reference and drags the link back until it sticks at the sliding level, leaving
+    ``s_j = mid_j - sign(l_j) · sliding · W_j / 2``: a push the same way next has to break
+    ``(link_share + sliding) W/2`` (1.75 Fs on the default plant), one the other way only
+    ``(link_share - sliding) W/2``. A push that does not slip the joint leaves its state.
+
+    Parameters
+    ----------
+    J : (6, n) the pose's Jacobian
+    bands : the no-dither bands (:func:`condition_bands`)
+    force_range : (min, max) [N] the campaign's push magnitudes
+    pushes : pushes simulated (the first 20 % are a burn-in, not returned)
+    seed : the push sequence's seed
+
+    Returns
+    -------
+    direction : (K,) index into :data:`DIRECTIONS` of each push
+    magnitude : (K,) [N] its magnitude
+    state : (K, n) [N·m] the logged residual of each joint before it
+    """
+    rng = np.random.default_rng(seed)
+    n = J.shape[1]
+    mid = 0.5 * (bands.lo + bands.hi)
+    half = 0.5 * (bands.hi - bands.lo)
+    levs = np.array([J[:3].T @ (sg * np.eye(3)[ax]) for _, ax, sg in DIRECTIONS])  # (6, n)
+    d = rng.integers(0, len(DIRECTIONS), pushes)
+    mag = rng.uniform(force_range[0], force_range[1], pushes)
+    s = mid.copy()
+    states = np.empty((pushes, n))
+    for k in range(pushes):
+        states[k] = s
+        lev = levs[d[k]]
+        sg = np.sign(lev)
+        slip = mag[k] * np.abs(lev) > bands.link_share * half - sg * (s - mid)
+        s = np.where(slip, mid - sg * bands.sliding * half, s)
+    keep = slice(pushes // 5, None)
+    return d[keep], mag[keep], states[keep]
 
 
 def peak_noise_factor(
@@ -405,7 +487,7 @@ def predict(
     draws: int = 300,
     rest_samples: int = 20_000,
     noise_level: Sequence[float] | None = None,
-    states: str = "mixed",
+    states: str = "auto",
     push_duration: float = PUSH_DURATION,
     sample_rate: float = SAMPLE_RATE,
     period: float = DITHER_PERIOD,
@@ -424,8 +506,10 @@ def predict(
     forces, draws : force grid points over ``(0, max_force]`` and friction-state draws per force
     rest_samples : draws of the state at rest for the noise level
     noise_level : (3,) [N] use these noise levels instead of predicting them
-    states : how the joints' friction states are drawn: ``"mixed"``, ``"shared"`` or
-        ``"independent"`` (module docstring, step 2)
+    states : how the joints' friction states before a push are drawn (module docstring, step
+        2): ``"campaign"`` (the states a campaign leaves on the plant, :func:`campaign_states`;
+        without dither only), ``"mixed"``, ``"shared"`` or ``"independent"`` (uniform in the
+        band, the estimator's own model); ``"auto"``: campaign without dither, mixed with
     push_duration, sample_rate, period : the push's mean length [s], the log's rate [Hz] and the
         dither period [s] (:func:`peak_noise_factor`)
     seed : the draws' seed (the same seed gives the same numbers)
@@ -440,13 +524,24 @@ def predict(
     """
     q = np.asarray(q, float).reshape(robot.n)
     J = robot.jacobian(q[None, :])[0]  # (6, n)
+    if states not in STATES:
+        raise ConfigError(f"states {states!r} is unknown; expected one of {', '.join(STATES)}")
+    if states == "auto":
+        states = "mixed" if bands.dithered else "campaign"
+    if states == "campaign" and bands.dithered:
+        raise ConfigError(
+            "states 'campaign' is the plant without dither; expected mixed, shared or "
+            "independent for the dithered bands (the centre loop re-centres the state)"
+        )
+    camp = campaign_states(J, bands, force_range, seed=seed + 2) if states == "campaign" else None
     nl = (
         np.asarray(noise_level, float).reshape(3)
         if noise_level is not None
-        else noise_levels(J, bands, components=components, rest_samples=rest_samples, seed=seed)
+        else noise_levels(
+            J, bands, components=components, rest_samples=rest_samples, seed=seed,
+            rest_states=None if camp is None else camp[2],
+        )  # fmt: skip
     )
-    if states not in STATES:
-        raise ConfigError(f"states {states!r} is unknown; expected one of {', '.join(STATES)}")
     rng = np.random.default_rng(seed + 1)
     n = robot.n
     P = np.linspace(max_force / forces, max_force, forces)
@@ -458,25 +553,37 @@ def predict(
     fr = np.linspace(force_range[0], force_range[1], 41)
     out: dict[str, Any] = {}
     curves: dict[str, np.ndarray] = {}
-    for name, ax, sign in DIRECTIONS:
+    mid, half = 0.5 * (bands.lo + bands.hi), 0.5 * width
+    for di, (name, ax, sign) in enumerate(DIRECTIONS):
         u = np.zeros(3)
         u[ax] = sign
         lev = J[:3].T @ u  # (n,) [m] joint torque per newton applied along u
+        if camp is not None:
+            # the campaign's states before pushes along this direction; a joint shows the
+            # push once it breaks the link's friction, and then carries it whole
+            st = camp[2][camp[0] == di][:draws]  # (m, n)
+            brk = bands.link_share * half - np.sign(lev) * (st - mid)  # (m, n) [N·m]
+            slip = P[:, None, None] * np.abs(lev) > brk[None]
+            r = np.where(slip, mid - P[:, None, None] * lev, st[None])
+            r = (r - np.sign(lev) * z_peak * bands.sigma).reshape(-1, n)
+            F = _estimates(r, J, bands, components)
+            p = np.mean(-(F @ u).reshape(forces, len(st)) > nl[ax], axis=1)
         # the state's distance to the edge the push drives the residual towards is u·W
-        if states == "shared":
+        elif states == "shared":
             u01 = shared_u
         elif states == "independent":
             u01 = own_u
         else:  # the first round(rho·draws) draws shared, the rest independent
             u01 = np.where(np.arange(draws)[:, None] < round(rho[name] * draws), shared_u, own_u)
-        s = np.where(lev > 0, bands.lo + u01 * width, bands.hi - u01 * width)  # (draws, n)
-        # the report takes the largest estimate of the push: the noise's median maximum over
-        # the push's top, on every joint in the direction the push drives its residual
-        s = s - np.sign(lev) * z_peak * bands.sigma
-        r = (s[None, :, :] - bands.gain * P[:, None, None] * lev).reshape(-1, n)
-        F = _estimates(r, J, bands, components)
-        resp = -(F @ u).reshape(forces, draws)
-        p = np.mean(resp > nl[ax], axis=1)
+        if camp is None:
+            s = np.where(lev > 0, bands.lo + u01 * width, bands.hi - u01 * width)  # (draws, n)
+            # the report takes the largest estimate of the push: the noise's median maximum
+            # over the push's top, on every joint in the direction the push drives its residual
+            s = s - np.sign(lev) * z_peak * bands.sigma
+            r = (s[None, :, :] - bands.gain * P[:, None, None] * lev).reshape(-1, n)
+            F = _estimates(r, J, bands, components)
+            resp = -(F @ u).reshape(forces, draws)
+            p = np.mean(resp > nl[ax], axis=1)
         p = np.maximum.accumulate(p)  # the response grows with P; ties of the draws aside
         curves[name] = np.interp(fr, P, p, left=0.0)
         c50, c90 = _logistic_fit(fr, curves[name])
