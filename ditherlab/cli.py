@@ -245,7 +245,7 @@ def robot(
     grid: Annotated[
         str | None, _opt("--grid", "Map poses qJ=START:STOP:COUNT[,qK=...] rad.")
     ] = None,
-    force_range: Annotated[str, _opt("--force-range", "Push magnitudes MIN:MAX [N].")] = "5:60",
+    force_range: Annotated[str, _opt("--force-range", "Push magnitudes MIN:MAX [N].")] = "10:60",
     seed: Seed = 0,
     quiet: Quiet = False,
     json_out: JsonFlag = False,
