@@ -181,20 +181,14 @@ def _lp(
                         mu -= nu[a] * B[tr[a], j]
                     if sxs[o, j] * mu > 1e-10 * cn:
                         return 2, 0.0
-        # the most violated bound or row enters (violation in its own units over the row norm)
+        # the most violated bound or row enters (violation in its own units over the row norm);
+        # after ``m`` iterations Bland's rule (the first violated row, then variable, in index
+        # order; ties of the ratio test to the first in the same order): with the objective's own
+        # row held every other multiplier is zero and the largest-violation rule can cycle
+        bland = it >= m
         worst = 0.0
         ent = -1
         es = 0
-        for b in range(t):
-            j = fr[b]
-            if tau[j] < L[j] - 1e-9 * (1.0 + abs(L[j])):
-                v, s = L[j] - tau[j], -1
-            elif tau[j] > U[j] + 1e-9 * (1.0 + abs(U[j])):
-                v, s = tau[j] - U[j], 1
-            else:
-                continue
-            if v > worst:
-                worst, ent, es = v, j, s
         for g in range(m):
             if not box[g] or srs[o, g] != 0:
                 continue
@@ -209,6 +203,22 @@ def _lp(
                 continue
             if v > worst:
                 worst, ent, es = v, m + g, s
+                if bland:
+                    break
+        for b in range(t):
+            if bland and ent >= 0:
+                break
+            j = fr[b]
+            if tau[j] < L[j] - 1e-9 * (1.0 + abs(L[j])):
+                v, s = L[j] - tau[j], -1
+            elif tau[j] > U[j] + 1e-9 * (1.0 + abs(U[j])):
+                v, s = tau[j] - U[j], 1
+            else:
+                continue
+            if v > worst:
+                worst, ent, es = v, j, s
+                if bland:
+                    break
         if ent < 0:
             val = 0.0
             for j in range(m):
