@@ -94,26 +94,51 @@ def _lu_solve_t(K, t, p, rhs, w, out):
 
 
 @njit(cache=True, inline="always", _nrt=False)
-def _inverse_t(J, k, m, B, M, p, col, w):
-    """``B = (J_k^T)^-1`` (m x m); False if singular or ill-conditioned (:data:`MAX_CONDITION`)."""
+def _inverse_t(J, k, m, B, M):
+    """``B = (J_k^T)^-1`` (m x m) by Gauss-Jordan elimination with partial pivoting (each row
+    operation runs over whole rows of ``[M | B]``: independent columns, where the column-by-column
+    triangular solves were a chain of dependent divisions); False if a pivot is below ``1e-12``
+    of the largest entry or the condition is beyond :data:`MAX_CONDITION`."""
     nj = 0.0
+    big = 0.0
     for j in range(m):
         v = 0.0
         for i in range(m):
             M[j, i] = J[k, i, j]
+            B[j, i] = 1.0 if i == j else 0.0
             v += abs(J[k, i, j])
+            big = max(big, abs(J[k, i, j]))
         nj = max(nj, v)  # ||J^T||_1: the largest column sum of J^T (row j of J^T is J[:, j])
-    if not _lu(M, m, p):
-        return False
+    for c in range(m):
+        pr = c
+        for r in range(c + 1, m):
+            if abs(M[r, c]) > abs(M[pr, c]):
+                pr = r
+        if not abs(M[pr, c]) > 1e-12 * big:
+            return False
+        if pr != c:
+            for q in range(m):
+                v = M[c, q]
+                M[c, q] = M[pr, q]
+                M[pr, q] = v
+                v = B[c, q]
+                B[c, q] = B[pr, q]
+                B[pr, q] = v
+        d = 1.0 / M[c, c]
+        for q in range(m):
+            M[c, q] *= d
+            B[c, q] *= d
+        for r in range(m):
+            if r != c:
+                f = M[r, c]
+                for q in range(m):
+                    M[r, q] -= f * M[c, q]
+                    B[r, q] -= f * B[c, q]
     nb = 0.0
     for c in range(m):
-        for a in range(m):
-            w[a] = 1.0 if a == c else 0.0
-        _lu_solve(M, m, p, w, col)
         v = 0.0
         for r in range(m):
-            B[r, c] = col[r]
-            v += abs(col[r])
+            v += abs(B[r, c])
         nb = max(nb, v)  # ||J^-T||_1
     return nb * nj <= MAX_CONDITION
 
@@ -309,7 +334,7 @@ def _square_block(tb, J, a, b, sig, kk, fb, half, ridge, big, sxs, srs, warm, lo
             L[j] = tb[k, j] - b[k, j] - kk * sig[k, j]
             U[j] = tb[k, j] - a[k, j] + kk * sig[k, j]
             finite = finite and math.isfinite(L[j]) and math.isfinite(U[j])
-        if not finite or not _inverse_t(J, k, m, B, M, p, nu, w):
+        if not finite or not _inverse_t(J, k, m, B, M):
             continue
         # no vertex of the torque box may reach the artificial box (where the general kernel
         # would report an infinite bound): |B_g (tau - mid)| + |B_g mid - fb_g| < big
