@@ -14,6 +14,7 @@ from ditherlab.estimator.intervals.set_membership import (
     _halfbox,
     _set_membership,
     interval_k,
+    set_membership_reference,
 )
 from ditherlab.estimator.intervals.sm_square import square_block, square_state
 
@@ -103,3 +104,39 @@ def test_the_samples_it_must_refuse(bench_args, case):
         fin = np.isfinite(ref)
         np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-7, atol=1e-7)
     np.testing.assert_allclose(lo[ok], glo[ok], rtol=0, atol=0)  # the same path, bit for bit
+
+
+#: two samples of a replayed hour's ``nodither_noband`` variant (zero-width bands, the paper's
+#: prior) on which the general kernel's cold path (the primal active-set method) stopped on an
+#: optimal face with its point off the face, 2.1e-5 and 2.6e-5 N from linprog (session 12)
+FACE_SAMPLES = [
+    dict(
+        tau_bar=[9.405096195448658, -0.1668455442751693, 7.858249776538557, -1.8100019243011556, -1.6274205904329253, -1.0867548920159618],
+        J=[-4.732601613135367e-06, 0.2949868682759174, -0.06501313165716399, -6.598234367054788e-07, -0.06499999995774995, 0.0, 0.45000365233477424, 2.994475789009762e-06, -6.599624242696341e-07, 0.06499999999644279, -6.598291281029309e-07, 0.0, 0.0, -0.3800036523596301, -0.37999775096670524, 1.6451676993647875e-07, 2.2488063980059535e-06, -0.0, 0.0, -1.0151217260473365e-05, -1.0151217260473365e-05, 0.9999999993513797, -1.015112979546891e-05, -3.4597047199083496e-05, 0.0, 0.9999999999484764, 0.9999999999484764, 1.0151217254412106e-05, 0.9999999999452742, 2.5306760292909503e-06, 1.0, 0.0, 0.0, -3.4557104270761175e-05, 2.5310272297919834e-06, -0.99999999939832],
+        tau=[-0.09600965153009966, 0.011511290887055381, 0.23679162487629002, -0.05970567037793373, -0.0481687781731277, -0.15696349852585967],
+        w=[0.03356877366594205, 0.03502867011941798, 0.04570027844582663, 0.5192750606271793, 0.531035630686196, 1.7812208481530396],
+    ),
+    dict(
+        tau_bar=[9.442608053008856, -0.25589803904282604, 7.557793089662987, -1.7998907637860462, -1.6629601039246884, -1.140594729214282],
+        J=[-1.0459400829675867e-05, 0.29498088686834767, -0.06501911298907474, -1.4870218463443942e-06, -0.06499999990063972, 0.0, 0.4500026288519985, 6.748391754630918e-06, -1.4874673767752164e-06, 0.06499999998278226, -1.4870301258312178e-06, 0.0, 0.0, -0.3800026289735222, -0.3799967275805974, 1.6451676982661122e-07, 3.2719387313181388e-06, -0.0, 0.0, -2.287738647920199e-05, -2.287738647920199e-05, 0.9999999984733882, -2.2877259174529157e-05, -5.033757683312699e-05, 0.0, 0.9999999997383126, 0.9999999997383126, 2.2877386450263823e-05, 0.9999999997351123, 2.529875639765648e-06, 1.0, 0.0, 0.0, -5.0297601705991045e-05, 2.5310272281016936e-06, -0.999999998729864],
+        tau=[-0.09600965153009966, 0.011511290887055381, 0.23679162487629002, -0.05970567037793373, -0.0481687781731277, -0.15696349852585967],
+        w=[0.03356877366594205, 0.03502867011941798, 0.04570027844582663, 0.5192750606271793, 0.531035630686196, 1.7812208481530396],
+    ),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("k", range(len(FACE_SAMPLES)))
+def test_general_kernel_cold_path_on_an_optimal_face_matches_linprog(k):
+    """The general kernel (``square=False``), cold on one sample, gives linprog's bounds to 1e-8
+    where its primal active-set method ends on an optimal face rather than a vertex: the point
+    is put back on the face's rows before its value is read (before: 2e-5 N off)."""
+    s = FACE_SAMPLES[k]
+    tau = np.array(s["tau"])[None]
+    prob = E.problem(
+        np.array(s["tau_bar"])[None], np.array(s["J"]).reshape(1, 6, 6), tau, tau,
+        1.0 / np.sqrt(np.array(s["w"]))[None], np.zeros(6), np.array([20.0] * 3 + [0.3] * 3),
+    )  # fmt: skip
+    lo, hi, st = _set_membership(prob, 0.95, square=False)
+    assert st[0] == 0  # solved cold, with the prior box
+    rl, rh = set_membership_reference(prob)
+    np.testing.assert_allclose(np.r_[lo[0], hi[0]], np.r_[rl[0], rh[0]], rtol=0, atol=1e-8)

@@ -277,6 +277,51 @@ def _dual_vertex(A, bv, rn, nrow, m, c, Wo, x, lam, M, piv, u, tmp, rhs, maxit):
 
 
 @njit(cache=True)
+def _onto_rows(A, bv, W, nW, m, x, G, y):
+    """Move ``x`` (m,) onto its working rows ``A[W[:nW]] x = bv[W[:nW]]`` by the least-norm
+    correction ``x += A_W^T (A_W A_W^T)^-1 (b_W - A_W x)``: a point the primal steps left a
+    little off its face (their rounding accumulates along long steps) is put back on it."""
+    for a1 in range(nW):
+        r1 = W[a1]
+        for a2 in range(a1 + 1):
+            r2 = W[a2]
+            v = 0.0
+            for q in range(m):
+                v += A[r1, q] * A[r2, q]
+            G[a1, a2] = v
+        v = bv[r1]
+        for q in range(m):
+            v -= A[r1, q] * x[q]
+        y[a1] = v
+    for a1 in range(nW):  # Cholesky in place (lower)
+        for a2 in range(a1 + 1):
+            v = G[a1, a2]
+            for q in range(a2):
+                v -= G[a1, q] * G[a2, q]
+            if a1 == a2:
+                if not v > 0.0:
+                    return
+                G[a1, a1] = math.sqrt(v)
+            else:
+                G[a1, a2] = v / G[a2, a2]
+    for a1 in range(nW):
+        v = y[a1]
+        for q in range(a1):
+            v -= G[a1, q] * y[q]
+        y[a1] = v / G[a1, a1]
+    for a1 in range(nW - 1, -1, -1):
+        v = y[a1]
+        for q in range(a1 + 1, nW):
+            v -= G[q, a1] * y[q]
+        y[a1] = v / G[a1, a1]
+    for q in range(m):
+        v = 0.0
+        for a1 in range(nW):
+            v += A[W[a1], q] * y[a1]
+        x[q] += v
+
+
+@njit(cache=True)
 def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_out, st_out):
     N, m, n = J.shape
     nr = 2 * n + 2 * m
@@ -289,6 +334,9 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
     x = np.empty(d1)
     c = np.zeros(d1)
     W = np.empty(d1, np.int64)
+    Wp = np.empty(m, np.int64)
+    xp = np.empty(m)
+    lamp = np.empty(m)
     M = np.empty((m, m))
     piv = np.empty(m, np.int64)
     tmpw = np.empty(m, np.int64)
@@ -375,6 +423,11 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
             wval[:] = False
             continue
         # phase 2 in F alone (z fixed at 0: drop the z column; rows keep their order)
+        for row in range(nrow):  # the rows may have been rebuilt without the prior box
+            v = 1e-300
+            for q in range(m):
+                v += abs(A[row, q])
+            rn[row] = v
         nW = 0
         for i in range(m):
             for sg in (1.0, -1.0):
@@ -383,6 +436,20 @@ def _set_membership_kernel(tb, J, a, b, sig, fb, halfbox, kk, ridge, lo_out, hi_
                     c[q] = 0.0
                 c[i] = sg
                 st, nW = _lp_active_set(A, bv, nrow - 1, m, c, x, W, nW, G, lam, dirn, 50 * nrow)
+                if st == 0 and nW < m:  # an optimal face: its value, from a point on it
+                    _onto_rows(A, bv, W, nW, m, x, G, xp)
+                if st == 0 and nW == m:
+                    # the vertex solved from its rows, not the point the steps accumulated, and
+                    # its multipliers checked by the dual simplex (which repairs a vertex the
+                    # primal method's tolerances accepted: up to 1e-3 N off linprog before)
+                    for a1 in range(m):
+                        Wp[a1] = W[a1]
+                    if _dual_vertex(A, bv, rn, nrow - 1, m, c, Wp, xp, lamp, M, piv, u, tmpw,
+                                    rhs, 4 * m + 8) == 0:  # fmt: skip
+                        for a1 in range(m):
+                            W[a1] = Wp[a1]
+                            x[a1] = xp[a1]
+                            lam[a1] = lamp[a1]
                 wval[o] = st == 0 and nW == m and st_out[k] == 0
                 if wval[o]:
                     for a1 in range(m):
