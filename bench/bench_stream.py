@@ -60,21 +60,33 @@ def _rows(path: Path) -> int:
     return int(pq.ParquetFile(path).metadata.num_rows)
 
 
+#: run a command from a small process and print its peak RSS [kB]: a child forked straight from
+#: this (large) benchmark process would report this process's peak as its own, since Linux
+#: keeps ``ru_maxrss`` across ``fork`` and ``exec`` (every figure read 4070 MB in one run)
+_LAUNCH = (
+    "import os, subprocess, sys\n"
+    "p = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)\n"
+    "err = p.stderr.read()\n"
+    "_, status, usage = os.wait4(p.pid, 0)\n"
+    "sys.stderr.buffer.write(err)\n"
+    "print(usage.ru_maxrss)\n"
+    "sys.exit(os.waitstatus_to_exitcode(status))\n"
+)
+
+
 def _peak(args: list[str]) -> tuple[float, float]:
-    """(wall seconds, peak RSS [MB]) of ``python -m ditherlab ARGS`` in a fresh process (the
-    child's own ``ru_maxrss``, from ``os.wait4``)."""
+    """(wall seconds, peak RSS [MB]) of ``python -m ditherlab ARGS`` in a fresh process, started
+    by a small launcher process (:data:`_LAUNCH`) that reads the child's own ``ru_maxrss``."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ditherlab", *args],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
+    proc = subprocess.run(
+        [sys.executable, "-c", _LAUNCH, sys.executable, "-m", "ditherlab", *args],
+        capture_output=True,
+        text=True,
+        check=False,
     )
-    _, status, usage = os.wait4(proc.pid, 0)
-    err = proc.stderr.read().decode() if proc.stderr else ""
-    proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode:
-        raise RuntimeError(f"ditherlab {' '.join(args)}: {err.strip()}")
-    return time.perf_counter() - t0, usage.ru_maxrss / 1024.0
+        raise RuntimeError(f"ditherlab {' '.join(args)}: {proc.stderr.strip()}")
+    return time.perf_counter() - t0, int(proc.stdout.split()[-1]) / 1024.0
 
 
 def run(
