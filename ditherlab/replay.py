@@ -353,7 +353,6 @@ def variant_inputs(
     return tb, a, b, s
 
 
-
 def extraction_jacobian(
     J: np.ndarray, model: TorqueModel, reg: np.ndarray, ext: Extraction | None
 ) -> np.ndarray:
@@ -395,7 +394,9 @@ def extraction_lead(
     lags = extraction_gain(model.effects, model.n, "lag")
     if ext is None or lags is None:
         return tb
-    named = sorted({jj - 1 for s in model.effects if s.name == "dither_extraction" for jj in s.joints})
+    named = sorted(
+        {jj - 1 for s in model.effects if s.name == "dither_extraction" for jj in s.joints}
+    )
     k = max((window - 1) // 2, 1)
     if len(tb) <= k:
         return tb
@@ -409,6 +410,7 @@ def extraction_lead(
         step[k:] = (tb[k:, j] - tb[:-k, j]) * (d / k)
         out[:, j] = np.where(use[:, j], tb[:, j] + step, tb[:, j])
     return out
+
 
 __all__ = [
     "COMPONENTS",

@@ -184,7 +184,7 @@ def test_coverage_at_rest_per_axis(tmp_path, pair):
 
     paths, recs = pair
     out = tmp_path / "rep"
-    a = make_report([paths[0]], out, recordings=[recs[0]], n_boot=5)
+    make_report([paths[0]], out, recordings=[recs[0]], n_boot=5)
     est = Estimates.load(paths[0])
     src = EstimatesSource.of(est)
     _, _, _, rest = _pushes_and_rest(src, 1.0, 65_536)

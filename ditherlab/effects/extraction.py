@@ -5,15 +5,23 @@ signal (paper §IV-A, :func:`ditherlab.dither.extract`): per joint the mean of t
 and below the mean of the last dither period, averaged. For the slow part of the torque (a push
 lasts 0.5-2 s, the dither period is 79 ms) this is the causal mean over one period ``W``
 samples: a push's torque ``J^T F`` is seen ``(W - 1) / 2`` samples late (40 ms at 80 rad/s and
-250 Hz) with its rise smoothed over the period. While dithering, the joint also slides against
-the gear spring, so the servo and the centre loop take up part of the push: the extracted
-signal shows only ``gain`` of it (the paper's underestimate, Fig. 4 and §VI-C).
+250 Hz) with its rise smoothed over the period. While dithering the position loop's gain is off
+(the simulator's ``Kp = 0``; the paper's Fig. 5 loop), the joint creeps under a push and the
+velocity loop's integral builds the torque that holds it: the extracted signal follows the
+push only in part and late, a first-order lag (the paper's underestimate and lag, Fig. 4 and
+§VI-C).
 
-The effect: in the ``dither`` regime, where the window lies wholly in the dither, the servo
-shows ``gain · mean_W(J^T F)``; elsewhere ``J^T F`` itself. ``W`` is the recording's dither
-period (known, not searched); ``gain`` is fitted per joint from pushes made with the dither on.
-On a recording without dither, or without pushes, its design is zero: it cannot be suggested
-there.
+The effect: where the dither has been on over a whole window and the joint stands in the
+``dither`` regime or creeps (``moving``), the servo shows ``gain · lag(mean_W(J^T F))``;
+elsewhere ``J^T F`` itself. ``W`` is the recording's dither period (known, not searched);
+``gain`` (linear) and the lag (samples, searched on a grid, 0 included) are fitted per joint from
+pushes made with the dither on. On a recording without dither, or without pushes, its design is
+zero: diagnose cannot suggest it there and ``identify --add`` refuses it.
+
+Diagnosis reads the extracted signal in the ``dither`` regime and the logged torque while a
+joint moves, so on the creeping rows the effect's one-period mean is half a period early
+against what diagnosis compares it with; replay reads the extracted signal on both
+(:func:`ditherlab.replay.variant_inputs`).
 """
 
 from __future__ import annotations
@@ -61,7 +69,9 @@ class DitherExtraction(Effect):
 
     name = "dither_extraction"
     order = 30
-    physics = "with the dither on, the extracted torque shows the push late (half a period) and in part"
+    physics = (
+        "with the dither on, the extracted torque shows the push late (half a period) and in part"
+    )
     driven_by = "J^T F (F/T sensor) averaged over the dither period, in the dither regime"
     linear = ("gain",)
     hyper = "lag"
@@ -78,7 +88,9 @@ class DitherExtraction(Effect):
     def grid(self, sig, j):
         fs = sig[0].sample_rate
         kmax = max(int(round(0.3 * fs)), 2)
-        return [0] + sorted(set(np.unique(np.round(np.geomspace(1, kmax, 16)).astype(int)).tolist()))
+        return [0] + sorted(
+            set(np.unique(np.round(np.geomspace(1, kmax, 16)).astype(int)).tolist())
+        )
 
     @staticmethod
     def filtered(sig: Signals, X: np.ndarray, lag: Any) -> np.ndarray:
@@ -108,7 +120,9 @@ class DitherExtraction(Effect):
     def driver(self, sig, j, p):
         X = sig.jtf(sig.wrench_lp(self.name))[:, j]
         w = extraction_window(sig)
-        return (causal_mean(X, w) if w else X), f"mean over a dither period of (J^T F)_{j + 1} [N·m]"
+        return (
+            causal_mean(X, w) if w else X
+        ), f"mean over a dither period of (J^T F)_{j + 1} [N·m]"
 
     def external(self, sig, X, w, h):
         raise NotImplementedError("dither_extraction depends on the joint: external_joint")
