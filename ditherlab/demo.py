@@ -140,7 +140,9 @@ def run_pipeline(
         for both campaigns
     """
     from ditherlab.cli import progress_bar
+    from ditherlab.errors import ModelError
     from ditherlab.identify import identify
+    from ditherlab.loop import add_effect
     from ditherlab.replay import replay
     from ditherlab.report import make_report
     from ditherlab.sim import simulate
@@ -176,6 +178,17 @@ def run_pipeline(
             seed=seed,
             progress=progress,
         )
+        # how the dither's extraction shows a push (late, in part): identified from the
+        # identification campaign's dithered pushes, used by replay (README "Calibrated
+        # intervals"); a campaign where it cannot be told apart from the bands keeps the model
+        try:
+            model = add_effect(
+                model,
+                [recs["identification_nodither"], recs["identification_dither"]],
+                "dither_extraction",
+            )
+        except ModelError:
+            pass
     model_path = model.save(out / "model.toml")
     seconds["identify"] = time.perf_counter() - t0
 

@@ -38,6 +38,7 @@ import pandas as pd
 from ditherlab.dither import Extraction, dithered_band, extract_dither
 from ditherlab.dither import band_as_noise as band_variance_as_noise
 from ditherlab.effects import effects_torque, force_gain, release
+from ditherlab.effects.extraction import extraction_gain
 from ditherlab.errors import ConfigError
 from ditherlab.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates, EstimatesWriter
 from ditherlab.estimator import problem, solve
@@ -50,7 +51,7 @@ from ditherlab.io.atomic import check_not_input, plain
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.model import TorqueModel
 from ditherlab.recording import DITHER, MOVING, Recording, regimes
-from ditherlab.signal import time_spans
+from ditherlab.signal import causal_mean, time_spans
 
 INTERVAL_METHODS = ("profile", "set_membership")
 #: ``--components`` shorthands.
@@ -205,6 +206,8 @@ def replay_columns(
     base = (rec.tau - g - eff, *model.sample_bands(reg, rec.dq))
     tick()
     ext = extract_dither(rec) if any(v.startswith("dither") for v in variants) else None
+    w_ext = max(int(round(ext.period * rec.sample_rate)), 1) if ext is not None else 1
+    dq_mean = causal_mean(rec.dq, w_ext) if ext is not None else None
     tick()
 
     def columns(X: np.ndarray) -> np.ndarray:  # (N, k) -> k contiguous (N,) columns
@@ -219,9 +222,13 @@ def replay_columns(
         cols["dither"] = rec.dither
     bits = (1 << np.arange(rec.n)).astype(np.int64)
     for v in variants:
-        tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext)
+        tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext, dq_mean)
+        Jv = J
+        if v.startswith("dither"):
+            Jv = extraction_jacobian(J, model, reg, ext)
+            tb = extraction_lead(tb, model, reg, ext, w_ext)
         # one validated problem for the estimate and its intervals
-        prob = problem(tb, J, a, b, s, model.prior_mean, model.prior_sigma, comps)
+        prob = problem(tb, Jv, a, b, s, model.prior_mean, model.prior_sigma, comps)
         closed = interval == "profile" and v.endswith("noband")  # zero-width bands
         if closed and backend == "exact":  # the estimate and its interval, one factorisation
             F, active, ilo, ihi = gaussian_problem_estimate(prob, level=level)
@@ -294,6 +301,7 @@ def variant_inputs(
     g: np.ndarray,
     eff: np.ndarray,
     ext: Extraction | None,
+    dq_mean: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The estimator's inputs of one variant: ``tau_bar``, band edges and noise per sample.
 
@@ -309,6 +317,11 @@ def variant_inputs(
     base : ``tau - gravity - effects`` and the model's per-sample band and noise, each (N, n)
     reg : (N, n) regimes ; g, eff : (N, n) [N·m] gravity and the model's effects
     ext : the recording's dither extraction (None without dither)
+    dq_mean : (N, n) [rad/s] joint velocities averaged over the last dither period: with them, a
+        dither variant also reads the extracted signal where a joint moves with the dither on
+        over a whole window (it creeps under a push: the raw torque there carries the dither's
+        square wave, up to the band), with the moving band about the sliding line at this
+        velocity (the dither's own vibration averaged out)
 
     Returns
     -------
@@ -326,9 +339,77 @@ def variant_inputs(
             s = np.where(use, db.sigma, sig)
         else:
             a, b = dithered_band(lo, hi, ext.amplitude, on=use)
+        if dq_mean is not None and "moving" in model.regimes:
+            creep = (reg == MOVING) & (ext.valid & ext.on)[:, None]
+            if creep.any():
+                mb = model.regimes["moving"]
+                slide = mb.sliding(dq_mean)
+                tb = np.where(creep, ext.signal - g - eff, tb)
+                a = np.where(creep, mb.tau_min + slide, a)
+                b = np.where(creep, mb.tau_max + slide, b)
+                s = np.where(creep, mb.sigma, s)
     if variant.endswith("noband"):
         a, b, s = band_as_noise(a, b, s)
     return tb, a, b, s
+
+
+def extraction_jacobian(
+    J: np.ndarray, model: TorqueModel, reg: np.ndarray, ext: Extraction | None
+) -> np.ndarray:
+    """``J`` (N, 6, n) with joint j's row scaled by the model's ``dither_extraction`` gain
+    where a dither variant reads the extracted signal of that joint (the dither on over a whole
+    window, the joint in the dither regime or creeping under a push): the extracted signal shows
+    ``gain`` of the push's torque there (:mod:`ditherlab.effects.extraction`). ``J`` itself
+    without the effect or without dither."""
+    gain = extraction_gain(model.effects, J.shape[2])
+    if gain is None or ext is None:
+        return J
+    use = ((reg == DITHER) | (reg == MOVING)) & (ext.valid & ext.on)[:, None]
+    scale = np.where(use, gain[None, :], 1.0)  # (N, n)
+    return J * scale[:, None, :]
+
+
+def extraction_lead(
+    tb: np.ndarray, model: TorqueModel, reg: np.ndarray, ext: Extraction | None, window: int
+) -> np.ndarray:
+    """The torque a dither variant reads, moved forward by the extraction's delay on the
+    joints the model's ``dither_extraction`` names, where the dither is on over whole windows.
+
+    The extracted signal is the mean of the last ``window`` samples, through the effect's
+    first-order lag of ``lag_j`` samples: it shows joint j's push torque of
+    ``d_j = (window - 1) / 2 + lag_j`` samples ago. For a first-order lag ``x = y + T dy/dt``;
+    the causal extrapolation ``y(t) + d_j / k (y(t) - y(t - k))`` (``k`` = half a window, the
+    shortest difference the window's ripple allows) reads it at ``t`` again. Friction held
+    still does not change ``y``: at rest only the noise of the difference is added.
+
+    Parameters
+    ----------
+    tb : (N, n) [N·m] the variant's torque ``tau_bar`` ; reg : (N, n) regimes
+    ext : the recording's extraction ; window : samples per dither period
+
+    Returns
+    -------
+    (N, n) [N·m]: ``tb`` moved (``tb`` itself when nothing applies)
+    """
+    lags = extraction_gain(model.effects, model.n, "lag")
+    if ext is None or lags is None:
+        return tb
+    named = sorted(
+        {jj - 1 for s in model.effects if s.name == "dither_extraction" for jj in s.joints}
+    )
+    k = max((window - 1) // 2, 1)
+    if len(tb) <= k:
+        return tb
+    use = ((reg == DITHER) | (reg == MOVING)) & (ext.valid & ext.on)[:, None]
+    use[k:] &= use[:-k]  # the older sample also read through a whole window
+    use[:k] = False
+    out = tb.copy()
+    for j in named:
+        d = (window - 1) / 2 + lags[j]
+        step = np.zeros(len(tb))
+        step[k:] = (tb[k:, j] - tb[:-k, j]) * (d / k)
+        out[:, j] = np.where(use[:, j], tb[:, j] + step, tb[:, j])
+    return out
 
 
 __all__ = [
@@ -340,6 +421,8 @@ __all__ = [
     "available_variants",
     "band_as_noise",
     "describe",
+    "extraction_jacobian",
+    "extraction_lead",
     "model_effects",
     "parse_components",
     "replay",

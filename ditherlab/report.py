@@ -128,18 +128,36 @@ def detail_table(analysis: dict) -> tuple[list[str], list[list[str]]]:
 
 
 def coverage_table(analysis: dict, level: str) -> tuple[list[str], list[list[str]]]:
-    """Per condition: interval coverage of the F/T force over all samples and at rest."""
+    """Per condition: interval coverage of the F/T force over all samples, per axis during
+    pushes (the push axis' component, the push's samples) and per axis at rest, and the mean
+    interval width at rest per axis [N]; "–" where the analysis has no such number."""
     head = [
         "condition",
         f"coverage, all samples (nominal {level})",
-        "coverage at rest",
-        "mean width at rest",
+        "coverage during pushes x / y / z",
+        "coverage at rest x / y / z",
+        "mean width at rest x / y / z",
     ]
-    rows = [
-        [n, f"{c['coverage_all']:.1%}", f"{c['coverage_rest']:.1%}", _fmt(c["width_rest"])]
-        for n, c in analysis["conditions"].items()
-    ]
+    rows = []
+    for n, c in analysis["conditions"].items():
+        push = [(c["directions"].get(a) or {}).get("coverage") for a in AXES]
+        rest = [(c.get("coverage_rest_axes") or {}).get(a) for a in AXES]
+        width = [(c.get("width_rest_axes") or {}).get(a) for a in AXES]
+        rows.append(
+            [
+                n,
+                f"{c['coverage_all']:.1%}",
+                " / ".join(_pct(x) for x in push),
+                " / ".join(_pct(x) for x in rest),
+                " / ".join(_fmt(x) for x in width),
+            ]
+        )
     return head, rows
+
+
+def _pct(x: float | None) -> str:
+    """A fraction as a percentage with one decimal, "–" for None or NaN."""
+    return "–" if x is None or not np.isfinite(x) else f"{x:.1%}"
 
 
 # ------------------------------------------------------------------------------ rendering

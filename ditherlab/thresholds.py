@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ditherlab.curves import fit_logistic
 from ditherlab.errors import DitherlabError, FormatError, RecordingError
 from ditherlab.estimates import COMPONENTS, Estimates, EstimatesSource
 from ditherlab.recording import FORCE_AXES
@@ -301,103 +302,6 @@ def _push_result(
     )
 
 
-# ------------------------------------------------------------------------------ logistic fit
-def fit_logistic(
-    force: np.ndarray, hit: np.ndarray, *, n_boot: int = 200, seed: int = 0, level: float = 0.9
-) -> dict[str, Any]:
-    """Detection probability against applied force: ``1 / (1 + exp(-(F - F50) / s))``.
-
-    Maximum likelihood on a grid (F50 over 0 .. 1.5 max F in 300 steps, s log-spaced over
-    0.25 .. 50 N in 60 steps), so perfectly separated data give the steepest curve on the grid
-    instead of diverging; percentile intervals from a seeded bootstrap over pushes.
-
-    Parameters
-    ----------
-    force : (P,) applied peak forces [N]
-    hit : (P,) bool, response or not
-    n_boot : bootstrap replicates
-    seed : bootstrap seed
-    level : central probability of the intervals
-
-    Returns
-    -------
-    dict with ``F50``, ``F90``, ``scale`` [N] and ``F50_ci``, ``F90_ci`` (lo, hi) [N]; NaNs for
-    fewer than 3 pushes; when every push (or none) was seen, NaNs and ``bound`` = ``"below"``
-    (``"above"``) with ``bound_force`` the smallest (largest) force [N].
-    """
-    force = np.asarray(force, dtype=float)
-    hit = np.asarray(hit, dtype=bool)
-    nan = float("nan")
-    if len(force) < 3:
-        return {"F50": nan, "F90": nan, "scale": nan, "F50_ci": [nan, nan], "F90_ci": [nan, nan]}
-    if hit.all() or not hit.any():
-        # no transition in the data: F50 and F90 lie below the smallest (all seen) or above
-        # the largest force (none seen); report the bound instead of a grid edge
-        bound = float(force.min()) if hit.all() else float(force.max())
-        return {
-            "F50": nan,
-            "F90": nan,
-            "scale": nan,
-            "F50_ci": [nan, nan],
-            "F90_ci": [nan, nan],
-            "bound": ("below" if hit.all() else "above"),
-            "bound_force": bound,
-        }
-    fmax = float(force.max())
-    g50 = np.linspace(0.0, 1.5 * fmax, 300)
-    gs = np.geomspace(0.25, 50.0, 60)
-    G50, GS = np.meshgrid(g50, gs, indexing="ij")
-    # the fit and every bootstrap replicate: weights per push, the replicates drawn in order
-    weights = [np.ones(len(force))]
-    if n_boot > 1:
-        rng = np.random.default_rng(seed)
-        for _ in range(n_boot):
-            w = np.bincount(rng.integers(0, len(force), len(force)), minlength=len(force))
-            weights.append(w.astype(float))
-    fits = _grid_ml(force, hit, G50, GS, weights)
-    f50, s = float(g50[fits[0][0]]), float(gs[fits[0][1]])
-    ln9 = float(np.log(9.0))
-    out: dict[str, Any] = {"F50": f50, "F90": f50 + s * ln9, "scale": s}
-    if n_boot > 1:
-        reps = np.array([(g50[i], g50[i] + gs[j] * ln9) for i, j in fits[1:]], dtype=float)
-        q = [(1 - level) / 2, (1 + level) / 2]
-        out["F50_ci"] = np.quantile(reps[:, 0], q).tolist()
-        out["F90_ci"] = np.quantile(reps[:, 1], q).tolist()
-    else:
-        out["F50_ci"] = [nan, nan]
-        out["F90_ci"] = [nan, nan]
-    return out
-
-
-def _grid_ml(
-    force: np.ndarray,
-    hit: np.ndarray,
-    G50: np.ndarray,
-    GS: np.ndarray,
-    weights: list[np.ndarray],
-    rows: int = 10,
-) -> list[tuple[int, int]]:
-    """The grid point ``(i, j)`` of largest weighted log-likelihood of the logistic curve, per
-    weight vector (P,): the first largest in row-major order, as ``np.argmax``. The (300, 60, P)
-    log-probabilities are made ``rows`` F50 values at a time (memory bounded however many pushes
-    there are; each (60, P) slice's products are numpy's as for the whole grid)."""
-    best = [(-np.inf, 0, 0)] * len(weights)
-    wh = [w * hit for w in weights]
-    wm = [w * ~hit for w in weights]
-    n_s = G50.shape[1]
-    for i0 in range(0, G50.shape[0], rows):
-        sl = slice(i0, i0 + rows)
-        z = (force[None, None, :] - G50[sl, :, None]) / GS[sl, :, None]  # (rows, 60, P)
-        lp = -np.logaddexp(0.0, -z)  # log p(hit)
-        lq = -np.logaddexp(0.0, z)  # log p(miss)
-        for r in range(len(weights)):
-            ll = lp @ wh[r] + lq @ wm[r]
-            k = int(np.argmax(ll))
-            if ll.flat[k] > best[r][0]:
-                best[r] = (float(ll.flat[k]), i0 + k // n_s, k % n_s)
-    return [(i, j) for _, i, j in best]
-
-
 # ------------------------------------------------------------------------------ analysis
 def condition_of(variant: str, dithered: bool) -> str:
     """The row label: the variant, qualified when a no-dither variant runs on a dithered log."""
@@ -418,6 +322,9 @@ class Group:
     rest_coverage: list[float] = field(default_factory=list)
     all_coverage: list[float] = field(default_factory=list)
     rest_width: list[float] = field(default_factory=list)
+    #: per recording, per axis (3,): coverage and mean interval width at rest [-, N]
+    rest_coverage_axes: list[np.ndarray] = field(default_factory=list)
+    rest_width_axes: list[np.ndarray] = field(default_factory=list)
 
 
 def direction_stats(results: Sequence[PushResult], n_boot: int, seed: int) -> dict[str, Any]:
@@ -709,8 +616,9 @@ def _add_variants(
     n_rest = int(rest.sum())
     noise_q = {v: [_Quantile(n_rest, quantile) for _ in AXES] for v in variants}
     covered = dict.fromkeys(variants, 0)
-    covered_rest = dict.fromkeys(variants, 0)
+    covered_rest = {v: np.zeros(len(AXES), dtype=np.int64) for v in variants}
     width = {v: _BlockMean() for v in variants}
+    width_axes = {v: [_BlockMean() for _ in AXES] for v in variants}
     rows = _PushRows(t, pushes, variants, lag)
     a = 0
     for block in src.blocks(chunk_rows):
@@ -725,9 +633,12 @@ def _add_variants(
                 noise_q[v][k].add(np.abs(Fh[r, k]))
             cov = (lo[:, :3] <= Fs[:, :3]) & (Fs[:, :3] <= hi[:, :3])
             covered[v] += int(cov.sum())
-            covered_rest[v] += int(cov[r].sum())
+            covered_rest[v] += cov[r].sum(axis=0)
             wr = (hi - lo)[r, :3]
             width[v].add(wr[np.isfinite(wr)])
+            for k in range(len(AXES)):
+                wk = wr[:, k]
+                width_axes[v][k].add(wk[np.isfinite(wk)])
         rows.add(block, a)
         a = b
     for v in variants:
@@ -742,8 +653,11 @@ def _add_variants(
             _push_result(p, n, noise, big) for p, n in zip(pushes, rows.nums[v], strict=True)
         ]
         g.all_coverage.append(covered[v] / (3 * a) if a else float("nan"))
-        g.rest_coverage.append(covered_rest[v] / (3 * n_rest) if n_rest else float("nan"))
+        cr = covered_rest[v] / n_rest if n_rest else np.full(len(AXES), np.nan)
+        g.rest_coverage.append(float(np.mean(cr)))
+        g.rest_coverage_axes.append(cr)
         g.rest_width.append(width[v].mean())
+        g.rest_width_axes.append(np.array([m.mean() for m in width_axes[v]]))
 
 
 def _condition_stats(g: Group, n_boot: int, seed: int) -> dict[str, Any]:
@@ -760,6 +674,8 @@ def _condition_stats(g: Group, n_boot: int, seed: int) -> dict[str, Any]:
         "coverage_all": float(np.nanmean(g.all_coverage)),
         "coverage_rest": float(np.nanmean(g.rest_coverage)),
         "width_rest": float(np.nanmean(g.rest_width)),
+        "coverage_rest_axes": _axes_mean(g.rest_coverage_axes),
+        "width_rest_axes": _axes_mean(g.rest_width_axes),
         "directions": dirs,
         "pushes": [
             {
@@ -774,3 +690,16 @@ def _condition_stats(g: Group, n_boot: int, seed: int) -> dict[str, Any]:
             for r in g.results
         ],
     }
+
+
+def _axes_mean(rows: list[np.ndarray]) -> dict[str, float | None]:
+    """Axis -> the mean over recordings of per-recording values (each (3,)), NaN-skipping;
+    None where no recording has one (JSON-ready)."""
+    if not rows:
+        return dict.fromkeys(AXES)
+    m = np.array(rows, dtype=float)
+    out: dict[str, float | None] = {}
+    for k, a in enumerate(AXES):
+        col = m[:, k][np.isfinite(m[:, k])]
+        out[a] = float(col.mean()) if len(col) else None
+    return out

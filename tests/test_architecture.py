@@ -31,6 +31,7 @@ LAYERS: list[tuple[str, ...]] = [
         "ditherlab.identify",
         "ditherlab.replay",
         "ditherlab.thresholds",
+        "ditherlab.curves",
         "ditherlab.steady",
         "ditherlab.leadthrough",
         # a prediction from the estimator and the simulator's parameters, for robot --sensitivity

@@ -324,18 +324,24 @@ def sim_runs():
 
 
 def test_sim_clean_campaign_no_candidate(sim_runs):
-    """A simulated push campaign without hidden effects gives no suggested candidate."""
+    """A simulated push campaign without hidden effects gives no suggested candidate but
+    ``dither_extraction``: the campaign pushes with the dither on, and how the extraction shows
+    those pushes (late and in part) is physics of every dithered push campaign that the base
+    model lacks (tests/test_calibration.py: never on a log without dither or without pushes)."""
     _, _, d = sim_runs["clean"]
-    assert not d.suggested, d.summary()
+    assert all(c.effect == "dither_extraction" for c in d.suggested), d.summary()
 
 
 def test_sim_attenuation_lag_found_with_its_physics(sim_runs):
     """With the simulator's compliant support (70 % of the push reaches the arm through a 0.15 s
-    lag), attenuation_lag is suggested first; its gain and delay match the plant, and adding it
+    lag), attenuation_lag is suggested; its gain and delay match the plant, and adding it
     lowers the residual of its joints."""
     rec, m, d = sim_runs["attenuation_lag"]
-    assert d.suggested and d.suggested[0].effect == "attenuation_lag", d.summary()
-    c = d.suggested[0]
+    # every push of this campaign is made with the dither on, where dither_extraction (the
+    # extraction's own lag) explains much of the same residual and may rank first
+    found = [c for c in d.suggested if c.effect == "attenuation_lag"]
+    assert found, d.summary()
+    c = found[0]
     m2 = add_effect(m, [rec], c.effect, joints=c.joints, refit=False)
     p = m2.effects[-1].params
     assert all(0.5 < g < 0.85 for g in p["gain"]), p

@@ -172,3 +172,34 @@ def test_fig5_measures_a_sine_dither_as_its_peak(tmp_path, monkeypatch):
     settled = seen["amplitude"][seen["t"] > seen["t"][-1] - 3.0]  # the last 3 s shown
     assert seen["amp_ref"] is not None
     assert np.median(settled) == pytest.approx(seen["amp_ref"], rel=0.1)
+
+
+def test_coverage_at_rest_per_axis(tmp_path, pair):
+    """report.json and report.md give the interval coverage and width at rest per axis; each
+    is the fraction of the rest samples (the report's own rest mask) whose interval holds the
+    sensor force along that axis, and their mean is the per-condition coverage at rest."""
+    import pandas as pd
+
+    from ditherlab.thresholds import _pushes_and_rest
+
+    paths, recs = pair
+    out = tmp_path / "rep"
+    make_report([paths[0]], out, recordings=[recs[0]], n_boot=5)
+    est = Estimates.load(paths[0])
+    src = EstimatesSource.of(est)
+    _, _, _, rest = _pushes_and_rest(src, 1.0, 65_536)
+    df = pd.read_parquet(paths[0])
+    j = json.loads((out / "report.json").read_text())
+    for cond in ("nodither_band", "nodither_noband"):
+        c = j["conditions"][cond]
+        per = c["coverage_rest_axes"]
+        for ax in "xyz":
+            f = df[f"f_{ax}"].to_numpy()[rest]
+            lo = df[f"{cond}/f_{ax}_lo"].to_numpy()[rest]
+            hi = df[f"{cond}/f_{ax}_hi"].to_numpy()[rest]
+            assert per[ax] == pytest.approx(np.mean((lo <= f) & (f <= hi)), abs=1e-12)
+            w = (hi - lo)[np.isfinite(hi - lo)]
+            assert c["width_rest_axes"][ax] == pytest.approx(np.mean(w), rel=1e-9)
+        assert np.mean(list(per.values())) == pytest.approx(c["coverage_rest"], abs=1e-12)
+    md = (out / "report.md").read_text()
+    assert "coverage at rest x / y / z" in md and "coverage during pushes x / y / z" in md

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.effects import drive, friction, rigid, sensor, transmission  # noqa: F401 (registers)
+from ditherlab.effects import drive, extraction, friction, rigid, sensor, transmission  # noqa: F401 (registers)
 from ditherlab.effects.base import EFFECTS, Effect
 from ditherlab.errors import ModelError, where_prefix
 from ditherlab.model import EffectSpec

@@ -1,0 +1,157 @@
+"""How the dither's extraction shows a push: ``dither_extraction``.
+
+With the dither on, the torque the estimator reads is not the logged torque but the extracted
+signal (paper §IV-A, :func:`ditherlab.dither.extract`): per joint the mean of the samples above
+and below the mean of the last dither period, averaged. For the slow part of the torque (a push
+lasts 0.5-2 s, the dither period is 79 ms) this is the causal mean over one period ``W``
+samples: a push's torque ``J^T F`` is seen ``(W - 1) / 2`` samples late (40 ms at 80 rad/s and
+250 Hz) with its rise smoothed over the period. While dithering the position loop's gain is off
+(the simulator's ``Kp = 0``; the paper's Fig. 5 loop), the joint creeps under a push and the
+velocity loop's integral builds the torque that holds it: the extracted signal follows the
+push only in part and late, a first-order lag (the paper's underestimate and lag, Fig. 4 and
+§VI-C).
+
+The effect: where the dither has been on over a whole window and the joint stands in the
+``dither`` regime or creeps (``moving``), the servo shows ``gain · lag(mean_W(J^T F))``;
+elsewhere ``J^T F`` itself. ``W`` is the recording's dither period (known, not searched);
+``gain`` (linear) and the lag (samples, searched on a grid, 0 included) are fitted per joint from
+pushes made with the dither on. On a recording without dither, or without pushes, its design is
+zero: diagnose cannot suggest it there and ``identify --add`` refuses it.
+
+Diagnosis reads the extracted signal in the ``dither`` regime and the logged torque while a
+joint moves, so on the creeping rows the effect's one-period mean is half a period early
+against what diagnosis compares it with; replay reads the extracted signal on both
+(:func:`ditherlab.replay.variant_inputs`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ditherlab.dither import dither_on, dither_period, full_window, has_dither
+from ditherlab.effects.base import Design, Effect, fmt
+from ditherlab.effects.sensor import AttenuationLag
+from ditherlab.effects.signals import Signals
+from ditherlab.signal import DITHER, MOVING, causal_mean
+
+__all__ = ["DitherExtraction", "extraction_gain", "extraction_mask", "extraction_window"]
+
+
+def extraction_window(sig: Signals) -> int:
+    """Samples per dither period of the recording behind ``sig`` (the extraction's window), 0
+    when the recording has no dither."""
+    rec = sig.rec
+    if not has_dither(rec):
+        return 0
+    return max(int(round(dither_period(rec) * rec.sample_rate)), 1)
+
+
+def extraction_mask(sig: Signals, j: int) -> np.ndarray:
+    """(N,) bool: the dither was on over the whole window ending at the sample and joint ``j``
+    (0-based) stands in the ``dither`` regime or moves (creeps under a push): the rows where
+    the estimator's dither variants read the extracted signal
+    (:func:`ditherlab.replay.variant_inputs`)."""
+    w = extraction_window(sig)
+    if w == 0:
+        return np.zeros(len(sig.t), dtype=bool)
+    on = dither_on(sig.rec)
+    if on is None:
+        return np.zeros(len(sig.t), dtype=bool)
+    reg = sig.regime[:, j]
+    return ((reg == DITHER) | (reg == MOVING)) & full_window(np.asarray(on, dtype=bool), w)
+
+
+class DitherExtraction(Effect):
+    """The extracted signal shows ``gain`` of the push's joint torque, averaged over the last
+    dither period: ``gain · mean_W(J^T F)`` in the dither regime (module docstring)."""
+
+    name = "dither_extraction"
+    order = 30
+    physics = (
+        "with the dither on, the extracted torque shows the push late (half a period) and in part"
+    )
+    driven_by = "J^T F (F/T sensor) averaged over the dither period, in the dither regime"
+    linear = ("gain",)
+    hyper = "lag"
+    kind = "external"
+    shows_in = ("dither", "moving")
+    pointwise = False  # a mean over time
+
+    def signs(self, h):
+        return (1,)
+
+    def check(self, sig):
+        sig.wrench(self.name)
+
+    def grid(self, sig, j):
+        fs = sig[0].sample_rate
+        kmax = max(int(round(0.3 * fs)), 2)
+        return [0] + sorted(
+            set(np.unique(np.round(np.geomspace(1, kmax, 16)).astype(int)).tolist())
+        )
+
+    @staticmethod
+    def filtered(sig: Signals, X: np.ndarray, lag: Any) -> np.ndarray:
+        """(N,): ``X`` (N,) averaged over the last dither period and passed through a
+        first-order lag of ``lag`` samples (0 or None: none), from rest at its first value."""
+        w = extraction_window(sig)
+        out = causal_mean(X, w) if w else X
+        return AttenuationLag.delayed(sig, out, (0, lag or 0))
+
+    @classmethod
+    def seen(cls, sig: Signals, j: int, X: np.ndarray, gain: float, lag: Any) -> np.ndarray:
+        """(N,) [N·m]: the external torque ``X`` (N,) of joint ``j`` as the extraction shows it:
+        ``gain · lag(mean_W(X))`` where :func:`extraction_mask`, ``X`` elsewhere."""
+        if extraction_window(sig) == 0:
+            return X
+        m = extraction_mask(sig, j)
+        return np.where(m, gain * cls.filtered(sig, X, lag), X)
+
+    def design(self, sig, j, h, ref):
+        X = sig._get("jtf_lp", lambda: sig.jtf(sig.wrench_lp(self.name)))[:, j]
+        if extraction_window(sig) == 0:
+            return Design(np.zeros((len(X), 1)), offset=np.zeros(len(X)))
+        m = extraction_mask(sig, j)
+        Y = self.filtered(sig, X, h)
+        return Design(np.where(m, Y, 0.0)[:, None], offset=np.where(m, -X, 0.0))
+
+    def driver(self, sig, j, p):
+        X = sig.jtf(sig.wrench_lp(self.name))[:, j]
+        w = extraction_window(sig)
+        return (
+            causal_mean(X, w) if w else X
+        ), f"mean over a dither period of (J^T F)_{j + 1} [N·m]"
+
+    def external(self, sig, X, w, h):
+        raise NotImplementedError("dither_extraction depends on the joint: external_joint")
+
+    def external_joint(self, sig, j, X, w, h):
+        return self.seen(sig, j, X, float(w[0]), h)
+
+    def external_text(self, p, ext):
+        return f"{fmt(p['gain'])}·lag_{fmt(p.get('lag') or 0)}(mean_period({ext})) (dither on)"
+
+    def term(self, p, j):
+        return (
+            f"dither_extraction(gain={fmt(p['gain'])}, mean over one dither period, "
+            f"lag={fmt(p.get('lag') or 0)} samples)"
+        )
+
+
+def extraction_gain(specs: Any, n: int, key: str = "gain") -> np.ndarray | None:
+    """(n,): the ``dither_extraction`` parameter ``key`` per joint of a model's effect specs
+    (``"gain"`` [-], 1 on joints it does not name; ``"lag"`` [samples], 0 there), or None when
+    the model does not have the effect."""
+    out, found = np.full(n, 1.0 if key == "gain" else 0.0), False
+    for spec in specs:
+        if spec.name != DitherExtraction.name:
+            continue
+        found = True
+        for jj in spec.joints:
+            if jj - 1 < n:
+                v = spec.params.get(key)
+                v = v[spec.joints.index(jj)] if isinstance(v, list) else v
+                out[jj - 1] = float(v or 0.0)
+    return out if found else None
