@@ -23,6 +23,9 @@ effect                   torque on joint j (the fitted parameters in bold)     d
 ``attenuation_lag``      the servo shows **g** · lag_L(J^T F(t - **d**))       J^T F
                          instead of J^T F(t): a delay **d** or a first-order
                          lag of **L** samples
+``dither_extraction``    where the dither is on over a whole window, the        J^T F, dither
+                         servo shows **g** · lag_L(mean_W(J^T F)): the          period W
+                         extraction's underestimate and lag (L fitted)
 ``ft_bias``              the sensor reads F + **b**: the true wrench is F - b    F/T columns
 ``inertia``              **s** · (M(q) ddq + C(q, dq) dq)_j + **Jm** · ddq_j     ddq, dq
 ``drive_gain``           the log reads **k** · tau: (**k** - 1) · (tau_grav +     tau_grav + J^T F

@@ -130,14 +130,6 @@ def _late(p: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
-def _late(p: dict[str, Any]) -> str:
-    """'delay=D samples' and/or 'lag=L samples' of attenuation_lag parameters ``p``."""
-    parts = [f"delay={int(p.get('delay') or 0)} samples"]
-    if p.get("lag"):
-        parts.append(f"lag={fmt(p['lag'])} samples")
-    return ", ".join(parts)
-
-
 class FtBias(Effect):
     name = "ft_bias"
     order = 8
