@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ditherlab.diagnose import Diagnosis, append_history, diagnose
+from ditherlab.dither import has_dither
 from ditherlab.effects import clean_none, get_effect, make_spec, signals
 from ditherlab.errors import ModelError
 from ditherlab.fit import fit_effect, not_identifiable
@@ -68,6 +69,12 @@ def add_effect(
         raise ModelError("add_effect needs at least one recording")
     for r in recs:
         e.check(signals(r))
+    if e.needs_dither and not any(has_dither(r) for r in recs):
+        names = ", ".join(str(r.name) for r in recs)
+        raise ModelError(
+            f"{names}: effect {name!r} acts only where the dither is on, and no recording here "
+            "has the dither on (column 'dither'); add it with a dithered recording"
+        )
     if joints is not None:
         bad = [j for j in joints if not 1 <= int(j) <= model.n]
         if bad:

@@ -107,7 +107,11 @@ def test_identified_and_diagnosed_on_a_dithered_push_log_only(tmp_path, cli):
             "-o", tmp_path / "no.toml")  # fmt: skip
     errors = [x for x in r.err.splitlines() if x.startswith("error")]
     assert r.code == 2 and len(errors) == 1, r.err
-    assert "dither_extraction" in errors[0] and "cannot be told apart" in errors[0]
+    assert errors[0] == (
+        f"error: {paths['no-dither']}: effect 'dither_extraction' acts only where the dither is "
+        "on, and no recording here has the dither on (column 'dither'); add it with a dithered "
+        "recording"
+    )
     out = tmp_path / "diag"
     r = cli("diagnose", paths["no-dither"], "--model", base, "-o", out, "--json")
     assert r.code == 0, r.err

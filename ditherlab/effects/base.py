@@ -87,6 +87,9 @@ class Effect(abc.ABC):
     #: :meth:`Signals.take` n rows it is computed on the whole recording, then taken at the rows
     #: (:func:`design_at`).
     pointwise: ClassVar[bool] = True
+    #: The effect acts only where the dither is on: adding it needs at least one dithered
+    #: recording (else one clear error rather than "cannot be told apart from the bands").
+    needs_dither: ClassVar[bool] = False
     #: Evidence plots show the residual times sign(dq) while moving (friction that grows with a
     #: load or falls with temperature acts against the motion).
     signed_evidence: ClassVar[bool] = False

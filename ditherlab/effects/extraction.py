@@ -78,6 +78,7 @@ class DitherExtraction(Effect):
     kind = "external"
     shows_in = ("dither", "moving")
     pointwise = False  # a mean over time
+    needs_dither = True
 
     def signs(self, h):
         return (1,)
