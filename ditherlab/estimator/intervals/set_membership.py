@@ -19,6 +19,38 @@ BIG_BOX = 1e9
 
 
 @njit(cache=True)
+def _gram_solve(G, nW, y):
+    """Cholesky of the Gram matrix ``G[:nW, :nW]`` (lower triangle filled) in place, then
+    ``y[:nW] = G^-1 y[:nW]``. A pivot that is not positive becomes 1e-300 (the rows are
+    numerically dependent); False then, True otherwise."""
+    ok = True
+    for a1 in range(nW):
+        for a2 in range(a1 + 1):
+            v = G[a1, a2]
+            for q in range(a2):
+                v -= G[a1, q] * G[a2, q]
+            if a1 == a2:
+                if v > 0.0:
+                    G[a1, a1] = math.sqrt(v)
+                else:
+                    G[a1, a1] = 1e-300
+                    ok = False
+            else:
+                G[a1, a2] = v / G[a2, a2]
+    for a1 in range(nW):
+        v = y[a1]
+        for q in range(a1):
+            v -= G[a1, q] * y[q]
+        y[a1] = v / G[a1, a1]
+    for a1 in range(nW - 1, -1, -1):
+        v = y[a1]
+        for q in range(a1 + 1, nW):
+            v -= G[q, a1] * y[q]
+        y[a1] = v / G[a1, a1]
+    return ok
+
+
+@njit(cache=True)
 def _lp_active_set(A, bv, nr, d, c, x, W, nW, G, lam, dirn, maxit):
     """Minimise c^T x subject to A[:nr, :d] x <= bv[:nr] from the feasible point x.
 
@@ -46,26 +78,7 @@ def _lp_active_set(A, bv, nr, d, c, x, W, nW, G, lam, dirn, maxit):
             for q in range(d):
                 v += A[r1, q] * c[q]
             lam[a1] = -v
-        # Cholesky in place (lower) and solve
-        for a1 in range(nW):
-            for a2 in range(a1 + 1):
-                v = G[a1, a2]
-                for q in range(a2):
-                    v -= G[a1, q] * G[a2, q]
-                if a1 == a2:
-                    G[a1, a1] = math.sqrt(v) if v > 0.0 else 1e-300
-                else:
-                    G[a1, a2] = v / G[a2, a2]
-        for a1 in range(nW):
-            v = lam[a1]
-            for q in range(a1):
-                v -= G[a1, q] * lam[q]
-            lam[a1] = v / G[a1, a1]
-        for a1 in range(nW - 1, -1, -1):
-            v = lam[a1]
-            for q in range(a1 + 1, nW):
-                v -= G[q, a1] * lam[q]
-            lam[a1] = v / G[a1, a1]
+        _gram_solve(G, nW, lam)
         dn = 0.0
         for q in range(d):
             v = -c[q]
@@ -293,27 +306,8 @@ def _onto_rows(A, bv, W, nW, m, x, G, y):
         for q in range(m):
             v -= A[r1, q] * x[q]
         y[a1] = v
-    for a1 in range(nW):  # Cholesky in place (lower)
-        for a2 in range(a1 + 1):
-            v = G[a1, a2]
-            for q in range(a2):
-                v -= G[a1, q] * G[a2, q]
-            if a1 == a2:
-                if not v > 0.0:
-                    return
-                G[a1, a1] = math.sqrt(v)
-            else:
-                G[a1, a2] = v / G[a2, a2]
-    for a1 in range(nW):
-        v = y[a1]
-        for q in range(a1):
-            v -= G[a1, q] * y[q]
-        y[a1] = v / G[a1, a1]
-    for a1 in range(nW - 1, -1, -1):
-        v = y[a1]
-        for q in range(a1 + 1, nW):
-            v -= G[q, a1] * y[q]
-        y[a1] = v / G[a1, a1]
+    if not _gram_solve(G, nW, y):
+        return
     for q in range(m):
         v = 0.0
         for a1 in range(nW):
