@@ -56,7 +56,7 @@ def test_lead_reads_a_lagged_mean_at_its_time():
 
 
 def test_design_is_what_the_effect_predicts():
-    """On a dithered recording: gain · design + offset equals external_joint minus J^T F, only
+    """On a dithered recording: gain · design + offset equals external minus J^T F, only
     on the rows where the dither variants read the extraction; zero design without dither."""
     rec, _ = push_recording(2, dither=True, magnitudes=(20.0,), axes=("x",))
     e = get_effect("dither_extraction")
@@ -65,7 +65,7 @@ def test_design_is_what_the_effect_predicts():
     assert W == round(0.08 * 250.0)
     X = sig.jtf(sig.wrench_lp("t"))[:, 1]
     d = e.design(sig, 1, 8, {})
-    pred = e.external_joint(sig, 1, X, np.array([0.8]), 8)
+    pred = e.external(sig, 1, X, np.array([0.8]), 8)
     np.testing.assert_allclose(0.8 * d.centre[:, 0] + d.offset, pred - X, atol=1e-9)
     m = extraction_mask(sig, 1)
     assert m.any() and not m.all()

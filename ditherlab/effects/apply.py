@@ -130,7 +130,7 @@ def external_torque(model: TorqueModel, rec: Recording, F: np.ndarray) -> np.nda
         for jj in spec.joints:
             j = jj - 1
             w, h, _ = spec_params(e, j, spec)
-            out[:, j] = e.external_joint(sig, j, X[:, j], w, h)
+            out[:, j] = e.external(sig, j, X[:, j], w, h)
     return out
 
 

@@ -171,16 +171,11 @@ class Effect(abc.ABC):
         return 1.0
 
     # -- kind "external": how the servo shows the external torque
-    def external(self, sig: Signals, X: np.ndarray, w: np.ndarray, h: Any) -> np.ndarray:
-        """(N,) [N·m]: the external torque ``X`` (N,) of one joint as the servo shows it."""
+    def external(self, sig: Signals, j: int, X: np.ndarray, w: np.ndarray, h: Any) -> np.ndarray:
+        """(N,) [N·m]: the external torque ``X`` (N,) of joint ``j`` (0-based) as the servo
+        shows it (the joint matters beyond the parameters for ``dither_extraction``: its
+        regime)."""
         raise ModelError(f"effect {self.name!r} does not act on the external torque")
-
-    def external_joint(
-        self, sig: Signals, j: int, X: np.ndarray, w: np.ndarray, h: Any
-    ) -> np.ndarray:
-        """:meth:`external` of joint ``j`` (0-based): for an effect that depends on the joint
-        beyond its parameters (``dither_extraction``: the joint's regime)."""
-        return self.external(sig, X, w, h)
 
     def external_text(self, p: dict[str, Any], ext: str) -> str:
         """The printed external-torque term of one joint, given the sensor's term ``ext``."""

@@ -125,10 +125,7 @@ class DitherExtraction(Effect):
             causal_mean(X, w) if w else X
         ), f"mean over a dither period of (J^T F)_{j + 1} [N·m]"
 
-    def external(self, sig, X, w, h):
-        raise NotImplementedError("dither_extraction depends on the joint: external_joint")
-
-    def external_joint(self, sig, j, X, w, h):
+    def external(self, sig, j, X, w, h):
         return self.seen(sig, j, X, float(w[0]), h)
 
     def external_text(self, p, ext):

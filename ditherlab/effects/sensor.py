@@ -112,7 +112,7 @@ class AttenuationLag(Effect):
     def driver(self, sig, j, p):
         return sig.jtf(sig.wrench_lp(self.name))[:, j], f"(J^T F)_{j + 1} [N·m]"
 
-    def external(self, sig, X, w, h):
+    def external(self, sig, j, X, w, h):
         return w[0] * self.delayed(sig, X, h)
 
     def external_text(self, p, ext):
