@@ -353,6 +353,13 @@ def variant_inputs(
     return tb, a, b, s
 
 
+def reads_extraction(reg: np.ndarray, ext: Extraction) -> np.ndarray:
+    """(N, n) bool: where a dither variant reads the extracted signal of a joint: the dither on
+    over a whole window, the joint in the dither regime or creeping under a push (``reg``
+    (N, n) regimes)."""
+    return ((reg == DITHER) | (reg == MOVING)) & (ext.valid & ext.on)[:, None]
+
+
 def extraction_jacobian(
     J: np.ndarray, model: TorqueModel, reg: np.ndarray, ext: Extraction | None
 ) -> np.ndarray:
@@ -364,7 +371,7 @@ def extraction_jacobian(
     gain = extraction_gain(model.effects, J.shape[2])
     if gain is None or ext is None:
         return J
-    use = ((reg == DITHER) | (reg == MOVING)) & (ext.valid & ext.on)[:, None]
+    use = reads_extraction(reg, ext)
     scale = np.where(use, gain[None, :], 1.0)  # (N, n)
     return J * scale[:, None, :]
 
@@ -400,7 +407,7 @@ def extraction_lead(
     k = max((window - 1) // 2, 1)
     if len(tb) <= k:
         return tb
-    use = ((reg == DITHER) | (reg == MOVING)) & (ext.valid & ext.on)[:, None]
+    use = reads_extraction(reg, ext)
     use[k:] &= use[:-k]  # the older sample also read through a whole window
     use[:k] = False
     out = tb.copy()
