@@ -123,15 +123,18 @@ def problem_intervals(
         Fh = np.asarray(F_hat, dtype=float)
         if Fh.shape != (N, 6):
             raise ConfigError(f"estimator: F_hat has shape {Fh.shape}; expected ({N}, 6)")
-        Fm = np.ascontiguousarray(Fh[:, prob.free])
-    lo = np.broadcast_to(prob.full_mean, (N, 6)).copy()
-    hi = lo.copy()
+        Fm = np.ascontiguousarray(Fh if m == 6 else Fh[:, prob.free])
     if m == 0 or N == 0:
-        return lo, hi
+        lo = np.broadcast_to(prob.full_mean, (N, 6)).copy()
+        return lo, lo.copy()
     if method == "profile":
         lo_m, hi_m = _profile(prob, Fm, level, progress)
     else:
         lo_m, hi_m, _ = _set_membership(prob, level, progress)
+    if m == 6:  # every component estimated: the kernels' bounds are the answer
+        return lo_m, hi_m
+    lo = np.broadcast_to(prob.full_mean, (N, 6)).copy()
+    hi = lo.copy()
     lo[:, prob.free] = lo_m
     hi[:, prob.free] = hi_m
     return lo, hi
