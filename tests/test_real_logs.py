@@ -137,3 +137,25 @@ def test_hopper_loop_every_step_exits_0_and_says_what_is_missing(cli, data, tmp_
     else:
         assert d["verdict"]["status"] == "unexplained"
         assert "outside the library" in d["verdict"]["text"]
+
+
+def test_hopper_report_with_pushes_along_one_axis_prints_no_warning(cli, data, tmp_path):
+    """The hopper is pushed along z only: the report's figures have axes without pushes, which
+    once made matplotlib print "No artists with labels found to put in legend" on the user's
+    terminal (each figure's legend is drawn only where something is labelled)."""
+    import warnings
+
+    rec = data / "hopper" / "hopper_long.parquet"
+    m, est = tmp_path / "m.toml", tmp_path / "est.parquet"
+    assert cli("identify", rec, "-o", m, "--bootstrap", "0", "-q").code == 0
+    assert cli("replay", rec, "--model", m, "-o", est, "-q").code == 0
+    with warnings.catch_warnings(record=True) as shown:  # what the CLI prints as "warning: ..."
+        warnings.simplefilter("always")  # a warning shown by an earlier test is shown again
+        r = cli("report", est, "-o", tmp_path / "rep", "-q")
+    assert r.code == 0, r.err
+    assert [str(w.message) for w in shown] == []
+    assert "warning" not in (r.out + r.err).lower(), r.err
+    assert (tmp_path / "rep" / "detection.png").stat().st_size > 0
+    d = json.loads((tmp_path / "rep" / "report.json").read_text())
+    pushed = {a for c in d["conditions"].values() for a, s in c["directions"].items() if s}
+    assert "z" in pushed

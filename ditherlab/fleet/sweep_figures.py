@@ -15,7 +15,7 @@ import pandas as pd
 
 from ditherlab.io.atomic import atomic_path
 from ditherlab.recording import FORCE_AXES
-from ditherlab.viz.figures import pyplot
+from ditherlab.viz.figures import legend, pyplot
 
 __all__ = ["plot_points", "plot_prediction", "plot_tradeoff"]
 
@@ -76,7 +76,7 @@ def plot_tradeoff(table: pd.DataFrame, grid: Sequence[str], limit: float, path: 
     ax.set_xlabel("arm vibration: half peak-to-peak of the link angle per dither period [rad]")
     ax.set_ylabel("dithered F50, mean of x / y / z [N]")
     ax.set_title("Dither design: detection (F50) against vibration")
-    ax.legend(fontsize=7)
+    legend(ax, fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     return _save(fig, Path(path))
@@ -103,7 +103,7 @@ def plot_points(table: pd.DataFrame, limit: float, path: str | Path) -> Path:
     ax.set_xticklabels([p.replace(" ", "\n") for p in ok["point"]], fontsize=6)
     ax.set_ylabel("F50 [N]")
     ax.set_title(f"F50 per direction and point (hatched: vibration above {limit:g} rad)")
-    ax.legend(fontsize=7)
+    legend(ax, fontsize=7)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     return _save(fig, Path(path))
@@ -152,5 +152,5 @@ def plot_prediction(table: pd.DataFrame, path: Path) -> Path:
         ax.set_xlabel("predicted F50 [N]")
         ax.set_ylabel("measured F50 [N]")
         ax.set_title(title)
-        ax.legend(fontsize=8)
+        legend(ax, fontsize=8)
     return _save(fig, path)

@@ -19,7 +19,7 @@ from ditherlab.errors import FormatError
 from ditherlab.io.atomic import atomic_path, atomic_write_json, atomic_write_text, plain
 from ditherlab.recording import MOVING
 from ditherlab.scoring import Candidate, JointScore
-from ditherlab.viz.figures import pyplot
+from ditherlab.viz.figures import legend, pyplot
 
 __all__ = ["DiagnosisLike", "DiagnosisReport", "as_report", "load_report", "write_report"]
 
@@ -83,7 +83,7 @@ def _evidence_figure(d: Diagnosis, c: Candidate, path: Path) -> None:
         ax.plot(x[o], p[o], ".", ms=2, color="C3", label=f"fitted {c.effect}")
         ax.set_xlabel(label)
         ax.set_ylabel(f"residual{' · sign(dq)' if e.signed_evidence else ''} joint {j + 1} [N·m]")
-        ax.legend(loc="best", fontsize=7, markerscale=4)
+        legend(ax, loc="best", fontsize=7, markerscale=4)
     fig.suptitle(
         f"{c.effect}: {100 * c.explained_fraction:.1f} % explained (held-out)", fontsize=10
     )
@@ -116,7 +116,7 @@ def _history_figure(hist: list[dict[str, Any]], path: Path) -> None:
     ax.set_xlabel("model version")
     ax.xaxis.set_major_locator(plt.MaxNLocator(integer=True))
     ax.set_ylabel("torque residual RMS [N·m]")
-    ax.legend(fontsize=7)
+    legend(ax, fontsize=7)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90, format="png")

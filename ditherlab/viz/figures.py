@@ -30,6 +30,13 @@ def pyplot():
     return plt
 
 
+def legend(ax, **kw) -> None:
+    """``ax.legend(**kw)`` when the axes hold a labelled artist (a recording may lack an axis's
+    pushes or a condition: no empty legend, and no matplotlib warning on the user's terminal)."""
+    if ax.get_legend_handles_labels()[1]:
+        ax.legend(**kw)
+
+
 def _save(fig, path: Path) -> Path:
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
@@ -113,7 +120,7 @@ def fig6_estimates(
             span = np.abs(np.r_[F[m, k], Fh[m, k], lo[m, k][fin], hi[m, k][fin]])
             lim = float(np.quantile(span, 0.99)) * 1.1 + 5 if span.size else 60.0
             ax.set_ylim(-lim, lim)
-    axs[0, 0].legend(fontsize=7, loc="upper left")
+    legend(axs[0, 0], fontsize=7, loc="upper left")
     fig.suptitle("Estimated and measured forces (cf. the paper's Fig. 6)", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
@@ -152,9 +159,8 @@ def detection_curves(analysis: dict, path: Path) -> Path:
         axp.set_xlabel("applied force (peak) [N]")
         axp.set_ylabel("P(response)")
         axp.grid(alpha=0.3)
-        if axp.get_legend_handles_labels()[1]:  # no fitted curve: nothing to label
-            axp.legend(fontsize=6)
-    axs[0, 0].legend(fontsize=6)
+        legend(axp, fontsize=6)  # no fitted curve: nothing to label
+    legend(axs[0, 0], fontsize=6)
     fig.tight_layout()
     return _save(fig, path)
 
@@ -184,7 +190,7 @@ def fig2_torques(
         ax.set_xlabel("t [s]")
         ax.set_ylabel("torque [N·m]")
         ax.grid(alpha=0.3)
-    axs[0, 0].legend(fontsize=7)
+    legend(axs[0, 0], fontsize=7)
     fig.tight_layout()
     return _save(fig, path)
 
@@ -208,7 +214,7 @@ def fig4_extraction(
     a1.plot(t, upper, color="tab:red", lw=1.0, label="upper")
     a1.plot(t, lower, color="tab:green", lw=1.0, label="lower")
     a1.set_ylabel("torque [N·m]")
-    a1.legend(fontsize=7)
+    legend(a1, fontsize=7)
     a1.grid(alpha=0.3)
     a2.plot(t, signal, color="tab:blue", lw=1.0, label="extracted signal")
     a2.plot(t, tau_ext, color="black", lw=1.0, label=r"$J^T F$ (sensor)")
@@ -220,7 +226,7 @@ def fig4_extraction(
     a2.plot([], [], color="tab:orange", ls="-.", label="band with dither")
     a2.set_xlabel("t [s]")
     a2.set_ylabel("torque [N·m]")
-    a2.legend(fontsize=7)
+    legend(a2, fontsize=7)
     a2.grid(alpha=0.3)
     fig.suptitle(f"Extraction of the torque signal, joint {joint} (cf. Fig. 4)", fontsize=10)
     fig.tight_layout()
@@ -248,15 +254,15 @@ def fig5_dither_control(
     axs[0].plot(t, amplitude, label="amplitude (measured)")
     if amp_ref is not None:
         axs[0].axhline(amp_ref, color="tab:red", ls="--", lw=0.8, label="amplitude set-point")
-    axs[0].legend(fontsize=7)
+    legend(axs[0], fontsize=7)
     if ffw is not None:
         axs[1].plot(t, ffw, lw=0.5, label=r"$\tau_{ffw}$")
-        axs[1].legend(fontsize=7)
+        legend(axs[1], fontsize=7)
     axs[2].plot(t, tau, lw=0.4, label=r"$\tau$")
     axs[2].plot(t, gravity + band[0], color="tab:red", ls="--", lw=0.8, label="band")
     axs[2].plot(t, gravity + band[1], color="tab:red", ls="--", lw=0.8)
     axs[2].plot(t, centre, color="tab:orange", lw=0.8, label="centre")
-    axs[2].legend(fontsize=7)
+    legend(axs[2], fontsize=7)
     axs[2].set_xlabel("t [s]")
     for ax in axs:
         ax.set_ylabel("[N·m]")

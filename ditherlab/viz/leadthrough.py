@@ -15,7 +15,7 @@ import numpy as np
 
 from ditherlab.io.atomic import atomic_write_json, atomic_write_text
 from ditherlab.leadthrough import COMPARED, means_table
-from ditherlab.viz.figures import _save, pyplot
+from ditherlab.viz.figures import _save, legend, pyplot
 
 LAW_STYLE = {"dead-zone": "-", "interval": "--"}
 
@@ -68,8 +68,8 @@ def paths_figure(result: Mapping[str, Any], path: Path) -> Path:
         top.set_title(f"seed {result['seeds'][0]}, dither {'on' if dither else 'off'}")
         bottom.set_ylabel("tool displacement [mm]")
         bottom.set_xlabel("t [s]")
-        bottom.legend(fontsize=7, ncol=2)
-        top.legend(fontsize=6, ncol=3)
+        legend(bottom, fontsize=7, ncol=2)
+        legend(top, fontsize=6, ncol=3)
     fig.tight_layout()
     return _save(fig, path)
 
