@@ -541,9 +541,8 @@ def transmission_table(
             pk = np.array([_extraction_peak(D, lag, w, rate) for D in durations])
             drop[:, :, j] = g * pk[:, None] * torques[None, :, j]
         js = ", ".join(str(j + 1) for j in np.flatnonzero(named))
-        what = (
-            f"the model's dither_extraction (gain, lag) on joint(s) {js}"
-            + ("; the plant's joints simulated elsewhere" if not named.all() else "")
+        what = f"the model's dither_extraction (gain, lag) on joint(s) {js}" + (
+            "; the plant's joints simulated elsewhere" if not named.all() else ""
         )
     return durations, torques, drop, what
 
@@ -944,8 +943,11 @@ def format_prediction(pred: Mapping[str, Any]) -> str:
         f"{'with dither' if pred['dithered'] else 'without dither'}; bands from {pred['source']}",
         "noise level (99.9 % of |F̂| at rest, >= 1 N): "
         + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES),
-        *([f"push transmission with dither: {pred['transmission']}"]
-          if pred.get("transmission") else []),  # fmt: skip
+        *(
+            [f"push transmission with dither: {pred['transmission']}"]
+            if pred.get("transmission")
+            else []
+        ),  # fmt: skip
         f"{'direction':<10}{'F50 [N]':>9}{'F90 [N]':>9}{'curve F50':>11}{'curve F90':>11}  joints",
     ]
     for name, _, _ in DIRECTIONS:
