@@ -35,10 +35,14 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    correlates the joints' states as the campaign does. Measured on the session-12 plant (README,
    "Pose sensitivity"): the uniform-state model below predicted F50 35-41 % low, because a
    state on the edge a push drives towards is, for the link, the far edge (1.75 Fs to break).
-   With dither the centre loop re-centres the signal and the state is drawn uniform over the
-   dithered band: ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
+   With dither (``states="plant"``, the default) the dither's centre loop holds the extracted
+   signal's window mean at the gravity torque between pushes, so every push meets every joint
+   at residual 0 (clipped into the model's band, which ``identify`` may place off centre);
+   measured at pose C (seed 44): the rest median within 0.13 N·m of 0 on every joint.
+   Session 10's dithered model, kept for comparison: the state uniform over the dithered
+   band, ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
    Joints slipped by the same earlier push sit alike (one ``v`` for both); joints last slipped
-   by different pushes independently. ``states="mixed"`` (the default with dither) draws one
+   by different pushes independently. ``states="mixed"`` draws one
    ``v`` for all joints with the probability that the two joints which see the direction
    first were last slipped by the same push (:func:`shared_fraction`, from the levers of all
    six directions and the campaign's push magnitudes), independent ones otherwise;
@@ -55,10 +59,19 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    residual is moved towards detection by the median of the largest of ``K`` noise values
    (:func:`peak_noise_factor`; ``K`` the samples of the push's top, one per dither period with
    dither, whose extraction averages over a period).
-   With dither the push reaches the extracted signal through the dither's centre loop, which
-   drives the signal back to the gravity torque while the push lasts (integral gain 1/s): at
-   the push's peak the signal shows a share ``g`` of it (:func:`centre_loop_gain`, 0.87 for the
-   simulator's loop and push lengths), so ``r = s - g P l``.
+   With dither the push reaches the extracted signal through the plant (``states="plant"``):
+   joint ``j``'s signal drops by ``h_j(P |l_j|, D)`` for a push of length ``D``
+   (:func:`transmission_table`): from the model's ``dither_extraction`` law (``gain ·
+   lag(mean_period(J^T F))``, its gain and lag) on the joints it names, else simulated from the
+   plant's equations one joint at a time (:func:`dither_transmission`: the link freed or not
+   by the dither's spring torque, the creep the velocity integral stops, Kp = 0, the centre
+   loop, the one-period extraction). ``r = -sign(l) h``; ``p(P)`` is averaged over the
+   campaign's push lengths. Measured at pose C (seed 44, 1-25 N): a push's torque reaches the
+   signal with 0.6-0.9 on joints 1 and 2 (lower for short and large pushes), joint 3 (0.5 Fs
+   of dither) holds pushes below about 2.5 N·m, the wrists pass 0.1-0.5; the table follows
+   joints 1 and 2 within 0.3 N·m RMS (``tests/test_sensitivity.py``). Session 10's model
+   (``"mixed"`` and the others) has every joint show ``g P l``, ``g`` the centre loop's share
+   at the push's peak (:func:`centre_loop_gain`, 0.87).
 4. *Response.* :mod:`ditherlab.thresholds` counts a push as a response when that estimate
    exceeds the **noise level**: the 99.9 % quantile of ``|F̂_axis|`` at rest, at least 1 N. At
    rest ``r = s + e``; without dither ``s`` uniform in the band, so states within a few
@@ -77,17 +90,22 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    direction) and ``axes`` (per axis, both signs) are that fit made to ``p(P)`` over
    ``force_range`` by expected log-likelihood on the report's grid.
 
-What it leaves out: the servo's dynamics during a slip (the overshoot beyond the push, about
-0.2 Fs; the position loop's slow return after a small slip, which walks the state across the
-band during the rest, so the plant's states spread between the two sliding levels where the
-model keeps them on them), and the dither's extraction lag.
+What it leaves out: without dither the servo's dynamics during a slip (the overshoot beyond
+the push, about 0.2 Fs; the position loop's slow return after a small slip, which walks the
+state across the band during the rest, so the plant's states spread between the two sliding
+levels where the model keeps them on them); with dither the links' coupling through the mass
+matrix (each joint is simulated with the other links held: joint 3's link breaks free about
+0.5 N·m early at pose C), the dither's phase at a push and the torque noise in the loops.
 
 Bands come from a model file written by ``ditherlab identify`` (``still`` and ``dither``
-regimes; ``dither`` missing: the still band shrunk by the simulator's dither amplitude) or,
+regimes; ``dither`` missing: the still band shrunk by the simulator's dither amplitude; its
+``dither_extraction`` effect, if any) or,
 without a model, from the built-in simulator's parameters (``ditherlab/sim/irb140.toml``):
 still band ``±Fs`` (``friction.static``), noise ``noise.tau_sigma_fraction·Fs``, dither band
 ``±(1 - dither.amplitude_fraction)·Fs`` with the noise averaged over one dither period's
-samples. :attr:`Bands.source` says which.
+samples. :attr:`Bands.source` says which; the prediction's ``transmission`` says where the
+dithered push transmission comes from. The plant (friction split, gear springs, servo, dither
+loops) is always the simulator's parameters (``params``; ``--config`` for ``sweep``).
 """
 
 from __future__ import annotations
@@ -115,9 +133,11 @@ __all__ = [
     "campaign_states",
     "centre_loop_gain",
     "condition_bands",
+    "dither_transmission",
     "format_prediction",
     "predict",
     "shared_fraction",
+    "transmission_table",
 ]
 
 #: The six push directions: (name, axis index, sign of the applied force).
@@ -792,8 +812,10 @@ def predict(
     noise_level : (3,) [N] use these noise levels instead of predicting them
     states : how the joints' friction states before a push are drawn (module docstring, step
         2): ``"campaign"`` (the states a campaign leaves on the plant, :func:`campaign_states`;
-        without dither only), ``"mixed"``, ``"shared"`` or ``"independent"`` (uniform in the
-        band, the estimator's own model); ``"auto"``: campaign without dither, mixed with
+        without dither only), ``"plant"`` (with dither only: every joint at the centre loop's
+        gravity torque, the push through :func:`transmission_table`), ``"mixed"``,
+        ``"shared"`` or ``"independent"`` (uniform in the band, the estimator's own model,
+        session 10's with dither); ``"auto"``: campaign without dither, plant with
     push_duration, sample_rate, period : the push's mean length [s], the log's rate [Hz] and the
         dither period [s] (:func:`peak_noise_factor`)
     seed : the draws' seed (the same seed gives the same numbers)
@@ -804,7 +826,9 @@ def predict(
     axis [N], ``directions``: per direction ``f50``, ``f90`` (crossings of the detection
     probability, inf when never reached), ``curve_f50``, ``curve_f90`` (the report's logistic
     fit over ``force_range``), ``joints`` (the joints whose lever exceeds 1 % of the largest);
-    ``axes``: per axis ``f50``, ``f90`` of that fit to both signs; ``source``, ``dithered``.
+    ``axes``: per axis ``f50``, ``f90`` of that fit to both signs; ``source``, ``dithered``,
+    ``states`` and ``transmission`` (with ``states="plant"``: where the push transmission
+    comes from, else None).
     """
     q = np.asarray(q, float).reshape(robot.n)
     J = robot.jacobian(q[None, :])[0]  # (6, n)
