@@ -37,8 +37,12 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    state on the edge a push drives towards is, for the link, the far edge (1.75 Fs to break).
    With dither (``states="plant"``, the default) the dither's centre loop holds the extracted
    signal's window mean at the gravity torque between pushes, so every push meets every joint
-   at residual 0 (clipped into the model's band, which ``identify`` may place off centre);
-   measured at pose C (seed 44): the rest median within 0.13 N·m of 0 on every joint.
+   at residual 0 (measured at pose C, seeds 44 and 60: the rest median within 0.13 N·m of 0 on
+   every joint), wherever the model's dithered band lies: ``identify`` may place it off 0 or
+   shrink it to a point (seed 61 at pose C: joint 5 at [-0.387, -0.387] N·m), and then the
+   estimate sits off 0 at rest (-3 N in x there), the noise level rises (4.5 N) and a push
+   against the offset must undo it first — the prediction shows the same, not a clipped
+   state.
    Session 10's dithered model, kept for comparison: the state uniform over the dithered
    band, ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
    Joints slipped by the same earlier push sit alike (one ``v`` for both); joints last slipped
@@ -847,8 +851,9 @@ def predict(
             "independent for the undithered bands"
         )
     camp = campaign_states(J, bands, force_range, seed=seed + 2) if states == "campaign" else None
-    # with dither the centre loop holds the extracted signal at the gravity torque: residual 0
-    centre = np.clip(0.0, bands.lo, bands.hi) if states == "plant" else None
+    # with dither the centre loop holds the extracted signal at the gravity torque: residual 0,
+    # wherever the model's band lies (one off 0 offsets the estimate at rest and after)
+    centre = np.zeros(robot.n) if states == "plant" else None
     table = transmission_table(robot, q, bands) if states == "plant" else None
     nl = (
         np.asarray(noise_level, float).reshape(3)
