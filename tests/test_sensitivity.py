@@ -23,7 +23,6 @@ from ditherlab.model import Band, TorqueModel
 from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.robot.sensitivity import (
     Bands,
-    _extraction_peak,
     campaign_states,
     centre_loop_gain,
     condition_bands,
@@ -33,6 +32,7 @@ from ditherlab.robot.sensitivity import (
     shared_fraction,
     transmission_table,
 )
+from ditherlab.robot.sensitivity_plant import extraction_peak
 from ditherlab.sim import simulate
 from ditherlab.sim.params import load_params
 
@@ -217,7 +217,7 @@ def test_dithered_prediction_one_joint_hand_derived():
     durs, _, _, what = transmission_table(ROBOT, q, b)
     assert "dither_extraction (gain, lag) on joint(s) 1, 2, 3, 4, 5, 6" in what
     assert pred["transmission"] == what and pred["states"] == "plant"
-    pk = np.array([_extraction_peak(D, 0.0, 20, 250.0) for D in durs])
+    pk = np.array([extraction_peak(D, 0.0, 20, 250.0) for D in durs])
     assert 0.9 < pk.min() < pk.max() < 1.0  # the one-period mean flattens a short push more
     edge = (W / 2 + m0 * lever) / (g * lever)
     for d in ("+y", "-y"):
