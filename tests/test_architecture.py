@@ -37,6 +37,7 @@ LAYERS: list[tuple[str, ...]] = [
         # a prediction from the estimator and the simulator's parameters, for robot --sensitivity
         "ditherlab.robot.sensitivity",
         "ditherlab.robot.sensitivity_map",
+        "ditherlab.robot.sensitivity_plant",
     ),
     ("ditherlab.diagnose",),
     ("ditherlab.report", "ditherlab.viz"),

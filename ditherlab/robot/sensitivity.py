@@ -35,10 +35,18 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    correlates the joints' states as the campaign does. Measured on the session-12 plant (README,
    "Pose sensitivity"): the uniform-state model below predicted F50 35-41 % low, because a
    state on the edge a push drives towards is, for the link, the far edge (1.75 Fs to break).
-   With dither the centre loop re-centres the signal and the state is drawn uniform over the
-   dithered band: ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
+   With dither (``states="plant"``, the default) the dither's centre loop holds the extracted
+   signal's window mean at the gravity torque between pushes, so every push meets every joint
+   at residual 0 (measured at pose C, seeds 44 and 60: the rest median within 0.13 N·m of 0 on
+   every joint), wherever the model's dithered band lies: ``identify`` may place it off 0 or
+   shrink it to a point (seed 61 at pose C: joint 5 at [-0.387, -0.387] N·m), and then the
+   estimate sits off 0 at rest (-3 N in x there), the noise level rises (4.5 N) and a push
+   against the offset must undo it first — the prediction shows the same, not a clipped
+   state.
+   Session 10's dithered model, kept for comparison: the state uniform over the dithered
+   band, ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
    Joints slipped by the same earlier push sit alike (one ``v`` for both); joints last slipped
-   by different pushes independently. ``states="mixed"`` (the default with dither) draws one
+   by different pushes independently. ``states="mixed"`` draws one
    ``v`` for all joints with the probability that the two joints which see the direction
    first were last slipped by the same push (:func:`shared_fraction`, from the levers of all
    six directions and the campaign's push magnitudes), independent ones otherwise;
@@ -55,10 +63,19 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    residual is moved towards detection by the median of the largest of ``K`` noise values
    (:func:`peak_noise_factor`; ``K`` the samples of the push's top, one per dither period with
    dither, whose extraction averages over a period).
-   With dither the push reaches the extracted signal through the dither's centre loop, which
-   drives the signal back to the gravity torque while the push lasts (integral gain 1/s): at
-   the push's peak the signal shows a share ``g`` of it (:func:`centre_loop_gain`, 0.87 for the
-   simulator's loop and push lengths), so ``r = s - g P l``.
+   With dither the push reaches the extracted signal through the plant (``states="plant"``):
+   joint ``j``'s signal drops by ``h_j(P |l_j|, D)`` for a push of length ``D``
+   (:func:`transmission_table`): from the model's ``dither_extraction`` law (``gain ·
+   lag(mean_period(J^T F))``, its gain and lag) on the joints it names, else simulated from the
+   plant's equations one joint at a time (:func:`dither_transmission`: the link freed or not
+   by the dither's spring torque, the creep the velocity integral stops, Kp = 0, the centre
+   loop, the one-period extraction). ``r = -sign(l) h``; ``p(P)`` is averaged over the
+   campaign's push lengths. Measured at pose C (seed 44, 1-25 N): a push's torque reaches the
+   signal with 0.6-0.9 on joints 1 and 2 (lower for short and large pushes), joint 3 (0.5 Fs
+   of dither) holds pushes below about 2.5 N·m, the wrists pass 0.1-0.5; the table follows
+   joints 1 and 2 within 0.3 N·m RMS (``tests/test_sensitivity.py``). Session 10's model
+   (``"mixed"`` and the others) has every joint show ``g P l``, ``g`` the centre loop's share
+   at the push's peak (:func:`centre_loop_gain`, 0.87).
 4. *Response.* :mod:`ditherlab.thresholds` counts a push as a response when that estimate
    exceeds the **noise level**: the 99.9 % quantile of ``|F̂_axis|`` at rest, at least 1 N. At
    rest ``r = s + e``; without dither ``s`` uniform in the band, so states within a few
@@ -77,17 +94,22 @@ dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dith
    direction) and ``axes`` (per axis, both signs) are that fit made to ``p(P)`` over
    ``force_range`` by expected log-likelihood on the report's grid.
 
-What it leaves out: the servo's dynamics during a slip (the overshoot beyond the push, about
-0.2 Fs; the position loop's slow return after a small slip, which walks the state across the
-band during the rest, so the plant's states spread between the two sliding levels where the
-model keeps them on them), and the dither's extraction lag.
+What it leaves out: without dither the servo's dynamics during a slip (the overshoot beyond
+the push, about 0.2 Fs; the position loop's slow return after a small slip, which walks the
+state across the band during the rest, so the plant's states spread between the two sliding
+levels where the model keeps them on them); with dither the links' coupling through the mass
+matrix (each joint is simulated with the other links held: joint 3's link breaks free about
+0.5 N·m early at pose C), the dither's phase at a push and the torque noise in the loops.
 
 Bands come from a model file written by ``ditherlab identify`` (``still`` and ``dither``
-regimes; ``dither`` missing: the still band shrunk by the simulator's dither amplitude) or,
+regimes; ``dither`` missing: the still band shrunk by the simulator's dither amplitude; its
+``dither_extraction`` effect, if any) or,
 without a model, from the built-in simulator's parameters (``ditherlab/sim/irb140.toml``):
 still band ``±Fs`` (``friction.static``), noise ``noise.tau_sigma_fraction·Fs``, dither band
 ``±(1 - dither.amplitude_fraction)·Fs`` with the noise averaged over one dither period's
-samples. :attr:`Bands.source` says which.
+samples. :attr:`Bands.source` says which; the prediction's ``transmission`` says where the
+dithered push transmission comes from. The plant (friction split, gear springs, servo, dither
+loops) is always the simulator's parameters (``params``; ``--config`` for ``sweep``).
 """
 
 from __future__ import annotations
@@ -99,12 +121,20 @@ from typing import Any
 
 import numpy as np
 
+from ditherlab.effects.extraction import extraction_gain
 from ditherlab.errors import ConfigError, ModelError, RobotError
 from ditherlab.estimator import estimate
 from ditherlab.estimator.core import normal_quantile
 from ditherlab.model import PAPER_PRIOR_SIGMA, TorqueModel
 from ditherlab.replay import parse_components
 from ditherlab.robot.model import RobotModel
+from ditherlab.robot.sensitivity_plant import (
+    TRANSMISSION_DURATIONS,
+    TRANSMISSION_TORQUES,
+    dither_transmission,
+    extraction_peak,
+    transmitted,
+)
 from ditherlab.sim.params import load_params
 
 __all__ = [
@@ -113,9 +143,11 @@ __all__ = [
     "campaign_states",
     "centre_loop_gain",
     "condition_bands",
+    "dither_transmission",
     "format_prediction",
     "predict",
     "shared_fraction",
+    "transmission_table",
 ]
 
 #: The six push directions: (name, axis index, sign of the applied force).
@@ -138,7 +170,7 @@ MAP_OPTIONS = {"forces": 80, "draws": 120, "rest_samples": 5000}
 #: the simulator's push magnitudes (``push_campaign.magnitude_min/max``) [N]
 DEFAULT_RANGE = (10.0, 60.0)
 #: how the friction states of the joints before a push are drawn (module docstring)
-STATES = ("auto", "campaign", "mixed", "shared", "independent")
+STATES = ("auto", "campaign", "plant", "mixed", "shared", "independent")
 #: the simulator's mean push length (``push_campaign.duration_min/max``) [s], log rate [Hz] and
 #: dither period (2 pi / 80 rad/s) [s]
 PUSH_DURATION = 1.25
@@ -168,6 +200,11 @@ class Bands:
         (:func:`campaign_states`)
     sliding : [-] the sliding friction over the static one (``friction.coulomb_ratio``): where
         the servo's return after a slip leaves the state, as a share of the half band
+    plant : the simulator parameters (a nested dict) whose joints, friction, servo and dither
+        loops :func:`dither_transmission` simulates (with dither; None without)
+    extraction_gain, extraction_lag : (n,) [-, samples] the model's ``dither_extraction``
+        per joint (gain 1, lag 0 where it names no joint), None when the model has not the
+        effect: where it names a joint the transmission is its linear law instead of the plant's
     """
 
     lo: np.ndarray
@@ -180,6 +217,9 @@ class Bands:
     gain: float = 1.0
     link_share: float = 0.9
     sliding: float = 0.85
+    plant: Mapping[str, Any] | None = None
+    extraction_gain: np.ndarray | None = None
+    extraction_lag: np.ndarray | None = None
 
 
 def _plant_shares(p: Mapping[str, Any]) -> dict[str, float]:
@@ -231,6 +271,12 @@ def condition_bands(
         if not dither:
             return Bands(still.tau_min, still.tau_max, still.sigma, False, src, pm, ps, **sh)
         g = centre_loop_gain(p)
+        sh = {
+            **sh,
+            "plant": p,
+            "extraction_gain": extraction_gain(model.effects, n, "gain"),
+            "extraction_lag": extraction_gain(model.effects, n, "lag"),
+        }
         if "dither" in model.regimes:
             d = model.regimes["dither"]
             return Bands(
@@ -262,7 +308,7 @@ def condition_bands(
     half = np.maximum(1.0 - np.asarray(p["dither"]["amplitude_fraction"], float), 0.0) * fs
     src = "simulator defaults (irb140.toml)"
     g = centre_loop_gain(p)
-    return Bands(-half, half, _period_noise(sig, p), True, src, pm, ps, g, **sh)
+    return Bands(-half, half, _period_noise(sig, p), True, src, pm, ps, g, plant=p, **sh)
 
 
 def centre_loop_gain(p: Mapping[str, Any]) -> float:
@@ -292,6 +338,56 @@ def centre_loop_gain(p: Mapping[str, Any]) -> float:
                 c -= kc * y[max(0, k - win + 1) : k + 1].mean() * every * dt
         peaks.append(float(y.max()))
     return float(np.mean(peaks))
+
+
+def transmission_table(
+    robot: RobotModel, q: np.ndarray, bands: Bands
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """The dithered push transmission at pose ``q`` (n,) [rad] for :func:`predict`: per joint
+    the drop of the extracted signal for push torques on a grid of multiples of the joint's
+    Fs (:data:`TRANSMISSION_TORQUES`) and for :data:`TRANSMISSION_DURATIONS` push lengths over
+    the campaign's range (``push_campaign.duration_min/max``): from the model's
+    ``dither_extraction`` law ``gain · lag(mean_period(J^T F))`` on the joints it names (its
+    gain and lag, the push's peak through it, :func:`extraction_peak`), from the plant's
+    equations elsewhere (:func:`dither_transmission`, the links' inertia at ``q``).
+
+    Returns
+    -------
+    durations : (D,) [s]
+    torques : (m, n) [N·m]
+    drop : (D, m, n) [N·m]
+    what : where the numbers come from, for the output
+    """
+    p = bands.plant if bands.plant is not None else load_params()
+    n = robot.n
+    fs = np.broadcast_to(np.asarray(p["friction"]["static"], float), (n,))
+    torques = np.asarray(TRANSMISSION_TORQUES, float)[:, None] * fs[None, :]
+    pc = p["push_campaign"]
+    lo_d, hi_d = float(pc["duration_min"]), float(pc["duration_max"])
+    k = TRANSMISSION_DURATIONS
+    durations = lo_d + (np.arange(k) + 0.5) / k * (hi_d - lo_d)
+    named = np.zeros(n, bool)
+    if bands.extraction_gain is not None and bands.extraction_lag is not None:
+        named = (bands.extraction_gain != 1.0) | (bands.extraction_lag != 0.0)
+    M = robot.mass_matrix(np.asarray(q, float)[None, :])[0]
+    M = M + np.diag(np.broadcast_to(np.asarray(p["joints"]["output_inertia"], float), (n,)))
+    inertia = np.diag(M).copy()  # one joint at a time, the other links held
+    drop = np.zeros((k, len(torques), n))
+    if not named.all():
+        drop = dither_transmission(p, inertia, torques, durations)
+    what = "the plant's joints simulated one at a time (dither_transmission)"
+    if named.any():
+        rate = float(p["timing"]["sample_rate_hz"])
+        w = max(int(round(2 * math.pi / float(p["dither"]["frequency"]) * rate)), 1)
+        for j in np.flatnonzero(named):
+            g, lag = float(bands.extraction_gain[j]), float(bands.extraction_lag[j])
+            pk = np.array([extraction_peak(D, lag, w, rate) for D in durations])
+            drop[:, :, j] = g * pk[:, None] * torques[None, :, j]
+        js = ", ".join(str(j + 1) for j in np.flatnonzero(named))
+        what = f"the model's dither_extraction (gain, lag) on joint(s) {js}" + (
+            "; the plant's joints simulated elsewhere" if not named.all() else ""
+        )
+    return durations, torques, drop, what
 
 
 def _period_noise(sigma: np.ndarray, p: Mapping[str, Any]) -> np.ndarray:
@@ -515,14 +611,18 @@ def predict(
     bands : :func:`condition_bands`
     components : estimated wrench components (as ``replay --components``)
     force_range : (min, max) [N] push magnitudes of the campaign the report's curve is fitted to
-    max_force : largest force searched [N]
-    forces, draws : force grid points over ``(0, max_force]`` and friction-state draws per force
+    max_force : largest force searched [N] (with ``states="plant"`` at most twice the
+        campaign's largest push plus 20 N)
+    forces, draws : force grid points over ``(0, max_force]`` (at least 400 with
+        ``states="plant"``) and friction-state draws per force
     rest_samples : draws of the state at rest for the noise level
     noise_level : (3,) [N] use these noise levels instead of predicting them
     states : how the joints' friction states before a push are drawn (module docstring, step
         2): ``"campaign"`` (the states a campaign leaves on the plant, :func:`campaign_states`;
-        without dither only), ``"mixed"``, ``"shared"`` or ``"independent"`` (uniform in the
-        band, the estimator's own model); ``"auto"``: campaign without dither, mixed with
+        without dither only), ``"plant"`` (with dither only: every joint at the centre loop's
+        gravity torque, the push through :func:`transmission_table`), ``"mixed"``,
+        ``"shared"`` or ``"independent"`` (uniform in the band, the estimator's own model,
+        session 10's with dither); ``"auto"``: campaign without dither, plant with
     push_duration, sample_rate, period : the push's mean length [s], the log's rate [Hz] and the
         dither period [s] (:func:`peak_noise_factor`)
     seed : the draws' seed (the same seed gives the same numbers)
@@ -533,20 +633,31 @@ def predict(
     axis [N], ``directions``: per direction ``f50``, ``f90`` (crossings of the detection
     probability, inf when never reached), ``curve_f50``, ``curve_f90`` (the report's logistic
     fit over ``force_range``), ``joints`` (the joints whose lever exceeds 1 % of the largest);
-    ``axes``: per axis ``f50``, ``f90`` of that fit to both signs; ``source``, ``dithered``.
+    ``axes``: per axis ``f50``, ``f90`` of that fit to both signs; ``source``, ``dithered``,
+    ``states`` and ``transmission`` (with ``states="plant"``: where the push transmission
+    comes from, else None).
     """
     q = np.asarray(q, float).reshape(robot.n)
     J = robot.jacobian(q[None, :])[0]  # (6, n)
     if states not in STATES:
         raise ConfigError(f"states {states!r} is unknown; expected one of {', '.join(STATES)}")
     if states == "auto":
-        states = "mixed" if bands.dithered else "campaign"
+        states = "plant" if bands.dithered else "campaign"
     if states == "campaign" and bands.dithered:
         raise ConfigError(
-            "states 'campaign' is the plant without dither; expected mixed, shared or "
+            "states 'campaign' is the plant without dither; expected plant, mixed, shared or "
             "independent for the dithered bands (the centre loop re-centres the state)"
         )
+    if states == "plant" and not bands.dithered:
+        raise ConfigError(
+            "states 'plant' is the plant with dither; expected campaign, mixed, shared or "
+            "independent for the undithered bands"
+        )
     camp = campaign_states(J, bands, force_range, seed=seed + 2) if states == "campaign" else None
+    # with dither the centre loop holds the extracted signal at the gravity torque: residual 0,
+    # wherever the model's band lies (one off 0 offsets the estimate at rest and after)
+    centre = np.zeros(robot.n) if states == "plant" else None
+    table = transmission_table(robot, q, bands) if states == "plant" else None
     nl = (
         np.asarray(noise_level, float).reshape(3)
         if noise_level is not None
@@ -556,12 +667,17 @@ def predict(
             components=components,
             rest_samples=rest_samples,
             seed=seed,
-            rest_states=None if camp is None else camp[2],
+            rest_states=camp[2] if camp is not None else None if centre is None else centre[None],
         )  # fmt: skip
     )
     rng = np.random.default_rng(seed + 1)
     n = robot.n
-    P = np.linspace(max_force / forces, max_force, forces)
+    if table is not None:  # thresholds of a few newtons: a finer grid over a shorter span
+        forces = max(forces, 400)
+        top = min(max_force, 2.0 * force_range[1] + 20.0)
+        P = np.linspace(top / forces, top, forces)
+    else:
+        P = np.linspace(max_force / forces, max_force, forces)
     shared_u = _strata(rng, draws, 1)  # (draws, 1)
     own_u = _strata(rng, draws, n)  # (draws, n)
     rho = shared_fraction(J, bands, force_range, n) if states == "mixed" else None
@@ -585,6 +701,15 @@ def predict(
             r = (r - np.sign(lev) * z_peak * bands.sigma).reshape(-1, n)
             F = _estimates(r, J, bands, components)
             p = np.mean(-(F @ u).reshape(forces, len(st)) > nl[ax], axis=1)
+        elif table is not None:
+            # every joint at the centre; the extracted signal drops by what the plant (or the
+            # model's dither_extraction) passes of the joint's push torque, per push length
+            _, tq, drop, _ = table
+            dr = transmitted(P[:, None] * np.abs(lev)[None, :], tq, drop)  # (D, forces, n)
+            s = centre - np.sign(lev) * z_peak * bands.sigma
+            r = (s - np.sign(lev) * dr).reshape(-1, n)
+            F = _estimates(r, J, bands, components)
+            p = np.mean(-(F @ u).reshape(len(drop), forces) > nl[ax], axis=0)
         # the state's distance to the edge the push drives the residual towards is u·W
         elif states == "shared":
             u01 = shared_u
@@ -592,7 +717,7 @@ def predict(
             u01 = own_u
         else:  # the first round(rho·draws) draws shared, the rest independent
             u01 = np.where(np.arange(draws)[:, None] < round(rho[name] * draws), shared_u, own_u)
-        if camp is None:
+        if camp is None and table is None:
             s = np.where(lev > 0, bands.lo + u01 * width, bands.hi - u01 * width)  # (draws, n)
             # the report takes the largest estimate of the push: the noise's median maximum
             # over the push's top, on every joint in the direction the push drives its residual
@@ -626,6 +751,8 @@ def predict(
         "axes": axes,
         "source": bands.source,
         "dithered": bands.dithered,
+        "states": states,
+        "transmission": table[3] if table is not None else None,
         "force_range": list(force_range),
         "components": components,
     }
@@ -648,6 +775,11 @@ def format_prediction(pred: Mapping[str, Any]) -> str:
         f"{'with dither' if pred['dithered'] else 'without dither'}; bands from {pred['source']}",
         "noise level (99.9 % of |F̂| at rest, >= 1 N): "
         + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES),
+        *(
+            [f"push transmission with dither: {pred['transmission']}"]
+            if pred.get("transmission")
+            else []
+        ),  # fmt: skip
         f"{'direction':<10}{'F50 [N]':>9}{'F90 [N]':>9}{'curve F50':>11}{'curve F90':>11}  joints",
     ]
     for name, _, _ in DIRECTIONS:
