@@ -175,4 +175,101 @@ def lockstep_verify(
             vals[o, q] = fq[q]
 
 
-__all__ = ["lockstep_verify"]
+@njit(cache=True, error_model="numpy", _nrt=False)
+def lockstep_inverse(
+    tb, J, a, b, sig, kk, fb, big, max_cond, k0, nb, m, perm, Ls, Us, Bs, rns, okv, Ms, cnv, fq,
+):  # fmt: skip
+    """The torque bounds, ``B = J^-T`` and the row norms of samples ``k0 .. k0 + nb`` in lockstep
+    (samples innermost): ``Ls, Us (m, W)`` [N·m], ``Bs (m, m, W)``, ``rns (m, W)`` the rows'
+    1-norms, for the ``q``-th sample of the block; ``okv[q]`` 1.0 where all of it holds and the
+    sample is one :func:`.sm_square.square_block` takes (finite bounds, pivots as partial
+    pivoting would choose them within a factor 2, ``||J^T||_1 ||J^-T||_1 <= max_cond``, no
+    vertex of the torque box reaching the artificial box ``fb +- big``), 0.0 where the caller
+    must decide by its per-sample code.
+
+    ``tb, a, b, sig (N, m)``, ``J (N, m, m)`` as :func:`.sm_square.square_block`'s; ``perm (m,)``
+    the row order of ``J^T`` partial pivoting chose at a nearby sample. Gauss-Jordan on
+    ``[P J^T | P]`` (``P`` the row permutation), whose right half ends as ``(P J^T)^-1 P =
+    J^-T``; scratch ``Ms (m, m, W)``, ``cnv, fq (W,)``.
+    """
+    u1 = np.uint64(nb)
+    for q in range(u1):
+        okv[q] = 1.0
+    for j in range(m):
+        for q in range(u1):
+            k = k0 + q
+            lj = tb[k, j] - b[k, j] - kk * sig[k, j]
+            uj = tb[k, j] - a[k, j] + kk * sig[k, j]
+            Ls[j, q] = lj
+            Us[j, q] = uj
+            fin = abs(lj) < np.inf and abs(uj) < np.inf
+            okv[q] = okv[q] if fin else 0.0
+    # [P J^T | P]; ||J^T||_1 (cnv) and the largest entry (fq) as sm_square._inverse_t's
+    for q in range(u1):
+        cnv[q] = 0.0
+        fq[q] = 0.0
+    for r in range(m):
+        pr = perm[r]
+        for c in range(m):
+            for q in range(u1):
+                v = J[k0 + q, c, pr]
+                Ms[r, c, q] = v
+                fq[q] = max(fq[q], abs(v))
+            e = 1.0 if c == pr else 0.0
+            for q in range(u1):
+                Bs[r, c, q] = e
+        for q in range(u1):
+            v = 0.0
+            for c in range(m):
+                v += abs(Ms[r, c, q])
+            cnv[q] = max(cnv[q], v)
+    for c in range(m):
+        for q in range(u1):
+            d = Ms[c, c, q]
+            bad = not abs(d) > 1e-12 * fq[q]
+            okv[q] = 0.0 if bad else okv[q]
+            Ms[c, c, q] = 1.0 if bad else 1.0 / d  # the pivot's reciprocal, for the row scaling
+        for r in range(c + 1, m):
+            for q in range(u1):
+                okv[q] = 0.0 if abs(Ms[r, c, q]) > 2.0 * abs(1.0 / Ms[c, c, q]) else okv[q]
+        for e in range(c + 1, m):
+            for q in range(u1):
+                Ms[c, e, q] *= Ms[c, c, q]
+        for e in range(m):
+            for q in range(u1):
+                Bs[c, e, q] *= Ms[c, c, q]
+        for r in range(m):
+            if r == c:
+                continue
+            for e in range(c + 1, m):
+                for q in range(u1):
+                    Ms[r, e, q] -= Ms[r, c, q] * Ms[c, e, q]
+            for e in range(m):
+                for q in range(u1):
+                    Bs[r, e, q] -= Ms[r, c, q] * Bs[c, e, q]
+    # ||J^-T||_1 (the largest column sum), the rows' 1-norms and the artificial box
+    for q in range(u1):
+        fq[q] = 0.0
+    for e in range(m):
+        for q in range(u1):
+            v = 0.0
+            for r in range(m):
+                v += abs(Bs[r, e, q])
+            fq[q] = max(fq[q], v)
+    for q in range(u1):
+        okv[q] = okv[q] if fq[q] * cnv[q] <= max_cond else 0.0
+    for g in range(m):
+        for q in range(u1):
+            c = 0.0
+            r = 0.0
+            v = 1e-300
+            for j in range(m):
+                bgj = Bs[g, j, q]
+                c += bgj * 0.5 * (Ls[j, q] + Us[j, q])
+                r += abs(bgj) * 0.5 * (Us[j, q] - Ls[j, q])
+                v += abs(bgj)
+            rns[g, q] = v
+            okv[q] = okv[q] if abs(c - fb[g]) + r < big else 0.0
+
+
+__all__ = ["lockstep_inverse", "lockstep_verify"]

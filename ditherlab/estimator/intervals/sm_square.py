@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.intervals.sm_lockstep import lockstep_verify
+from ditherlab.estimator.intervals.sm_lockstep import lockstep_inverse, lockstep_verify
 
 #: Largest ``||J^T||_1 ||J^-T||_1`` the torque-coordinate path accepts (else: the general kernel).
 MAX_CONDITION = 1e8
@@ -452,7 +452,22 @@ def _square_lockstep(
         Fu[g] = fb[g] + half[g]
     for k0 in range(0, N, BLOCK):
         nb = min(BLOCK, N - k0)
+        # the row order partial pivoting takes for J^T at the block's first sample, then every
+        # sample's bounds and J^-T in lockstep with that order; per sample where it does not fit
+        for j in range(m):
+            for g in range(m):
+                K[j, g] = J[k0, g, j]
+        if not _lu(K, m, p):
+            for j in range(m):
+                p[j] = j
+        lockstep_inverse(tb, J, a, b, sig, kk, fb, big, MAX_CONDITION, k0, nb, m, p, Ls, Us, Bs,
+                         rns, okv, Kl, cnv, fq)  # fmt: skip
         for q in range(nb):
+            bad[q] = False
+            emp[q] = False
+            ok[q] = okv[q] != 0.0
+            if ok[q]:
+                continue
             k = k0 + q
             finite = True
             for j in range(m):
@@ -460,8 +475,6 @@ def _square_lockstep(
                 Us[j, q] = tb[k, j] - a[k, j] + kk * sig[k, j]
                 finite = finite and math.isfinite(Ls[j, q]) and math.isfinite(Us[j, q])
             ok[q] = finite and _inverse_t(J, k, m, B, M)
-            bad[q] = False
-            emp[q] = False
             if not ok[q]:
                 continue
             for g in range(m):
