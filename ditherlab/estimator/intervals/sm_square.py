@@ -507,9 +507,12 @@ def _square_lockstep(
                     passes += 1
                     fresh = False
                     t = _pivot_order(Bs, q, sxs, srs, o, m, K, p, fr, tr)
+                    q1 = nb  # up to the last sample left (a pass costs its whole range)
+                    while not (todo[q1 - 1] and not done[q1 - 1]):
+                        q1 -= 1
                     if t >= 0:
                         lockstep_verify(Bs, Ls, Us, Fl, Fu, box, i, sg, m, sxs, srs, fr, tr, t,
-                                        q, nb, todo, done, vals, o, Kl, rh, taul, nul, okv,
+                                        q, q1, todo, done, vals, o, Kl, rh, taul, nul, okv,
                                         cnv, fq)  # fmt: skip
                         if done[q]:
                             continue
