@@ -23,6 +23,16 @@ import numpy as np
 from numba import njit
 
 
+@njit(inline="always", _nrt=False)
+def _dot6(Bs, g, v, q):
+    """``sum_j Bs[g, j, q] v[j, q]`` for six columns, written out (one pass over the samples
+    instead of six; the same additions in the same order as the loop)."""
+    return (
+        Bs[g, 0, q] * v[0, q] + Bs[g, 1, q] * v[1, q] + Bs[g, 2, q] * v[2, q]
+        + Bs[g, 3, q] * v[3, q] + Bs[g, 4, q] * v[4, q] + Bs[g, 5, q] * v[5, q]
+    )  # fmt: skip
+
+
 @njit(cache=True, error_model="numpy", _nrt=False)
 def lockstep_verify(
     Bs, Ls, Us, Fl, Fu, box, i, sg, m, sxs, srs, fr, tr, t, q0, q1, todo, done, vals, o,
@@ -62,12 +72,25 @@ def lockstep_verify(
     for a in range(t):
         g = tr[a]
         bnd = Fu[g] if srs[o, g] > 0 else Fl[g]
-        for q in range(u0, u1):
-            rh[a, q] = bnd
-        for j in range(m):
-            if sxs[o, j] != 0:
-                for q in range(u0, u1):
-                    rh[a, q] -= Bs[g, j, q] * tau[j, q]
+        if m == 6:  # the six-axis arm: one pass (a fixed variable's term, else exactly 0)
+            x0, x1, x2 = sxs[o, 0] != 0, sxs[o, 1] != 0, sxs[o, 2] != 0
+            x3, x4, x5 = sxs[o, 3] != 0, sxs[o, 4] != 0, sxs[o, 5] != 0
+            for q in range(u0, u1):
+                v = bnd
+                v -= Bs[g, 0, q] * tau[0, q] if x0 else 0.0
+                v -= Bs[g, 1, q] * tau[1, q] if x1 else 0.0
+                v -= Bs[g, 2, q] * tau[2, q] if x2 else 0.0
+                v -= Bs[g, 3, q] * tau[3, q] if x3 else 0.0
+                v -= Bs[g, 4, q] * tau[4, q] if x4 else 0.0
+                v -= Bs[g, 5, q] * tau[5, q] if x5 else 0.0
+                rh[a, q] = v
+        else:
+            for q in range(u0, u1):
+                rh[a, q] = bnd
+            for j in range(m):
+                if sxs[o, j] != 0:
+                    for q in range(u0, u1):
+                        rh[a, q] -= Bs[g, j, q] * tau[j, q]
         for b in range(t):
             jb = fr[b]
             for q in range(u0, u1):
@@ -118,6 +141,11 @@ def lockstep_verify(
             continue
         lo = Fl[g] - 1e-9 * (1.0 + abs(Fl[g]))
         hi = Fu[g] + 1e-9 * (1.0 + abs(Fu[g]))
+        if m == 6:
+            for q in range(u0, u1):
+                f = _dot6(Bs, g, tau, q)
+                okv[q] = 0.0 if f < lo or f > hi else okv[q]
+            continue
         for q in range(u0, u1):
             fq[q] = 0.0
         for j in range(m):
@@ -164,11 +192,15 @@ def lockstep_verify(
                     fq[q] -= nu[a, q] * Bs[ga, j, q]
             for q in range(u0, u1):
                 okv[q] = 0.0 if s * fq[q] > 1e-10 * cnv[q] else okv[q]
-    for q in range(u0, u1):
-        fq[q] = 0.0
-    for j in range(m):
+    if m == 6:
         for q in range(u0, u1):
-            fq[q] += Bs[i, j, q] * tau[j, q]
+            fq[q] = _dot6(Bs, i, tau, q)
+    else:
+        for q in range(u0, u1):
+            fq[q] = 0.0
+        for j in range(m):
+            for q in range(u0, u1):
+                fq[q] += Bs[i, j, q] * tau[j, q]
     for q in range(u0, u1):
         if okv[q] != 0.0:
             done[q] = True
