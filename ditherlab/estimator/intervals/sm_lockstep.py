@@ -14,7 +14,11 @@ LLVM vectorises it across samples (AVX2/AVX-512) where the per-sample solver run
 short dependent loops at a time. The LU has a fixed row order (the caller's: partial pivoting's
 order at one sample of the run); a sample whose pivots would not be chosen by partial pivoting
 within a factor 2 (or whose ``K`` is numerically singular) is left unsolved for the per-sample
-solver, like any sample where the working set is not optimal.
+solver, like any sample where the working set is not optimal. :func:`lockstep_inverse` does the
+same for the block's ``J^-T`` (Gauss-Jordan in a fixed pivot order).
+
+Numba caches :mod:`.sm_square`'s kernels with these calls compiled in and does not notice when
+only this file changes: delete ``__pycache__/sm_square*.nbi/.nbc`` after editing it.
 """
 
 from __future__ import annotations

@@ -11,6 +11,17 @@ of the bounds alone (always dual feasible: each ``tau_j`` at the bound its cost 
 prefers), or from the previous sample's working set when that is still dual feasible, and
 brings in violated box rows. One inversion of ``J^T`` per sample serves the ``2m`` LPs.
 
+By default (:func:`square_block`, ``lockstep=True``) the samples go by blocks of :data:`BLOCK`:
+the bounds and ``J^-T`` of the whole block in lockstep, then per LP a lockstep pass
+(:mod:`.sm_lockstep`) checks the LP's current working set at every sample of the block at once
+(primal and dual feasibility of its vertex: optimal there whatever the history), and the
+per-sample dual simplex takes the first sample it leaves, whose optimum is the working set of
+the next pass. On the estimator bench (a pushed IRB140, 100 000 samples) 99 % of the LPs are
+settled by a pass (0.14 per-sample solves per sample, 0.15 passes per sample), 3-4x the
+one-sample-at-a-time loop (``lockstep=False``, kept as the reference). Numba's cache does not
+follow the calls into :mod:`.sm_lockstep`: after editing that module alone, delete this one's
+cache (``__pycache__/sm_square*.nbi/.nbc``) or it runs the old code.
+
 The result is the same LP optimum as the general kernel's (:mod:`.set_membership`): both are
 tested against ``scipy.optimize.linprog``. Samples this path cannot take (an infinite band edge,
 an ill-conditioned ``J``, a bound beyond the artificial box, a singular basis, the iteration
