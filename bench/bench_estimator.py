@@ -94,6 +94,34 @@ def _rate(fn, N: int, repeat: int = 3) -> tuple[float, object]:
     return N / best, out
 
 
+def _square_paths(prob) -> list[dict]:
+    """The torque coordinates' kernel alone (``square_block``) with the lockstep passes and one
+    sample at a time (session 12's kernel), alternated, CPU time, best of three each."""
+    from ditherlab.estimator.intervals import set_membership as S
+    from ditherlab.estimator.intervals.sm_square import square_block, square_state
+
+    ridge = prob.p_true == 0.0
+    kk = S.interval_k(0.95, prob.n, int((~ridge).sum()))
+    sig = 1.0 / np.sqrt(prob.w)
+    half = np.where(ridge, 0.0, S._halfbox(prob, kk))
+    N, m = prob.N, prob.m
+    lo, hi, st = np.empty((N, m)), np.empty((N, m)), np.empty(N, np.int64)
+    best = {True: np.inf, False: np.inf}
+    for _ in range(3):
+        for lockstep in (True, False):
+            t0 = time.process_time()
+            square_block(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk,
+                         prob.prior_mean, half, ridge, S.BIG_BOX, square_state(m), lo, hi, st,
+                         lockstep)  # fmt: skip
+            best[lockstep] = min(best[lockstep], time.process_time() - t0)
+    return [
+        dict(name="  square_block alone, lockstep passes (CPU time)", value=N / best[True],
+             unit="samples/s", reference=N / best[False], ratio=best[False] / best[True]),
+        dict(name="  square_block alone, one sample at a time (session 12, CPU time)",
+             value=N / best[False], unit="samples/s"),
+    ]  # fmt: skip
+
+
 def run(quick: bool = False) -> list[dict]:
     from ditherlab import estimator as E
     from ditherlab.estimator.backends.exact import _solve_exact
@@ -165,6 +193,8 @@ def run(quick: bool = False) -> list[dict]:
             rows[-1]["name"] += " (reference: refactor per segment)"
         rows[-1]["reference"] = rref
         rows[-1]["ratio"] = r / rref
+        if method == "set_membership":
+            rows.extend(_square_paths(prob))
     # the closed form of the no-band variants against numpy's batched inverse
     zargs = dict(args, tau_max=args["tau_min"])
     zsol = E.estimate(**zargs)

@@ -1,6 +1,8 @@
 """The torque coordinates' set-membership path (``sm_square``) after issue 14's speed work: the
 kernel without numba's reference counts, Gauss-Jordan ``J^-T`` and Bland's rule against cycling,
-checked against the general kernel and linprog, including the samples it must refuse."""
+the lockstep passes (``sm_lockstep``: a block's ``J^-T`` and each LP's working set checked for
+many samples at once), checked against the per-sample path, the general kernel and linprog,
+including the samples it must refuse or leave to the per-sample code."""
 
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ from ditherlab.estimator.intervals.set_membership import (
     interval_k,
     set_membership_reference,
 )
-from ditherlab.estimator.intervals.sm_square import square_block, square_state
+from ditherlab.estimator.intervals.sm_lockstep import lockstep_inverse
+from ditherlab.estimator.intervals.sm_square import BLOCK, MAX_CONDITION, square_block, square_state
 
 
 def _sub(args: dict, rows) -> dict:
@@ -26,8 +29,9 @@ def _sub(args: dict, rows) -> dict:
     return out
 
 
-def _square_only(prob, level=0.95):
-    """``square_block`` alone on a whole problem: ``lo, hi (N, m)`` and the status per sample."""
+def _square_only(prob, level=0.95, lockstep=True):
+    """``square_block`` alone on a whole problem: ``lo, hi (N, m)`` and the status per sample
+    (``lockstep=False``: the per-sample path)."""
     ridge = prob.p_true == 0.0
     kk = interval_k(level, prob.n, int((~ridge).sum()))
     sig = 1.0 / np.sqrt(prob.w)
@@ -35,7 +39,7 @@ def _square_only(prob, level=0.95):
     lo, hi = np.full((prob.N, prob.m), np.nan), np.full((prob.N, prob.m), np.nan)
     st = np.zeros(prob.N, np.int64)
     square_block(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk, prob.prior_mean, half,
-                 ridge, BIG_BOX, square_state(prob.m), lo, hi, st)  # fmt: skip
+                 ridge, BIG_BOX, square_state(prob.m), lo, hi, st, lockstep)  # fmt: skip
     return lo, hi, st
 
 
@@ -104,6 +108,113 @@ def test_the_samples_it_must_refuse(bench_args, case):
         fin = np.isfinite(ref)
         np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-7, atol=1e-7)
     np.testing.assert_allclose(lo[ok], glo[ok], rtol=0, atol=0)  # the same path, bit for bit
+    slo, shi, sst = _square_only(prob, lockstep=False)  # the per-sample path refuses the same
+    np.testing.assert_array_equal(st, sst)
+    np.testing.assert_allclose(lo[ok], slo[ok], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(hi[ok], shi[ok], rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [3, 11])
+def test_lockstep_equals_the_per_sample_path(seed):
+    """Bench-like data on seeds the lockstep passes were not tuned on (3000 samples: 24 blocks,
+    working sets that change inside and across blocks): the same status and bounds (to 1e-9) as
+    the per-sample dual simplex, and linprog's (to 1e-7) on samples spread over the run."""
+    args, _ = push_data(3000, seed)
+    prob = E.problem(**args)
+    lo, hi, st = _square_only(prob)
+    slo, shi, sst = _square_only(prob, lockstep=False)
+    np.testing.assert_array_equal(st, sst)
+    assert (st == 5).mean() > 0.99
+    ok = st == 5
+    np.testing.assert_allclose(lo[ok], slo[ok], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(hi[ok], shi[ok], rtol=1e-9, atol=1e-9)
+    sel = np.arange(5, 3000, 97)
+    rlo, rhi = E.set_membership_reference(E.problem(**_sub(args, sel)))
+    # 1e-7: on seed 11 every numba kernel (lockstep, per sample, general) is 4.0e-8 N from HiGHS
+    # at one sample (1848, min F_1), the others within 3e-14
+    np.testing.assert_allclose(lo[sel], rlo, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(hi[sel], rhi, rtol=0, atol=1e-7)
+
+
+def test_lockstep_empty_with_the_prior_box_inside_a_block():
+    """A 300 N push (five times the prior box's 57 N) at a few samples, inside a block and at a
+    block's first sample: the polytope is empty with the prior box there, no working set can
+    pass a lockstep check (no feasible vertex), and the per-sample code reports status 6 with
+    the torque box alone, as the per-sample path and the general kernel do; the samples around
+    are solved with the prior box."""
+    args, _ = push_data(600, 5)
+    J = args["J"]
+    push = np.array([300.0, 0, 0, 0, 0, 0])
+    hit = np.array([40, 41, 42, BLOCK, 2 * BLOCK + 77])
+    tb = args["tau_bar"].copy()
+    tb[hit] += np.einsum("kin,i->kn", J[hit], push)
+    args["tau_bar"] = tb
+    prob = E.problem(**args)
+    lo, hi, st = _square_only(prob)
+    assert (st[hit] == 6).all() and (np.delete(st, hit) == 5).all()
+    assert (lo[hit, 0] > 200.0).all()  # the data alone: the push, far outside the prior box
+    slo, shi, sst = _square_only(prob, lockstep=False)
+    np.testing.assert_array_equal(st, sst)
+    np.testing.assert_allclose(lo, slo, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(hi, shi, rtol=1e-9, atol=1e-9)
+    rlo, rhi, rst = _set_membership(prob, 0.95, square=False)
+    assert (rst[hit] == 1).all()  # the general kernel: solved without the prior box
+    np.testing.assert_allclose(lo, rlo, rtol=1e-7, atol=1e-7)
+    np.testing.assert_allclose(hi, rhi, rtol=1e-7, atol=1e-7)
+
+
+def test_lockstep_inverse_leaves_samples_its_pivot_order_does_not_fit():
+    """``J^-T`` of a block in the pivot order of one sample: equal to numpy's inverse where the
+    order fits, and left to the per-sample code (``okv = 0``) where the joints' columns are
+    reversed (partial pivoting would choose other rows), an edge is infinite, or the condition
+    exceeds the limit; the whole path still gives the per-sample path's bounds there."""
+    args, _ = push_data(2 * BLOCK, 2)
+    J = args["J"].copy()
+    rev = np.array([5, 6, 70])
+    J[rev] = J[rev][:, :, ::-1]
+    J[90, :, 5] *= 1e-9  # ill-conditioned
+    tmax = np.tile(args["tau_max"], (2 * BLOCK, 1))
+    tmax[100, 1] = np.inf
+    args.update(J=J, tau_max=tmax)
+    prob = E.problem(**args)
+    kk = interval_k(0.95, 6, 6)
+    sig = 1.0 / np.sqrt(prob.w)
+    W, m = BLOCK, 6
+    Ls, Us, rns = np.empty((m, W)), np.empty((m, W)), np.empty((m, W))
+    Bs, Ms = np.empty((m, m, W)), np.empty((m, m, W))
+    okv, cnv, fq = np.empty(W), np.empty(W), np.empty(W)
+    _, _, P = _lu_order(J[0].T)
+    lockstep_inverse(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk, prob.prior_mean,
+                     BIG_BOX, MAX_CONDITION, 0, W, m, P, Ls, Us, Bs, rns, okv, Ms, cnv,
+                     fq)  # fmt: skip
+    bad = np.array([5, 6, 70, 90, 100])
+    assert (okv[bad] == 0.0).all()
+    good = np.setdiff1d(np.arange(W), bad)
+    assert (okv[good] == 1.0).all()
+    Binv = np.linalg.inv(np.transpose(J[:W], (0, 2, 1)))  # (W, m, m): J^-T per sample
+    np.testing.assert_allclose(np.moveaxis(Bs, 2, 0)[good], Binv[good], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(rns[:, good].T, np.abs(Binv[good]).sum(2), rtol=1e-12)
+    lo, hi, st = _square_only(prob)
+    slo, shi, sst = _square_only(prob, lockstep=False)
+    np.testing.assert_array_equal(st, sst)
+    assert (st[[90, 100]] == -1).all() and (st[[5, 6, 70]] == 5).all()
+    ok = st == 5
+    np.testing.assert_allclose(lo[ok], slo[ok], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(hi[ok], shi[ok], rtol=1e-9, atol=1e-9)
+
+
+def _lu_order(M):
+    """Partial pivoting's row order of ``M`` (m, m): ``(L, U, order)`` with ``M[order] = L U``."""
+    A = np.array(M, float)
+    m = len(A)
+    order = np.arange(m)
+    for c in range(m):
+        r = c + int(np.argmax(np.abs(A[c:, c])))
+        A[[c, r]] = A[[r, c]]
+        order[[c, r]] = order[[r, c]]
+        A[c + 1 :, c] /= A[c, c]
+        A[c + 1 :, c + 1 :] -= np.outer(A[c + 1 :, c], A[c, c + 1 :])
+    return np.tril(A, -1) + np.eye(m), np.triu(A), order
 
 
 #: two samples of a replayed hour's ``nodither_noband`` variant (zero-width bands, the paper's

@@ -11,6 +11,17 @@ of the bounds alone (always dual feasible: each ``tau_j`` at the bound its cost 
 prefers), or from the previous sample's working set when that is still dual feasible, and
 brings in violated box rows. One inversion of ``J^T`` per sample serves the ``2m`` LPs.
 
+By default (:func:`square_block`, ``lockstep=True``) the samples go by blocks of :data:`BLOCK`:
+the bounds and ``J^-T`` of the whole block in lockstep, then per LP a lockstep pass
+(:mod:`.sm_lockstep`) checks the LP's current working set at every sample of the block at once
+(primal and dual feasibility of its vertex: optimal there whatever the history), and the
+per-sample dual simplex takes the first sample it leaves, whose optimum is the working set of
+the next pass. On the estimator bench (a pushed IRB140, 100 000 samples) 99 % of the LPs are
+settled by a pass (0.14 per-sample solves per sample, 0.15 passes per sample), 3-4x the
+one-sample-at-a-time loop (``lockstep=False``, kept as the reference). Numba's cache does not
+follow the calls into :mod:`.sm_lockstep`: after editing that module alone, delete this one's
+cache (``__pycache__/sm_square*.nbi/.nbc``) or it runs the old code.
+
 The result is the same LP optimum as the general kernel's (:mod:`.set_membership`): both are
 tested against ``scipy.optimize.linprog``. Samples this path cannot take (an infinite band edge,
 an ill-conditioned ``J``, a bound beyond the artificial box, a singular basis, the iteration
@@ -23,6 +34,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from ditherlab.estimator.intervals.sm_lockstep import lockstep_inverse, lockstep_verify
 
 #: Largest ``||J^T||_1 ||J^-T||_1`` the torque-coordinate path accepts (else: the general kernel).
 MAX_CONDITION = 1e8
@@ -397,8 +410,177 @@ def _square_block(
         st_out[k] = status
 
 
+#: Samples per lockstep block (the structure-of-arrays scratch: about 40 kB per ``m x m`` array).
+BLOCK = 128
+#: Lockstep passes per LP and block (each with the working set of the last solved sample).
+PASSES = 4
+
+
+@njit(cache=True, _nrt=False)
+def _pivot_order(Bs, q, sxs, srs, o, m, K, p, fr, tr):
+    """The free variables ``fr`` and held rows ``tr`` of LP ``o``'s working set, ``tr`` in the
+    order partial pivoting takes them at sample ``q``; returns ``t`` (-1: the working set is not
+    square or ``K`` is singular there)."""
+    t = 0
+    ta = 0
+    for j in range(m):
+        if sxs[o, j] == 0:
+            fr[t] = j
+            t += 1
+        if srs[o, j] != 0:
+            tr[ta] = j
+            ta += 1
+    if ta != t:
+        return -1
+    for a in range(t):
+        for b in range(t):
+            K[a, b] = Bs[tr[a], fr[b], q]
+    if not _lu(K, t, p):
+        return -1
+    for a in range(t):
+        p[a] = tr[p[a]]
+    for a in range(t):
+        tr[a] = p[a]
+    return t
+
+
+@njit(cache=True, _nrt=False)
+def _square_lockstep(
+    tb, J, a, b, sig, kk, fb, half, ridge, big, sxs, srs, warm, lo_out, hi_out, st_out,
+    B, M, K, L, U, Fl, Fu, box, p, fr, tr, tau, nu, ua, rhs, w, rn,
+    Bs, Ls, Us, rns, ok, bad, emp, todo, done, vals, Kl, rh, taul, nul, okv, cnv, fq,
+):  # fmt: skip
+    """:func:`square_block` by blocks of :data:`BLOCK` samples: ``J^-T`` of every sample of the
+    block, then per LP lockstep passes (:func:`.sm_lockstep.lockstep_verify`) with the LP's
+    current working set over the samples not yet solved, and the per-sample dual simplex
+    (:func:`_lp`, warm from that working set, else cold) at the first sample a pass leaves
+    unsolved; its optimum is the next pass's working set."""
+    N, m = tb.shape
+    maxit = 4 * m + 8
+    for g in range(m):
+        box[g] = not ridge[g]
+        Fl[g] = fb[g] - half[g]
+        Fu[g] = fb[g] + half[g]
+    for k0 in range(0, N, BLOCK):
+        nb = min(BLOCK, N - k0)
+        # the row order partial pivoting takes for J^T at the block's first sample, then every
+        # sample's bounds and J^-T in lockstep with that order; per sample where it does not fit
+        for j in range(m):
+            for g in range(m):
+                K[j, g] = J[k0, g, j]
+        if not _lu(K, m, p):
+            for j in range(m):
+                p[j] = j
+        lockstep_inverse(tb, J, a, b, sig, kk, fb, big, MAX_CONDITION, k0, nb, m, p, Ls, Us, Bs,
+                         rns, okv, Kl, cnv, fq)  # fmt: skip
+        for q in range(nb):
+            bad[q] = False
+            emp[q] = False
+            ok[q] = okv[q] != 0.0
+            if ok[q]:
+                continue
+            k = k0 + q
+            finite = True
+            for j in range(m):
+                Ls[j, q] = tb[k, j] - b[k, j] - kk * sig[k, j]
+                Us[j, q] = tb[k, j] - a[k, j] + kk * sig[k, j]
+                finite = finite and math.isfinite(Ls[j, q]) and math.isfinite(Us[j, q])
+            ok[q] = finite and _inverse_t(J, k, m, B, M)
+            if not ok[q]:
+                continue
+            for g in range(m):
+                c = 0.0
+                r = 0.0
+                v = 1e-300
+                for j in range(m):
+                    Bs[g, j, q] = B[g, j]
+                    c += B[g, j] * 0.5 * (Ls[j, q] + Us[j, q])
+                    r += abs(B[g, j]) * 0.5 * (Us[j, q] - Ls[j, q])
+                    v += abs(B[g, j])
+                rns[g, q] = v
+                if not abs(c - fb[g]) + r < big:
+                    ok[q] = False  # a vertex reaches the artificial box: the general kernel
+        for o in range(2 * m):
+            i = o // 2
+            sg = 1.0 if o % 2 == 0 else -1.0
+            for q in range(nb):
+                todo[q] = ok[q] and not bad[q] and not emp[q]
+                done[q] = False
+            passes = 0
+            fresh = warm[o]  # a working set not yet tried by a lockstep pass
+            q = 0
+            while True:
+                while q < nb and not (todo[q] and not done[q]):
+                    q += 1
+                if q >= nb:
+                    break
+                if fresh and passes < PASSES:
+                    passes += 1
+                    fresh = False
+                    t = _pivot_order(Bs, q, sxs, srs, o, m, K, p, fr, tr)
+                    q1 = nb  # up to the last sample left (a pass costs its whole range)
+                    while not (todo[q1 - 1] and not done[q1 - 1]):
+                        q1 -= 1
+                    if t >= 0:
+                        lockstep_verify(Bs, Ls, Us, Fl, Fu, box, i, sg, m, sxs, srs, fr, tr, t,
+                                        q, q1, todo, done, vals, o, Kl, rh, taul, nul, okv,
+                                        cnv, fq)  # fmt: skip
+                        if done[q]:
+                            continue
+                # the per-sample dual simplex at sample q
+                for g in range(m):
+                    L[g] = Ls[g, q]
+                    U[g] = Us[g, q]
+                    rn[g] = rns[g, q]
+                    for j in range(m):
+                        B[g, j] = Bs[g, j, q]
+                st = 2
+                val = 0.0
+                if warm[o]:
+                    st, val = _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sxs, srs, o, K, p, fr, tr,
+                                  tau, nu, ua, rhs, w, True, maxit)  # fmt: skip
+                if st == 2:
+                    _cold(B, i, sg, m, sxs, srs, o)
+                    st, val = _lp(B, rn, L, U, Fl, Fu, box, i, sg, m, sxs, srs, o, K, p, fr, tr,
+                                  tau, nu, ua, rhs, w, False, maxit)  # fmt: skip
+                warm[o] = st == 0
+                fresh = st == 0
+                if st == 2:
+                    bad[q] = True
+                elif st == 1:
+                    emp[q] = True
+                vals[o, q] = val
+                done[q] = True
+                q += 1
+        for q in range(nb):
+            k = k0 + q
+            if not ok[q] or bad[q]:
+                st_out[k] = -1
+            elif emp[q]:  # empty with the prior box: the torque box alone (each bound's vertex)
+                st_out[k] = 6
+                for i in range(m):
+                    lo = 0.0
+                    hi = 0.0
+                    for j in range(m):
+                        if Bs[i, j, q] >= 0.0:
+                            lo += Bs[i, j, q] * Ls[j, q]
+                            hi += Bs[i, j, q] * Us[j, q]
+                        else:
+                            lo += Bs[i, j, q] * Us[j, q]
+                            hi += Bs[i, j, q] * Ls[j, q]
+                    lo_out[k, i] = lo
+                    hi_out[k, i] = hi
+            else:
+                st_out[k] = 5
+                for i in range(m):
+                    lo_out[k, i] = vals[2 * i, q]
+                    hi_out[k, i] = vals[2 * i + 1, q]
+
+
 @njit(cache=True)
-def square_block(tb, J, a, b, sig, kk, fb, half, ridge, big, S, lo_out, hi_out, st_out):
+def square_block(
+    tb, J, a, b, sig, kk, fb, half, ridge, big, S, lo_out, hi_out, st_out, lockstep=True
+):  # fmt: skip
     """The ``2m`` set-membership LPs of every sample of a block in torque coordinates (module
     docstring), where this path can take them.
 
@@ -410,6 +592,8 @@ def square_block(tb, J, a, b, sig, kk, fb, half, ridge, big, S, lo_out, hi_out, 
     ``st_out (N,)``: 5 solved with the prior box, 6 solved without it (empty with it), -1 not
     taken (an infinite band edge, an ill-conditioned ``J``, a bound beyond the artificial box, a
     singular basis, the iteration limit: the general kernel solves the sample).
+    ``lockstep=False``: one sample at a time, the 2m LPs in turn (the reference of the lockstep
+    passes; the same optima to rounding).
     """
     N, m = tb.shape
     sxs, srs, warm = S
@@ -430,9 +614,21 @@ def square_block(tb, J, a, b, sig, kk, fb, half, ridge, big, S, lo_out, hi_out, 
     rhs = np.empty(m)
     w = np.empty(m)
     rn = np.empty(m)
-    _square_block(
+    if not lockstep:
+        _square_block(
+            tb, J, a, b, sig, kk, fb, half, ridge, big, sxs, srs, warm, lo_out, hi_out, st_out,
+            B, M, K, L, U, Fl, Fu, box, p, fr, tr, tau, nu, ua, rhs, w, rn,
+        )  # fmt: skip
+        return
+    W = BLOCK
+    _square_lockstep(
         tb, J, a, b, sig, kk, fb, half, ridge, big, sxs, srs, warm, lo_out, hi_out, st_out,
         B, M, K, L, U, Fl, Fu, box, p, fr, tr, tau, nu, ua, rhs, w, rn,
+        np.empty((m, m, W)), np.empty((m, W)), np.empty((m, W)), np.empty((m, W)),
+        np.empty(W, np.bool_), np.empty(W, np.bool_), np.empty(W, np.bool_),
+        np.empty(W, np.bool_), np.empty(W, np.bool_), np.empty((2 * m, W)),
+        np.empty((m, m, W)), np.empty((m, W)), np.empty((m, W)), np.empty((m, W)),
+        np.empty(W), np.empty(W), np.empty(W),
     )  # fmt: skip
 
 
