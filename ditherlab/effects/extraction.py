@@ -36,7 +36,13 @@ from ditherlab.effects.sensor import AttenuationLag
 from ditherlab.effects.signals import Signals
 from ditherlab.signal import DITHER, MOVING, causal_mean
 
-__all__ = ["DitherExtraction", "extraction_gain", "extraction_mask", "extraction_window"]
+__all__ = [
+    "DitherExtraction",
+    "extracted_rows",
+    "extraction_gain",
+    "extraction_mask",
+    "extraction_window",
+]
 
 
 def extraction_window(sig: Signals) -> int:
@@ -79,6 +85,7 @@ class DitherExtraction(Effect):
     shows_in = ("dither", "moving")
     pointwise = False  # a mean over time
     needs_dither = True
+    on_every_joint = True  # the extraction runs on every dithering joint
 
     def signs(self, h):
         return (1,)
@@ -153,3 +160,24 @@ def extraction_gain(specs: Any, n: int, key: str = "gain") -> np.ndarray | None:
                 v = v[spec.joints.index(jj)] if isinstance(v, list) else v
                 out[jj - 1] = float(v or 0.0)
     return out if found else None
+
+
+def extracted_rows(specs: Any, sig: Signals) -> np.ndarray:
+    """(N, n) bool: the rows and joints where a model's external torque (effect specs
+    ``specs``, on the recording behind ``sig``) already is what the extraction shows, a
+    one-period mean (:func:`extraction_mask` of every joint its ``dither_extraction`` names).
+
+    A consumer that compares the extracted signal with the model torque passed through the
+    dither window (identification's dither regime, :mod:`ditherlab.identify`) takes the external
+    torque there as it is: windowed once, by the effect, not twice.
+    """
+    out = np.zeros((len(sig.t), sig.n), dtype=bool)
+    if extraction_window(sig) == 0:
+        return out
+    for spec in specs:
+        if spec.name != DitherExtraction.name:
+            continue
+        for jj in spec.joints:
+            if 1 <= jj <= sig.n:
+                out[:, jj - 1] = extraction_mask(sig, jj - 1)
+    return out
