@@ -435,8 +435,11 @@ class _Samples:
             else None
         )
         if shown is not None and shown.any():
-            seen = np.where(shown, ext, 0.0)  # already windowed by the model
-            rho_d = sig.signal - causal_mean(model_tau - seen, w) - seen
+            # the rest of the model through the window; the external torque through it only
+            # where the model has not already windowed it
+            assert ext is not None
+            ext_d = np.where(shown, ext, causal_mean(ext, w))
+            rho_d = sig.signal - causal_mean(model_tau - ext, w) - ext_d
         else:
             rho_d = sig.signal - causal_mean(model_tau, w)
         dmask = (reg == DITHER) & sig.valid[:, None]
