@@ -378,9 +378,7 @@ class _Samples:
             (ALL_MOVING, rho, reg == MOVING),
         ]
         dith = (
-            self._dither_source(rec, rho, ext, model, reg, keep)
-            if (reg == DITHER).any()
-            else None
+            self._dither_source(rec, rho, ext, model, reg, keep) if (reg == DITHER).any() else None
         )
         # a piece without dithered samples still continues the dither regime's runs
         sources.append(dith or (DITHER, rho, np.zeros_like(reg, dtype=bool)))

@@ -87,9 +87,7 @@ def test_extraction_is_fitted_on_every_joint_a_push_loads(control):
     w = int(round(2 * np.pi / 80.0 * rec.sample_rate))  # the simulator's 80 rad/s dither
     dith = regimes(rec) == DITHER
     sigma = np.array(m["regimes"]["dither"]["sigma"])
-    peak = np.array(
-        [np.max(np.abs(causal_mean(X, w)[:, j])[dith[:, j]]) for j in range(rec.n)]
-    )
+    peak = np.array([np.max(np.abs(causal_mean(X, w)[:, j])[dith[:, j]]) for j in range(rec.n)])
     loaded = [j + 1 for j in range(rec.n) if peak[j] >= ACTS_SNR * sigma[j]]
     assert loaded == [1, 2, 3, 4, 5], (peak, sigma)
     assert peak[5] < sigma[5]  # joint 6: a force at the tool point does not load it
