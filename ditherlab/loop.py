@@ -3,9 +3,9 @@
 ``identify --add NAME`` and the library call :func:`add_effect`: the joints are chosen by
 diagnosis (:func:`ditherlab.scoring.select_joints`; an effect of the measurement pipeline,
 :attr:`~ditherlab.effects.Effect.on_every_joint`, goes on every joint where it acts), the
-effect is fitted on the band-aware residual (:mod:`ditherlab.fit`), refused when the bands could take it
-(:func:`ditherlab.fit.identifiability`), and the bands re-identified with it in place
-(:func:`ditherlab.identify.identify`). This module sits above both identify and diagnose, so
+effect is fitted on the band-aware residual (:mod:`ditherlab.fit`), refused when the bands
+could take it (:func:`ditherlab.fit.identifiability`), and the bands re-identified with it in
+place (:func:`ditherlab.identify.identify`). This module sits above both identify and diagnose, so
 neither has to know the other.
 """
 
