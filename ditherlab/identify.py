@@ -38,7 +38,7 @@ import numpy as np
 from ditherlab.bandfit import BandFit, band_noise_logpdf, fit_band, fit_sliding
 from ditherlab.dither import dithered_band, extract_dither
 from ditherlab.effects import effects_torque, external_torque, release, sensor_wrench, signals
-from ditherlab.effects.extraction import extracted_rows
+from ditherlab.effects.extraction import extracted_rows, logged_view
 from ditherlab.errors import ConfigError, RecordingError
 from ditherlab.io.spill import SPILL_BYTES, Spill
 from ditherlab.io.stream import CHUNK_ROWS, Source, pieces_of
@@ -82,6 +82,19 @@ def friction_residual(
         return rho
     J = rec.robot().jacobian(rec.q)
     return rho - _sensor_external(model, rec, J)
+
+
+def _logged_model(model: TorqueModel | None) -> TorqueModel | None:
+    """The model whose external torque is what the logged torque shows (``model`` itself when
+    it has no term for the dither's extraction, :func:`logged_view`)."""
+    if model is None or not model.effects:
+        return model
+    specs = logged_view(model.effects)
+    if len(specs) == len(model.effects):
+        return model
+    out = model.copy()
+    out.effects = specs
+    return out
 
 
 def _tau_minus_model(tau: np.ndarray, rec: Recording, model: TorqueModel | None) -> np.ndarray:
@@ -359,8 +372,15 @@ class _Samples:
         rho = _tau_minus_model(rec.tau, rec, model)
         ext = None
         if not assume_no_force:
-            ext = _sensor_external(model, rec, rec.robot().jacobian(rec.q))
+            J = rec.robot().jacobian(rec.q)
+            ext = _sensor_external(model, rec, J)
+            logged = _logged_model(model)
+            # the still and moving regimes read the logged torque: the external torque as it
+            # shows there (without the extraction's view, which the dither regime takes)
+            rho_logged = rho - (ext if logged is model else _sensor_external(logged, rec, J))
             rho = rho - ext
+        else:
+            rho_logged = rho
         blk = ((rec.t[keep] - self._t0) // block).astype(np.int64)
         dq = rec.dq
         # the paper's model neglects dynamic torques ("slow velocities and low accelerations"):
@@ -373,9 +393,9 @@ class _Samples:
         # +-0.8, set its edges), the sliding friction with them
         slide = ~stick_transitions(reg, rec.sample_rate) & (np.abs(dq) >= REVERSAL_V)
         sources = [
-            (STILL, rho, reg == STILL),
-            (MOVING, rho, (reg == MOVING) & slow),
-            (ALL_MOVING, rho, reg == MOVING),
+            (STILL, rho_logged, reg == STILL),
+            (MOVING, rho_logged, (reg == MOVING) & slow),
+            (ALL_MOVING, rho_logged, reg == MOVING),
         ]
         dith = (
             self._dither_source(rec, rho, ext, model, reg, keep) if (reg == DITHER).any() else None

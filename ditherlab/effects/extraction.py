@@ -39,6 +39,7 @@ from ditherlab.signal import DITHER, MOVING, causal_mean
 __all__ = [
     "DitherExtraction",
     "extracted_rows",
+    "logged_view",
     "extraction_gain",
     "extraction_mask",
     "extraction_window",
@@ -181,3 +182,12 @@ def extracted_rows(specs: Any, sig: Signals) -> np.ndarray:
             if 1 <= jj <= sig.n:
                 out[:, jj - 1] = extraction_mask(sig, jj - 1)
     return out
+
+
+def logged_view(specs: Any) -> list[Any]:
+    """The effect specs ``specs`` of a model without its ``dither_extraction``: the external
+    torque as the **logged** torque shows it. The extraction's gain and lag describe the
+    extracted signal; a consumer that compares the logged torque with the model (identification's
+    still and moving regimes, where a joint creeps under a push with the dither on) takes
+    ``J^T F`` through the model's other external effects."""
+    return [s for s in specs if s.name != DitherExtraction.name]
