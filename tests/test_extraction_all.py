@@ -106,18 +106,34 @@ def test_acting_joints_needs_a_dithered_push():
         assert acting_joints(e, [scored(base, rec)]) == want
 
 
-def test_identify_windows_the_model_torque_once():
-    """Identification's dither residual with an extraction that shows the push exactly (gain 1,
-    no lag: the one-period mean of J^T F) equals the base model's, whose J^T F it passes through
-    the same window: the effect's term is not windowed a second time (before: the dither noise
-    of joint 2 moved from 0.13768 to 0.13775 N·m on this campaign, joint 5 likewise)."""
+def test_identify_reads_each_regime_through_its_own_torque():
+    """Identification with the extraction in the model. The dither regime reads the extracted
+    signal: with an extraction that shows the push exactly (gain 1, no lag: the one-period mean
+    of J^T F) its residual equals the base model's, whose J^T F it passes through the same
+    window; the effect's term is not windowed a second time (before: the dither noise of joint 2
+    moved from 0.13768 to 0.13775 N·m on this campaign). The still and moving regimes read the
+    logged torque, which the extraction's view does not describe: with a realistic extraction
+    (gain 0.8, lag 42 samples) their bands and sliding friction are the base model's (before:
+    joint 3's Coulomb friction fell from 5.8 to 0.6 N·m on seed 979's campaign)."""
     rec = simulate("push-campaign", seed=5, pushes_per_direction=2)
     assert extraction_window(signals(rec)) == 20  # samples: 2π / 80 rad/s at 250 Hz
     base = identify([rec], n_boot=0)
-    exact = base.copy()
-    exact.effects = [
-        EffectSpec("dither_extraction", list(range(1, 7)), {"gain": [1.0] * 6, "lag": [0] * 6})
-    ]
+
+    def with_extraction(gain: float, lag: int):
+        m = base.copy()
+        m.effects = [
+            EffectSpec(
+                "dither_extraction", list(range(1, 7)), {"gain": [gain] * 6, "lag": [lag] * 6}
+            )
+        ]
+        return identify([rec], base=m, n_boot=0)
+
     a = identify([rec], base=base, n_boot=0)
-    b = identify([rec], base=exact, n_boot=0)
-    np.testing.assert_allclose(b.regimes["dither"].sigma, a.regimes["dither"].sigma, rtol=1e-9)
+    exact = with_extraction(1.0, 0)
+    np.testing.assert_allclose(exact.regimes["dither"].sigma, a.regimes["dither"].sigma, rtol=1e-9)
+    real = with_extraction(0.8, 42)
+    for name in ("still", "moving"):
+        for k in ("tau_min", "tau_max", "sigma", "coulomb", "viscous"):
+            got, want = getattr(real.regimes[name], k), getattr(a.regimes[name], k)
+            if want is not None:
+                np.testing.assert_allclose(got, want, rtol=1e-9, err_msg=f"{name}.{k}")
