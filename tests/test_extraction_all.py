@@ -45,6 +45,11 @@ def control(tmp_path_factory):
                     "--pushes-per-direction", str(PUSHES), "-o", str(p), "-q")  # fmt: skip
         assert r.code == 0, r.err
         paths[s] = p
+    r = run_cli(
+        "identify", str(paths[ID_SEED]), "--bootstrap", "0", "-o", str(d / "base.toml"), "-q"
+    )
+    assert r.code == 0, r.err
+    paths["base"] = d / "base.toml"
     model = d / "m.toml"
     r = run_cli("identify", str(paths[ID_SEED]), "--add", "inertia", "--add", "dither_extraction",
                 "--bootstrap", "0", "-o", str(model), "-q")  # fmt: skip
@@ -56,8 +61,8 @@ def control(tmp_path_factory):
 def test_dithered_clean_control_suggests_nothing(control):
     """identify on the dithered clean campaign of seed 977 with ``--add inertia --add
     dither_extraction``, diagnose on seed 978's: nothing is suggested. (With the extraction on
-    977's evidence joints only, joint 1 here, diagnose suggested attenuation_lag on joints 1, 5:
-    41 % of the residual.)"""
+    977's evidence joints only, joints 2 and 3 here, diagnose suggested attenuation_lag on
+    joints 1 and 5: 41 % of the residual.)"""
     paths, model = control
     r = run_cli("diagnose", str(paths[EV_SEED]), "--model", str(model), "--json",
                 "--no-history", "-q")  # fmt: skip
@@ -68,6 +73,24 @@ def test_dithered_clean_control_suggests_nothing(control):
     assert sug == [], sug
     best = {c["effect"]: c["explained_fraction"] for c in cands}
     assert best["attenuation_lag"] < 0.05, best
+
+
+@pytest.mark.slow
+def test_found_where_the_model_lacks_it_and_only_with_dither(control, tmp_path):
+    """Diagnose still suggests dither_extraction on the dithered evaluation campaign when the
+    model lacks it (the base model identified on 977), and not on the same campaign without
+    dither, where its design is zero."""
+    paths, _ = control
+    nod = tmp_path / "nodither.parquet"
+    r = run_cli("simulate", "push-campaign", "--seed", str(EV_SEED), "--no-dither",
+                "--pushes-per-direction", str(PUSHES), "-o", str(nod), "-q")  # fmt: skip
+    assert r.code == 0, r.err
+    for rec, want in ((paths[EV_SEED], True), (nod, False)):
+        r = run_cli("diagnose", str(rec), "--model", str(paths["base"]), "--json",
+                    "--no-history", "-q")  # fmt: skip
+        assert r.code == 0, r.err
+        ext = [c for c in json.loads(r.out)["candidates"] if c["effect"] == "dither_extraction"]
+        assert len(ext) == 1 and ext[0]["suggested"] is want, (rec, ext)
 
 
 @pytest.mark.slow
