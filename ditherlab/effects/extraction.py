@@ -16,7 +16,12 @@ The effect: where the dither has been on over a whole window and the joint stand
 elsewhere ``J^T F`` itself. ``W`` is the recording's dither period (known, not searched);
 ``gain`` (linear) and the lag (samples, searched on a grid, 0 included) are fitted per joint from
 pushes made with the dither on. On a recording without dither, or without pushes, its design is
-zero: diagnose cannot suggest it there and ``identify --add`` refuses it.
+zero: diagnose cannot suggest it there and ``identify --add`` refuses it. The extraction runs on
+every dithering joint (``on_every_joint``): ``identify --add`` fits it on every joint a push
+loads above the noise (:func:`ditherlab.scoring.acting_joints`; joints 1-5 of the IRB140), not
+only where one recording's diagnosis evidence passed. Identification compares it with the
+extracted signal only (its dither regime, :func:`extracted_rows`); its still and moving regimes
+read the logged torque (:func:`logged_view`).
 
 Diagnosis reads the extracted signal in the ``dither`` regime and the logged torque while a
 joint moves, so on the creeping rows the effect's one-period mean is half a period early
