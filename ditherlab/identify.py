@@ -37,7 +37,8 @@ import numpy as np
 
 from ditherlab.bandfit import BandFit, band_noise_logpdf, fit_band, fit_sliding
 from ditherlab.dither import dithered_band, extract_dither
-from ditherlab.effects import effects_torque, external_torque, release, sensor_wrench
+from ditherlab.effects import effects_torque, external_torque, release, sensor_wrench, signals
+from ditherlab.effects.extraction import extracted_rows, logged_view
 from ditherlab.errors import ConfigError, RecordingError
 from ditherlab.io.spill import SPILL_BYTES, Spill
 from ditherlab.io.stream import CHUNK_ROWS, Source, pieces_of
@@ -81,6 +82,19 @@ def friction_residual(
         return rho
     J = rec.robot().jacobian(rec.q)
     return rho - _sensor_external(model, rec, J)
+
+
+def _logged_model(model: TorqueModel | None) -> TorqueModel | None:
+    """The model whose external torque is what the logged torque shows (``model`` itself when
+    it has no term for the dither's extraction, :func:`logged_view`)."""
+    if model is None or not model.effects:
+        return model
+    specs = logged_view(model.effects)
+    if len(specs) == len(model.effects):
+        return model
+    out = model.copy()
+    out.effects = specs
+    return out
 
 
 def _tau_minus_model(tau: np.ndarray, rec: Recording, model: TorqueModel | None) -> np.ndarray:
@@ -354,7 +368,19 @@ class _Samples:
         """Add the residual samples of the rows ``keep`` of ``rec`` (a piece of the recording
         begun by :meth:`start`, with context around them), every regime (see :func:`identify`)."""
         reg = regimes(rec)
-        rho = friction_residual(rec, model, assume_no_force=assume_no_force)
+        # rho = (tau - gravity - effects) - external, the parts kept for the dither regime
+        rho = _tau_minus_model(rec.tau, rec, model)
+        ext = None
+        if not assume_no_force:
+            J = rec.robot().jacobian(rec.q)
+            ext = _sensor_external(model, rec, J)
+            logged = _logged_model(model)
+            # the still and moving regimes read the logged torque: the external torque as it
+            # shows there (without the extraction's view, which the dither regime takes)
+            rho_logged = rho - (ext if logged is model else _sensor_external(logged, rec, J))
+            rho = rho - ext
+        else:
+            rho_logged = rho
         blk = ((rec.t[keep] - self._t0) // block).astype(np.int64)
         dq = rec.dq
         # the paper's model neglects dynamic torques ("slow velocities and low accelerations"):
@@ -367,11 +393,13 @@ class _Samples:
         # +-0.8, set its edges), the sliding friction with them
         slide = ~stick_transitions(reg, rec.sample_rate) & (np.abs(dq) >= REVERSAL_V)
         sources = [
-            (STILL, rho, reg == STILL),
-            (MOVING, rho, (reg == MOVING) & slow),
-            (ALL_MOVING, rho, reg == MOVING),
+            (STILL, rho_logged, reg == STILL),
+            (MOVING, rho_logged, (reg == MOVING) & slow),
+            (ALL_MOVING, rho_logged, reg == MOVING),
         ]
-        dith = self._dither_source(rec, rho, reg, keep) if (reg == DITHER).any() else None
+        dith = (
+            self._dither_source(rec, rho, ext, model, reg, keep) if (reg == DITHER).any() else None
+        )
         # a piece without dithered samples still continues the dither regime's runs
         sources.append(dith or (DITHER, rho, np.zeros_like(reg, dtype=bool)))
         for code, r, mask in sources:
@@ -394,22 +422,44 @@ class _Samples:
                     st.append(("slide", *key), slide[keep, j][m])
 
     def _dither_source(
-        self, rec: Recording, rho: np.ndarray, reg: np.ndarray, keep: slice
+        self,
+        rec: Recording,
+        rho: np.ndarray,
+        ext: np.ndarray | None,
+        model: TorqueModel | None,
+        reg: np.ndarray,
+        keep: slice,
     ) -> tuple[int, np.ndarray, np.ndarray] | None:
         """The dither regime's residual from the extracted signal (paper §IV-A), or None.
 
         The extracted signal replaces the raw torque, on samples whose one-period window lies
         wholly in the dither. It is (for the slow part) a one-period running mean: it is compared
         with the model torque passed through the same window, so that the extraction's delay
-        does not count as friction. Records the dither amplitude per joint (of the rows
-        ``keep``) and the lag of the noise estimate (one period).
+        does not count as friction. The model torque is windowed once: where the model's
+        external torque ``ext`` (N, n) [N·m] (None: no sensor term) already is the extraction's
+        one-period mean (``dither_extraction``, :func:`extracted_rows`) it is taken as it is.
+        ``rho`` (N, n) [N·m] is the raw residual ``tau - model torque``. Records the dither
+        amplitude per joint (of the rows ``keep``) and the lag of the noise estimate (one
+        period).
         """
         sig = extract_dither(rec)
         if sig is None:
             return None
         model_tau = rec.tau - rho
         w = max(int(round(sig.period * rec.sample_rate)), 1)
-        rho_d = sig.signal - causal_mean(model_tau, w)
+        shown = (
+            extracted_rows(model.effects, signals(rec))
+            if ext is not None and model is not None and model.effects
+            else None
+        )
+        if shown is not None and shown.any():
+            # the rest of the model through the window; the external torque through it only
+            # where the model has not already windowed it
+            assert ext is not None
+            ext_d = np.where(shown, ext, causal_mean(ext, w))
+            rho_d = sig.signal - causal_mean(model_tau - ext, w) - ext_d
+        else:
+            rho_d = sig.signal - causal_mean(model_tau, w)
         dmask = (reg == DITHER) & sig.valid[:, None]
         for j in range(self.n):
             dk = dmask[keep, j]

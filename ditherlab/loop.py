@@ -1,10 +1,11 @@
 """The diagnosis loop's workflow: add an effect to a model, re-fit, and the file-level commands.
 
 ``identify --add NAME`` and the library call :func:`add_effect`: the joints are chosen by
-diagnosis (:func:`ditherlab.diagnose.select_joints`), the effect is fitted on the band-aware
-residual (:mod:`ditherlab.fit`), refused when the bands could take it
-(:func:`ditherlab.fit.identifiability`), and the bands re-identified with it in place
-(:func:`ditherlab.identify.identify`). This module sits above both identify and diagnose, so
+diagnosis (:func:`ditherlab.scoring.select_joints`; an effect of the measurement pipeline,
+:attr:`~ditherlab.effects.Effect.on_every_joint`, goes on every joint where it acts), the
+effect is fitted on the band-aware residual (:mod:`ditherlab.fit`), refused when the bands
+could take it (:func:`ditherlab.fit.identifiability`), and the bands re-identified with it in
+place (:func:`ditherlab.identify.identify`). This module sits above both identify and diagnose, so
 neither has to know the other.
 """
 
@@ -48,7 +49,9 @@ def add_effect(
     recs : recordings to fit on (with an F/T sensor for ``attenuation_lag`` and ``ft_bias``)
     name : effect name (see :data:`EFFECTS`)
     joints : 1-based joints for a per-joint effect; None chooses the joints where diagnosis finds
-        the effect (all joints when none passes the test)
+        the effect (the best joint when none passes the test), or for an effect with
+        :attr:`~ditherlab.effects.Effect.on_every_joint` every joint where its design acts
+        (:func:`ditherlab.scoring.acting_joints`)
     refit : re-fit the bands and noise with :func:`ditherlab.identify.identify` afterwards
         (recordings with an F/T sensor, or without one with ``assume_no_force``)
     assume_no_force : the recordings have no sensor and no external force acts (as stated to

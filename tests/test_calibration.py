@@ -78,8 +78,8 @@ def test_design_is_what_the_effect_predicts():
 @pytest.mark.slow
 def test_identified_and_diagnosed_on_a_dithered_push_log_only(tmp_path, cli):
     """Through the CLI on the built-in simulator (seed 31, 3 pushes per axis and sign):
-    ``identify --add dither_extraction`` fits a gain below 1 and a lag on the dithered push
-    campaign; on the same campaign without dither it is refused (one line, exit 2: nothing to
+    ``identify --add dither_extraction`` fits a gain below 1 (and a lag, on some joints) on the
+    dithered push campaign; on the same campaign without dither it is refused (one line, exit 2: nothing to
     fit); diagnose does not suggest it there."""
     paths = {}
     for d in ("dither", "no-dither"):
@@ -102,7 +102,9 @@ def test_identified_and_diagnosed_on_a_dithered_push_log_only(tmp_path, cli):
     gains = np.atleast_1d(spec[0]["params"]["gain"])
     lags = np.atleast_1d(spec[0]["params"]["lag"])
     assert np.all((gains > 0.5) & (gains < 1.0)), gains
-    assert np.all(lags >= 1), lags
+    # fitted on every joint a push loads (session 13), not only where diagnosis found it: a
+    # joint whose extraction is the one-period mean alone fits no extra lag (joint 3 here, 0)
+    assert np.all(lags >= 0) and lags.max() >= 1, lags
     r = cli("identify", paths["no-dither"], "--model", base, "--add", "dither_extraction",
             "-o", tmp_path / "no.toml")  # fmt: skip
     errors = [x for x in r.err.splitlines() if x.startswith("error")]

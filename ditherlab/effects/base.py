@@ -90,6 +90,12 @@ class Effect(abc.ABC):
     #: The effect acts only where the dither is on: adding it needs at least one dithered
     #: recording (else one clear error rather than "cannot be told apart from the bands").
     needs_dither: ClassVar[bool] = False
+    #: The effect belongs to the measurement pipeline, not to one joint's mechanics (the
+    #: dither's extraction): it acts on every joint where its design is above the noise, so
+    #: ``identify --add`` without joints fits it on all of them
+    #: (:func:`ditherlab.scoring.select_joints`), not only where one recording's diagnosis
+    #: evidence passed (the others would keep it in their residual: a false discovery next).
+    on_every_joint: ClassVar[bool] = False
     #: Evidence plots show the residual times sign(dq) while moving (friction that grows with a
     #: load or falls with temperature acts against the motion).
     signed_evidence: ClassVar[bool] = False

@@ -16,7 +16,12 @@ The effect: where the dither has been on over a whole window and the joint stand
 elsewhere ``J^T F`` itself. ``W`` is the recording's dither period (known, not searched);
 ``gain`` (linear) and the lag (samples, searched on a grid, 0 included) are fitted per joint from
 pushes made with the dither on. On a recording without dither, or without pushes, its design is
-zero: diagnose cannot suggest it there and ``identify --add`` refuses it.
+zero: diagnose cannot suggest it there and ``identify --add`` refuses it. The extraction runs on
+every dithering joint (``on_every_joint``): ``identify --add`` fits it on every joint a push
+loads above the noise (:func:`ditherlab.scoring.acting_joints`; joints 1-5 of the IRB140), not
+only where one recording's diagnosis evidence passed. Identification compares it with the
+extracted signal only (its dither regime, :func:`extracted_rows`); its still and moving regimes
+read the logged torque (:func:`logged_view`).
 
 Diagnosis reads the extracted signal in the ``dither`` regime and the logged torque while a
 joint moves, so on the creeping rows the effect's one-period mean is half a period early
@@ -36,7 +41,14 @@ from ditherlab.effects.sensor import AttenuationLag
 from ditherlab.effects.signals import Signals
 from ditherlab.signal import DITHER, MOVING, causal_mean
 
-__all__ = ["DitherExtraction", "extraction_gain", "extraction_mask", "extraction_window"]
+__all__ = [
+    "DitherExtraction",
+    "extracted_rows",
+    "logged_view",
+    "extraction_gain",
+    "extraction_mask",
+    "extraction_window",
+]
 
 
 def extraction_window(sig: Signals) -> int:
@@ -79,6 +91,7 @@ class DitherExtraction(Effect):
     shows_in = ("dither", "moving")
     pointwise = False  # a mean over time
     needs_dither = True
+    on_every_joint = True  # the extraction runs on every dithering joint
 
     def signs(self, h):
         return (1,)
@@ -153,3 +166,33 @@ def extraction_gain(specs: Any, n: int, key: str = "gain") -> np.ndarray | None:
                 v = v[spec.joints.index(jj)] if isinstance(v, list) else v
                 out[jj - 1] = float(v or 0.0)
     return out if found else None
+
+
+def extracted_rows(specs: Any, sig: Signals) -> np.ndarray:
+    """(N, n) bool: the rows and joints where a model's external torque (effect specs
+    ``specs``, on the recording behind ``sig``) already is what the extraction shows, a
+    one-period mean (:func:`extraction_mask` of every joint its ``dither_extraction`` names).
+
+    A consumer that compares the extracted signal with the model torque passed through the
+    dither window (identification's dither regime, :mod:`ditherlab.identify`) takes the external
+    torque there as it is: windowed once, by the effect, not twice.
+    """
+    out = np.zeros((len(sig.t), sig.n), dtype=bool)
+    if extraction_window(sig) == 0:
+        return out
+    for spec in specs:
+        if spec.name != DitherExtraction.name:
+            continue
+        for jj in spec.joints:
+            if 1 <= jj <= sig.n:
+                out[:, jj - 1] = extraction_mask(sig, jj - 1)
+    return out
+
+
+def logged_view(specs: Any) -> list[Any]:
+    """The effect specs ``specs`` of a model without its ``dither_extraction``: the external
+    torque as the **logged** torque shows it. The extraction's gain and lag describe the
+    extracted signal; a consumer that compares the logged torque with the model (identification's
+    still and moving regimes, where a joint creeps under a push with the dither on) takes
+    ``J^T F`` through the model's other external effects."""
+    return [s for s in specs if s.name != DitherExtraction.name]
