@@ -322,6 +322,35 @@ def _lp(
 
 
 @njit(cache=True, inline="always", _nrt=False)
+def _prior_box(fb, half, ridge, m, box, Fl, Fu):
+    """The prior box's rows ``Fl <= B_g tau <= Fu`` = ``fb -+ half`` (``box[g]``: component
+    ``g`` has a prior)."""
+    for g in range(m):
+        box[g] = not ridge[g]
+        Fl[g] = fb[g] - half[g]
+        Fu[g] = fb[g] + half[g]
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _torque_box_bounds(B, L, U, m, k, lo_out, hi_out):
+    """``lo_out[k], hi_out[k]``: ``min / max B_i tau`` over the torque box ``L <= tau <= U``
+    alone (each at the bound vertex its row prefers), the bounds of a sample whose polytope is
+    empty with the prior box (status 6)."""
+    for i in range(m):
+        lo = 0.0
+        hi = 0.0
+        for j in range(m):
+            if B[i, j] >= 0.0:
+                lo += B[i, j] * L[j]
+                hi += B[i, j] * U[j]
+            else:
+                lo += B[i, j] * U[j]
+                hi += B[i, j] * L[j]
+        lo_out[k, i] = lo
+        hi_out[k, i] = hi
+
+
+@njit(cache=True, inline="always", _nrt=False)
 def _cold(B, i, sg, m, sxs, srs, o):
     """The vertex of the bounds alone: each variable at the bound its cost prefers."""
     for j in range(m):
@@ -340,10 +369,7 @@ def _square_block(
     bench's data)."""
     N, m = tb.shape
     maxit = 4 * m + 8
-    for g in range(m):
-        box[g] = not ridge[g]
-        Fl[g] = fb[g] - half[g]
-        Fu[g] = fb[g] + half[g]
+    _prior_box(fb, half, ridge, m, box, Fl, Fu)
     for k in range(N):
         st_out[k] = -1
         finite = True
@@ -392,19 +418,8 @@ def _square_block(
                 lo_out[k, i] = val
             else:
                 hi_out[k, i] = val
-        if status == 6:  # empty with the prior box: the torque box alone (each bound's vertex)
-            for i in range(m):
-                lo = 0.0
-                hi = 0.0
-                for j in range(m):
-                    if B[i, j] >= 0.0:
-                        lo += B[i, j] * L[j]
-                        hi += B[i, j] * U[j]
-                    else:
-                        lo += B[i, j] * U[j]
-                        hi += B[i, j] * L[j]
-                lo_out[k, i] = lo
-                hi_out[k, i] = hi
+        if status == 6:  # empty with the prior box: the torque box alone
+            _torque_box_bounds(B, L, U, m, k, lo_out, hi_out)
             for o in range(2 * m):
                 warm[o] = False
         st_out[k] = status
@@ -457,10 +472,7 @@ def _square_lockstep(
     unsolved; its optimum is the next pass's working set."""
     N, m = tb.shape
     maxit = 4 * m + 8
-    for g in range(m):
-        box[g] = not ridge[g]
-        Fl[g] = fb[g] - half[g]
-        Fu[g] = fb[g] + half[g]
+    _prior_box(fb, half, ridge, m, box, Fl, Fu)
     for k0 in range(0, N, BLOCK):
         nb = min(BLOCK, N - k0)
         # the row order partial pivoting takes for J^T at the block's first sample, then every
@@ -556,20 +568,14 @@ def _square_lockstep(
             k = k0 + q
             if not ok[q] or bad[q]:
                 st_out[k] = -1
-            elif emp[q]:  # empty with the prior box: the torque box alone (each bound's vertex)
+            elif emp[q]:  # empty with the prior box: the torque box alone
                 st_out[k] = 6
-                for i in range(m):
-                    lo = 0.0
-                    hi = 0.0
+                for g in range(m):
+                    L[g] = Ls[g, q]
+                    U[g] = Us[g, q]
                     for j in range(m):
-                        if Bs[i, j, q] >= 0.0:
-                            lo += Bs[i, j, q] * Ls[j, q]
-                            hi += Bs[i, j, q] * Us[j, q]
-                        else:
-                            lo += Bs[i, j, q] * Us[j, q]
-                            hi += Bs[i, j, q] * Ls[j, q]
-                    lo_out[k, i] = lo
-                    hi_out[k, i] = hi
+                        B[g, j] = Bs[g, j, q]
+                _torque_box_bounds(B, L, U, m, k, lo_out, hi_out)
             else:
                 st_out[k] = 5
                 for i in range(m):
