@@ -1,10 +1,14 @@
-"""Rest with dither: the samples of a log flagged ``dither`` outside the dither's ramps, where the
-report (:mod:`ditherlab.thresholds`) measures the noise level that every detection is judged
-against."""
+"""Rest with dither: the samples of a log flagged ``dither`` once the dither's loops have
+settled and before its ramp-out, where the report (:mod:`ditherlab.thresholds`) measures the
+noise level that every detection is judged against."""
 
 from __future__ import annotations
 
+import warnings
+from statistics import NormalDist
+
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from ditherlab.estimates import EstimatesSource
 
@@ -14,26 +18,104 @@ STEADY_FRACTION = 0.8
 #: ... counted for joints whose median amplitude exceeds this fraction of the model's still band
 #: half-width (the others do not dither; their "amplitude" is the noise's spread).
 DITHERS_FRACTION = 0.2
+#: The report's noise level is the 99.9 % quantile of ``|F̂|`` at rest: a dithering joint's
+#: centre has settled once its extracted signal is within this many noise standard deviations
+#: of the level the centre loop holds, the two-sided 99.9 % quantile of the normal (3.29), i.e.
+#: no farther off than the rest noise itself goes in the share of samples the level reads.
+SETTLE_SIGMAS = NormalDist().inv_cdf(0.5 + 0.999 / 2)
+#: The level the centre loop holds is read as the median of the extracted signal over this
+#: many seconds from each sample on: several time constants of a centre loop of the paper's
+#: kind (integral, ~1 s: Fig. 5 settles within 1-2 s; the simulator's 1/s measured 0.4-0.7 s
+#: after the ramp), so a sample still in the transient differs from it by most of its offset
+#: (1 - e^-1 = 0.63 for a 1 s loop, 0.8-0.9 for 0.4-0.7 s), and at most the length of the
+#: shortest campaign push (2 s pushes cover at most half of it: a median ignores them).
+SETTLE_WINDOW_S = 2.0
+
+
+def _spans(flag: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each stretch of a (N,) bool flag."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], flag.astype(np.int8), [0]))))
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _medians(x: np.ndarray, window: int) -> np.ndarray:
+    """(len(x) - window + 1,) medians of ``x`` over each ``window`` consecutive samples, NaN
+    (outside the stretch, or no extraction yet) left out; NaN where a window holds none."""
+    view = sliding_window_view(x, window)
+    if not np.isnan(x).any():
+        return np.median(view, axis=1)
+    with warnings.catch_warnings():  # a window of NaN only: its median is NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(view, axis=1)
+
+
+def _settled(sig: np.ndarray, a: int, b: int, tol: float, window: int) -> int:
+    """The first sample ``k`` in ``[a, b)`` at which the level the extracted signal ``sig`` (N,)
+    [N·m] held over the last ``window`` samples (its median over ``(k - window, k]``, from
+    ``a`` on) and the level it holds next (over ``[k, k + window)``, up to ``b``) agree within
+    ``tol`` [N·m]: the signal has stopped approaching; ``a`` when there is no such sample
+    (nothing is left out)."""
+    block = 512
+    x = np.full(b - a + 2 * (window - 1), np.nan)  # the stretch, NaN-padded by a window
+    x[window - 1 : window - 1 + b - a] = sig[a:b]
+    for i0 in range(0, b - a, block):
+        i1 = min(i0 + block, b - a)
+        seg = x[i0 : i1 + 2 * (window - 1)]  # sample a + i sits at x[i + window - 1]
+        back = _medians(seg[: i1 - i0 + window - 1], window)  # over (k - window, k]
+        fwd = _medians(seg[window - 1 :], window)[: i1 - i0]  # over [k, k + window)
+        near = np.abs(back - fwd) <= tol  # NaN: False
+        if near.any():
+            return a + i0 + int(np.argmax(near))
+    return a
 
 
 def steady_dither(src: EstimatesSource, dith: np.ndarray) -> np.ndarray:
-    """(N,) bool: the samples flagged ``dither`` (``dith (N,)``) outside the dither's ramps —
-    in each stretch of the flag, from the first sample at which every dithering joint's
-    extracted amplitude ``(upper - lower) / 2`` (the estimates' ``extract/`` columns) has
-    reached :data:`STEADY_FRACTION` of its median to the last one at which it still has.
+    """(N,) bool: the samples flagged ``dither`` (``dith (N,)``) where the dither is at work —
+    in each stretch of the flag, from the sample at which its loops have settled to the last
+    one at which every dithering joint's amplitude is still up.
 
-    A log's ``dither`` flag is true while the feedforward is on, its ramps included (RECORDING.md);
-    while it ramps out the centre term moves the extracted signal by up to the band (~8 N·m on
-    the simulator's joint 1), which counted as rest set the dithered noise level at 10.6 N
-    instead of 1 N. Within a stretch the amplitude may dip (a joint slipping under a push or a
-    strong dither): only the ramps at its ends are left out. ``dith`` itself when the file has
-    no extraction columns.
+    Read from the estimates' ``extract/`` columns (per joint ``upper_j``, ``lower_j``,
+    ``signal_j`` [N·m]) and the model in the file's metadata, for every stretch of the flag:
+
+    1. *Amplitude* (the ramps): a joint dithers when its median extracted amplitude
+       ``(upper - lower) / 2`` over the flag exceeds :data:`DITHERS_FRACTION` of its still
+       band's half-width; the stretch runs from the first sample at which every dithering
+       joint's amplitude has reached :data:`STEADY_FRACTION` of that median to the last one
+       at which it still has. A log's ``dither`` flag is true while the feedforward is on, its
+       ramps included (RECORDING.md); while it ramps out the centre term moves the extracted
+       signal by up to the band (~8 N·m on the simulator's joint 1), which counted as rest set
+       the dithered noise level at 10.6 N instead of 1 N. A dip inside the stretch (a joint
+       slipping under a push) is kept.
+    2. *Centre* (the start-up): the centre loop (paper §IV-B, Fig. 5) drives the extracted
+       signal from where the torque stood before the dither to the gravity torque and then
+       holds it there; until it has, the estimator reads the start-up's offset as force (on
+       the simulator 2-7 N·m on joints 1 and 3 when the amplitude is up, still 0.4 N·m on
+       joint 3 1.4 s later). Rest starts at the first sample from which every dithering
+       joint's ``signal_j`` has stopped approaching the level the loop holds: its median
+       over the last :data:`SETTLE_WINDOW_S` seconds (from the amplitude's start on) and
+       over the next agree within :data:`SETTLE_SIGMAS` noise standard deviations (the
+       model's ``[regimes.dither]`` sigma, the extracted signal's noise at rest; without it
+       the signal's own robust spread over the stretch). Medians, so a dip of the noise does
+       not end the start-up early and a push inside a window does not hold it up. Only a
+       stretch's start is searched, up to the first such sample, so later pushes and long
+       rests are never left out; a joint without such a sample leaves the start where the
+       amplitude put it.
+
+    ``dith`` itself when the file has no extraction columns.
     """
     steady = dith.copy()
-    still = (src.meta.get("model") or {}).get("regimes", {}).get("still", {})
+    model = src.meta.get("model") or {}
+    regimes = model.get("regimes", {})
+    still = regimes.get("still", {})
     lo, hi = still.get("tau_min"), still.get("tau_max")
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], dith.astype(np.int8), [0]))))
-    spans = list(zip(edges[0::2], edges[1::2], strict=True))  # [start, stop) of each stretch
+    sigma = (regimes.get("dither") or {}).get("sigma")
+    spans = _spans(dith)
+    t = src.column("t") if "t" in src.columns else None
+    dt = float(np.median(np.diff(t))) if t is not None and len(t) > 1 else 0.0
+    window = max(int(round(SETTLE_WINDOW_S / dt)), 1) if dt > 0 else 1
+    starts = [a for a, _ in spans]  # per stretch: where rest may begin
+    ends = [b for _, b in spans]
+    signals = []  # (signal, noise sigma) of each dithering joint
     j = 1
     while f"extract/upper_{j}" in src.columns and f"extract/lower_{j}" in src.columns:
         amp = 0.5 * (src.column(f"extract/upper_{j}") - src.column(f"extract/lower_{j}"))
@@ -43,15 +125,31 @@ def steady_dither(src: EstimatesSource, dith: np.ndarray) -> np.ndarray:
         # are 50-90 % of it); one that does not shows the noise's spread (a few %)
         half = 0.5 * (hi[j - 1] - lo[j - 1]) if lo and hi and len(lo) >= j else 0.0
         if level > DITHERS_FRACTION * half and level > 0.0:
-            for a, b in spans:
+            for i, (a, b) in enumerate(spans):
                 up = np.flatnonzero(amp[a:b] >= STEADY_FRACTION * level)  # NaN: False
                 if len(up) == 0:
-                    steady[a:b] = False
+                    starts[i], ends[i] = b, b
                 else:
-                    steady[a : a + up[0]] = False
-                    steady[a + up[-1] + 1 : b] = False
+                    starts[i] = max(starts[i], a + int(up[0]))
+                    ends[i] = min(ends[i], a + int(up[-1]) + 1)
+            name = f"extract/signal_{j}"
+            if name in src.columns:
+                s = float(sigma[j - 1]) if sigma and len(sigma) >= j else np.nan
+                signals.append((src.column(name).astype(float), s))
         j += 1
+    for i, (a, b) in enumerate(spans):
+        k0, k1 = starts[i], ends[i]
+        settle = k0
+        for sig, s in signals:
+            if k0 >= k1:
+                break
+            if not np.isfinite(s) or s <= 0.0:  # no model noise: the signal's own robust spread
+                x = sig[k0:k1][np.isfinite(sig[k0:k1])]
+                s = 1.4826 * float(np.median(np.abs(x - np.median(x)))) if len(x) else 0.0
+            settle = max(settle, _settled(sig, k0, k1, SETTLE_SIGMAS * s, window))
+        steady[a:settle] = False
+        steady[k1:b] = False
     return steady
 
 
-__all__ = ["DITHERS_FRACTION", "STEADY_FRACTION", "steady_dither"]
+__all__ = ["DITHERS_FRACTION", "SETTLE_SIGMAS", "SETTLE_WINDOW_S", "STEADY_FRACTION", "steady_dither"]

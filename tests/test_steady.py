@@ -1,0 +1,89 @@
+"""Rest with dither starts once the dither's loops have settled (``ditherlab.steady``).
+
+A short dithered push campaign of the built-in simulator with a long still time after the
+dither's ramp (``push_campaign.settle_s`` = 6 s, so the start-up lies in what the report could
+count as rest) goes through the CLI: simulate -> identify -> replay -> report. Against the
+simulator's truth (the extracted signal less the gravity torque at the logged pose, whose level
+before the first push is where the centre loop holds it): rest begins only where every joint's
+signal has reached that level within the rule's tolerance — the old rule (the amplitude ramp
+only) started it 1 s after the dither came on, with joint 3 still 1-3 N·m off — later pushes
+and rests are all kept, and the dithered noise level is the report's 1 N floor. ~25 s.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+from ditherlab.dither import extract_dither
+from ditherlab.estimates import EstimatesSource
+from ditherlab.io import read
+from ditherlab.steady import SETTLE_SIGMAS, steady_dither
+
+SETTLE_S = 6.0  # still time after the dither's ramp before the first push [s]
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("startup")
+    cfg = d / "cfg.toml"
+    cfg.write_text(
+        f"[push_campaign]\nsettle_s = {SETTLE_S}\nmagnitude_min = 10.0\nmagnitude_max = 25.0\n"
+    )
+    runs = [
+        ("simulate", "push-campaign", "--seed", "5", "--pushes-per-direction", "2",
+         "--no-dither", "--config", cfg, "-o", d / "id-plain.parquet", "-q"),
+        ("simulate", "push-campaign", "--seed", "5", "--pushes-per-direction", "2",
+         "--dither", "--config", cfg, "-o", d / "id-dither.parquet", "-q"),
+        ("simulate", "push-campaign", "--seed", "6", "--pushes-per-direction", "1",
+         "--dither", "--config", cfg, "-o", d / "ev.parquet", "-q"),
+        ("identify", d / "id-plain.parquet", d / "id-dither.parquet", "--bootstrap", "0",
+         "-o", d / "model.toml", "-q"),
+        ("replay", d / "ev.parquet", "--model", d / "model.toml", "--variants", "dither_band",
+         "--components", "fxyz", "-o", d / "ev-est.parquet", "-q"),
+        ("report", d / "ev-est.parquet", "-o", d / "rep", "--bootstrap", "0", "--json", "-q"),
+    ]  # fmt: skip
+    for args in runs:
+        res = run_cli(*args)
+        assert res.code == 0, (args[0], res.err)
+    return d, json.loads(res.out)
+
+
+def test_rest_starts_when_the_loops_have_settled(campaign):
+    d, report = campaign
+    rec = read(d / "ev.parquet")
+    src = EstimatesSource(d / "ev-est.parquet")
+    t = src.column("t")
+    dith = src.column("dither").astype(bool)
+    steady = steady_dither(src, dith)
+    tl = rec.meta["sim"]["timeline"]
+    on, first, off = float(tl["dither_on"]), float(tl["first_push"]), float(tl["dither_off"])
+    assert first - on > SETTLE_S  # the log has the long still start-up the test needs
+
+    # the simulator's truth: the extracted signal less the gravity torque at the logged pose,
+    # settled where it stands before the first push (the loops have had > 6 s)
+    g, _ = rec.robot().gravity_jacobian(rec.q)
+    r = extract_dither(rec).signal - g  # (N, 6) [N·m]
+    level = np.median(r[(t > first - 1.5) & (t < first - 0.2)], axis=0)
+    sigma = np.asarray(src.meta["model"]["regimes"]["dither"]["sigma"])
+    k0 = int(np.flatnonzero(steady)[0])
+    assert on + 1.0 < t[k0] < first - 1.0  # after the amplitude's ramp, before the push's margin
+    # the first second of rest: every joint's mean within the rule's tolerance of its level
+    first_s = (t >= t[k0]) & (t < t[k0] + 1.0)
+    off_by = np.abs(r[first_s].mean(axis=0) - level)
+    assert np.all(off_by <= SETTLE_SIGMAS * sigma), (off_by, SETTLE_SIGMAS * sigma)
+    # ... which the amplitude's ramp alone (rest from ~1 s after the dither came on) was not
+    old = (t >= on + 1.0) & (t < on + 2.0)
+    assert np.abs(r[old].mean(axis=0) - level)[2] > 3 * SETTLE_SIGMAS * sigma[2]
+
+    # only the start is left out: from the first push to the ramp-out every flagged sample stays
+    later = dith & (t >= first) & (t < off)
+    assert later.sum() > 0.8 * (off - first) / (t[1] - t[0]) and steady[later].all()
+    assert not steady[dith & (t > off + 0.5)].any()  # the ramp-out is still left out
+
+    cond = report["conditions"]["dither_band"]
+    assert cond["noise_level"] == {"x": 1.0, "y": 1.0, "z": 1.0}  # the report's 1 N floor
+    assert cond["coverage_rest"] > 0.95
