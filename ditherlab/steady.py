@@ -19,16 +19,16 @@ STEADY_FRACTION = 0.8
 #: half-width (the others do not dither; their "amplitude" is the noise's spread).
 DITHERS_FRACTION = 0.2
 #: The report's noise level is the 99.9 % quantile of ``|F̂|`` at rest: a dithering joint's
-#: centre has settled once its extracted signal is within this many noise standard deviations
-#: of the level the centre loop holds, the two-sided 99.9 % quantile of the normal (3.29), i.e.
-#: no farther off than the rest noise itself goes in the share of samples the level reads.
+#: centre has settled once the level its extracted signal held and the level it holds next
+#: differ by at most this many noise standard deviations, the two-sided 99.9 % quantile of the
+#: normal (3.29): no more than the rest noise itself moves the signal in the share of samples
+#: the noise level reads.
 SETTLE_SIGMAS = NormalDist().inv_cdf(0.5 + 0.999 / 2)
-#: The level the centre loop holds is read as the median of the extracted signal over this
-#: many seconds from each sample on: several time constants of a centre loop of the paper's
-#: kind (integral, ~1 s: Fig. 5 settles within 1-2 s; the simulator's 1/s measured 0.4-0.7 s
-#: after the ramp), so a sample still in the transient differs from it by most of its offset
-#: (1 - e^-1 = 0.63 for a 1 s loop, 0.8-0.9 for 0.4-0.7 s), and at most the length of the
-#: shortest campaign push (2 s pushes cover at most half of it: a median ignores them).
+#: The levels the signal held and holds next are its medians over this many seconds before
+#: and after a sample: longer than the time constant of a centre loop of the paper's kind
+#: (integral, Fig. 5 settles within 1-2 s; the simulator's 1/s gain) so that while the signal
+#: still approaches the two differ by most of the offset, and no longer than the campaigns'
+#: longest push (2 s), so that a push fills at most half a window, which a median ignores.
 SETTLE_WINDOW_S = 2.0
 
 
@@ -89,8 +89,10 @@ def steady_dither(src: EstimatesSource, dith: np.ndarray) -> np.ndarray:
     2. *Centre* (the start-up): the centre loop (paper §IV-B, Fig. 5) drives the extracted
        signal from where the torque stood before the dither to the gravity torque and then
        holds it there; until it has, the estimator reads the start-up's offset as force (on
-       the simulator 2-7 N·m on joints 1 and 3 when the amplitude is up, still 0.4 N·m on
-       joint 3 1.4 s later). Rest starts at the first sample from which every dithering
+       the simulator 2-3 N·m on joints 1 and 3 when the amplitude is up, joint 3 still
+       0.2-1 N·m off 1.4 s later; in its campaigns that start-up lies mostly in the arm's own
+       motion and the first push's margin, which the report leaves out anyway, but in a log
+       with a longer still start it counted as rest). Rest starts at the first sample from which every dithering
        joint's ``signal_j`` has stopped approaching the level the loop holds: its median
        over the last :data:`SETTLE_WINDOW_S` seconds (from the amplitude's start on) and
        over the next agree within :data:`SETTLE_SIGMAS` noise standard deviations (the
@@ -152,4 +154,10 @@ def steady_dither(src: EstimatesSource, dith: np.ndarray) -> np.ndarray:
     return steady
 
 
-__all__ = ["DITHERS_FRACTION", "SETTLE_SIGMAS", "SETTLE_WINDOW_S", "STEADY_FRACTION", "steady_dither"]
+__all__ = [
+    "DITHERS_FRACTION",
+    "SETTLE_SIGMAS",
+    "SETTLE_WINDOW_S",
+    "STEADY_FRACTION",
+    "steady_dither",
+]
