@@ -87,3 +87,47 @@ def test_rest_starts_when_the_loops_have_settled(campaign):
     cond = report["conditions"]["dither_band"]
     assert cond["noise_level"] == {"x": 1.0, "y": 1.0, "z": 1.0}  # the report's 1 N floor
     assert cond["coverage_rest"] > 0.95
+
+
+def test_every_stretch_leaves_out_its_own_start_up():
+    """Two stretches of the dither flag, each starting with the centre loop's exponential
+    approach (offset 3 N·m, time constant 0.5 s, noise 0.1 N·m) and the second with a 1.5 s
+    push-like bump 6 s in: each stretch's rest starts where its offset has fallen to about the
+    tolerance (3.29 sigma, read from the model's dithered noise), the bump and the rest after it
+    are kept, and a joint whose signal drifts slowly all along (0.05 N·m/s: its medians 2 s
+    apart differ by 0.1 N·m, within the tolerance) does not hold rest up."""
+    import pandas as pd
+
+    from ditherlab.estimates import Estimates
+
+    dt = 0.004
+    t = np.arange(int(40 / dt)) * dt
+    dith = ((t >= 1.0) & (t < 15.0)) | ((t >= 20.0) & (t < 39.0))
+    rng = np.random.default_rng(7)
+    sig = 0.1
+    sig1 = rng.normal(0.0, sig, len(t))
+    for a in (1.0, 20.0):
+        on = t >= a
+        sig1 += np.where(on, 3.0 * np.exp(-(t - a) / 0.5), 0.0) * (dith & on)
+    sig1 += np.where((t > 26.0) & (t < 27.5), 2.0, 0.0)  # a push in the second stretch
+    drift = 0.05 * t  # joint 2: 0.05 N·m/s for ever, 0.5 sigma per window
+    amp = np.where(dith, 5.0, 0.0)
+    cols = {"t": t, "dither": dith}
+    for j, c in ((1, sig1), (2, drift + rng.normal(0.0, sig, len(t)))):
+        cols[f"extract/upper_{j}"] = c + amp
+        cols[f"extract/lower_{j}"] = c - amp
+        cols[f"extract/signal_{j}"] = c
+    band = {"tau_min": [-10.0, -10.0], "tau_max": [10.0, 10.0], "sigma": [0.3, 0.3]}
+    dband = {"tau_min": [-1.0, -1.0], "tau_max": [1.0, 1.0], "sigma": [sig, sig]}
+    meta = {"model": {"regimes": {"still": band, "dither": dband}}, "variants": []}
+    src = EstimatesSource.of(Estimates(pd.DataFrame(cols), meta))
+    steady = steady_dither(src, dith)
+    tol = SETTLE_SIGMAS * sig
+    for a, b in ((1.0, 15.0), (20.0, 39.0)):
+        k = np.flatnonzero(steady & (t >= a) & (t < b))
+        start = t[k[0]] - a
+        # the offset 3 exp(-s / 0.5) reaches the tolerance at 0.5 ln(3 / tol) = 1.1 s; the
+        # last 2 s's median reads it about 1 s later (2.1 s), before it is 0.1 tol (2.3 s)
+        assert 0.5 * np.log(3.0 / tol) - 0.2 < start < 0.5 * np.log(3.0 / (0.1 * tol))
+        assert steady[k[0] : np.searchsorted(t, b)].all()  # the bump and all later rest kept
+    assert not steady[~dith].any()
