@@ -255,7 +255,7 @@ def test_lost_motion_recentres_a_joint_without_gravity_after_a_push():
 
 def test_lost_motion_rattles_the_motor_beyond_the_vibration_rule():
     """Why the lost motion is not kept: with a 1e-4 rad gap the motors of the joints without
-    gravity load (1, 4-6) rattle in it at 1.45-1.61e-4 arm rad with the default set-points (0.81-
+    gravity load (1, 4-6) rattle in it at 1.45-1.61e-4 arm rad with the default set-points (0.75-
     0.89e-4 without), beyond the paper's ~1e-4, while their arm side moves less than half that."""
     assert load_params()["joints"]["lost_motion"] == [0.0] * 6  # the default: the plain spring
     eng = Engine(load_params(overrides={"joints": {"lost_motion": 1e-4}}), _robot())
