@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from ditherlab.robot import PAPER_POSE, RobotModel
+from ditherlab.sim import plant as K
 from ditherlab.sim.engine import Engine, Inputs
 from ditherlab.sim.params import load_params
 
@@ -224,8 +225,6 @@ def _state_after_push(joints: dict, axis: int, magnitude: float, j: int) -> floa
     """The link-side friction torque of joint ``j`` (0-based) as a fraction of its static level,
     4.5 s after a 1 s raised-cosine push of ``magnitude`` N along base ``axis`` (0 x, 1 y) at the
     paper's pose: the gear spring's torque minus gravity (none on joints 1, 4-6 there)."""
-    from ditherlab.sim import plant as K
-
     eng = Engine(load_params(overrides={"joints": joints}), _robot())
     N = int(6 * FS_HZ)
     t = np.arange(N) / FS_HZ

@@ -4,12 +4,12 @@ law, window levels, dither mode switch) hold on their own."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.sim.engine import Engine, Inputs, PlantExtras
 from ditherlab.sim.params import load_params
 from ditherlab.sim.plant import (
-    gear_twist,
     ACT_NONE,
     ACT_RAMP_DOWN,
     ACT_UPDATE,
@@ -26,7 +26,9 @@ from ditherlab.sim.plant import (
     _stick_slip,
     _switch_mode,
     _window_levels,
+    gear_twist,
 )
+from ditherlab.sim.scenarios import push_shape
 
 
 def _short_run(reference: bool, overrides: dict | None = None):
@@ -204,3 +206,27 @@ def test_plant_coriolis_is_pinocchios():
         )
         assert np.allclose(c, want, atol=1e-4 * max(1.0, np.abs(want).max())), (c, want)
         assert np.abs(want).max() > 0.05  # the check is not vacuous
+
+
+def test_push_shape_release_fraction():
+    """The operator's let-go: 0.5 is the symmetric raised cosine; 0.8 rises over the first 0.2
+    of the push to its full size and falls over the rest, continuously and monotonically."""
+    T = 1.0
+    tau = np.arange(0, 1000) / 1000.0
+    assert np.array_equal(push_shape(tau, T, 0.5), 0.5 * (1 - np.cos(2 * np.pi * tau / T)))
+    s = push_shape(tau, T, 0.8)
+    assert s[200] == pytest.approx(1.0) and s[0] == 0.0 and s[-1] < 1e-4
+    assert np.all(np.diff(s[:200]) > 0) and np.all(np.diff(s[200:]) < 0)
+    assert np.abs(np.diff(s)).max() < 0.02  # no jump at the peak
+    assert s[100] == pytest.approx(0.5) and s[600] == pytest.approx(0.5)
+
+
+def test_cli_release_fraction_out_of_range_is_one_line(cli, tmp_path):
+    """A share outside [0, 1] names the file, the key, the value and the range; exit 2."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[push_campaign]\nrelease_fraction = 1.5\n")
+    r = cli("simulate", "push-campaign", "-o", tmp_path / "x.parquet", "--config", cfg, "-q")
+    lines = [ln for ln in r.err.splitlines() if ln.strip()]
+    assert r.code == 2 and len(lines) == 1
+    assert f"{cfg}: push_campaign.release_fraction: got 1.5; expected a number" in lines[0]
+    assert not (tmp_path / "x.parquet").exists()
