@@ -8,7 +8,9 @@ Per joint j (arm-side units, SI)::
 
 ``f_m`` and ``f_o`` are the friction on the motor side and on the gear output; ``motor_share``
 splits the band between them. ``P`` is the push on the tool (the wrench the robot exerts is
-``F = -P``). ``r(qm)`` is an optional cogging ripple (hidden effect).
+``F = -P``). ``r(qm)`` is an optional cogging ripple (hidden effect). With ``joints.lost_motion``
+(off by default) the spring has a gap of that width around zero twist, of
+``lost_motion_stiffness`` times ``k`` inside (:func:`_gear_torque`).
 
 Friction model: **rigid stick-slip, solved implicitly at velocity level** (no velocity threshold,
 no bristles). A stuck side holds any friction ``|f| <= Fs`` with ``v = 0`` exactly; when the
@@ -26,6 +28,9 @@ Servo (paper Fig. 3), at ``servo_rate_hz``::
     vref = dq_ref + Kp (q_ref + offset - qm)       Kp = 0 while the joint dithers
     I   += Ki (vref - vm) dt
     u    = g_ctrl(qm) + c + a w(omega t) + Kv (vref - vm) + I
+
+Off by default (``servo.standstill_freeze``, ``standstill_leak``): at standstill (speed reference 0
+and ``|vm| < servo.standstill_velocity``) the integral ``I`` is frozen and/or leaks towards 0.
 
 ``u`` is the torque reference; it is what gets logged (plus noise). When Kp is switched back on,
 ``offset`` is set so that the joint holds where it is (bumpless transfer).
@@ -744,9 +749,7 @@ def _reference_substep(jp, h, sweeps, W, gp0, Gp, qp_lin, JT, Gam, push, tau_ext
     output-side friction by ``sweeps`` Gauss-Seidel sweeps; ``push``, ``tau_ext`` and ``fscale``
     are this sample's rows."""
     n = jp.shape[1]
-    ts = _gear_torque.py_func(
-        jp[KG], jp[CG], x[X_QM], x[X_Q], x[X_VM], x[X_V], jp[LM], jp[LMK]
-    )
+    ts = _gear_torque.py_func(jp[KG], jp[CG], x[X_QM], x[X_Q], x[X_VM], x[X_V], jp[LM], jp[LMK])
     band = jp[FS_M] + jp[FS_O]
     load = np.where(band > 0, 1 + jp[LOAD] * np.abs(ts) / np.where(band > 0, band, 1), 1.0)
     mult = load * fscale
