@@ -4,6 +4,7 @@ law, window levels, dither mode switch) hold on their own."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.sim.engine import Engine, Inputs, PlantExtras
@@ -19,15 +20,19 @@ from ditherlab.sim.plant import (
     F_R,
     F_RD,
     I_MODE,
+    X_I,
     _advance_ramps,
+    _gear_torque,
     _stick_slip,
     _switch_mode,
     _window_levels,
+    gear_twist,
 )
+from ditherlab.sim.scenarios import push_shape
 
 
-def _short_run(reference: bool):
-    p = load_params(overrides={"dither": {"ramp_s": 0.06}})
+def _short_run(reference: bool, overrides: dict | None = None):
+    p = load_params(overrides={"dither": {"ramp_s": 0.06}, **(overrides or {})})
     ex = PlantExtras(
         load=np.full(6, 0.1),
         stribeck=np.full(6, 0.3),
@@ -62,6 +67,70 @@ def test_kernel_matches_reference():
     )
     assert np.array_equal(a.dither, b.dither) and a.dither[10] and not a.dither[0]
     assert np.abs(a.amp_ffw).max() > 0  # the loops acted in this short run
+
+
+#: the session-14 candidates of README "Physics for the paper's table", all switched on
+_CANDIDATES = {
+    "joints": {"lost_motion": 4e-4, "lost_motion_stiffness": 0.2},
+    "servo": {"standstill_freeze": True, "standstill_leak": 2.0, "standstill_velocity": 0.02},
+}
+
+
+def test_kernel_matches_reference_with_the_candidate_options():
+    """Lost motion and the standstill integral go into both steps alike, and they act: the
+    torques differ from the run without them."""
+    a, _ = _short_run(False, _CANDIDATES)
+    b, _ = _short_run(True, _CANDIDATES)
+    base, _ = _short_run(False)
+    assert np.allclose(a.tau, b.tau, atol=1e-6, rtol=0)
+    assert np.allclose(a.q_motor, b.q_motor, atol=1e-9, rtol=0)
+    assert np.allclose(a.q_link, b.q_link, atol=1e-9, rtol=0)
+    assert np.abs(a.tau - base.tau).max() > 0.1
+
+
+def test_lost_motion_spring_and_its_inverse():
+    """Inside the lost motion the spring has the inner stiffness, outside the full one from its
+    edge; gear_twist inverts it (the initial state's twist under gravity)."""
+    k, lm, lmk = 1.0e5, 2e-4, 0.25
+    d = np.array([-1e-3, -2e-4, -1e-4, 0.0, 5e-5, 2e-4, 3e-4])
+    ts = _gear_torque.py_func(k, 0.0, d, 0.0, 0.0, 0.0, lm, lmk)
+    expect = np.where(np.abs(d) <= lm, k * lmk * d, k * (d - np.sign(d) * lm * (1 - lmk)))
+    assert np.allclose(ts, expect, rtol=1e-12, atol=1e-9)
+    assert np.isclose(ts[-1], k * lmk * lm + k * 1e-4)  # continuous at the edge, then k
+    assert np.allclose(gear_twist(ts, k, lm, lmk), d, atol=1e-15)
+    # pure backlash: the twist that carries a torque is the gap's half-width plus torque / k
+    assert np.allclose(gear_twist(ts, k, lm, 0.0)[[0, -1]], [ts[0] / k - lm, ts[-1] / k + lm])
+    # no lost motion: the plain spring, bit for bit
+    assert np.array_equal(_gear_torque.py_func(k, 0.0, d, 0.0, 0.0, 0.0, 0.0, 0.0), k * d)
+
+
+def test_standstill_freeze_holds_the_integral_and_leak_drains_it():
+    """A reference step of 3e-5 rad on joint 1 (no gravity there) while standing still: the
+    normal integral builds up and turns the motor against its own friction; frozen, the P-V loop
+    alone gives Kv Kp e and the stuck motor stays; leaking at L, the integral settles where
+    Ki Kp e = L I."""
+    q0 = np.asarray(PAPER_POSE, dtype=float)
+    step, runs = 3e-5, {}
+    for name, servo in (
+        ("normal", {}),
+        ("freeze", {"standstill_freeze": True, "standstill_velocity": 1.0}),
+        ("leak", {"standstill_leak": 5.0, "standstill_velocity": 1.0}),
+    ):
+        p = load_params(overrides={"servo": servo})
+        eng = Engine(p, RobotModel.from_spec("irb140"))
+        inp = Inputs.still(500, q0)
+        inp.q_ref[10:, 0] += step  # after the first tick (its bumpless offset holds q0)
+        state = eng.initial_state(q0)
+        out = eng.run(inp, state)
+        runs[name] = (out, state["x"][X_I, 0])
+    kv, ki, kp = p["servo"]["kv"][0], p["servo"]["ki"][0], p["servo"]["kp"]
+    out, i_end = runs["normal"]
+    assert i_end > 2.0 and out.q_motor[-1, 0] - q0[0] > 0.3 * step
+    out, i_end = runs["freeze"]
+    assert i_end == 0.0 and np.allclose(out.tau[12:, 0], kv * kp * step, rtol=1e-6)
+    assert np.array_equal(out.q_motor[:, 0], np.full(500, q0[0]))
+    out, i_end = runs["leak"]
+    assert abs(i_end - ki * kp * step / 5.0) < 0.03 * ki * kp * step / 5.0
 
 
 def test_stick_slip_holds_inside_band_and_slips_outside():
@@ -137,3 +206,27 @@ def test_plant_coriolis_is_pinocchios():
         )
         assert np.allclose(c, want, atol=1e-4 * max(1.0, np.abs(want).max())), (c, want)
         assert np.abs(want).max() > 0.05  # the check is not vacuous
+
+
+def test_push_shape_release_fraction():
+    """The operator's let-go: 0.5 is the symmetric raised cosine; 0.8 rises over the first 0.2
+    of the push to its full size and falls over the rest, continuously and monotonically."""
+    T = 1.0
+    tau = np.arange(0, 1000) / 1000.0
+    assert np.array_equal(push_shape(tau, T, 0.5), 0.5 * (1 - np.cos(2 * np.pi * tau / T)))
+    s = push_shape(tau, T, 0.8)
+    assert s[200] == pytest.approx(1.0) and s[0] == 0.0 and s[-1] < 1e-4
+    assert np.all(np.diff(s[:200]) > 0) and np.all(np.diff(s[200:]) < 0)
+    assert np.abs(np.diff(s)).max() < 0.02  # no jump at the peak
+    assert s[100] == pytest.approx(0.5) and s[600] == pytest.approx(0.5)
+
+
+def test_cli_release_fraction_out_of_range_is_one_line(cli, tmp_path):
+    """A share outside [0, 1] names the file, the key, the value and the range; exit 2."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[push_campaign]\nrelease_fraction = 1.5\n")
+    r = cli("simulate", "push-campaign", "-o", tmp_path / "x.parquet", "--config", cfg, "-q")
+    lines = [ln for ln in r.err.splitlines() if ln.strip()]
+    assert r.code == 2 and len(lines) == 1
+    assert f"{cfg}: push_campaign.release_fraction: got 1.5; expected a number" in lines[0]
+    assert not (tmp_path / "x.parquet").exists()

@@ -122,6 +122,10 @@ class Engine:
         jp[K.FS_O], jp[K.FC_O], jp[K.FV_O] = (1 - share) * fs, (1 - share) * fc, (1 - share) * fv
         jp[K.KP] = p["servo"]["kp"]
         jp[K.KV], jp[K.KI] = joint_array(p, "servo.kv", n), joint_array(p, "servo.ki", n)
+        jp[K.ILEAK] = joint_array(p, "servo.standstill_leak", n)
+        jp[K.IFRZ] = float(p["servo"]["standstill_freeze"])
+        jp[K.LM] = 0.5 * joint_array(p, "joints.lost_motion", n)
+        jp[K.LMK] = p["joints"]["lost_motion_stiffness"]
         d = p["dither"]
         jp[K.AMP_SP] = joint_array(p, "dither.amplitude_fraction", n) * fs
         jp[K.AMP_CAP] = d["amplitude_cap"] * fs
@@ -152,6 +156,7 @@ class Engine:
         sp[K.SP_HOLD] = d["hold_fraction"]
         sp[K.SP_RAMP] = max(1.0, d["ramp_s"] * fs_hz)
         sp[K.SP_SWEEPS] = t["gauss_seidel_sweeps"]
+        sp[K.SP_VSTILL] = p["servo"]["standstill_velocity"]
         self.sp = sp
         self.sample_rate = fs_hz
         self.fs, self.fc, self.fv = fs, fc, fv
@@ -166,7 +171,8 @@ class Engine:
         # reference=True here and below: pinocchio's own functions, the simulator's ground truth
         g = self.plant_robot.evaluate(q0, ["gravity"], reference=True)["gravity"][0]
         x[K.X_QM] = q0
-        x[K.X_Q] = q0 - g / self.jp[K.KG]
+        jp = self.jp
+        x[K.X_Q] = q0 - K.gear_twist(g, jp[K.KG], jp[K.LM], jp[K.LMK])
         # the velocity integral carries what the controller's gravity model misses
         x[K.X_I] = g - self.robot.evaluate(q0, ["gravity"], reference=True)["gravity"][0]
         x[K.X_SM] = x[K.X_SO] = 1.0

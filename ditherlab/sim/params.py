@@ -66,6 +66,10 @@ _NON_NEGATIVE = (
     "joints.gear_stiffness",
     "joints.gear_damping_ratio",
     "joints.output_inertia",
+    "joints.lost_motion",
+    "joints.lost_motion_stiffness",
+    "servo.standstill_leak",
+    "servo.standstill_velocity",
     "friction.static",
     "friction.coulomb_ratio",
     "friction.viscous",
@@ -134,7 +138,12 @@ _POSITIVE = (
 
 
 #: Fractions in [0, 1].
-_FRACTION = ("friction.motor_share", "friction.coulomb_ratio")
+_FRACTION = (
+    "friction.motor_share",
+    "friction.coulomb_ratio",
+    "joints.lost_motion_stiffness",
+    "push_campaign.release_fraction",
+)
 #: (min, max) pairs of the scenario tables: min <= max.
 _PAIRS = (
     ("magnitude_min", "magnitude_max"),

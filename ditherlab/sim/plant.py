@@ -8,7 +8,9 @@ Per joint j (arm-side units, SI)::
 
 ``f_m`` and ``f_o`` are the friction on the motor side and on the gear output; ``motor_share``
 splits the band between them. ``P`` is the push on the tool (the wrench the robot exerts is
-``F = -P``). ``r(qm)`` is an optional cogging ripple (hidden effect).
+``F = -P``). ``r(qm)`` is an optional cogging ripple (hidden effect). With ``joints.lost_motion``
+(off by default) the spring has a gap of that width around zero twist, of
+``lost_motion_stiffness`` times ``k`` inside (:func:`_gear_torque`).
 
 Friction model: **rigid stick-slip, solved implicitly at velocity level** (no velocity threshold,
 no bristles). A stuck side holds any friction ``|f| <= Fs`` with ``v = 0`` exactly; when the
@@ -26,6 +28,9 @@ Servo (paper Fig. 3), at ``servo_rate_hz``::
     vref = dq_ref + Kp (q_ref + offset - qm)       Kp = 0 while the joint dithers
     I   += Ki (vref - vm) dt
     u    = g_ctrl(qm) + c + a w(omega t) + Kv (vref - vm) + I
+
+Off by default (``servo.standstill_freeze``, ``standstill_leak``): at standstill (speed reference 0
+and ``|vm| < servo.standstill_velocity``) the integral ``I`` is frozen and/or leaks towards 0.
 
 ``u`` is the torque reference; it is what gets logged (plus noise). When Kp is switched back on,
 ``offset`` is set so that the joint holds where it is (bumpless transfer).
@@ -77,8 +82,12 @@ from numba import njit
     STRIB_V,
     RIP_A,
     RIP_F,
-) = range(21)
-N_JP = 21
+    LM,
+    LMK,
+    ILEAK,
+    IFRZ,
+) = range(25)
+N_JP = 25
 # entries of the scalar parameter array ``sp``
 (
     SP_H,
@@ -95,8 +104,9 @@ N_JP = 21
     SP_SWEEPS,
     SP_WAVE,
     SP_PEAK,
-) = range(14)
-N_SP = 14
+    SP_VSTILL,
+) = range(15)
+N_SP = 15
 #: ``sp[SP_WAVE]`` of each waveform (:data:`ditherlab.dither.WAVEFORMS`, in that order)
 WAVE_SQUARE, WAVE_SINE, WAVE_TRIANGLE = range(3)
 # rows of the continuous state ``x`` (shape (N_X, n))
@@ -180,9 +190,28 @@ def _window_levels(hist, j, fill):
 
 
 @njit(cache=True, inline="always")
-def _gear_torque(kg, cg, qm, q, vm, v):
-    """Torque of the gear spring with damping [N m] (scalars or arrays of joints)."""
-    return kg * (qm - q) + cg * (vm - v)
+def _gear_torque(kg, cg, qm, q, vm, v, lm, lmk):
+    """Torque of the gear spring with damping [N m] (scalars or arrays of joints).
+
+    ``lm`` [rad] is the half-width of the gear's lost motion around zero twist and ``lmk`` [-]
+    the stiffness inside it as a fraction of ``kg`` (0: pure backlash); outside, the spring has
+    the full stiffness ``kg`` from the edge of the lost motion. ``lm = 0`` is the plain spring
+    ``kg (qm - q)``.
+    """
+    d = qm - q
+    inner = np.minimum(np.abs(d), lm)
+    return kg * (d - np.sign(d) * (1.0 - lmk) * inner) + cg * (vm - v)
+
+
+def gear_twist(ts, kg, lm, lmk):
+    """The twist ``qm - q`` [rad] at which the (undamped) gear spring carries ``ts`` [N m]:
+    the inverse of :func:`_gear_torque` at zero velocity (arrays of joints)."""
+    ts, kg, lm, lmk = (np.asarray(a, dtype=float) for a in (ts, kg, lm, lmk))
+    edge = kg * lmk * lm  # torque at the edge of the lost motion
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inside = np.where(lmk > 0, ts / (kg * np.where(lmk > 0, lmk, 1.0)), 0.0)
+    outside = ts / kg + np.sign(ts) * (1.0 - lmk) * lm
+    return np.where(np.abs(ts) <= edge, inside, outside)
 
 
 @njit(cache=True, inline="always")
@@ -267,12 +296,16 @@ def _linear_gravity(g0, G, q_lin, x, row, j):
 
 
 @njit(cache=True, inline="always")
-def _servo(jp, x, q_ref, dq_ref, kp_on, kk, tau_in, dts, loops_on, sq, gc0, Gc, qc_lin, u, ffw):
+def _servo(
+    jp, x, q_ref, dq_ref, kp_on, kk, tau_in, dts, loops_on, sq, gc0, Gc, qc_lin, u, ffw, sp_vstill
+):
     """One servo tick of every joint (paper Fig. 3) -> torque reference ``u``, feedforward ``ffw``.
 
     Position loop (off while the joint dithers; bumpless offset when it comes back on), velocity
     loop with integral, the controller's gravity model and the dither feedforward
     ``c + a sq``. ``tau_in`` [s] is the time since the sample, for the ramp of ``q_ref``.
+    At standstill (speed reference ``dq_ref`` 0 and ``|vm| < sp_vstill`` [rad/s]) the integral
+    is frozen where ``jp[IFRZ]`` is set and leaks at ``jp[ILEAK]`` [1/s] (both 0 by default).
     """
     for j in range(jp.shape[1]):
         dith = loops_on and jp[DMASK, j] > 0.5
@@ -283,7 +316,13 @@ def _servo(jp, x, q_ref, dq_ref, kp_on, kk, tau_in, dts, loops_on, sq, gc0, Gc, 
         x[X_KPE, j] = kpe
         vref = dq_ref[kk, j] + kpe * (qr + x[X_OFF, j] - x[X_QM, j])
         ev = vref - x[X_VM, j]
-        x[X_I, j] += jp[KI, j] * ev * dts
+        if dq_ref[kk, j] == 0.0 and abs(x[X_VM, j]) < sp_vstill:
+            # standstill: the drive freezes the integral or lets it leak (both off by default)
+            if jp[IFRZ, j] < 0.5:
+                x[X_I, j] += jp[KI, j] * ev * dts
+            x[X_I, j] -= jp[ILEAK, j] * x[X_I, j] * dts
+        else:
+            x[X_I, j] += jp[KI, j] * ev * dts
         g = _linear_gravity(gc0, Gc, qc_lin, x, X_QM, j)
         ffw[j] = (x[X_C, j] + x[X_A, j] * sq) if dith else 0.0
         u[j] = g + ffw[j] + jp[KV, j] * ev + x[X_I, j]
@@ -488,7 +527,22 @@ def run_kernel(
             sq = _dither_wave(omega, fst[F_CLOCK], shape)
             tau_in = i * dts
             _servo(
-                jp, x, q_ref, dq_ref, kp_on, kk, tau_in, dts, loops_on, sq, gc0, Gc, qc_lin, u, ffw
+                jp,
+                x,
+                q_ref,
+                dq_ref,
+                kp_on,
+                kk,
+                tau_in,
+                dts,
+                loops_on,
+                sq,
+                gc0,
+                Gc,
+                qc_lin,
+                u,
+                ffw,
+                sp[SP_VSTILL],
             )
             if i == 0:
                 # log the sample and run the dither loops on the logged torque
@@ -507,7 +561,14 @@ def run_kernel(
                 # motor side: gear torque, friction factor, implicit stick-slip of the rotor
                 for j in range(n):
                     ts[j] = _gear_torque(
-                        jp[KG, j], jp[CG, j], x[X_QM, j], x[X_Q, j], x[X_VM, j], x[X_V, j]
+                        jp[KG, j],
+                        jp[CG, j],
+                        x[X_QM, j],
+                        x[X_Q, j],
+                        x[X_VM, j],
+                        x[X_V, j],
+                        jp[LM, j],
+                        jp[LMK, j],
                     )
                     band = jp[FS_M, j] + jp[FS_O, j]
                     mult[j] = _load_factor(jp[LOAD, j], band, ts[j]) * fscale[kk, j]
@@ -595,6 +656,7 @@ def run_reference(
                 gc0,
                 Gc,
                 qc_lin,
+                sp[SP_VSTILL],
             )
             if i == 0:
                 tl = u + noise[kk]
@@ -629,15 +691,18 @@ def run_reference(
                 )
 
 
-def _reference_servo(jp, x, qr, dq_ref, kp_on, dts, loops_on, sq, gc0, Gc, qc_lin):
-    """:func:`_servo` over all joints at once -> (u, ffw); ``qr`` is the ramped position ref."""
+def _reference_servo(jp, x, qr, dq_ref, kp_on, dts, loops_on, sq, gc0, Gc, qc_lin, vstill):
+    """:func:`_servo` over all joints at once -> (u, ffw); ``qr`` is the ramped position ref,
+    ``vstill`` [rad/s] the standstill speed of the integral's freeze / leak."""
     dith = loops_on & (jp[DMASK] > 0.5)
     kpe = np.where(dith, 0.0, jp[KP] * kp_on)
     switch_on = (kpe > 0) & (x[X_KPE] == 0)
     x[X_OFF] = np.where(switch_on, x[X_QM] - qr, x[X_OFF])
     x[X_KPE] = kpe
     ev = dq_ref + kpe * (qr + x[X_OFF] - x[X_QM]) - x[X_VM]
-    x[X_I] += jp[KI] * ev * dts
+    still = (dq_ref == 0.0) & (np.abs(x[X_VM]) < vstill)
+    x[X_I] += np.where(still & (jp[IFRZ] > 0.5), 0.0, jp[KI] * ev * dts)
+    x[X_I] -= np.where(still, jp[ILEAK] * x[X_I] * dts, 0.0)
     gc = gc0 + Gc @ (x[X_QM] - qc_lin)
     ffw = np.where(dith, x[X_C] + x[X_A] * sq, 0.0)
     return gc + ffw + jp[KV] * ev + x[X_I], ffw
@@ -684,7 +749,7 @@ def _reference_substep(jp, h, sweeps, W, gp0, Gp, qp_lin, JT, Gam, push, tau_ext
     output-side friction by ``sweeps`` Gauss-Seidel sweeps; ``push``, ``tau_ext`` and ``fscale``
     are this sample's rows."""
     n = jp.shape[1]
-    ts = _gear_torque.py_func(jp[KG], jp[CG], x[X_QM], x[X_Q], x[X_VM], x[X_V])
+    ts = _gear_torque.py_func(jp[KG], jp[CG], x[X_QM], x[X_Q], x[X_VM], x[X_V], jp[LM], jp[LMK])
     band = jp[FS_M] + jp[FS_O]
     load = np.where(band > 0, 1 + jp[LOAD] * np.abs(ts) / np.where(band > 0, band, 1), 1.0)
     mult = load * fscale

@@ -95,6 +95,30 @@ def _plan_pushes(pc: Mapping[str, Any], rng: np.random.Generator) -> list[dict[s
     return pushes
 
 
+def push_shape(tau: np.ndarray, duration: float, release_fraction: float = 0.5) -> np.ndarray:
+    """The operator's push profile, unit peak: a raised-cosine rise over ``(1 -
+    release_fraction) duration`` and a raised-cosine fall over the rest.
+
+    Parameters
+    ----------
+    tau : (K,) [s] time since the push began, in ``[0, duration)``
+    duration : [s] the push's length
+    release_fraction : [-] share of the duration spent letting go; 0.5 is the symmetric
+        ``(1 - cos(2 pi tau / duration)) / 2`` (computed by that formula)
+
+    Returns
+    -------
+    (K,) [-] the profile in [0, 1]
+    """
+    if release_fraction == 0.5:
+        return 0.5 * (1 - np.cos(2 * np.pi * tau / duration))
+    rise = (1.0 - release_fraction) * duration
+    fall = duration - rise
+    up = 0.5 * (1 - np.cos(np.pi * tau / max(rise, 1e-12)))
+    down = 0.5 * (1 + np.cos(np.pi * (tau - rise) / max(fall, 1e-12)))
+    return np.where(tau < rise, up, down)
+
+
 def push_campaign(
     engine_for: Callable[[Any], Engine],
     params: dict[str, Any],
@@ -158,7 +182,7 @@ def push_campaign(
     push_id = np.full(N, -1, dtype=np.int64)
     for i, p in enumerate(pushes):
         m = (tt >= p["t0"]) & (tt < p["t0"] + p["duration"])
-        shape = 0.5 * (1 - np.cos(2 * np.pi * (tt[m] - p["t0"]) / p["duration"]))
+        shape = push_shape(tt[m] - p["t0"], p["duration"], pc["release_fraction"])
         push[m, AXES.index(p["axis"])] += p["sign"] * p["magnitude"] * shape
         push_id[m] = i
 
