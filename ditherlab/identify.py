@@ -171,12 +171,13 @@ def identify(
     block : bootstrap block length [s]
     min_samples : a joint-regime with fewer samples is not fitted (kept from ``base`` if there)
     dither_band : ``"shrunk"`` (default) or ``"ml"``: the edges of the ``dither`` band.
-        ``"shrunk"``: the paper's rule (§IV-A, Fig. 4) — the static friction shrunk on each
+        ``"shrunk"``: the paper's rule (§IV-A, Fig. 4) — the fitted ``still`` band shrunk on each
         side by the dither amplitude measured in the data (median over the dithered samples of
-        the extracted amplitude), about where the extracted residual rests (its median), the
-        static friction being the fitted ``still`` band's larger side about that point
-        (:func:`_shrunk_dither_band` says why); its noise is still fitted on the extracted
-        signal.
+        the extracted amplitude); where that band does not hold the point the extracted
+        residual rests at (its median), the still band was short of the static friction on one
+        side and the band is the still band's larger side about that point, shrunk by the
+        amplitude (:func:`_shrunk_dither_band` says why); its noise is still fitted on the
+        extracted signal.
         ``"ml"``: the band-plus-noise fit of the extracted residual itself. On the built-in
         simulator's push campaign the extracted signal follows ``J^T F`` only in part (the
         paper's underestimate: the servo and the centre loop take up some of the push), so that
@@ -549,11 +550,12 @@ def _notes(
     """The model file's ``notes``: what it was identified from and every rule applied."""
     if amp is not None:
         dither_note = (
-            "; dither band = static friction (the still band's larger side about where the "
-            "extracted residual rests) shrunk by the measured dither amplitude "
+            "; dither band = still band shrunk by the measured dither amplitude "
             + "["
             + ", ".join(f"{a:.3g}" for a in amp)
-            + "] N·m, centred where the extracted residual rests (paper Fig. 4)"
+            + "] N·m (paper Fig. 4); where that band does not hold the point the extracted "
+            "residual rests at, the static friction (the still band's larger side about that "
+            "point) shrunk by it about that point"
         )
     else:
         dither_note = "; dither band fitted on the extracted signal" if dithered else ""
@@ -638,23 +640,25 @@ def _coulomb_floor(regs: dict[str, Band], fits: dict) -> list[int]:
 def _shrunk_dither_band(
     still: Band, fitted: Band, amps: dict[int, np.ndarray], centres: dict[int, float]
 ) -> tuple[Band, np.ndarray]:
-    """The dithered band: the static friction shrunk by the measured dither amplitude (paper
-    §IV-A, Fig. 4), about where the extracted residual rests.
+    """The dithered band: the static friction shrunk by the measured dither amplitude on each
+    side (paper §IV-A, Fig. 4), holding the point where the extracted residual rests.
 
     A joint stuck under a square wave of amplitude ``A`` about a mean torque ``m`` stays stuck
-    while both ``m + A`` and ``m - A`` lie inside its static band ``[c - Fs, c + Fs]``: the
-    extracted signal (the period's mean) can hold any ``m`` in ``[c - (Fs - A), c + (Fs - A)]``
-    without a push. ``c`` is where the extracted residual rests (``centres``: its median over
-    the dithered samples [N·m]; the dither's centre loop holds it there). ``Fs`` is the larger
-    side of the fitted still band about ``c``: the still band is where the held friction was
-    seen, and a campaign whose pushes broke a joint one way only leaves the other edge short
-    (seed 61, pose C: joint 5 [-1.86, 1.09] N·m for a static friction of 2.5), while static
-    friction holds the same torque either way. Shrinking that lopsided band by ``A`` on each
-    side (the rule before) put the band off ``c`` or collapsed it to a point beside it
-    (joint 5 [-0.387, -0.387] N·m with the residual at rest at 0.000), so the estimate rested
-    off zero. The band here contains the paper's rule's band whenever that one is not
-    collapsed (its edges ``a + A`` and ``b - A`` lie within ``c ∓ (Fs - A)``), and it collapses
-    to ``c`` when ``A >= Fs`` (the dither breaks the band).
+    while both ``m - A`` and ``m + A`` lie inside its static band ``[a, b]``: without a push
+    the extracted signal (the period's mean) can hold any ``m`` in ``[a + A, b - A]`` (the
+    paper's rule). The dither's centre loop holds it at ``c`` (``centres``: the median of the
+    extracted residual over the dithered samples [N·m]), so a joint resting there proves
+    ``a <= c - A`` and ``b >= c + A``: the paper's band holds ``c``. Where it does not (with a
+    margin of two noise sigmas of the extracted signal), the fitted still band is short of the
+    static friction on one side: the still band is where the held friction was *seen*, and a
+    campaign whose pushes broke a joint one way only leaves the other edge short (seed 61,
+    pose C: joint 5 [-1.86, 1.09] N·m for a static friction of 2.5; the paper's rule gave
+    [-0.387, -0.387] with the residual resting at 0.000, and the estimate rested 3.7 N off
+    zero). There the static friction ``Fs`` is taken as the still band's larger side about
+    ``c`` (static friction holds the same torque either way) and the band is
+    ``[c - (Fs - A), c + (Fs - A)]``, which contains the paper's band; it is the point ``c``
+    when ``A >= Fs`` (the dither breaks the band). Where the paper's band holds ``c`` it is kept
+    as it is (exact for a band that is truly asymmetric and was seen whole).
 
     Parameters
     ----------
@@ -675,18 +679,22 @@ def _shrunk_dither_band(
     for j, a in amps.items():
         if a.size and j in centres:
             A[j], c[j], have[j] = float(np.median(a)), centres[j], True
+    lo, hi = still.tau_min + A, still.tau_max - A  # the paper's rule
+    m = 2.0 * fitted.sigma
+    holds = (lo <= c - m) & (c + m <= hi)
     below, above = c - still.tau_min, still.tau_max - c
-    fs = np.maximum(below, above)
-    half = np.maximum(fs - A, 0.0)
-    lo = np.where(have, c - half, fitted.tau_min)
-    hi = np.where(have, c + half, fitted.tau_max)
+    half = np.maximum(np.maximum(below, above) - A, 0.0)
+    lo = np.where(holds, lo, c - half)
+    hi = np.where(holds, hi, c + half)
+    lo = np.where(have, lo, fitted.tau_min)
+    hi = np.where(have, hi, fitted.tau_max)
     stderr = dict(fitted.stderr)
-    # both edges rest on the still edge that gave Fs
     se_lo, se_hi = (still.stderr.get(k) for k in ("tau_min", "tau_max"))
     if se_lo is not None and se_hi is not None:
-        se = np.where(below >= above, se_lo, se_hi)
-        for k in ("tau_min", "tau_max"):
-            stderr[k] = np.where(have, se, fitted.stderr.get(k, -1.0))
+        # the paper's edges rest on their still edges; the symmetric band on the larger side
+        side = np.where(below >= above, se_lo, se_hi)
+        for k, se in (("tau_min", se_lo), ("tau_max", se_hi)):
+            stderr[k] = np.where(have, np.where(holds, se, side), fitted.stderr.get(k, -1.0))
     return Band(tau_min=lo, tau_max=hi, sigma=fitted.sigma, stderr=stderr), A
 
 
