@@ -152,12 +152,13 @@ def test_weak_joints_take_the_good_joints_values():
 
 @pytest.mark.slow
 def test_identify_says_which_joints_took_shared_values(tmp_path):
-    """Through the CLI on bench_false_discovery's dithered excitation log 15 (few pushes; before:
-    gain 0.0 on joint 3): joint 3 takes the other joints' median gain and lag; the model file
-    marks it (``pooled``), its notes say why, and identify's output names it."""
+    """Through the CLI on bench_false_discovery's dithered excitation log 22 (few pushes; before:
+    gain 2.51 on joint 4, at the lag grid's top): joint 4 (gain 1.42 ± 0.02, beyond 0..1)
+    takes the other joints' median gain and lag; the model file marks it (``pooled``), its
+    notes say why, and identify's output names it."""
     from bench.bench_false_discovery import _toml, plan
 
-    s = plan(16)[15]
+    s = plan(23)[22]
     assert s["family"] == "moving-dither"
     cfg, rec, model = tmp_path / "sim.toml", tmp_path / "r.parquet", tmp_path / "m.toml"
     cfg.write_text(_toml(s["config"]))
@@ -167,13 +168,14 @@ def test_identify_says_which_joints_took_shared_values(tmp_path):
     r = run_cli("identify", str(rec), "--add", "inertia", "--add", "dither_extraction",
                 "--bootstrap", "0", "-o", str(model), "-q")  # fmt: skip
     assert r.code == 0, r.err
-    assert "[dither_extraction] joint 3: too little evidence, shared values" in r.out, r.out
+    assert "[dither_extraction] joint 4: too little evidence, shared values" in r.out, r.out
     m = tomllib.loads(model.read_text())
     spec = next(e for e in m["effects"] if e["name"] == "dither_extraction")
     p = spec["params"]
-    k = spec["joints"].index(3)
-    assert p["pooled"] == [1.0 if j == 3 else 0.0 for j in spec["joints"]]
-    others = [i for i, j in enumerate(spec["joints"]) if j != 3]
+    k = spec["joints"].index(4)
+    assert p["pooled"] == [1.0 if j == 4 else 0.0 for j in spec["joints"]]
+    others = [i for i, j in enumerate(spec["joints"]) if j != 4]
     assert p["gain"][k] == pytest.approx(np.median([p["gain"][i] for i in others]))
     assert 0.6 < p["gain"][k] < 1.0
-    assert "dither_extraction on joint(s) 3: too little evidence" in m["notes"]
+    assert "dither_extraction on joint(s) 4: too little evidence" in m["notes"]
+    assert "outside 0..1" in m["notes"]
