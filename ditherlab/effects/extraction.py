@@ -99,12 +99,12 @@ class DitherExtraction(Effect):
     #: push from one that shows all of it), or whose gain lies beyond that range by more than
     #: two standard errors, has too little evidence: it takes the median gain and lag of the
     #: joints with good evidence, or with none the prior: the medians over the clean dithered
-    #: controls' 20 joint fits (seeds 977-983, joints 1-5: gain 0.74-1.00, median 0.79; lag
-    #: 0-75 samples, median 42).
+    #: controls' 20 joint fits (seeds 977-983, joints 1-5: gain 0.80-0.90, median 0.84; lag
+    #: 0-32 samples, median 16).
     evidence_rules: ClassVar[dict[str, Any]] = {
         "stderr_max": {"gain": 0.25},
         "range": {"gain": (0.0, 1.0)},
-        "prior": {"gain": 0.8, "lag": 42},
+        "prior": {"gain": 0.84, "lag": 16},
     }
 
     def signs(self, h):
