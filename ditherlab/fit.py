@@ -28,7 +28,10 @@ __all__ = [
     "Stack",
     "fit_effect",
     "identifiability",
+    "linear_stderr",
     "not_identifiable",
+    "pool_weak_joints",
+    "pooled_note",
     "solve_signed",
     "stack",
 ]
@@ -515,4 +518,151 @@ def not_identifiable(e: Effect, sc: Sequence[Scored], j: int | None, fit: FitRes
         f"effect {e.name!r} cannot be told apart from the bands in {where}: its torque "
         f"barely changes within a regime ({e.driven_by}); record a varying pose, motion "
         "or force"
+    )
+
+
+#: block length for the standard errors of :func:`linear_stderr` [s]: the residual of one push
+#: (0.5-2 s) and its extraction's lag are correlated; blocks of 2 s hold one each (identify's
+#: bootstrap uses the same length)
+STDERR_BLOCK_S = 2.0
+
+
+def linear_stderr(
+    e: Effect, sc: Sequence[Scored], j: int, fit: FitResult, block_s: float = STDERR_BLOCK_S
+) -> np.ndarray:
+    """Standard errors of the linear parameters of a per-joint fit, from the fit's own
+    information: the Gauss–Newton matrix of the band-aware loss at the fitted value (rows
+    outside the band), with the score's variance summed over contiguous blocks of ``block_s``
+    seconds (a cluster "sandwich": neighbouring samples of one push are not independent, and
+    counting them as such made a gain fitted on three pushes look exact).
+
+    Parameters
+    ----------
+    e, sc, j, fit : the effect, the scored recordings, the 0-based joint and its fit
+        (:func:`fit_effect`)
+    block_s : block length [s]
+
+    Returns
+    -------
+    (k,) standard errors in the parameters' units; ``inf`` where the parameter is not
+    determined (no row outside the band, or a singular information matrix).
+    """
+    st = stack(e, sc, j, fit.h, fit.ref)
+    k = st.k
+    w, _ = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, st.signs(e.signs(fit.h)))
+    r = st.e - st.o - st.C @ w
+    sg = np.sign(r)
+    ex = sg * np.maximum(np.abs(r) - st.h - st.W @ w, 0.0)  # the excess beyond the band
+    act = ex != 0
+    if act.sum() <= st.C.shape[1]:
+        return np.full(k, np.inf)
+    D = (st.C + sg[:, None] * st.W)[act] / st.s[act, None]  # d(excess / s) / dw, up to sign
+    keep = np.any(D != 0, axis=0)
+    D = D[:, keep]
+    H = D.T @ D
+    try:
+        Hi = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return np.full(k, np.inf)
+    rate = sc[0].sig.rec.sample_rate if sc else 1.0
+    blk = (st.block[act] // max(int(round(block_s * rate)), 1)).astype(np.int64)
+    _, b = np.unique(blk, return_inverse=True)
+    g = D * (ex[act] / st.s[act])[:, None]
+    G = np.zeros((int(b.max()) + 1, D.shape[1]))
+    np.add.at(G, b, g)
+    nb = G.shape[0]
+    scale = nb / (nb - D.shape[1]) if nb > D.shape[1] else np.inf
+    cov = Hi @ (G.T @ G) @ Hi * scale
+    out = np.full(k, np.inf)
+    idx = np.flatnonzero(keep)
+    for i in range(k):
+        if keep[i]:
+            v = cov[int(np.searchsorted(idx, i)), int(np.searchsorted(idx, i))]
+            out[i] = float(np.sqrt(v)) if np.isfinite(v) and v >= 0 else np.inf
+    return out
+
+
+def _weak_reason(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> str | None:
+    """Why a per-joint fit of ``e`` rests on too little evidence (``e.evidence_rules``), or
+    None: a linear parameter whose standard error (:func:`linear_stderr`) exceeds its
+    ``stderr_max``, or that lies more than two standard errors outside its physical ``range``."""
+    rules = getattr(e, "evidence_rules", None) or {}
+    se = linear_stderr(e, sc, j, fit)
+    for i, name in enumerate(e.linear):
+        v, s = float(fit.w[i]), float(se[i])
+        top = rules.get("stderr_max", {}).get(name)
+        if top is not None and not s <= top:
+            return f"{name} {v:.3g} ± {s:.2g} (standard error above {top:g})"
+        lo, hi = rules.get("range", {}).get(name, (-np.inf, np.inf))
+        if v - 2 * s > hi or v + 2 * s < lo:
+            return (
+                f"{name} {v:.3g} ± {s:.2g} (outside {lo:g}..{hi:g} by more than 2 standard errors)"
+            )
+    return None
+
+
+def pool_weak_joints(
+    e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]
+) -> tuple[dict[int, FitResult], dict[int, str]]:
+    """Per-joint fits where the joints with too little evidence take shared parameters.
+
+    For an effect with ``evidence_rules`` (``dither_extraction``): a joint whose fit fails them
+    (:func:`_weak_reason`: its own standard error, or a value beyond the physical range) takes
+    the median of each parameter (linear ones and the searched one, e.g. the lag) over the
+    joints whose fits pass, or the effect's ``prior`` when none passes. Other effects are
+    returned unchanged.
+
+    Parameters
+    ----------
+    e : the effect; sc : the scored recordings; fits : 0-based joint -> :func:`fit_effect` result
+
+    Returns
+    -------
+    (the fits, the weak joints' reasons by 0-based joint). A shared fit keeps its joint's
+    ``ref`` and has ``loss`` NaN (not fitted there).
+    """
+    rules = getattr(e, "evidence_rules", None)
+    if not rules or e.shared or not fits:
+        return fits, {}
+    weak = {j: why for j, f in fits.items() if (why := _weak_reason(e, sc, j, f)) is not None}
+    if not weak:
+        return fits, {}
+    good = [fits[j] for j in fits if j not in weak]
+    prior = rules.get("prior", {})
+    if good:
+        w = np.median(np.array([f.w for f in good], dtype=float), axis=0)
+        hs = [f.h for f in good]
+        h = (
+            int(round(float(np.median(hs))))
+            if all(isinstance(x, int | np.integer) for x in hs)
+            else float(np.median(hs))
+        )
+    else:
+        w = np.array([float(prior[name]) for name in e.linear])
+        h = prior.get(e.hyper) if isinstance(e.hyper, str) else None
+    out = dict(fits)
+    for j in weak:
+        out[j] = FitResult(np.array(w, dtype=float), h, fits[j].ref, math.nan)
+    return out, weak
+
+
+def pooled_note(e: Effect, fits: dict[int, FitResult], weak: dict[int, str]) -> str:
+    """One sentence for the model's notes and identify's output: which joints took shared
+    parameters of ``e`` and why (``weak`` from :func:`pool_weak_joints`); '' when none."""
+    if not weak:
+        return ""
+    good = sorted(j for j in fits if j not in weak)
+    f = fits[next(iter(weak))]
+    vals = ", ".join(f"{n} {float(v):.3g}" for n, v in zip(e.linear, f.w, strict=True))
+    if isinstance(e.hyper, str):
+        vals += f", {e.hyper} {f.h}"
+    src = (
+        f"the median over joint(s) {', '.join(str(j + 1) for j in good)}"
+        if good
+        else "the effect's prior (no joint had good evidence)"
+    )
+    why = "; ".join(f"joint {j + 1}: {r}" for j, r in sorted(weak.items()))
+    return (
+        f"{e.name} on joint(s) {', '.join(str(j + 1) for j in sorted(weak))}: too little "
+        f"evidence ({why}), shared values {vals} from {src}"
     )

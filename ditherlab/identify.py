@@ -36,7 +36,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ditherlab.bandfit import BandFit, band_noise_logpdf, fit_band, fit_sliding
-from ditherlab.dither import dithered_band, extract_dither
+from ditherlab.dither import extract_dither
 from ditherlab.effects import effects_torque, external_torque, release, sensor_wrench, signals
 from ditherlab.effects.extraction import extracted_rows, logged_view
 from ditherlab.errors import ConfigError, RecordingError
@@ -173,7 +173,11 @@ def identify(
     dither_band : ``"shrunk"`` (default) or ``"ml"``: the edges of the ``dither`` band.
         ``"shrunk"``: the paper's rule (§IV-A, Fig. 4) — the fitted ``still`` band shrunk on each
         side by the dither amplitude measured in the data (median over the dithered samples of
-        the extracted amplitude); its noise is still fitted on the extracted signal.
+        the extracted amplitude); where that band does not hold the point the extracted
+        residual rests at (its median), the still band was short of the static friction on one
+        side and the band is the still band's larger side about that point, shrunk by the
+        amplitude (:func:`_shrunk_dither_band` says why); its noise is still fitted on the
+        extracted signal.
         ``"ml"``: the band-plus-noise fit of the extracted residual itself. On the built-in
         simulator's push campaign the extracted signal follows ``J^T F`` only in part (the
         paper's underestimate: the servo and the centre loop take up some of the push), so that
@@ -249,6 +253,14 @@ def identify(
                 if progress:
                     progress(done, steps)
         amps = samples.amps
+        # where the extracted residual rests: its median over the dithered samples (the centre
+        # loop holds it there between pushes; pushes are a minority of the samples, of both
+        # signs, and move the median by < 0.005 N·m on the simulator's campaigns)
+        centres = {
+            j: float(np.median(samples.store.load(("x", DITHER, j))))
+            for j in range(n)
+            if samples.count((DITHER, j))
+        }
     if not fits:
         raise RecordingError(
             f"{first.name or 'recording'}: no joint has {min_samples} samples in any regime "
@@ -277,7 +289,7 @@ def identify(
     amp = None
     if dither_band == "shrunk" and "dither" in out_regimes and "still" in out_regimes and amps:
         out_regimes["dither"], amp = _shrunk_dither_band(
-            out_regimes["still"], out_regimes["dither"], amps
+            out_regimes["still"], out_regimes["dither"], amps, centres
         )
     notes = _notes(
         [r.name for r in recs],
@@ -541,7 +553,9 @@ def _notes(
             "; dither band = still band shrunk by the measured dither amplitude "
             + "["
             + ", ".join(f"{a:.3g}" for a in amp)
-            + "] N·m (paper Fig. 4)"
+            + "] N·m (paper Fig. 4); where that band does not hold the point the extracted "
+            "residual rests at, the static friction (the still band's larger side about that "
+            "point) shrunk by it about that point"
         )
     else:
         dither_note = "; dither band fitted on the extracted signal" if dithered else ""
@@ -624,24 +638,63 @@ def _coulomb_floor(regs: dict[str, Band], fits: dict) -> list[int]:
 
 
 def _shrunk_dither_band(
-    still: Band, fitted: Band, amps: dict[int, list[np.ndarray]]
+    still: Band, fitted: Band, amps: dict[int, np.ndarray], centres: dict[int, float]
 ) -> tuple[Band, np.ndarray]:
-    """The still band shrunk by the median measured dither amplitude per joint (paper Fig. 4),
-    with the noise of the extracted signal; joints never dithered keep the fitted values."""
+    """The dithered band: the static friction shrunk by the measured dither amplitude on each
+    side (paper §IV-A, Fig. 4), holding the point where the extracted residual rests.
 
+    A joint stuck under a square wave of amplitude ``A`` about a mean torque ``m`` stays stuck
+    while both ``m - A`` and ``m + A`` lie inside its static band ``[a, b]``: without a push
+    the extracted signal (the period's mean) can hold any ``m`` in ``[a + A, b - A]`` (the
+    paper's rule). The dither's centre loop holds it at ``c`` (``centres``: the median of the
+    extracted residual over the dithered samples [N·m]), so a joint resting there proves
+    ``a <= c - A`` and ``b >= c + A``: the paper's band holds ``c``. Where it does not (with a
+    margin of two noise sigmas of the extracted signal), the fitted still band is short of the
+    static friction on one side: the still band is where the held friction was *seen*, and a
+    campaign whose pushes broke a joint one way only leaves the other edge short (seed 61,
+    pose C: joint 5 [-1.86, 1.09] N·m for a static friction of 2.5; the paper's rule gave
+    [-0.387, -0.387] with the residual resting at 0.000, and the estimate rested 3.7 N off
+    zero). There the static friction ``Fs`` is taken as the still band's larger side about
+    ``c`` (static friction holds the same torque either way) and the band is
+    ``[c - (Fs - A), c + (Fs - A)]``, which contains the paper's band; it is the point ``c``
+    when ``A >= Fs`` (the dither breaks the band). Where the paper's band holds ``c`` it is kept
+    as it is (exact for a band that is truly asymmetric and was seen whole).
+
+    Parameters
+    ----------
+    still : the fitted still band, (n,) edges [N·m]
+    fitted : the ML fit on the extracted residual (its noise ``sigma`` is kept; joints never
+        dithered keep all its values)
+    amps : measured dither amplitude [N·m] of every dithered sample, per 0-based joint
+    centres : median extracted residual [N·m] per 0-based joint
+
+    Returns
+    -------
+    (the dithered Band, the median amplitude per joint (n,) [N·m], 0 where never dithered)
+    """
     n = len(still.sigma)
     A = np.zeros(n)
+    c = np.zeros(n)
     have = np.zeros(n, bool)
     for j, a in amps.items():
-        if a.size:
-            A[j], have[j] = float(np.median(a)), True
-    lo, hi = dithered_band(still.tau_min, still.tau_max, A)
+        if a.size and j in centres:
+            A[j], c[j], have[j] = float(np.median(a)), centres[j], True
+    lo, hi = still.tau_min + A, still.tau_max - A  # the paper's rule
+    m = 2.0 * fitted.sigma
+    holds = (lo <= c - m) & (c + m <= hi)
+    below, above = c - still.tau_min, still.tau_max - c
+    half = np.maximum(np.maximum(below, above) - A, 0.0)
+    lo = np.where(holds, lo, c - half)
+    hi = np.where(holds, hi, c + half)
     lo = np.where(have, lo, fitted.tau_min)
     hi = np.where(have, hi, fitted.tau_max)
     stderr = dict(fitted.stderr)
-    for k in ("tau_min", "tau_max"):
-        if k in still.stderr:
-            stderr[k] = np.where(have, still.stderr[k], fitted.stderr.get(k, -1.0))
+    se_lo, se_hi = (still.stderr.get(k) for k in ("tau_min", "tau_max"))
+    if se_lo is not None and se_hi is not None:
+        # the paper's edges rest on their still edges; the symmetric band on the larger side
+        side = np.where(below >= above, se_lo, se_hi)
+        for k, se in (("tau_min", se_lo), ("tau_max", se_hi)):
+            stderr[k] = np.where(have, np.where(holds, se, side), fitted.stderr.get(k, -1.0))
     return Band(tau_min=lo, tau_max=hi, sigma=fitted.sigma, stderr=stderr), A
 
 
@@ -708,7 +761,9 @@ def _assemble(
 
 
 def summary(model: TorqueModel) -> str:
-    """A few lines per regime: band edges and noise per joint with their standard errors."""
+    """A few lines per regime: band edges and noise per joint with their standard errors; then
+    one line per joint where a per-joint effect took values shared over the other joints (too
+    little evidence there, :func:`ditherlab.fit.pool_weak_joints`; the model's notes say why)."""
     lines = []
     for name, b in model.regimes.items():
         lines.append(f"[{name}]")
@@ -728,6 +783,22 @@ def summary(model: TorqueModel) -> str:
             if b.viscous is not None:
                 line += f", viscous {b.viscous[j]:.3f}{pm('viscous')} N·m·s/rad"
             lines.append(line)
+    for spec in model.effects:
+        pooled = spec.params.get("pooled")
+        if not isinstance(pooled, list) or not any(pooled):
+            continue
+        # a per-joint effect whose weak joints took values shared over the others (loop.py)
+        for jj, p in zip(spec.joints, pooled, strict=True):
+            if p:
+                k = spec.joints.index(jj)
+                vals = ", ".join(
+                    f"{name} {v[k] if isinstance(v, list) else v:.3g}"
+                    for name, v in spec.params.items()
+                    if name != "pooled"
+                )
+                lines.append(
+                    f"[{spec.name}] joint {jj}: too little evidence, shared values ({vals})"
+                )
     return "\n".join(lines)
 
 

@@ -19,7 +19,7 @@ from ditherlab.diagnose import Diagnosis, append_history, diagnose
 from ditherlab.dither import has_dither
 from ditherlab.effects import clean_none, get_effect, make_spec, signals
 from ditherlab.errors import ModelError
-from ditherlab.fit import fit_effect, not_identifiable
+from ditherlab.fit import fit_effect, not_identifiable, pool_weak_joints, pooled_note
 from ditherlab.identify import identify
 from ditherlab.io.atomic import check_not_input
 from ditherlab.io.stream import CHUNK_ROWS, open_source
@@ -95,16 +95,22 @@ def add_effect(
         else:
             js = [int(j) - 1 for j in joints]
         fits = {j: fit_effect(e, sc, j) for j in js}
+    # joints with too little evidence take values shared over the others (dither_extraction)
+    fits, weak = pool_weak_joints(e, sc, fits) if not e.shared else (fits, {})
     for j, f in fits.items():
         why = not_identifiable(e, sc, None if j == -1 else j, f)
         if why is not None:
             raise ModelError(why)
     spec = clean_none(make_spec(e, fits))
+    if weak:  # the model file says which joints took the shared values
+        spec.params["pooled"] = [1.0 if j - 1 in weak else 0.0 for j in spec.joints]
     new = base.copy()
     new.effects.append(spec)
     new.version = model.version + 1
     if refit:
         new = _refit(new, recs, assume_no_force=assume_no_force)
+    if weak:
+        new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
     return new
 
 

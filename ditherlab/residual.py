@@ -95,12 +95,40 @@ class Scored:
         return np.sign(x) * np.maximum(np.abs(x) - hh, 0.0)
 
 
-def _dither_signal(rec: Recording) -> tuple[np.ndarray, np.ndarray] | None:
-    """The paper's extracted dither signal (N, n) and its validity (N,), or None."""
+def _dither_signal(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The paper's extracted dither signal (N, n) [N·m], its validity (N,) and the extracted
+    amplitude (N, n) [N·m], or None."""
     sig = extract_dither(rec)
     if sig is None:
         return None
-    return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool)
+    return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool), sig.amplitude
+
+
+#: a dithered sample at the start of a stretch of the dither is scored once the joint's
+#: extracted amplitude has reached this fraction of its median (the report's rule,
+#: :data:`ditherlab.steady.STEADY_FRACTION`)
+RAMP_FRACTION = 0.8
+
+
+def _ramp_in(dith: np.ndarray, amp: np.ndarray) -> np.ndarray:
+    """(N, n) bool: the dither's ramp-in, per joint: in each stretch of the dither regime
+    ``dith`` (N, n), the samples before the extracted amplitude ``amp`` (N, n) [N·m] first
+    reaches :data:`RAMP_FRACTION` of its median over the piece's dithered samples. While the
+    amplitude grows the joint's dithered band is wider than the working one (the static
+    friction less a smaller amplitude) and the loops settle: its residual is not the regime's.
+    A joint whose amplitude dips later (a slip under a push) is not cut there."""
+    out = np.zeros(dith.shape, dtype=bool)
+    for j in range(dith.shape[1]):
+        d = dith[:, j]
+        a = np.where(d, np.nan_to_num(amp[:, j], nan=0.0), 0.0)
+        if not d.any():
+            continue
+        level = RAMP_FRACTION * float(np.median(a[d]))
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], d.astype(np.int8), [0]))))
+        for lo, hi in zip(edges[0::2], edges[1::2], strict=True):
+            up = np.flatnonzero(a[lo:hi] >= level)
+            out[lo : lo + (up[0] if len(up) else hi - lo), j] = True
+    return out
 
 
 @dataclass
@@ -186,6 +214,7 @@ def local(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Loc
             tau = np.where(reg == DITHER, ext[0], tau)
             # the first dither period has no full window
             use &= (reg != DITHER) | ext[1][:, None]
+            use &= ~_ramp_in((reg == DITHER) & ext[1][:, None], ext[2])
     near = stick_transitions(reg, rec.sample_rate)
     use &= ~near
     # velocity reversals inside a motion: the joint is at rest for a few samples and its

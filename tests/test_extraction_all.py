@@ -76,17 +76,26 @@ def test_dithered_clean_control_suggests_nothing(control):
 
 
 @pytest.mark.slow
-def test_found_where_the_model_lacks_it_and_only_with_dither(control, tmp_path):
-    """Diagnose still suggests dither_extraction on the dithered evaluation campaign when the
-    model lacks it (the base model identified on 977), and not on the same campaign without
-    dither, where its design is zero."""
-    paths, _ = control
-    nod = tmp_path / "nodither.parquet"
-    r = run_cli("simulate", "push-campaign", "--seed", str(EV_SEED), "--no-dither",
-                "--pushes-per-direction", str(PUSHES), "-o", str(nod), "-q")  # fmt: skip
+def test_found_where_the_model_lacks_it_and_only_with_dither(tmp_path):
+    """Diagnose still suggests dither_extraction on a dithered evaluation campaign when the
+    model lacks it (the base model identified on the identification pair, seed 1, as
+    ``make demo``), and not on the same campaign without dither, where its design is zero.
+    (On the 4-push control of seed 977 alone it was suggested only through joint 4's dithered
+    band, which the old rule left at [-0.80, -0.04] N·m beside the rest at 0; with the band
+    holding the rest it explains 3.7 % there, below the 5 % rule: the campaign is too short.)"""
+    paths = {}
+    for s, d in ((1, "--no-dither"), (1, "--dither"), (0, "--dither"), (0, "--no-dither")):
+        p = tmp_path / f"c{s}{d}.parquet"
+        r = run_cli("simulate", "push-campaign", "--seed", str(s), d,
+                    "--pushes-per-direction", "25", "-o", str(p), "-q")  # fmt: skip
+        assert r.code == 0, r.err
+        paths[s, d] = p
+    base = tmp_path / "base.toml"
+    r = run_cli("identify", str(paths[1, "--no-dither"]), str(paths[1, "--dither"]),
+                "--bootstrap", "0", "-o", str(base), "-q")  # fmt: skip
     assert r.code == 0, r.err
-    for rec, want in ((paths[EV_SEED], True), (nod, False)):
-        r = run_cli("diagnose", str(rec), "--model", str(paths["base"]), "--json",
+    for rec, want in ((paths[0, "--dither"], True), (paths[0, "--no-dither"], False)):
+        r = run_cli("diagnose", str(rec), "--model", str(base), "--json",
                     "--no-history", "-q")  # fmt: skip
         assert r.code == 0, r.err
         ext = [c for c in json.loads(r.out)["candidates"] if c["effect"] == "dither_extraction"]

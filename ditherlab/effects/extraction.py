@@ -31,7 +31,7 @@ against what diagnosis compares it with; replay reads the extracted signal on bo
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -92,6 +92,20 @@ class DitherExtraction(Effect):
     pointwise = False  # a mean over time
     needs_dither = True
     on_every_joint = True  # the extraction runs on every dithering joint
+    #: evidence rules of a per-joint fit (:func:`ditherlab.fit.pool_weak_joints`). The gain is
+    #: the part of a push the extracted signal shows: 0..1 (the servo and the centre loop take
+    #: up the rest; the paper's underestimate). A joint whose gain has a standard error above
+    #: 0.25 (a 95 % interval of more than ±0.5: it cannot tell a joint that shows half of a
+    #: push from one that shows all of it), or whose gain lies beyond that range by more than
+    #: two standard errors, has too little evidence: it takes the median gain and lag of the
+    #: joints with good evidence, or with none the prior: the medians over the clean dithered
+    #: controls' 20 joint fits (seeds 977-983, joints 1-5: gain 0.80-0.90, median 0.84; lag
+    #: 0-32 samples, median 16).
+    evidence_rules: ClassVar[dict[str, Any]] = {
+        "stderr_max": {"gain": 0.25},
+        "range": {"gain": (0.0, 1.0)},
+        "prior": {"gain": 0.84, "lag": 16},
+    }
 
     def signs(self, h):
         return (1,)
@@ -145,9 +159,12 @@ class DitherExtraction(Effect):
         return f"{fmt(p['gain'])}·lag_{fmt(p.get('lag') or 0)}(mean_period({ext})) (dither on)"
 
     def term(self, p, j):
+        pooled = (
+            "; shared: too little evidence on this joint" if float(p.get("pooled") or 0) else ""
+        )
         return (
             f"dither_extraction(gain={fmt(p['gain'])}, mean over one dither period, "
-            f"lag={fmt(p.get('lag') or 0)} samples)"
+            f"lag={fmt(p.get('lag') or 0)} samples{pooled})"
         )
 
 
