@@ -112,6 +112,12 @@ WAVEFORMS = ("square", "sine", "triangle")
 #: ``PEAK_FACTOR[w] * (upper - lower) / 2`` of the paper's window statistics [-].
 PEAK_FACTOR = {"square": 1.0, "sine": math.pi / 2, "triangle": 2.0}
 
+#: The dither counts as up (its ramp-in over, its ramp-out not begun) on a joint while the
+#: extracted amplitude is at least this fraction of its median over the dithered samples:
+#: the report's rest (:func:`ditherlab.steady.steady_dither`) and diagnosis's scoring
+#: (:mod:`ditherlab.residual`) leave the ramps out by it [-].
+AMPLITUDE_UP_FRACTION = 0.8
+
 
 def square_wave(t, omega: float, amplitude, phase: float = 0.0) -> np.ndarray:
     """The dither square wave ``amplitude * sign(sin(omega t + phase))`` (``sign(0) = +1``).

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ditherlab.dither import extract_dither
+from ditherlab.dither import AMPLITUDE_UP_FRACTION, extract_dither
 from ditherlab.effects import (
     Signals,
     check_model_effects,
@@ -104,16 +104,11 @@ def _dither_signal(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray] 
     return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool), sig.amplitude
 
 
-#: a dithered sample at the start of a stretch of the dither is scored once the joint's
-#: extracted amplitude has reached this fraction of its median (the report's rule,
-#: :data:`ditherlab.steady.STEADY_FRACTION`)
-RAMP_FRACTION = 0.8
-
-
 def _ramp_in(dith: np.ndarray, amp: np.ndarray) -> np.ndarray:
     """(N, n) bool: the dither's ramp-in, per joint: in each stretch of the dither regime
     ``dith`` (N, n), the samples before the extracted amplitude ``amp`` (N, n) [N·m] first
-    reaches :data:`RAMP_FRACTION` of its median over the piece's dithered samples. While the
+    reaches :data:`~ditherlab.dither.AMPLITUDE_UP_FRACTION` of its median over the piece's
+    dithered samples. While the
     amplitude grows the joint's dithered band is wider than the working one (the static
     friction less a smaller amplitude) and the loops settle: its residual is not the regime's.
     A joint whose amplitude dips later (a slip under a push) is not cut there."""
@@ -123,7 +118,7 @@ def _ramp_in(dith: np.ndarray, amp: np.ndarray) -> np.ndarray:
         a = np.where(d, np.nan_to_num(amp[:, j], nan=0.0), 0.0)
         if not d.any():
             continue
-        level = RAMP_FRACTION * float(np.median(a[d]))
+        level = AMPLITUDE_UP_FRACTION * float(np.median(a[d]))
         edges = np.flatnonzero(np.diff(np.concatenate(([0], d.astype(np.int8), [0]))))
         for lo, hi in zip(edges[0::2], edges[1::2], strict=True):
             up = np.flatnonzero(a[lo:hi] >= level)

@@ -10,11 +10,13 @@ from statistics import NormalDist
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from ditherlab.dither import AMPLITUDE_UP_FRACTION
 from ditherlab.estimates import EstimatesSource
 
 #: The dither ramps in until, and out after, every dithering joint's extracted amplitude is at
-#: least this fraction of its median over the dither-on samples.
-STEADY_FRACTION = 0.8
+#: least this fraction of its median over the dither-on samples (one definition, in
+#: :mod:`ditherlab.dither`).
+STEADY_FRACTION = AMPLITUDE_UP_FRACTION
 #: ... counted for joints whose median amplitude exceeds this fraction of the model's still band
 #: half-width (the others do not dither; their "amplitude" is the noise's spread).
 DITHERS_FRACTION = 0.2
