@@ -405,6 +405,30 @@ def extract(
     return out
 
 
+def band_amplitude(still_min, still_max, dither_min, dither_max) -> np.ndarray:
+    """The dither amplitude [N·m] a model's bands were built with: the inverse of identify's
+    dithered band (:func:`ditherlab.identify._shrunk_dither_band`).
+
+    That band is the static friction shrunk by the amplitude ``A`` about its centre ``c``:
+    either the paper's ``[a + A, b - A]`` of the still band ``[a, b]`` (centre ``(a + b) / 2``)
+    or ``c ± (max(c - a, b - c) - A)``; in both ``A = max(c - a, b - c) - w``, with ``c`` and
+    ``w`` the dithered band's centre and half-width. Where the dither broke the band (``w = 0``)
+    this is the static friction, a lower bound of ``A``.
+
+    Parameters
+    ----------
+    still_min, still_max, dither_min, dither_max : (n,) band edges [N·m]
+
+    Returns
+    -------
+    (n,) [N·m], at least 0
+    """
+    a, b = np.asarray(still_min, dtype=float), np.asarray(still_max, dtype=float)
+    lo, hi = np.asarray(dither_min, dtype=float), np.asarray(dither_max, dtype=float)
+    c, w = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    return np.maximum(np.maximum(c - a, b - c) - w, 0.0)
+
+
 def dithered_band(tau_min, tau_max, amplitude, on=None) -> tuple[np.ndarray, np.ndarray]:
     """The friction band shrunk by the dither amplitude on each side (§IV-A, Fig. 4).
 

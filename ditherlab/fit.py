@@ -24,6 +24,7 @@ from ditherlab.residual import Scored
 from ditherlab.signal import tmm
 
 __all__ = [
+    "pooled_lines",
     "MIN_IDENTIFIABILITY",
     "Stack",
     "fit_effect",
@@ -644,6 +645,28 @@ def pool_weak_joints(
     for j in weak:
         out[j] = FitResult(np.array(w, dtype=float), h, fits[j].ref, math.nan)
     return out, weak
+
+
+def pooled_lines(model: Any) -> list[str]:
+    """One line per joint where a per-joint effect of ``model`` (a
+    :class:`~ditherlab.model.TorqueModel`) took values shared over the other joints
+    (:func:`pool_weak_joints`; the model file's ``pooled`` flags), for identify's summary."""
+    lines = []
+    for spec in model.effects:
+        pooled = spec.params.get("pooled")
+        if not isinstance(pooled, list) or not any(pooled):
+            continue
+        for k, (jj, p) in enumerate(zip(spec.joints, pooled, strict=True)):
+            if p:
+                vals = ", ".join(
+                    f"{name} {v[k] if isinstance(v, list) else v:.3g}"
+                    for name, v in spec.params.items()
+                    if name != "pooled"
+                )
+                lines.append(
+                    f"[{spec.name}] joint {jj}: too little evidence, shared values ({vals})"
+                )
+    return lines
 
 
 def pooled_note(e: Effect, fits: dict[int, FitResult], weak: dict[int, str]) -> str:

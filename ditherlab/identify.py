@@ -40,6 +40,7 @@ from ditherlab.dither import extract_dither
 from ditherlab.effects import effects_torque, external_torque, release, sensor_wrench, signals
 from ditherlab.effects.extraction import extracted_rows, logged_view
 from ditherlab.errors import ConfigError, RecordingError
+from ditherlab.fit import pooled_lines
 from ditherlab.io.spill import SPILL_BYTES, Spill
 from ditherlab.io.stream import CHUNK_ROWS, Source, pieces_of
 from ditherlab.model import PAPER_PRIOR_SIGMA, Band, TorqueModel
@@ -783,22 +784,7 @@ def summary(model: TorqueModel) -> str:
             if b.viscous is not None:
                 line += f", viscous {b.viscous[j]:.3f}{pm('viscous')} N·m·s/rad"
             lines.append(line)
-    for spec in model.effects:
-        pooled = spec.params.get("pooled")
-        if not isinstance(pooled, list) or not any(pooled):
-            continue
-        # a per-joint effect whose weak joints took values shared over the others (loop.py)
-        for jj, p in zip(spec.joints, pooled, strict=True):
-            if p:
-                k = spec.joints.index(jj)
-                vals = ", ".join(
-                    f"{name} {v[k] if isinstance(v, list) else v:.3g}"
-                    for name, v in spec.params.items()
-                    if name != "pooled"
-                )
-                lines.append(
-                    f"[{spec.name}] joint {jj}: too little evidence, shared values ({vals})"
-                )
+    lines += pooled_lines(model)
     return "\n".join(lines)
 
 

@@ -434,7 +434,14 @@ def _evaluate(
     params: dict[str, Any] = {}
     if sel:
         params = clean_none(make_spec(e, {s.joint: s.fit for s in sel})).params
-    joints = [s.joint + 1 for s in sel] if sel else [max(scores, key=lambda s: s.gain).joint + 1]
+    if sel:
+        joints = [s.joint + 1 for s in sel]
+    else:  # the best joint; among gains equal to 1e-9 of the residual (ties: 0 where nothing
+        # is explained, summed piece by piece in another order) the first, so that a log read
+        # in pieces names the joint the whole does
+        best = max(s.gain for s in scores)
+        tie = 1e-9 * max(abs(total_loss), abs(best))
+        joints = [min(s.joint for s in scores if s.gain >= best - tie) + 1]
     why = None
     if sel and frac >= min_fraction:
         whys = [w for w in (not_identifiable(e, scs, s.joint, s.fit) for s in sel) if w]

@@ -334,8 +334,14 @@ def test_config_that_is_not_toml_is_one_line(files):
             "[push_campaign]\npushes_per_direction = 2.5\n",
             "push_campaign.pushes_per_direction: got 2.5; expected an integer >= 0",
         ),
-        ("[servo]\nkpp = 1\n", "servo.kpp: unknown key; expected one of ki, kp, kv"),
-        ("servo = 3\n", "servo: got 3; expected a table {kp, kv, ki}"),
+        (
+            "[servo]\nkpp = 1\n",
+            "servo.kpp: unknown key; expected one of ki, kp, kv, standstill_freeze, standstill_leak, standstill_velocity",
+        ),
+        (
+            "servo = 3\n",
+            "servo: got 3; expected a table {kp, kv, ki, standstill_freeze, standstill_leak, standstill_velocity}",
+        ),
         (
             "[friction]\nmotor_share = 1.5\n",
             "friction.motor_share: got 1.5; expected a number in [0, 1]",
