@@ -24,7 +24,6 @@ from ditherlab.residual import Scored
 from ditherlab.signal import tmm
 
 __all__ = [
-    "pooled_lines",
     "MIN_IDENTIFIABILITY",
     "Stack",
     "fit_effect",
@@ -32,6 +31,7 @@ __all__ = [
     "linear_stderr",
     "not_identifiable",
     "pool_weak_joints",
+    "pooled_lines",
     "pooled_note",
     "solve_signed",
     "stack",
@@ -574,20 +574,17 @@ def linear_stderr(
     nb = G.shape[0]
     scale = nb / (nb - D.shape[1]) if nb > D.shape[1] else np.inf
     cov = Hi @ (G.T @ G) @ Hi * scale
-    out = np.full(k, np.inf)
-    idx = np.flatnonzero(keep)
-    for i in range(k):
-        if keep[i]:
-            v = cov[int(np.searchsorted(idx, i)), int(np.searchsorted(idx, i))]
-            out[i] = float(np.sqrt(v)) if np.isfinite(v) and v >= 0 else np.inf
-    return out
+    var = np.full(keep.shape, np.inf)
+    var[keep] = np.diag(cov)
+    var = np.where(np.isfinite(var) & (var >= 0), var, np.inf)
+    return np.sqrt(var[:k])
 
 
 def _weak_reason(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> str | None:
     """Why a per-joint fit of ``e`` rests on too little evidence (``e.evidence_rules``), or
     None: a linear parameter whose standard error (:func:`linear_stderr`) exceeds its
     ``stderr_max``, or that lies more than two standard errors outside its physical ``range``."""
-    rules = getattr(e, "evidence_rules", None) or {}
+    rules = e.evidence_rules or {}
     se = linear_stderr(e, sc, j, fit)
     for i, name in enumerate(e.linear):
         v, s = float(fit.w[i]), float(se[i])
@@ -622,7 +619,7 @@ def pool_weak_joints(
     (the fits, the weak joints' reasons by 0-based joint). A shared fit keeps its joint's
     ``ref`` and has ``loss`` NaN (not fitted there).
     """
-    rules = getattr(e, "evidence_rules", None)
+    rules = e.evidence_rules
     if not rules or e.shared or not fits:
         return fits, {}
     weak = {j: why for j, f in fits.items() if (why := _weak_reason(e, sc, j, f)) is not None}

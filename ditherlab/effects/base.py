@@ -96,6 +96,10 @@ class Effect(abc.ABC):
     #: (:func:`ditherlab.scoring.select_joints`), not only where one recording's diagnosis
     #: evidence passed (the others would keep it in their residual: a false discovery next).
     on_every_joint: ClassVar[bool] = False
+    #: Evidence rules of a per-joint fit, or None (:func:`ditherlab.fit.pool_weak_joints`):
+    #: ``stderr_max`` and physical ``range`` per linear parameter; a joint failing them takes
+    #: the median of the joints that pass, or the ``prior`` values when none does.
+    evidence_rules: ClassVar[dict[str, Any] | None] = None
     #: Evidence plots show the residual times sign(dq) while moving (friction that grows with a
     #: load or falls with temperature acts against the motion).
     signed_evidence: ClassVar[bool] = False
