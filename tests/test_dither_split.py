@@ -8,7 +8,8 @@ but not on joint 3 (stuck: its 0.065 m share of the push stays inside its band).
 the paper's isotropic prior then explains joint 2's excess over its band by the smallest wrench
 that makes it: F_x and F_z in the ratio of their levers, so F_x takes
 0.295² / (0.295² + 0.380²) = 0.376 of what an x-only estimate gives and F_z = -1.29 F_x. An
-x-only estimate of 18-21 N (demo seeds 0 and 4, pushes of 10-30 N) becomes 7-8 N. A y push
+x-only estimate of 19-23 N (median over the 15-30 N x pushes of evaluation seeds 0, 4, 9)
+becomes 7.7-8.6 N. A y push
 loads joint 1, which no other force component loads: no split, y is estimated whole.
 
 These tests pin that property of the estimator at the paper's pose with the demo's dithered
