@@ -8,7 +8,7 @@ import pytest
 
 from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.sim.engine import Engine, Inputs, PlantExtras
-from ditherlab.sim.params import load_params
+from ditherlab.sim.params import default_params, load_params
 from ditherlab.sim.plant import (
     ACT_NONE,
     ACT_RAMP_DOWN,
@@ -28,7 +28,7 @@ from ditherlab.sim.plant import (
     _window_levels,
     gear_twist,
 )
-from ditherlab.sim.scenarios import push_shape
+from ditherlab.sim.scenarios import _plan_pushes, push_shape
 
 
 def _short_run(reference: bool, overrides: dict | None = None):
@@ -229,4 +229,41 @@ def test_cli_release_fraction_out_of_range_is_one_line(cli, tmp_path):
     lines = [ln for ln in r.err.splitlines() if ln.strip()]
     assert r.code == 2 and len(lines) == 1
     assert f"{cfg}: push_campaign.release_fraction: got 1.5; expected a number" in lines[0]
+    assert not (tmp_path / "x.parquet").exists()
+
+
+def test_push_order_experiments_keep_the_shuffled_plan():
+    """``push_campaign.order``: "shuffled" is the plan as before (the same pushes, durations and
+    rests for a seed); "per-axis" and "per-direction" are the same pushes run as one experiment
+    per axis or per axis and sign, each in the shuffled order."""
+    pc = default_params()["push_campaign"] | {"pushes_per_direction": 4}
+    plans = {}
+    for how in ("shuffled", "per-axis", "per-direction"):
+        plans[how] = _plan_pushes(pc | {"order": how}, np.random.default_rng(7))
+    legacy = {k: v for k, v in pc.items() if k != "order"}
+    assert plans["shuffled"] == _plan_pushes(legacy, np.random.default_rng(7))
+    key = lambda p: (p["axis"], p["sign"], p["magnitude"])  # noqa: E731
+    shuffled = [key(p) for p in plans["shuffled"]]
+    for how, plan in plans.items():
+        assert sorted(key(p) for p in plan) == sorted(shuffled)
+    axes = [p["axis"] for p in plans["per-axis"]]
+    assert axes == ["x"] * 8 + ["y"] * 8 + ["z"] * 8
+    dirs = [(p["axis"], p["sign"]) for p in plans["per-direction"]]
+    assert dirs == [(a, s) for a in "xyz" for s in (1, -1) for _ in range(4)]
+    # within an experiment, the shuffled order
+    x_shuffled = [key(p) for p in plans["shuffled"] if p["axis"] == "x"]
+    assert [key(p) for p in plans["per-axis"][:8]] == x_shuffled
+    assert len({p["sign"] for p in plans["per-axis"][:8]}) == 2
+
+
+def test_cli_push_order_unknown_is_one_line(cli, tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[push_campaign]\norder = "by-size"\n')
+    r = cli("simulate", "push-campaign", "-o", tmp_path / "x.parquet", "--config", cfg, "-q")
+    lines = [ln for ln in r.err.splitlines() if ln.strip()]
+    assert r.code == 2 and len(lines) == 1, r.err
+    assert lines[0].endswith(
+        f"{cfg}: push_campaign.order: got 'by-size'; expected one of 'shuffled', 'per-axis', "
+        "'per-direction'"
+    ), lines[0]
     assert not (tmp_path / "x.parquet").exists()

@@ -31,9 +31,14 @@ DEFAULTS_FILE = "irb140.toml"
 #: The lead-through's admittance laws (ditherlab.sim.leadthrough): the paper's 10 N dead zone on
 #: the estimate's magnitude, or its §V alternative driven by the confidence interval.
 LEAD_THROUGH_LAWS = ("dead-zone", "interval")
+#: The push campaign's orders (ditherlab.sim.scenarios): every push of every direction
+#: shuffled; one experiment per axis (its pushes of both signs shuffled, the axes one after the
+#: other); one per direction (axis and sign).
+PUSH_ORDERS = ("shuffled", "per-axis", "per-direction")
 #: The text keys and their choices.
 _TEXT_CHOICES = {
     "dither.waveform": WAVEFORMS,
+    "push_campaign.order": PUSH_ORDERS,
     "lead_through.law": LEAD_THROUGH_LAWS,
     "lead_through.interval": INTERVAL_METHODS,
 }

@@ -89,6 +89,10 @@ def _plan_pushes(pc: Mapping[str, Any], rng: np.random.Generator) -> list[dict[s
                 pushes.append({"axis": AXES[axis], "sign": sign, "magnitude": float(m)})
     order = rng.permutation(len(pushes))
     pushes = [pushes[i] for i in order]
+    how = pc.get("order", "shuffled")
+    if how != "shuffled":  # the shuffled order within each experiment; experiments in turn
+        key = (lambda p: p["axis"]) if how == "per-axis" else (lambda p: (p["axis"], -p["sign"]))
+        pushes.sort(key=key)  # stable: keeps the shuffle inside an experiment
     for p in pushes:
         p["duration"] = float(rng.uniform(pc["duration_min"], pc["duration_max"]))
         p["rest"] = float(rng.uniform(pc["rest_min"], pc["rest_max"]))
