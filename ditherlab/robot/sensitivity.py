@@ -139,13 +139,16 @@ from ditherlab.sim.params import load_params
 
 __all__ = [
     "DIRECTIONS",
+    "REPORT_CONDITIONS",
     "Bands",
     "campaign_states",
     "centre_loop_gain",
     "condition_bands",
     "dither_transmission",
     "format_prediction",
+    "parse_noise_level",
     "predict",
+    "report_noise_level",
     "shared_fraction",
     "transmission_table",
 ]
@@ -163,6 +166,9 @@ AXES = ("x", "y", "z")
 #: the report's response definition (:func:`ditherlab.thresholds.analyse`)
 QUANTILE = 0.999
 FLOOR = 1.0
+#: the report's condition (``replay`` variant) whose noise level a prediction can take: the
+#: estimator of eq. (3) with the band term, which :func:`predict` models (dithered: True)
+REPORT_CONDITIONS = {True: "dither_band", False: "nodither_band"}
 #: the simulator's robot
 SIM_ROBOT = "irb140"
 #: lighter settings of :func:`predict` for every pose of a map (a few tenths of a second each)
@@ -445,6 +451,67 @@ def noise_levels(
     return np.maximum(np.quantile(np.abs(F), quantile, axis=0), floor)
 
 
+def parse_noise_level(text: str, where: str = "--noise-level") -> np.ndarray:
+    """``"4.6,5.2,6.5"`` -> the noise level per axis x, y, z (3,) [N]: a measured level (the
+    report's 99.9 % of ``|F̂|`` at rest) for :func:`predict` instead of the predicted one.
+
+    Raises
+    ------
+    ConfigError
+        Not three comma-separated numbers, or one negative or not finite.
+    """
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        vals = np.array([float(p) for p in parts], float)
+    except ValueError:
+        vals = np.array([math.nan])
+    if len(parts) != 3 or not np.all(np.isfinite(vals)):
+        raise ConfigError(
+            f"{where} is {text!r}; expected three numbers X,Y,Z in N (the noise level per axis)"
+        )
+    if np.any(vals < 0):
+        raise ConfigError(f"{where} is {text!r}; expected noise levels >= 0 N")
+    return vals
+
+
+def report_noise_level(
+    report: Mapping[str, Any], dithered: bool, where: str = "report"
+) -> np.ndarray:
+    """The measured noise level per axis x, y, z (3,) [N] of the condition a prediction models
+    (:data:`REPORT_CONDITIONS`: ``dither_band`` with dither, ``nodither_band`` without) from
+    the analysis ``report`` (``report.json`` of ``ditherlab report``, or
+    :func:`ditherlab.thresholds.analyse`'s dict): read, not recomputed.
+
+    Raises
+    ------
+    ConfigError
+        ``report`` has no such condition, or that condition has no noise level on an axis
+        (no rest samples) or a negative one; ``where`` names the report in the message.
+    """
+    cond = REPORT_CONDITIONS[bool(dithered)]
+    conds = report.get("conditions") if isinstance(report, Mapping) else None
+    if not isinstance(conds, Mapping):
+        raise ConfigError(f"{where}: no 'conditions'; expected the report.json of ditherlab report")
+    if cond not in conds:
+        have = ", ".join(sorted(conds)) or "none"
+        raise ConfigError(
+            f"{where}: no condition {cond} (it has {have}); expected a report of estimates "
+            f"with the {cond} variant ({'with' if dithered else 'without'} dither)"
+        )
+    nl = (conds[cond] or {}).get("noise_level") or {}
+    out = []
+    for a in AXES:
+        v = nl.get(a)
+        ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+        if not ok or v < 0:
+            raise ConfigError(
+                f"{where}: condition {cond} has noise level {v!r} along {a}; expected a "
+                "number >= 0 N (rest samples on every axis)"
+            )
+        out.append(float(v))
+    return np.array(out)
+
+
 def shared_fraction(
     J: np.ndarray, bands: Bands, force_range: tuple[float, float], n: int
 ) -> dict[str, float]:
@@ -596,6 +663,7 @@ def predict(
     draws: int = 300,
     rest_samples: int = 20_000,
     noise_level: Sequence[float] | None = None,
+    noise_source: str | None = None,
     states: str = "auto",
     push_duration: float = PUSH_DURATION,
     sample_rate: float = SAMPLE_RATE,
@@ -616,7 +684,9 @@ def predict(
     forces, draws : force grid points over ``(0, max_force]`` (at least 400 with
         ``states="plant"``) and friction-state draws per force
     rest_samples : draws of the state at rest for the noise level
-    noise_level : (3,) [N] use these noise levels instead of predicting them
+    noise_level : (3,) [N] use these noise levels (e.g. measured, the report's at rest) instead
+        of the predicted ones; the predicted ones are still returned beside
+    noise_source : where ``noise_level`` comes from, for the output (default ``"given"``)
     states : how the joints' friction states before a push are drawn (module docstring, step
         2): ``"campaign"`` (the states a campaign leaves on the plant, :func:`campaign_states`;
         without dither only), ``"plant"`` (with dither only: every joint at the centre loop's
@@ -630,7 +700,8 @@ def predict(
     Returns
     -------
     dict (JSON-ready): ``q`` [rad], ``levers`` (3, n) [m] (``|J_f|``), ``noise_level`` per
-    axis [N], ``directions``: per direction ``f50``, ``f90`` (crossings of the detection
+    axis [N] (the one the thresholds use), ``noise_level_predicted`` per axis [N] (from the
+    bands alone), ``noise_level_source`` (``"predicted"`` or ``noise_source``), ``directions``: per direction ``f50``, ``f90`` (crossings of the detection
     probability, inf when never reached), ``curve_f50``, ``curve_f90`` (the report's logistic
     fit over ``force_range``), ``joints`` (the joints whose lever exceeds 1 % of the largest);
     ``axes``: per axis ``f50``, ``f90`` of that fit to both signs; ``source``, ``dithered``,
@@ -658,18 +729,15 @@ def predict(
     # wherever the model's band lies (one off 0 offsets the estimate at rest and after)
     centre = np.zeros(robot.n) if states == "plant" else None
     table = transmission_table(robot, q, bands) if states == "plant" else None
-    nl = (
-        np.asarray(noise_level, float).reshape(3)
-        if noise_level is not None
-        else noise_levels(
-            J,
-            bands,
-            components=components,
-            rest_samples=rest_samples,
-            seed=seed,
-            rest_states=camp[2] if camp is not None else None if centre is None else centre[None],
-        )  # fmt: skip
-    )
+    nl_pred = noise_levels(
+        J,
+        bands,
+        components=components,
+        rest_samples=rest_samples,
+        seed=seed,
+        rest_states=camp[2] if camp is not None else None if centre is None else centre[None],
+    )  # fmt: skip
+    nl = nl_pred if noise_level is None else np.asarray(noise_level, float).reshape(3)
     rng = np.random.default_rng(seed + 1)
     n = robot.n
     if table is not None:  # thresholds of a few newtons: a finer grid over a shorter span
@@ -747,6 +815,8 @@ def predict(
         "q": q.tolist(),
         "levers": np.abs(J[:3]).tolist(),
         "noise_level": dict(zip(AXES, nl.tolist(), strict=True)),
+        "noise_level_predicted": dict(zip(AXES, nl_pred.tolist(), strict=True)),
+        "noise_level_source": "predicted" if noise_level is None else noise_source or "given",
         "directions": out,
         "axes": axes,
         "source": bands.source,
@@ -773,8 +843,20 @@ def format_prediction(pred: Mapping[str, Any]) -> str:
     lines = [
         f"pose sensitivity at q = ({qd}) deg, "
         f"{'with dither' if pred['dithered'] else 'without dither'}; bands from {pred['source']}",
-        "noise level (99.9 % of |F̂| at rest, >= 1 N): "
-        + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES),
+        *(
+            [
+                "noise level (99.9 % of |F̂| at rest, >= 1 N): "
+                + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES)
+            ]
+            if pred.get("noise_level_source", "predicted") == "predicted"
+            else [
+                f"noise level {pred['noise_level_source']}: "
+                + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES)
+                + "  (predicted from the bands: "
+                + "  ".join(f"{a} {pred['noise_level_predicted'][a]:.2f}" for a in AXES)
+                + " N)"
+            ]
+        ),
         *(
             [f"push transmission with dither: {pred['transmission']}"]
             if pred.get("transmission")

@@ -5,6 +5,7 @@ the grid's parsing, one row per pose, the text summary, the PNG heat map and
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -22,10 +23,13 @@ from ditherlab.robot.sensitivity import (
     AXES,
     DIRECTIONS,
     MAP_OPTIONS,
+    REPORT_CONDITIONS,
     Bands,
     condition_bands,
     format_prediction,
+    parse_noise_level,
     predict,
+    report_noise_level,
 )
 
 __all__ = [
@@ -36,6 +40,7 @@ __all__ = [
     "parse_map_grid",
     "plot_map",
     "prediction_row",
+    "read_report_noise_level",
     "run_sensitivity",
     "sensitivity_map",
 ]
@@ -170,6 +175,31 @@ def parse_force_range(text: str, where: str = "--force-range") -> tuple[float, f
     return lo, hi
 
 
+def read_report_noise_level(path: str | Path, dithered: bool) -> np.ndarray:
+    """The measured noise level per axis (3,) [N] of the matching condition
+    (:data:`ditherlab.robot.sensitivity.REPORT_CONDITIONS`) in a ``report.json`` written by
+    ``ditherlab report`` (:func:`ditherlab.robot.sensitivity.report_noise_level`).
+
+    Raises
+    ------
+    ConfigError
+        No such file, not JSON, or no noise level of that condition (one line naming the file).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(
+            f"--report {p}: no such file; expected the report.json of ditherlab report"
+        )
+    try:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        msg = " ".join(str(exc).split())
+        raise ConfigError(
+            f"--report {p}: not JSON ({msg}); expected the report.json of ditherlab report"
+        ) from None
+    return report_noise_level(d, dithered, where=f"--report {p}")
+
+
 def format_map(table: Any, joints: Sequence[int], conditions: Sequence[bool]) -> str:
     """A short text summary of a map (a DataFrame of :func:`sensitivity_map` rows with a
     ``dither`` column): per condition and axis the smallest and largest F50 and their poses."""
@@ -255,6 +285,8 @@ def run_sensitivity(
     force_range: str,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    noise_level: str | None = None,
+    report: str | Path | None = None,
 ) -> dict[str, Any]:
     """``ditherlab robot SPEC --sensitivity``: the prediction at a pose, or ``--map`` over a
     grid of poses written as a table and a PNG (atomically; the caller checked both outputs
@@ -271,6 +303,10 @@ def run_sensitivity(
     force_range : ``MIN:MAX`` [N] (:func:`parse_force_range`)
     seed : the draws' seed
     progress : ``progress(done, total)`` over the map's poses
+    noise_level : ``X,Y,Z`` [N] a measured noise level per axis for the one condition
+        (``dither`` not None) instead of the predicted (:func:`parse_noise_level`)
+    report : a ``report.json`` of ``ditherlab report``: each condition's noise level read from
+        its matching condition (:func:`read_report_noise_level`) instead of the predicted
 
     Returns
     -------
@@ -298,11 +334,42 @@ def run_sensitivity(
     check_pose(rm, pose)
     fr = parse_force_range(force_range)
     conds = [dither] if dither is not None else [False, True]
+    given: dict[bool, tuple[np.ndarray, str]] = {}
+    if noise_level is not None and report is not None:
+        raise ConfigError("--noise-level and --report both give the noise level; expected one")
+    if (noise_level is not None or report is not None) and map_out is not None:
+        opt = "--noise-level" if noise_level is not None else "--report"
+        raise ConfigError(
+            f"{opt} gives the noise level measured at one pose; expected no --map (the map "
+            "predicts each pose's own)"
+        )
+    if noise_level is not None:
+        if dither is None:
+            raise ConfigError(
+                f"--noise-level {noise_level} is one condition's noise level; expected --dither "
+                "or --no-dither with it"
+            )
+        given[dither] = (parse_noise_level(noise_level), "given (--noise-level)")
+    if report is not None:
+        for d in conds:
+            lv = read_report_noise_level(report, d)
+            given[d] = (lv, f"measured (--report {report}, {REPORT_CONDITIONS[d]})")
     bands = {d: condition_bands(rm.n, tm, dither=d, robot_name=rm.name) for d in conds}
     if map_out is None:
         if grid is not None:
             raise ConfigError("--grid needs --map FILE (the table to write)")
-        preds = [predict(rm, pose, bands[d], force_range=fr, seed=seed) for d in conds]
+        preds = [
+            predict(
+                rm,
+                pose,
+                bands[d],
+                force_range=fr,
+                seed=seed,
+                noise_level=given[d][0] if d in given else None,
+                noise_source=given[d][1] if d in given else None,
+            )  # fmt: skip
+            for d in conds
+        ]
         return {
             "text": "\n\n".join(format_prediction(p) for p in preds),
             "json": {"robot": rm.name, "predictions": preds},
