@@ -14,7 +14,8 @@ from ditherlab.errors import ConfigError
 from ditherlab.recording import FORCE_AXES, Recording
 from ditherlab.robot import RobotModel
 from ditherlab.robot.poses import outside_limits
-from ditherlab.robot.sensitivity import condition_bands, predict, report_noise_level
+from ditherlab.robot.sensitivity import condition_bands, predict
+from ditherlab.robot.sensitivity_map import report_noise_level
 from ditherlab.sim.params import load_params
 from ditherlab.thresholds import fit_logistic
 

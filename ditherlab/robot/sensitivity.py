@@ -139,16 +139,12 @@ from ditherlab.sim.params import load_params
 
 __all__ = [
     "DIRECTIONS",
-    "REPORT_CONDITIONS",
     "Bands",
     "campaign_states",
     "centre_loop_gain",
     "condition_bands",
     "dither_transmission",
-    "format_prediction",
-    "parse_noise_level",
     "predict",
-    "report_noise_level",
     "shared_fraction",
     "transmission_table",
 ]
@@ -166,9 +162,6 @@ AXES = ("x", "y", "z")
 #: the report's response definition (:func:`ditherlab.thresholds.analyse`)
 QUANTILE = 0.999
 FLOOR = 1.0
-#: the report's condition (``replay`` variant) whose noise level a prediction can take: the
-#: estimator of eq. (3) with the band term, which :func:`predict` models (dithered: True)
-REPORT_CONDITIONS = {True: "dither_band", False: "nodither_band"}
 #: the simulator's robot
 SIM_ROBOT = "irb140"
 #: lighter settings of :func:`predict` for every pose of a map (a few tenths of a second each)
@@ -449,67 +442,6 @@ def noise_levels(
     r = state + rng.standard_normal(u.shape) * bands.sigma
     F = _estimates(r, J, bands, components)
     return np.maximum(np.quantile(np.abs(F), quantile, axis=0), floor)
-
-
-def parse_noise_level(text: str, where: str = "--noise-level") -> np.ndarray:
-    """``"4.6,5.2,6.5"`` -> the noise level per axis x, y, z (3,) [N]: a measured level (the
-    report's 99.9 % of ``|F̂|`` at rest) for :func:`predict` instead of the predicted one.
-
-    Raises
-    ------
-    ConfigError
-        Not three comma-separated numbers, or one negative or not finite.
-    """
-    parts = [p.strip() for p in str(text).split(",")]
-    try:
-        vals = np.array([float(p) for p in parts], float)
-    except ValueError:
-        vals = np.array([math.nan])
-    if len(parts) != 3 or not np.all(np.isfinite(vals)):
-        raise ConfigError(
-            f"{where} is {text!r}; expected three numbers X,Y,Z in N (the noise level per axis)"
-        )
-    if np.any(vals < 0):
-        raise ConfigError(f"{where} is {text!r}; expected noise levels >= 0 N")
-    return vals
-
-
-def report_noise_level(
-    report: Mapping[str, Any], dithered: bool, where: str = "report"
-) -> np.ndarray:
-    """The measured noise level per axis x, y, z (3,) [N] of the condition a prediction models
-    (:data:`REPORT_CONDITIONS`: ``dither_band`` with dither, ``nodither_band`` without) from
-    the analysis ``report`` (``report.json`` of ``ditherlab report``, or
-    :func:`ditherlab.thresholds.analyse`'s dict): read, not recomputed.
-
-    Raises
-    ------
-    ConfigError
-        ``report`` has no such condition, or that condition has no noise level on an axis
-        (no rest samples) or a negative one; ``where`` names the report in the message.
-    """
-    cond = REPORT_CONDITIONS[bool(dithered)]
-    conds = report.get("conditions") if isinstance(report, Mapping) else None
-    if not isinstance(conds, Mapping):
-        raise ConfigError(f"{where}: no 'conditions'; expected the report.json of ditherlab report")
-    if cond not in conds:
-        have = ", ".join(sorted(conds)) or "none"
-        raise ConfigError(
-            f"{where}: no condition {cond} (it has {have}); expected a report of estimates "
-            f"with the {cond} variant ({'with' if dithered else 'without'} dither)"
-        )
-    nl = (conds[cond] or {}).get("noise_level") or {}
-    out = []
-    for a in AXES:
-        v = nl.get(a)
-        ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-        if not ok or v < 0:
-            raise ConfigError(
-                f"{where}: condition {cond} has noise level {v!r} along {a}; expected a "
-                "number >= 0 N (rest samples on every axis)"
-            )
-        out.append(float(v))
-    return np.array(out)
 
 
 def shared_fraction(
@@ -826,57 +758,3 @@ def predict(
         "force_range": list(force_range),
         "components": components,
     }
-
-
-def _num(x: float, width: int = 7) -> str:
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return f"{'–':>{width}}"
-    if math.isinf(x):
-        return f"{'never':>{width}}"
-    return f"{x:{width}.1f}"
-
-
-def format_prediction(pred: Mapping[str, Any]) -> str:
-    """The per-direction table of :func:`predict` as text."""
-    qd = ", ".join(f"{math.degrees(x):.1f}" for x in pred["q"])
-    nl = pred["noise_level"]
-    lines = [
-        f"pose sensitivity at q = ({qd}) deg, "
-        f"{'with dither' if pred['dithered'] else 'without dither'}; bands from {pred['source']}",
-        *(
-            [
-                "noise level (99.9 % of |F̂| at rest, >= 1 N): "
-                + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES)
-            ]
-            if pred.get("noise_level_source", "predicted") == "predicted"
-            else [
-                f"noise level {pred['noise_level_source']}: "
-                + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES)
-                + "  (predicted from the bands: "
-                + "  ".join(f"{a} {pred['noise_level_predicted'][a]:.2f}" for a in AXES)
-                + " N)"
-            ]
-        ),
-        *(
-            [f"push transmission with dither: {pred['transmission']}"]
-            if pred.get("transmission")
-            else []
-        ),  # fmt: skip
-        f"{'direction':<10}{'F50 [N]':>9}{'F90 [N]':>9}{'curve F50':>11}{'curve F90':>11}  joints",
-    ]
-    for name, _, _ in DIRECTIONS:
-        d = pred["directions"][name]
-        lines.append(
-            f"{name:<10}{_num(d['f50'], 9)}{_num(d['f90'], 9)}{_num(d['curve_f50'], 11)}"
-            f"{_num(d['curve_f90'], 11)}  {', '.join(str(j) for j in d['joints']) or '-'}"
-        )
-    lo, hi = pred["force_range"]
-    lines.append(
-        f"per axis, both signs (the report's logistic fit to pushes of {lo:g}–{hi:g} N): "
-        + "  ".join(
-            f"{a} F50 {_num(pred['axes'][a]['f50'], 0).strip()} / F90 "
-            f"{_num(pred['axes'][a]['f90'], 0).strip()} N"
-            for a in AXES
-        )
-    )
-    return "\n".join(lines)
