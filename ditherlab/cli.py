@@ -246,6 +246,14 @@ def robot(
         str | None, _opt("--grid", "Map poses qJ=START:STOP:COUNT[,qK=...] rad.")
     ] = None,
     force_range: Annotated[str, _opt("--force-range", "Push magnitudes MIN:MAX [N].")] = "10:60",
+    noise_level: Annotated[
+        str | None,
+        _opt("--noise-level", "Measured noise level X,Y,Z [N] (one condition) for the predicted."),
+    ] = None,
+    report: Annotated[
+        Path | None,
+        _opt("--report", "report.json of ditherlab report: its measured noise level instead."),
+    ] = None,
     seed: Seed = 0,
     quiet: Quiet = False,
     json_out: JsonFlag = False,
@@ -257,10 +265,13 @@ def robot(
 
     from ditherlab.robot import RobotModel, format_description, resolve_spec
 
-    if not sensitivity and (map_out or grid or model or dither is not None):
+    extra = (map_out, grid, model, noise_level, report)
+    if not sensitivity and (any(x is not None for x in extra) or dither is not None):
         from ditherlab.errors import ConfigError
 
-        raise ConfigError("robot: --map, --grid, --model and --dither need --sensitivity")
+        raise ConfigError(
+            "robot: --map, --grid, --model, --dither, --noise-level and --report need --sensitivity"
+        )
     resolved = resolve_spec(spec, tool_frame=tool_frame)
     if sensitivity:
         from ditherlab.io.atomic import plain
@@ -271,7 +282,7 @@ def robot(
             guard(map_out.with_suffix(".png"), model, map_out)
         with progress_bar("map", quiet or map_out is None) as prog:
             args = (resolved, q, model, dither, map_out, grid, force_range, seed)
-            res = run_sensitivity(*args, progress=prog)
+            res = run_sensitivity(*args, progress=prog, noise_level=noise_level, report=report)
         echo(json.dumps(plain(res["json"]), indent=1) if json_out else res["text"])
         return
     rm = RobotModel.from_spec(resolved)

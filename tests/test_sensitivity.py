@@ -419,7 +419,8 @@ def test_model_of_another_robot_and_robot_without_defaults(tmp_path):
     )
     r = run_cli("robot", "irb140", "--map", tmp_path / "x.csv")
     assert r.code == 2 and r.err == (
-        "error: robot: --map, --grid, --model and --dither need --sensitivity\n"
+        "error: robot: --map, --grid, --model, --dither, --noise-level and --report need "
+        "--sensitivity\n"
     )
 
 

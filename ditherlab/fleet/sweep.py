@@ -85,10 +85,12 @@ VIBRATION_LIMIT = 1e-4
 #: smallest / largest force), ``_lo`` / ``_hi`` F50's 90 % bootstrap interval over pushes;
 #: ``nodither_*``: the undithered campaign (``nodither_band``); ``f50_+x`` ..: F50 of one push
 #: direction (the pushes of one sign, no bootstrap; a bound's force when every / no push was
-#: seen); ``pred_*``: F50 predicted at the point's pose from the identified model
-#: (:func:`ditherlab.robot.sensitivity.predict`; per axis the report's logistic fit over the
-#: campaign's push magnitudes, else the smaller direction's crossing; per direction the crossing
-#: of one half).
+#: seen); ``noise_x`` ..: the noise level the report measured at rest (``dither_band``;
+#: ``nodither_noise_*``: ``nodither_band``); ``pred_*``: F50 predicted at the point's pose from
+#: the identified model alone (:func:`ditherlab.robot.sensitivity.predict`; per axis the
+#: report's logistic fit over the campaign's push magnitudes, else the smaller direction's
+#: crossing; per direction the crossing of one half; ``pred_noise_*`` its predicted noise
+#: level); ``predm_*``: the same prediction given the point's measured noise level.
 METRICS = [
     *(f"f50_{a}" for a in FORCE_AXES),
     *(f"f90_{a}" for a in FORCE_AXES),
@@ -110,6 +112,10 @@ METRICS = [
     *(f"{c}f50_{d}" for c in ("", "nodither_") for d in DIRECTION_NAMES),
     *(f"pred_{c}f50_{a}" for c in ("", "nodither_") for a in FORCE_AXES),
     *(f"pred_{c}f50_{d}" for c in ("", "nodither_") for d in DIRECTION_NAMES),
+    *(f"{c}noise_{a}" for c in ("", "nodither_") for a in FORCE_AXES),
+    *(f"pred_{c}noise_{a}" for c in ("", "nodither_") for a in FORCE_AXES),
+    *(f"predm_{c}f50_{a}" for c in ("", "nodither_") for a in FORCE_AXES),
+    *(f"predm_{c}f50_{d}" for c in ("", "nodither_") for d in DIRECTION_NAMES),
 ]
 #: ``sweep_runs.parquet``'s columns after the grid's own: one row per point and seed.
 RUN_COLUMNS = ["point", "seed", "ok", "error", *METRICS]
@@ -485,7 +491,10 @@ def run_point(config: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]
     row["pushes"] = len(ev.meta["sim"]["pushes"])
     for prefix, cond in (("", dith), ("nodither_", plain)):
         row.update({f"{prefix}f50_{d}": v for d, v in direction_f50(cond).items()})
-    row.update(predicted(ev, model, config, seed))
+    for prefix, cond in (("", dith), ("nodither_", plain)):
+        nl = cond.get("noise_level") or {}
+        row.update({f"{prefix}noise_{a}": _num(nl.get(a)) for a in FORCE_AXES})
+    row.update(predicted(ev, model, config, seed, analysis=a))
     row["seconds"] = time.perf_counter() - t0
     return row
 
@@ -532,6 +541,11 @@ def _plain(v: Any) -> Any:
     return v
 
 
+def _num(v: Any) -> float:
+    """A number of the analysis as float [its unit], NaN for None."""
+    return math.nan if v is None else float(v)
+
+
 def _cell(v: float, bound: str = "") -> str:
     if not np.isfinite(v):
         return "–"
@@ -540,13 +554,16 @@ def _cell(v: float, bound: str = "") -> str:
 
 def format_table(table: pd.DataFrame, grid: Sequence[str], limit: float = VIBRATION_LIMIT) -> str:
     """The sweep's table as Markdown: the grid's values, F50 per direction (``<`` every push
-    seen, ``>`` none) and the predicted (:mod:`ditherlab.robot.sensitivity`), F50 without
-    dither and the predicted, F90, vibration, coverage, per point."""
+    seen, ``>`` none) and the predicted (:mod:`ditherlab.robot.sensitivity`: from the model
+    alone; given the point's measured noise level), the noise level measured at rest and the
+    predicted, F50 without dither and the two predictions, F90, vibration, coverage, per
+    point."""
     head = [
         *grid,
-        "F50 x / y / z [N] (predicted)",
+        "F50 x / y / z [N] (predicted: model; model + measured noise level)",
         "mean",
-        "no dither F50 x / y / z (predicted)",
+        "noise level x / y / z [N] (predicted)",
+        "no dither F50 x / y / z (predicted: model; model + measured noise level)",
         "F90 x / y / z",
         "vibration arm / motor [1e-4 rad]",
         "coverage push / rest",
@@ -573,11 +590,14 @@ def format_table(table: pd.DataFrame, grid: Sequence[str], limit: float = VIBRAT
             mean += f" ± {r['f50_mean_sem']:.1f}"
         for c in ("", "nodither_"):
             pred = " / ".join(_cell(r[f"pred_{c}f50_{a}"]) for a in FORCE_AXES)
+            pred += "; " + " / ".join(_cell(r[f"predm_{c}f50_{a}"]) for a in FORCE_AXES)
             if c:
                 nd += f" ({pred})"
             else:
                 f50 += f" ({pred})"
-        vals += [f50, mean, nd, f90, vib, cov, status]
+        noise = " / ".join(_cell(r[f"noise_{a}"]) for a in FORCE_AXES)
+        noise += " (" + " / ".join(_cell(r[f"pred_noise_{a}"]) for a in FORCE_AXES) + ")"
+        vals += [f50, mean, noise, nd, f90, vib, cov, status]
         lines.append("| " + " | ".join(vals) + " |")
     return "\n".join(lines)
 

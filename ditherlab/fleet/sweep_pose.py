@@ -4,6 +4,7 @@ dithered campaign without its ramp-down, and the per-direction and predicted F50
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -14,6 +15,7 @@ from ditherlab.recording import FORCE_AXES, Recording
 from ditherlab.robot import RobotModel
 from ditherlab.robot.poses import outside_limits
 from ditherlab.robot.sensitivity import condition_bands, predict
+from ditherlab.robot.sensitivity_map import report_noise_level
 from ditherlab.sim.params import load_params
 from ditherlab.thresholds import fit_logistic
 
@@ -64,10 +66,36 @@ def direction_f50(cond: Mapping[str, Any]) -> dict[str, float]:
     return out
 
 
-def predicted(rec: Recording, model: Any, config: Mapping[str, Any], seed: int) -> dict[str, float]:
+def _f50_columns(pr: Mapping[str, Any], head: str) -> dict[str, float]:
+    """``{head}f50_x`` .. (per axis the report's logistic fit, else the smaller direction's
+    crossing) and ``{head}f50_+x`` .. (per direction the crossing of one half) [N] of one
+    :func:`ditherlab.robot.sensitivity.predict` result."""
+    out: dict[str, float] = {}
+    for a in FORCE_AXES:
+        f = pr["axes"][a]["f50"]
+        if not np.isfinite(f):
+            f = min(pr["directions"][f"+{a}"]["f50"], pr["directions"][f"-{a}"]["f50"])
+        out[f"{head}f50_{a}"] = float(f)
+    for dn in DIRECTION_NAMES:
+        out[f"{head}f50_{dn}"] = float(pr["directions"][dn]["f50"])
+    return out
+
+
+def predicted(
+    rec: Recording,
+    model: Any,
+    config: Mapping[str, Any],
+    seed: int,
+    analysis: Mapping[str, Any] | None = None,
+) -> dict[str, float]:
     """The ``pred_*`` columns: :func:`ditherlab.robot.sensitivity.predict` at the point's pose
     (``pose.q0``) from the identified ``model``, with and without dither, fitted over the
-    campaign's push magnitudes."""
+    campaign's push magnitudes: ``pred_[nodither_]f50_*`` from the model alone (its predicted
+    noise level ``pred_[nodither_]noise_x`` .. [N]); with the point's ``analysis``
+    (:func:`ditherlab.thresholds.analyse` of its evaluation campaigns) also
+    ``predm_[nodither_]f50_*``, the same prediction given the noise level the analysis measured
+    at rest in the matching condition (``dither_band`` / ``nodither_band``, read, not
+    recomputed; NaN where it has none)."""
     p = load_params(config)
     pc = p["push_campaign"]
     fr = (float(pc["magnitude_min"]), float(pc["magnitude_max"]))
@@ -76,11 +104,20 @@ def predicted(rec: Recording, model: Any, config: Mapping[str, Any], seed: int) 
     for prefix, d in (("", True), ("nodither_", False)):
         bands = condition_bands(robot.n, model, dither=d, params=p, robot_name=robot.name)
         pr = predict(robot, p["pose"]["q0"], bands, force_range=fr, seed=seed)
-        for a in FORCE_AXES:
-            f = pr["axes"][a]["f50"]
-            if not np.isfinite(f):
-                f = min(pr["directions"][f"+{a}"]["f50"], pr["directions"][f"-{a}"]["f50"])
-            out[f"pred_{prefix}f50_{a}"] = float(f)
-        for dn in DIRECTION_NAMES:
-            out[f"pred_{prefix}f50_{dn}"] = float(pr["directions"][dn]["f50"])
+        out.update(_f50_columns(pr, f"pred_{prefix}"))
+        out.update({f"pred_{prefix}noise_{a}": float(pr["noise_level"][a]) for a in FORCE_AXES})
+        if analysis is None:
+            continue
+        try:
+            nl = report_noise_level(analysis, d, where="sweep")
+        except ConfigError:  # no rest (or no pushes) in that condition: nothing measured
+            out.update(
+                {f"predm_{prefix}f50_{k}": math.nan for k in (*FORCE_AXES, *DIRECTION_NAMES)}
+            )
+            continue
+        pm = predict(
+            robot, p["pose"]["q0"], bands, force_range=fr, seed=seed, noise_level=nl,
+            noise_source="measured",
+        )  # fmt: skip
+        out.update(_f50_columns(pm, f"predm_{prefix}"))
     return out

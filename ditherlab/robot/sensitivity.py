@@ -144,7 +144,6 @@ __all__ = [
     "centre_loop_gain",
     "condition_bands",
     "dither_transmission",
-    "format_prediction",
     "predict",
     "shared_fraction",
     "transmission_table",
@@ -596,6 +595,7 @@ def predict(
     draws: int = 300,
     rest_samples: int = 20_000,
     noise_level: Sequence[float] | None = None,
+    noise_source: str | None = None,
     states: str = "auto",
     push_duration: float = PUSH_DURATION,
     sample_rate: float = SAMPLE_RATE,
@@ -616,7 +616,9 @@ def predict(
     forces, draws : force grid points over ``(0, max_force]`` (at least 400 with
         ``states="plant"``) and friction-state draws per force
     rest_samples : draws of the state at rest for the noise level
-    noise_level : (3,) [N] use these noise levels instead of predicting them
+    noise_level : (3,) [N] use these noise levels (e.g. measured, the report's at rest) instead
+        of the predicted ones; the predicted ones are still returned beside
+    noise_source : where ``noise_level`` comes from, for the output (default ``"given"``)
     states : how the joints' friction states before a push are drawn (module docstring, step
         2): ``"campaign"`` (the states a campaign leaves on the plant, :func:`campaign_states`;
         without dither only), ``"plant"`` (with dither only: every joint at the centre loop's
@@ -630,7 +632,8 @@ def predict(
     Returns
     -------
     dict (JSON-ready): ``q`` [rad], ``levers`` (3, n) [m] (``|J_f|``), ``noise_level`` per
-    axis [N], ``directions``: per direction ``f50``, ``f90`` (crossings of the detection
+    axis [N] (the one the thresholds use), ``noise_level_predicted`` per axis [N] (from the
+    bands alone), ``noise_level_source`` (``"predicted"`` or ``noise_source``), ``directions``: per direction ``f50``, ``f90`` (crossings of the detection
     probability, inf when never reached), ``curve_f50``, ``curve_f90`` (the report's logistic
     fit over ``force_range``), ``joints`` (the joints whose lever exceeds 1 % of the largest);
     ``axes``: per axis ``f50``, ``f90`` of that fit to both signs; ``source``, ``dithered``,
@@ -658,18 +661,15 @@ def predict(
     # wherever the model's band lies (one off 0 offsets the estimate at rest and after)
     centre = np.zeros(robot.n) if states == "plant" else None
     table = transmission_table(robot, q, bands) if states == "plant" else None
-    nl = (
-        np.asarray(noise_level, float).reshape(3)
-        if noise_level is not None
-        else noise_levels(
-            J,
-            bands,
-            components=components,
-            rest_samples=rest_samples,
-            seed=seed,
-            rest_states=camp[2] if camp is not None else None if centre is None else centre[None],
-        )  # fmt: skip
-    )
+    nl_pred = noise_levels(
+        J,
+        bands,
+        components=components,
+        rest_samples=rest_samples,
+        seed=seed,
+        rest_states=camp[2] if camp is not None else None if centre is None else centre[None],
+    )  # fmt: skip
+    nl = nl_pred if noise_level is None else np.asarray(noise_level, float).reshape(3)
     rng = np.random.default_rng(seed + 1)
     n = robot.n
     if table is not None:  # thresholds of a few newtons: a finer grid over a shorter span
@@ -747,6 +747,8 @@ def predict(
         "q": q.tolist(),
         "levers": np.abs(J[:3]).tolist(),
         "noise_level": dict(zip(AXES, nl.tolist(), strict=True)),
+        "noise_level_predicted": dict(zip(AXES, nl_pred.tolist(), strict=True)),
+        "noise_level_source": "predicted" if noise_level is None else noise_source or "given",
         "directions": out,
         "axes": axes,
         "source": bands.source,
@@ -756,45 +758,3 @@ def predict(
         "force_range": list(force_range),
         "components": components,
     }
-
-
-def _num(x: float, width: int = 7) -> str:
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return f"{'–':>{width}}"
-    if math.isinf(x):
-        return f"{'never':>{width}}"
-    return f"{x:{width}.1f}"
-
-
-def format_prediction(pred: Mapping[str, Any]) -> str:
-    """The per-direction table of :func:`predict` as text."""
-    qd = ", ".join(f"{math.degrees(x):.1f}" for x in pred["q"])
-    nl = pred["noise_level"]
-    lines = [
-        f"pose sensitivity at q = ({qd}) deg, "
-        f"{'with dither' if pred['dithered'] else 'without dither'}; bands from {pred['source']}",
-        "noise level (99.9 % of |F̂| at rest, >= 1 N): "
-        + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES),
-        *(
-            [f"push transmission with dither: {pred['transmission']}"]
-            if pred.get("transmission")
-            else []
-        ),  # fmt: skip
-        f"{'direction':<10}{'F50 [N]':>9}{'F90 [N]':>9}{'curve F50':>11}{'curve F90':>11}  joints",
-    ]
-    for name, _, _ in DIRECTIONS:
-        d = pred["directions"][name]
-        lines.append(
-            f"{name:<10}{_num(d['f50'], 9)}{_num(d['f90'], 9)}{_num(d['curve_f50'], 11)}"
-            f"{_num(d['curve_f90'], 11)}  {', '.join(str(j) for j in d['joints']) or '-'}"
-        )
-    lo, hi = pred["force_range"]
-    lines.append(
-        f"per axis, both signs (the report's logistic fit to pushes of {lo:g}–{hi:g} N): "
-        + "  ".join(
-            f"{a} F50 {_num(pred['axes'][a]['f50'], 0).strip()} / F90 "
-            f"{_num(pred['axes'][a]['f90'], 0).strip()} N"
-            for a in AXES
-        )
-    )
-    return "\n".join(lines)

@@ -1,10 +1,13 @@
 """``ditherlab robot --sensitivity`` over a grid of poses (``--map``) and the command itself:
-the grid's parsing, one row per pose, the text summary, the PNG heat map and
-:func:`run_sensitivity` (what the CLI calls). The prediction is :mod:`ditherlab.robot.sensitivity`.
+the grid's parsing, one row per pose, the text summary, the PNG heat map, a measured noise
+level (``--noise-level``, ``--report``: :func:`parse_noise_level`, :func:`report_noise_level`),
+the prediction as text (:func:`format_prediction`) and :func:`run_sensitivity` (what the CLI
+calls). The prediction is :mod:`ditherlab.robot.sensitivity`.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -24,21 +27,30 @@ from ditherlab.robot.sensitivity import (
     MAP_OPTIONS,
     Bands,
     condition_bands,
-    format_prediction,
     predict,
 )
 
 __all__ = [
+    "REPORT_CONDITIONS",
     "check_pose",
     "format_map",
+    "format_prediction",
     "map_columns",
     "parse_force_range",
     "parse_map_grid",
+    "parse_noise_level",
     "plot_map",
     "prediction_row",
+    "read_report_noise_level",
+    "report_noise_level",
     "run_sensitivity",
     "sensitivity_map",
 ]
+
+
+#: the report's condition (``replay`` variant) whose noise level a prediction can take: the
+#: estimator of eq. (3) with the band term, which :func:`predict` models (dithered: True)
+REPORT_CONDITIONS = {True: "dither_band", False: "nodither_band"}
 
 
 # ------------------------------------------------------------------ a grid of poses
@@ -170,6 +182,147 @@ def parse_force_range(text: str, where: str = "--force-range") -> tuple[float, f
     return lo, hi
 
 
+# ------------------------------------------------------------------ the noise level and the text
+def parse_noise_level(text: str, where: str = "--noise-level") -> np.ndarray:
+    """``"4.6,5.2,6.5"`` -> the noise level per axis x, y, z (3,) [N]: a measured level (the
+    report's 99.9 % of ``|F̂|`` at rest) for :func:`predict` instead of the predicted one.
+
+    Raises
+    ------
+    ConfigError
+        Not three comma-separated numbers, or one negative or not finite.
+    """
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        vals = np.array([float(p) for p in parts], float)
+    except ValueError:
+        vals = np.array([math.nan])
+    if len(parts) != 3 or not np.all(np.isfinite(vals)):
+        raise ConfigError(
+            f"{where} is {text!r}; expected three numbers X,Y,Z in N (the noise level per axis)"
+        )
+    if np.any(vals < 0):
+        raise ConfigError(f"{where} is {text!r}; expected noise levels >= 0 N")
+    return vals
+
+
+def report_noise_level(
+    report: Mapping[str, Any], dithered: bool, where: str = "report"
+) -> np.ndarray:
+    """The measured noise level per axis x, y, z (3,) [N] of the condition a prediction models
+    (:data:`REPORT_CONDITIONS`: ``dither_band`` with dither, ``nodither_band`` without) from
+    the analysis ``report`` (``report.json`` of ``ditherlab report``, or
+    :func:`ditherlab.thresholds.analyse`'s dict): read, not recomputed.
+
+    Raises
+    ------
+    ConfigError
+        ``report`` has no such condition, or that condition has no noise level on an axis
+        (no rest samples) or a negative one; ``where`` names the report in the message.
+    """
+    cond = REPORT_CONDITIONS[bool(dithered)]
+    conds = report.get("conditions") if isinstance(report, Mapping) else None
+    if not isinstance(conds, Mapping):
+        raise ConfigError(f"{where}: no 'conditions'; expected the report.json of ditherlab report")
+    if cond not in conds:
+        have = ", ".join(sorted(conds)) or "none"
+        raise ConfigError(
+            f"{where}: no condition {cond} (it has {have}); expected a report of estimates "
+            f"with the {cond} variant ({'with' if dithered else 'without'} dither)"
+        )
+    nl = (conds[cond] or {}).get("noise_level") or {}
+    out = []
+    for a in AXES:
+        v = nl.get(a)
+        ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+        if not ok or v < 0:
+            raise ConfigError(
+                f"{where}: condition {cond} has noise level {v!r} along {a}; expected a "
+                "number >= 0 N (rest samples on every axis)"
+            )
+        out.append(float(v))
+    return np.array(out)
+
+
+def _num(x: float, width: int = 7) -> str:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return f"{'–':>{width}}"
+    if math.isinf(x):
+        return f"{'never':>{width}}"
+    return f"{x:{width}.1f}"
+
+
+def format_prediction(pred: Mapping[str, Any]) -> str:
+    """The per-direction table of :func:`predict` as text."""
+    qd = ", ".join(f"{math.degrees(x):.1f}" for x in pred["q"])
+    nl = pred["noise_level"]
+    lines = [
+        f"pose sensitivity at q = ({qd}) deg, "
+        f"{'with dither' if pred['dithered'] else 'without dither'}; bands from {pred['source']}",
+        *(
+            [
+                "noise level (99.9 % of |F̂| at rest, >= 1 N): "
+                + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES)
+            ]
+            if pred.get("noise_level_source", "predicted") == "predicted"
+            else [
+                f"noise level {pred['noise_level_source']}: "
+                + "  ".join(f"{a} {nl[a]:.2f} N" for a in AXES)
+                + "  (predicted from the bands: "
+                + "  ".join(f"{a} {pred['noise_level_predicted'][a]:.2f}" for a in AXES)
+                + " N)"
+            ]
+        ),
+        *(
+            [f"push transmission with dither: {pred['transmission']}"]
+            if pred.get("transmission")
+            else []
+        ),  # fmt: skip
+        f"{'direction':<10}{'F50 [N]':>9}{'F90 [N]':>9}{'curve F50':>11}{'curve F90':>11}  joints",
+    ]
+    for name, _, _ in DIRECTIONS:
+        d = pred["directions"][name]
+        lines.append(
+            f"{name:<10}{_num(d['f50'], 9)}{_num(d['f90'], 9)}{_num(d['curve_f50'], 11)}"
+            f"{_num(d['curve_f90'], 11)}  {', '.join(str(j) for j in d['joints']) or '-'}"
+        )
+    lo, hi = pred["force_range"]
+    lines.append(
+        f"per axis, both signs (the report's logistic fit to pushes of {lo:g}–{hi:g} N): "
+        + "  ".join(
+            f"{a} F50 {_num(pred['axes'][a]['f50'], 0).strip()} / F90 "
+            f"{_num(pred['axes'][a]['f90'], 0).strip()} N"
+            for a in AXES
+        )
+    )
+    return "\n".join(lines)
+
+
+def read_report_noise_level(path: str | Path, dithered: bool) -> np.ndarray:
+    """The measured noise level per axis (3,) [N] of the matching condition
+    (:data:`ditherlab.robot.sensitivity.REPORT_CONDITIONS`) in a ``report.json`` written by
+    ``ditherlab report`` (:func:`ditherlab.robot.sensitivity.report_noise_level`).
+
+    Raises
+    ------
+    ConfigError
+        No such file, not JSON, or no noise level of that condition (one line naming the file).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(
+            f"--report {p}: no such file; expected the report.json of ditherlab report"
+        )
+    try:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        msg = " ".join(str(exc).split())
+        raise ConfigError(
+            f"--report {p}: not JSON ({msg}); expected the report.json of ditherlab report"
+        ) from None
+    return report_noise_level(d, dithered, where=f"--report {p}")
+
+
 def format_map(table: Any, joints: Sequence[int], conditions: Sequence[bool]) -> str:
     """A short text summary of a map (a DataFrame of :func:`sensitivity_map` rows with a
     ``dither`` column): per condition and axis the smallest and largest F50 and their poses."""
@@ -255,6 +408,8 @@ def run_sensitivity(
     force_range: str,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    noise_level: str | None = None,
+    report: str | Path | None = None,
 ) -> dict[str, Any]:
     """``ditherlab robot SPEC --sensitivity``: the prediction at a pose, or ``--map`` over a
     grid of poses written as a table and a PNG (atomically; the caller checked both outputs
@@ -271,6 +426,10 @@ def run_sensitivity(
     force_range : ``MIN:MAX`` [N] (:func:`parse_force_range`)
     seed : the draws' seed
     progress : ``progress(done, total)`` over the map's poses
+    noise_level : ``X,Y,Z`` [N] a measured noise level per axis for the one condition
+        (``dither`` not None) instead of the predicted (:func:`parse_noise_level`)
+    report : a ``report.json`` of ``ditherlab report``: each condition's noise level read from
+        its matching condition (:func:`read_report_noise_level`) instead of the predicted
 
     Returns
     -------
@@ -298,11 +457,42 @@ def run_sensitivity(
     check_pose(rm, pose)
     fr = parse_force_range(force_range)
     conds = [dither] if dither is not None else [False, True]
+    given: dict[bool, tuple[np.ndarray, str]] = {}
+    if noise_level is not None and report is not None:
+        raise ConfigError("--noise-level and --report both give the noise level; expected one")
+    if (noise_level is not None or report is not None) and map_out is not None:
+        opt = "--noise-level" if noise_level is not None else "--report"
+        raise ConfigError(
+            f"{opt} gives the noise level measured at one pose; expected no --map (the map "
+            "predicts each pose's own)"
+        )
+    if noise_level is not None:
+        if dither is None:
+            raise ConfigError(
+                f"--noise-level {noise_level} is one condition's noise level; expected --dither "
+                "or --no-dither with it"
+            )
+        given[dither] = (parse_noise_level(noise_level), "given (--noise-level)")
+    if report is not None:
+        for d in conds:
+            lv = read_report_noise_level(report, d)
+            given[d] = (lv, f"measured (--report {report}, {REPORT_CONDITIONS[d]})")
     bands = {d: condition_bands(rm.n, tm, dither=d, robot_name=rm.name) for d in conds}
     if map_out is None:
         if grid is not None:
             raise ConfigError("--grid needs --map FILE (the table to write)")
-        preds = [predict(rm, pose, bands[d], force_range=fr, seed=seed) for d in conds]
+        preds = [
+            predict(
+                rm,
+                pose,
+                bands[d],
+                force_range=fr,
+                seed=seed,
+                noise_level=given[d][0] if d in given else None,
+                noise_source=given[d][1] if d in given else None,
+            )  # fmt: skip
+            for d in conds
+        ]
         return {
             "text": "\n\n".join(format_prediction(p) for p in preds),
             "json": {"robot": rm.name, "predictions": preds},
