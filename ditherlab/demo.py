@@ -272,17 +272,19 @@ def pipeline_text(res: PipelineResult) -> str:
         "smallest force beyond which every estimate exceeded 10 N; the minimum is an extreme "
         "statistic, the detection curve's F50 below shows the bulk)",
     ]
-    within, total, misses = paper_agreement(a)
-    lines.append(
-        f"within ±30 % of the paper: {within} / {total} cells"
-        + (f" (outside: {'; '.join(misses)})" if misses else "")
-    )
-    within, total, misses = paper_agreement(a, reading="needed")
-    lines.append(
-        "with the 10 N statistic read as the smallest force whose estimate exceeded 10 N "
-        f"(README \"Two readings\"): {within} / {total} cells"
-        + (f" (outside: {'; '.join(misses)})" if misses else "")
-    )
+    for reading, head in (
+        ("every", "within ±30 % of the paper"),
+        (
+            "needed",
+            "with the 10 N statistic read as the smallest force whose estimate exceeded 10 N "
+            '(README "Two readings")',
+        ),
+    ):
+        within, total, misses = paper_agreement(a, reading=reading)
+        lines.append(
+            f"{head}: {within} / {total} cells"
+            + (f" (outside: {'; '.join(misses)})" if misses else "")
+        )
     lines.append("")
     lines.append("noise level (99.9 % of |F_hat| at rest, >= 1 N), x/y/z:")
     for name, c in a["conditions"].items():

@@ -441,7 +441,7 @@ def analyse(
             "response_min": "smallest applied force among pushes whose response exceeded the noise level",
             "above10_from": f"smallest applied force beyond which every push's response exceeded {big:g} N",
             "above10_min": f"smallest applied force among pushes whose response exceeded {big:g} N "
-            "(the other reading of the paper's \"an applied force of 40 N was needed\")",
+            '(the other reading of the paper\'s "an applied force of 40 N was needed")',
             "curve": "logistic P(response | F), ML on a grid; F50, F90 with 90 % bootstrap intervals over pushes",
             "sign": "applied force P = -F_sensor (the sensor holds the wrench the robot exerts)",
         },

@@ -244,7 +244,7 @@ def test_push_order_experiments_keep_the_shuffled_plan():
     assert plans["shuffled"] == _plan_pushes(legacy, np.random.default_rng(7))
     key = lambda p: (p["axis"], p["sign"], p["magnitude"])  # noqa: E731
     shuffled = [key(p) for p in plans["shuffled"]]
-    for how, plan in plans.items():
+    for plan in plans.values():
         assert sorted(key(p) for p in plan) == sorted(shuffled)
     axes = [p["axis"] for p in plans["per-axis"]]
     assert axes == ["x"] * 8 + ["y"] * 8 + ["z"] * 8
