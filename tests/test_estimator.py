@@ -651,6 +651,54 @@ def test_coverage_on_data_from_the_model(zero_band, method):
         assert cover >= 0.94, cover
 
 
+def test_coverage_at_the_prior_mean_exceeds_the_level():
+    """At the prior's mean (a robot at rest: zero force) a 95 % interval of eq. (3) covers the
+    truth more often than 95 %, by the model's own arithmetic (README "Calibrated intervals",
+    "at rest").
+
+    Gaussian noise only: ``F_hat = P J W r`` with ``P = (J W J^T + R_F^-1)^-1`` has covariance
+    ``V = P - P R_F^-1 P`` at the prior's mean, the interval is ``F_hat +- 1.96 sqrt(P_ii)``, so
+    it covers with probability ``2 Phi(1.96 sqrt(P_ii / V_ii)) - 1``. With the band, a sample
+    whose residuals all lie inside their bands has the prior's mean as its estimate, which its
+    interval contains whatever its width.
+    """
+    from scipy.stats import norm
+
+    rng = np.random.default_rng(41)
+    N, n = 4000, 6
+    J1 = rng.normal(size=(6, n)) * np.array([0.4, 0.4, 0.4, 0.3, 0.3, 0.3])[:, None]
+    J = np.broadcast_to(J1, (N, 6, n)).copy()
+    sig = rng.uniform(10.0, 20.0, n)  # [N·m]: weak data against the 20 N prior, as at rest
+    fb = rng.normal(size=6) * PAPER_PRIOR * 0.1
+    noise = rng.normal(size=(N, n)) * sig
+    args = dict(tau_bar=np.einsum("kin,i->kn", J, fb) + noise, J=J, tau_min=np.zeros(n),
+                tau_max=np.zeros(n), sigma=sig, prior_mean=fb, prior_sigma=PAPER_PRIOR.copy())  # fmt: skip
+    lo, hi = E.intervals(**args, method="profile")
+    cover = ((fb >= lo) & (fb <= hi)).mean(axis=0)
+    Rf = np.diag(1 / PAPER_PRIOR**2)
+    P = np.linalg.inv(J1 @ np.diag(1 / sig**2) @ J1.T + Rf)
+    V = P - P @ Rf @ P
+    predicted = 2 * norm.cdf(1.959964 * np.sqrt(np.diag(P) / np.diag(V))) - 1
+    assert np.all(predicted[:3] > 0.97), predicted  # the geometry makes the point
+    se = np.sqrt(predicted * (1 - predicted) / N)
+    np.testing.assert_array_less(np.abs(cover - predicted), 4 * se + 1e-9)
+    # the same geometry with the force drawn from the prior covers at the level (the interval
+    # is the posterior's): the excess above is the prior's mean, not a loose interval
+    F = fb + rng.normal(size=(N, 6)) * PAPER_PRIOR
+    drawn = dict(args, tau_bar=np.einsum("kin,ki->kn", J, F) + noise)
+    lo, hi = E.intervals(**drawn, method="profile")
+    assert np.all(np.abs(((F >= lo) & (F <= hi)).mean(axis=0) - 0.95) < 0.015)
+    # with a band: every sample inside its bands estimates the prior's mean, covered
+    a, b = -np.full(n, 8.0), np.full(n, 8.0)
+    inside = rng.uniform(a, b, (N, n)) * 0.9
+    banded = dict(args, tau_bar=np.einsum("kin,i->kn", J, fb) + inside, tau_min=a, tau_max=b,
+                  sigma=np.full(n, 0.1))  # fmt: skip
+    sol = E.estimate(**banded)
+    np.testing.assert_allclose(sol.F, np.broadcast_to(fb, (N, 6)), atol=1e-9)
+    lo, hi = E.intervals(**banded, F_hat=sol.F, method="profile")
+    assert np.all((fb >= lo) & (fb <= hi))
+
+
 def test_interval_bad_method_and_level():
     """An unknown interval method or a level outside (0, 1) raises a ConfigError naming it."""
     args, _ = random_problem(seed=24, N=3)
