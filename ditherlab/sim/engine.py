@@ -17,6 +17,7 @@ import numpy as np
 
 from ditherlab.dither import PEAK_FACTOR, WAVEFORMS
 from ditherlab.sim import plant as K
+from ditherlab.sim.linalg import spd_inverse
 from ditherlab.sim.params import joint_array
 
 
@@ -188,7 +189,7 @@ class Engine:
         qs = np.vstack([q_link, q_link + eps * np.eye(n)])
         pl = self.plant_robot.evaluate(qs, ["gravity", "mass_matrix", "jacobian"], reference=True)
         M = pl["mass_matrix"]
-        W = np.linalg.inv(M[0] + np.diag(self.output_inertia))
+        W = spd_inverse(M[0] + np.diag(self.output_inertia))
         gp = pl["gravity"]
         Gp = ((gp[1:] - gp[0]) / eps).T  # dg_i/dq_k at [i, k]
         dM = np.moveaxis((M[1:] - M[0]) / eps, 0, 2)  # dM_ij/dq_k at [i, j, k]

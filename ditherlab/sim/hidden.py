@@ -170,11 +170,23 @@ class HiddenPlant:
         out = np.array(wrench, dtype=float)
         if self.ft_mount is not None:
             tool_axes = robot.tool_pose(q_link)[:, :3, :3]  # in base axes
-            sensor_axes = tool_axes @ self.ft_mount
+            sensor_axes = _fixed_sum(np.moveaxis(tool_axes[:, :, :, None] * self.ft_mount, 2, 3))
             for a in (slice(0, 3), slice(3, 6)):
-                reading = np.einsum("tba,tb->ta", sensor_axes, out[:, a])  # sensor components
-                out[:, a] = np.einsum("tab,tb->ta", tool_axes, reading)  # taken as tool's
+                # sensor components, then taken as the tool's
+                reading = _fixed_sum(np.swapaxes(sensor_axes, 1, 2) * out[:, None, a])
+                out[:, a] = _fixed_sum(tool_axes * reading[:, None, :])
         return out + self.ft_bias
+
+
+def _norm3(v: np.ndarray) -> float:
+    """Length of a 3-vector, summed in a fixed order (``np.linalg.norm`` calls BLAS)."""
+    return float(np.sqrt((v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]))
+
+
+def _fixed_sum(x: np.ndarray) -> np.ndarray:
+    """``x.sum(axis=-1)`` over a last axis of 3, added in a fixed order: the same bits on every
+    CPU (matmul and einsum choose BLAS or SIMD kernels by CPU, which sum in other orders)."""
+    return (x[..., 0] + x[..., 1]) + x[..., 2]
 
 
 def build_hidden(
@@ -238,15 +250,16 @@ def build_hidden(
             truth["velocity"] = hp.stribeck_v
         elif spec.name == "ft_bias":
             d = rng.normal(size=3)
-            d /= np.linalg.norm(d)
+            d /= _norm3(d)
             hp.ft_bias = np.concatenate([size * d, np.zeros(3)])
             truth["bias"] = [float(v) for v in hp.ft_bias]
         elif spec.name == "ft_frame":
             axis = rng.normal(size=3)
-            axis /= np.linalg.norm(axis)
+            axis /= _norm3(axis)
             a = np.radians(size)
             X = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-            hp.ft_mount = np.eye(3) + np.sin(a) * X + (1 - np.cos(a)) * X @ X  # Rodrigues
+            XX = _fixed_sum(np.moveaxis(X[:, :, None] * X, 1, 2))  # X @ X
+            hp.ft_mount = np.eye(3) + np.sin(a) * X + (1 - np.cos(a)) * XX  # Rodrigues
             truth["axis"] = [float(v) for v in axis]
             truth["rotation"] = [float(v) for v in a * axis]
         elif spec.name == "dynamics":
