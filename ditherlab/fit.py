@@ -19,6 +19,7 @@ from numba import njit
 from scipy.optimize import minimize_scalar
 
 from ditherlab.effects import Effect, FitResult, design_at
+from ditherlab.linalg import spd_solve
 from ditherlab.recording import MOVING
 from ditherlab.residual import Scored
 from ditherlab.signal import tmm
@@ -170,7 +171,7 @@ def _solve_kernel(base, h, s, C, W, w, iters, widen):  # pragma: no cover - comp
             tr += G[a, a]
         for a in range(k):
             G[a, a] += 1e-9 * (tr / k + 1e-300)
-        d = _spd_solve(G, g)
+        d = spd_solve(G, g)
         if d is None:
             break
         for c in range(k):
@@ -198,38 +199,6 @@ def _solve_kernel(base, h, s, C, W, w, iters, widen):  # pragma: no cover - comp
         if improve <= 1e-12 * max(L, 1e-300) and t == 1.0:
             break
     return w, L
-
-
-@njit(cache=True)
-def _spd_solve(G, g):  # pragma: no cover - compiled
-    """``G⁻¹ g`` for a symmetric positive definite G by Cholesky; None when G is not."""
-    k = len(g)
-    Lc = np.zeros((k, k))
-    for a in range(k):
-        v = G[a, a]
-        for c in range(a):
-            v -= Lc[a, c] ** 2
-        if not v > 0.0:
-            return None
-        Lc[a, a] = math.sqrt(v)
-        for b in range(a + 1, k):
-            v = G[b, a]
-            for c in range(a):
-                v -= Lc[b, c] * Lc[a, c]
-            Lc[b, a] = v / Lc[a, a]
-    y = np.empty(k)
-    for a in range(k):
-        v = g[a]
-        for c in range(a):
-            v -= Lc[a, c] * y[c]
-        y[a] = v / Lc[a, a]
-    x = np.empty(k)
-    for a in range(k - 1, -1, -1):
-        v = y[a]
-        for c in range(a + 1, k):
-            v -= Lc[c, a] * x[c]
-        x[a] = v / Lc[a, a]
-    return x
 
 
 def _solve_reference(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, float]:

@@ -18,7 +18,13 @@ PKG = Path(__file__).resolve().parents[1] / "ditherlab"
 #: Layers, bottom up: a module may import its own layer and those below, never above. A module
 #: is matched by its longest listed prefix.
 LAYERS: list[tuple[str, ...]] = [
-    ("ditherlab.errors", "ditherlab.signal", "ditherlab.schema", "ditherlab.runtime"),
+    (
+        "ditherlab.errors",
+        "ditherlab.signal",
+        "ditherlab.schema",
+        "ditherlab.runtime",
+        "ditherlab.linalg",
+    ),
     ("ditherlab.io.atomic",),
     ("ditherlab.robot", "ditherlab.recording", "ditherlab.io"),
     ("ditherlab.model", "ditherlab.dither", "ditherlab.bandfit", "ditherlab.estimates"),

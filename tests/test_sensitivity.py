@@ -446,8 +446,13 @@ def test_map_output_guard(tmp_path):
 
 # ------------------------------------------------------------------ against the simulator
 def test_prediction_against_a_simulated_campaign_at_another_pose(tmp_path):
-    """Paired campaigns (identification seed 41, evaluation seed 40, 20 pushes per direction
+    """Paired campaigns (identification seed 41, evaluation seed 40, 40 pushes per direction
     and sign, one seed) at a pose far from the paper's, through ``ditherlab sweep``.
+    40, not 20 (until session 17): with 20 the measured F50 was too loose a figure for a 25 %
+    check. The plant's last-bit change of session 17 (its inverse mass matrix, README "The built-in
+    simulator") moved y from 21.6 to 18.3 N (prediction 23.5 N: +28 %), and seed 42 gave
+    z 12.4 N against seed 40's 24.6 N. With 40: x / y / z 36.0 / 22.8 / 22.0 N measured,
+    36.7 / 24.4 / 23.2 predicted (+2, +7, +5 %); seed 42 +8, -1, +11 %.
     The friction-state mix was chosen after this pose's first result on session 10's plant
     (shared states: z +52 %). On the session-12 plant (the band behind the gear spring, 10-60 N
     pushes at the operator's pace) that uniform-state prediction was 35-41 % low (x 19.6 /
@@ -458,7 +463,7 @@ def test_prediction_against_a_simulated_campaign_at_another_pose(tmp_path):
     lowering the threshold, predicted (below 0.7) as measured (below 0.6)."""
     out = tmp_path / "sw"
     r = run_cli(
-        "sweep", "--grid", "pose.q0=-0.4:0.35:-0.6:0.5:1.1:0.4", "--pushes-per-direction", "20",
+        "sweep", "--grid", "pose.q0=-0.4:0.35:-0.6:0.5:1.1:0.4", "--pushes-per-direction", "40",
         "--seed", "40", "--scheduler", "serial", "--bootstrap", "5", "-q", "-o", out,
     )  # fmt: skip
     assert r.code == 0, r.err

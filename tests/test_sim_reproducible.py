@@ -20,8 +20,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from ditherlab.linalg import spd_inverse
 from ditherlab.robot import RobotModel
-from ditherlab.sim.linalg import spd_inverse
 
 #: A generic x86-64 kernel that any CPU can run; this machine's own is chosen by default.
 GENERIC = "Prescott"

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from ditherlab.dither import PEAK_FACTOR, WAVEFORMS
+from ditherlab.linalg import spd_inverse
 from ditherlab.sim import plant as K
-from ditherlab.sim.linalg import spd_inverse
 from ditherlab.sim.params import joint_array
 
 

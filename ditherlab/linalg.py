@@ -1,0 +1,98 @@
+"""Small dense linear algebra in plain compiled loops: the same bits on every CPU.
+
+numpy's LAPACK and BLAS (OpenBLAS) choose their kernels by CPU when they start, and kernels sum
+in different orders. The plant is chaotic (stick or slip is a comparison), so a last-bit
+difference in its inverse mass matrix grows into other recordings on other machines (README
+"The built-in simulator", session 17). Written out in plain loops and compiled without
+``fastmath``, these give one result wherever they run. The least squares of :mod:`ditherlab.fit`
+solve with the same factor.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def cholesky(A):  # pragma: no cover - compiled
+    """Lower Cholesky factor ``L`` (``L Lᵀ = A``) of a symmetric matrix ``A`` (n, n), reading its
+    lower triangle; None when ``A`` is not positive definite (a pivot not > 0)."""
+    n = A.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return None
+        L[j, j] = math.sqrt(s)
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    return L
+
+
+@njit(cache=True)
+def spd_solve(A, b):  # pragma: no cover - compiled
+    """``A⁻¹ b`` for a symmetric positive definite ``A`` (n, n) and ``b`` (n,) by Cholesky and
+    two triangular solves; None when ``A`` is not positive definite."""
+    L = cholesky(A)
+    if L is None:
+        return None
+    n = len(b)
+    y = np.empty(n)
+    for a in range(n):
+        v = b[a]
+        for c in range(a):
+            v -= L[a, c] * y[c]
+        y[a] = v / L[a, a]
+    x = np.empty(n)
+    for a in range(n - 1, -1, -1):
+        v = y[a]
+        for c in range(a + 1, n):
+            v -= L[c, a] * x[c]
+        x[a] = v / L[a, a]
+    return x
+
+
+@njit(cache=True)
+def spd_inverse(A):  # pragma: no cover - compiled
+    """Inverse of a symmetric positive definite matrix by Cholesky, in plain loops: the same
+    bits on every CPU (LAPACK's result depends on the BLAS kernel the CPU selects).
+
+    Parameters
+    ----------
+    A : (n, n) float64, symmetric positive definite (the links' mass matrix [kg m²])
+
+    Returns
+    -------
+    (n, n) float64, exactly symmetric: ``A⁻¹`` (within 1e-12 of LAPACK's relative to its largest
+    entry on the IRB140's mass matrices, ``tests/test_sim_reproducible.py``) [1/(kg m²)]
+    """
+    n = A.shape[0]
+    L = cholesky(A)
+    if L is None:
+        raise ValueError("spd_inverse: the matrix is not positive definite")
+    # inverse of L (lower triangular), then A^-1 = L^-T L^-1
+    Li = np.zeros((n, n))
+    for j in range(n):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            s = 0.0
+            for k in range(j, i):
+                s -= L[i, k] * Li[k, j]
+            Li[i, j] = s / L[i, i]
+    out = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            s = 0.0
+            for k in range(i, n):
+                s += Li[k, i] * Li[k, j]
+            out[i, j] = s
+            out[j, i] = s
+    return out
