@@ -96,3 +96,46 @@ def spd_inverse(A):  # pragma: no cover - compiled
             out[i, j] = s
             out[j, i] = s
     return out
+
+
+@njit(cache=True)
+def min_norm_solve(J, b):  # pragma: no cover - compiled
+    """The least-norm ``x`` with ``J x = b`` for ``J`` (m, n) of full row rank (m ≤ n) and ``b``
+    (m,): ``Jᵀ (J Jᵀ)⁻¹ b``, the pseudo-inverse's answer (``J⁻¹ b`` for a square ``J``); None
+    when ``J`` loses rank (a singular pose): a pivot of ``J Jᵀ``'s Cholesky factor, squared, at
+    most 1e-12 of its largest diagonal entry."""
+    m, n = J.shape
+    G = np.zeros((m, m))
+    for i in range(m):
+        for j in range(i + 1):
+            s = 0.0
+            for k in range(n):
+                s += J[i, k] * J[j, k]
+            G[i, j] = s
+            G[j, i] = s
+    L = cholesky(G)
+    if L is None:
+        return None
+    big = 0.0
+    for i in range(m):
+        big = max(big, G[i, i])
+    for i in range(m):  # a pivot lost to rounding: the rows are dependent
+        if L[i, i] * L[i, i] <= 1e-12 * big:
+            return None
+    y = spd_solve(G, b)
+    x = np.zeros(n)
+    for k in range(n):
+        s = 0.0
+        for i in range(m):
+            s += J[i, k] * y[i]
+        x[k] = s
+    return x
+
+
+def vector_norm(x) -> float:
+    """Euclidean length of a vector (n,), its squares added in order (``np.linalg.norm`` calls
+    BLAS, whose kernel depends on the CPU)."""
+    s = 0.0
+    for v in np.asarray(x, dtype=float).ravel():
+        s += float(v) * float(v)
+    return math.sqrt(s)

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ditherlab.linalg import spd_inverse
+from ditherlab.linalg import min_norm_solve, spd_inverse, spd_solve, vector_norm
 from ditherlab.robot import RobotModel
 
 #: A generic x86-64 kernel that any CPU can run; this machine's own is chosen by default.
@@ -74,10 +74,37 @@ def test_spd_inverse_is_the_inverse():
         assert np.max(np.abs(W - ref)) <= 1e-12 * np.max(np.abs(ref))
 
 
+def test_solves_and_norm_agree_with_lapack():
+    """``spd_solve`` and ``min_norm_solve`` (the lead-through's joint rates) against numpy's
+    solve and pseudo-inverse to 1e-11 relative on random problems and the IRB140's Jacobians;
+    None for a matrix that is not positive definite / a Jacobian that lost rank;
+    ``vector_norm`` equals ``np.linalg.norm`` to the last bits."""
+    rng = np.random.default_rng(5)
+    robot = RobotModel.from_spec("irb140")
+    A = rng.normal(size=(6, 6))
+    G = A @ A.T + np.eye(6)
+    b = rng.normal(size=6)
+    x = spd_solve(G, b)
+    np.testing.assert_allclose(x, np.linalg.solve(G, b), rtol=1e-11, atol=1e-12)
+    assert spd_solve(np.diag([1.0, -1.0]), np.ones(2)) is None
+    Js = list(robot.evaluate(rng.uniform(-1.2, 1.2, size=(5, 6)), ["jacobian"])["jacobian"])
+    for J in [*Js, rng.normal(size=(3, 6))]:
+        t = rng.normal(size=J.shape[0])
+        ref = np.linalg.pinv(J) @ t
+        got = min_norm_solve(np.ascontiguousarray(J), t)
+        assert np.max(np.abs(got - ref)) <= 1e-11 * max(1.0, np.max(np.abs(ref)))
+    J = Js[0].copy()
+    J[1] = J[0]
+    assert min_norm_solve(J, np.ones(6)) is None
+    for v in (rng.normal(size=3), rng.normal(size=7), np.zeros(3)):
+        assert vector_norm(v) == pytest.approx(np.linalg.norm(v), rel=1e-15, abs=0.0)
+
+
 @pytest.mark.slow
 def test_the_same_recording_on_every_blas_kernel(tmp_path):
-    """A dithered push campaign and an excitation with a turned F/T sensor (whose logged wrench
-    is rotated) are the same bits with this machine's OpenBLAS kernel and a generic one."""
+    """A dithered push campaign, an excitation with a turned F/T sensor (whose logged wrench is
+    rotated) and a lead-through (closed loop through the estimator) are the same bits with this
+    machine's OpenBLAS kernel and a generic one."""
     base = dict(os.environ)
     base.pop("OPENBLAS_CORETYPE", None)
     own, generic = _corename(base), _corename({**base, "OPENBLAS_CORETYPE": GENERIC})
@@ -86,6 +113,8 @@ def test_the_same_recording_on_every_blas_kernel(tmp_path):
     runs = {
         "campaign": ["push-campaign", "--seed", "2", "--dither", "--pushes-per-direction", "2"],
         "excitation": ["excitation", "--seed", "5", "--no-dither", "--hidden", "ft_frame"],
+        # the controller runs the estimator and solves for the joint rates in the loop
+        "lead-through": ["lead-through", "--seed", "1"],
     }
     for name, args in runs.items():
         a = _simulate(tmp_path, f"{name}_own", args, None)

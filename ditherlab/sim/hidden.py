@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.errors import ConfigError
+from ditherlab.linalg import vector_norm
 
 #: Name -> unit of SIZE.
 EFFECTS: dict[str, str] = {
@@ -178,11 +179,6 @@ class HiddenPlant:
         return out + self.ft_bias
 
 
-def _norm3(v: np.ndarray) -> float:
-    """Length of a 3-vector, summed in a fixed order (``np.linalg.norm`` calls BLAS)."""
-    return float(np.sqrt((v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]))
-
-
 def _fixed_sum(x: np.ndarray) -> np.ndarray:
     """``x.sum(axis=-1)`` over a last axis of 3, added in a fixed order: the same bits on every
     CPU (matmul and einsum choose BLAS or SIMD kernels by CPU, which sum in other orders)."""
@@ -250,12 +246,12 @@ def build_hidden(
             truth["velocity"] = hp.stribeck_v
         elif spec.name == "ft_bias":
             d = rng.normal(size=3)
-            d /= _norm3(d)
+            d /= vector_norm(d)
             hp.ft_bias = np.concatenate([size * d, np.zeros(3)])
             truth["bias"] = [float(v) for v in hp.ft_bias]
         elif spec.name == "ft_frame":
             axis = rng.normal(size=3)
-            axis /= _norm3(axis)
+            axis /= vector_norm(axis)
             a = np.radians(size)
             X = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
             XX = _fixed_sum(np.moveaxis(X[:, :, None] * X, 1, 2))  # X @ X

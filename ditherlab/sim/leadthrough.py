@@ -40,6 +40,7 @@ import numpy as np
 
 from ditherlab.estimator import estimate, problem, solve
 from ditherlab.estimator.intervals import problem_intervals
+from ditherlab.linalg import min_norm_solve, vector_norm
 from ditherlab.sim import plant as K
 from ditherlab.sim.engine import Engine, Inputs
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
@@ -65,7 +66,7 @@ def operator_segments(rng: np.random.Generator) -> tuple[list[dict[str, Any]], f
     segments = []
     t = START_S
     for direction, mag, flat in OPERATOR_PLAN:
-        d = np.asarray(direction) / np.linalg.norm(direction)
+        d = np.asarray(direction, dtype=float) / vector_norm(direction)
         m = mag * rng.uniform(0.9, 1.1)
         segments.append(
             {"t0": t, "direction": [float(v) for v in d], "magnitude": float(m), "flat": flat}
@@ -211,11 +212,11 @@ def lead_through(
         else:
             sol = estimate(*args, components=("f_x", "f_y", "f_z"))
             p_hat = -sol.F[0, :3]  # the push on the tool
-            mag = np.linalg.norm(p_hat)
+            mag = vector_norm(p_hat)
             if mag > lt["dead_zone"]:
                 v = lt["admittance"] * (mag - lt["dead_zone"]) * p_hat / mag
         fhat[k0:k1] = p_hat
-        speed = np.linalg.norm(v)
+        speed = vector_norm(v)
         if speed > lt["max_speed"]:
             v *= lt["max_speed"] / speed
         # the impedance's own first-order smoothing (time constant `smoothing_s`) keeps the
@@ -223,7 +224,12 @@ def lead_through(
         a = min(1.0, (k1 - k0) * dt / max(lt["smoothing_s"], 1e-9))
         ctl["v"] = ctl["v"] + a * (v - ctl["v"])
         v = ctl["v"]
-        dq_ref = np.linalg.pinv(J[0]) @ np.r_[v, 0.0, 0.0, 0.0]
+        # the joint rates of the tool velocity, in compiled loops: the same bits on every CPU
+        # (the pseudo-inverse's answer; LAPACK's where the pose is singular)
+        target = np.r_[v, 0.0, 0.0, 0.0]
+        dq_ref = min_norm_solve(np.ascontiguousarray(J[0]), target)
+        if dq_ref is None:
+            dq_ref = np.linalg.pinv(J[0]) @ target
         # the next chunk follows this velocity
         k2 = min(N, k1 + (k1 - k0))
         for kk in range(k1, k2):
@@ -233,7 +239,7 @@ def lead_through(
         if k2 < N:
             inputs.q_ref[k2:] = ctl["q_ref"]
         if dither:
-            if np.linalg.norm(v) > lt["dither_off_speed"]:
+            if vector_norm(v) > lt["dither_off_speed"]:
                 ctl["still"] = 0
             else:
                 ctl["still"] += k1 - k0
