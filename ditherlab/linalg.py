@@ -1,11 +1,16 @@
-"""Small dense linear algebra in plain compiled loops: the same bits on every CPU.
+"""Small dense linear algebra in plain compiled loops, independent of the BLAS kernel.
 
 numpy's LAPACK and BLAS (OpenBLAS) choose their kernels by CPU when they start, and kernels sum
 in different orders. The plant is chaotic (stick or slip is a comparison), so a last-bit
 difference in its inverse mass matrix grows into other recordings on other machines (README
 "The built-in simulator", session 17). Written out in plain loops and compiled without
-``fastmath``, these give one result wherever they run. The least squares of :mod:`ditherlab.fit`
-solve with the same factor.
+``fastmath``, these give the same bits under every OpenBLAS kernel (checked with two, and with
+numpy's AVX2/FMA paths off: ``tests/test_sim_reproducible.py``). The least squares of
+:mod:`ditherlab.fit` solve with the same factor; the simulator's lead-through solves for its
+joint rates with :func:`lu_solve`.
+
+numba's on-disk cache does not notice an edit of this file in the caches of compiled functions
+elsewhere that call these (``fit._solve_kernel``): clear ``__pycache__`` after editing it.
 """
 
 from __future__ import annotations
@@ -39,12 +44,15 @@ def cholesky(A):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def spd_solve(A, b):  # pragma: no cover - compiled
-    """``A⁻¹ b`` for a symmetric positive definite ``A`` (n, n) and ``b`` (n,) by Cholesky and
-    two triangular solves; None when ``A`` is not positive definite."""
+    """``A⁻¹ b`` (n,) for a symmetric positive definite ``A`` (n, n) and ``b`` (n,) by Cholesky
+    and two triangular solves; None when ``A`` is not positive definite; ValueError when the
+    shapes do not match."""
+    n = len(b)
+    if A.shape[0] != n or A.shape[1] != n:
+        raise ValueError("spd_solve: A must be (n, n) for b of length n")
     L = cholesky(A)
     if L is None:
         return None
-    n = len(b)
     y = np.empty(n)
     for a in range(n):
         v = b[a]
@@ -99,42 +107,49 @@ def spd_inverse(A):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def min_norm_solve(J, b):  # pragma: no cover - compiled
-    """The least-norm ``x`` with ``J x = b`` for ``J`` (m, n) of full row rank (m ≤ n) and ``b``
-    (m,): ``Jᵀ (J Jᵀ)⁻¹ b``, the pseudo-inverse's answer (``J⁻¹ b`` for a square ``J``); None
-    when ``J`` loses rank (a singular pose): a pivot of ``J Jᵀ``'s Cholesky factor, squared, at
-    most 1e-12 of its largest diagonal entry."""
-    m, n = J.shape
-    G = np.zeros((m, m))
-    for i in range(m):
-        for j in range(i + 1):
-            s = 0.0
-            for k in range(n):
-                s += J[i, k] * J[j, k]
-            G[i, j] = s
-            G[j, i] = s
-    L = cholesky(G)
-    if L is None:
-        return None
+def lu_solve(A, b):  # pragma: no cover - compiled
+    """``A⁻¹ b`` (n,) for a square ``A`` (n, n) and ``b`` (n,) by Gaussian elimination with
+    partial pivoting (the lead-through's joint rates from the tool velocity: ``J⁻¹ v``, the
+    pseudo-inverse's answer for a square ``J`` of full rank, accurate to ~cond(A)·eps).
+
+    None when ``A`` is singular to working precision: a pivot at most 1e-12 of ``A``'s largest
+    entry (a singular pose); ValueError when the shapes do not match."""
+    n = len(b)
+    if A.shape[0] != n or A.shape[1] != n:
+        raise ValueError("lu_solve: A must be (n, n) for b of length n")
+    U = A.copy()
+    x = b.copy()
     big = 0.0
-    for i in range(m):
-        big = max(big, G[i, i])
-    for i in range(m):  # a pivot lost to rounding: the rows are dependent
-        if L[i, i] * L[i, i] <= 1e-12 * big:
-            return None
-    y = spd_solve(G, b)
-    x = np.zeros(n)
+    for i in range(n):
+        for j in range(n):
+            big = max(big, abs(U[i, j]))
     for k in range(n):
-        s = 0.0
-        for i in range(m):
-            s += J[i, k] * y[i]
-        x[k] = s
+        p = k
+        for i in range(k + 1, n):
+            if abs(U[i, k]) > abs(U[p, k]):
+                p = i
+        if not abs(U[p, k]) > 1e-12 * big:
+            return None
+        if p != k:
+            for j in range(n):
+                U[k, j], U[p, j] = U[p, j], U[k, j]
+            x[k], x[p] = x[p], x[k]
+        for i in range(k + 1, n):
+            f = U[i, k] / U[k, k]
+            for j in range(k, n):
+                U[i, j] -= f * U[k, j]
+            x[i] -= f * x[k]
+    for k in range(n - 1, -1, -1):
+        v = x[k]
+        for j in range(k + 1, n):
+            v -= U[k, j] * x[j]
+        x[k] = v / U[k, k]
     return x
 
 
 def vector_norm(x) -> float:
-    """Euclidean length of a vector (n,), its squares added in order (``np.linalg.norm`` calls
-    BLAS, whose kernel depends on the CPU)."""
+    """Euclidean length of a vector (n,) [its unit], its squares added in order in plain Python
+    (``np.linalg.norm`` calls BLAS, whose kernel depends on the CPU)."""
     s = 0.0
     for v in np.asarray(x, dtype=float).ravel():
         s += float(v) * float(v)

@@ -110,8 +110,9 @@ def test_joint_3s_band_bounds_the_share():
 def _first_above_10(axis: str, band: np.ndarray, sigma: np.ndarray, seen=None) -> float:
     """The smallest push [N] (0.25 N steps) along ``axis`` whose estimate exceeds 10 N when
     every joint (or only the 0-based joints ``seen``) passes its whole push torque from the
-    centre of its band ``band`` (half-widths, N·m): the best case of the paper's second
-    statistic for the estimator of eq. (3) with the paper's prior at the paper's pose."""
+    centre of its band ``band`` (n,) [N·m, half-widths], with noise ``sigma`` (n,) [N·m]: the
+    paper's second statistic for one centred push, eq. (3) with the paper's prior at the paper's
+    pose."""
     _, J = RobotModel.from_spec("irb140").gravity_jacobian(PAPER_POSE[None, :])
     F = np.arange(1.0, 90.0, 0.25)
     k = "xyz".index(axis)
@@ -129,17 +130,20 @@ def _first_above_10(axis: str, band: np.ndarray, sigma: np.ndarray, seen=None) -
     return float(F[np.argmax(est > 10.0)])
 
 
-def test_the_x_cells_sit_on_the_bar_in_the_best_case():
+def test_the_x_cells_sit_on_the_bar_from_the_band_centre():
     """The issue's reading of the paper's second statistic (the force beyond which every
-    estimate exceeds 10 N; paper 40 N without dither, 20 N with) cannot be low in x at the
-    paper's pose: with the simulator's own bands (±Fs still, ±(Fs - A) dithered; Fs set so that
+    estimate exceeds 10 N; paper 40 N without dither, 20 N with) leaves no room in x at the
+    paper's pose. Take the simulator's own bands (±Fs still, ±(Fs - A) dithered; Fs set so that
     the torque leaves the band at the paper's 32 / 22 / 22 N) and every joint passing its whole
-    share of the push from the band's centre, the x estimate first exceeds 10 N at 49 N without
-    dither and 25.75 N with it: inside ±30 % of the paper (52 / 26 N) by 3 N and 0.25 N. Any
-    push that a joint passes in part, or that meets its friction off the centre, is later. y
-    and z keep 6-10 N of room. With joint 2 the only joint that shows an x push (joints 3 and 5
-    hold their 0.065 m shares inside their bands, as the plant's links behind the gear spring
-    do for pushes below ~35 N) the split with F_z moves it to 59 and 33 N."""
+    share of a push that starts at its band's centre (the dither's premise). The x estimate
+    first exceeds 10 N at 49 N without dither and 25.75 N with it: inside ±30 % of the paper
+    (52 / 26 N) by 3 N and 0.25 N. y and z keep at least 6 N. The cell is the largest push
+    that fails, so it sits at least this high in a campaign where some large x push starts at
+    the centre or beyond it, against the push, and is passed at most whole. A push that starts
+    toward its edge, the servo's overshoot or replay's extraction lead can answer earlier. If
+    joint 2 alone shows the push (joints 3 and 5 hold their 0.065 m shares inside their bands,
+    as the plant's links behind the gear spring do below about 35 N), eq. (3) splits joint 2's
+    excess with F_z, and the centred case becomes 59 / 33 N."""
     from ditherlab.sim.params import load_params
 
     p = load_params()
@@ -147,9 +151,10 @@ def test_the_x_cells_sit_on_the_bar_in_the_best_case():
     amp = np.array(p["dither"]["amplitude_fraction"]) * fs
     sigma = p["noise"]["tau_sigma_fraction"] * fs
     still, dither = fs, fs - amp
-    assert _first_above_10("x", still, sigma) == 49.0
-    assert _first_above_10("x", dither, sigma) == 25.75
-    assert 49.0 <= 1.3 * 40 and 25.75 <= 1.3 * 20  # inside the bar, only just
+    x_still, x_dither = _first_above_10("x", still, sigma), _first_above_10("x", dither, sigma)
+    assert x_still == 49.0 and x_dither == 25.75
+    assert 1.3 * 40 - 4 < x_still <= 1.3 * 40  # inside the bar, by less than 4 N
+    assert 1.3 * 20 - 0.5 < x_dither <= 1.3 * 20  # by less than 0.5 N
     for axis in "yz":
         assert _first_above_10(axis, still, sigma) <= 1.3 * 30 - 6
         assert _first_above_10(axis, dither, sigma) <= 1.3 * 20 - 6

@@ -262,8 +262,8 @@ def test_default_square_simulation_is_unchanged():
     """The default (square) push campaign is unchanged: sums and samples of seed 0's dithered
     campaign (4 pushes per direction) as recorded for the session-12 plant (the friction band
     behind the gear spring, the operator's pace; first recorded before the waveforms existed;
-    re-recorded in session 17, when the links' inverse mass matrix became the kernel's own
-    Cholesky, the same bits on every CPU: the old values within 5e-11 relative), to 1e-12
+    re-recorded in session 17, when the links' inverse mass matrix became a Cholesky in compiled
+    loops, independent of the BLAS kernel: the old values within 1.2e-10 relative), to 1e-12
     relative: re-record only on a deliberate change of the plant. Stating
     ``waveform = "square"`` changes nothing, and the recording says which waveform it has."""
     rec = simulate("push-campaign", seed=0, dither=True, pushes_per_direction=4)

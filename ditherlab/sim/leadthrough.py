@@ -40,7 +40,7 @@ import numpy as np
 
 from ditherlab.estimator import estimate, problem, solve
 from ditherlab.estimator.intervals import problem_intervals
-from ditherlab.linalg import min_norm_solve, vector_norm
+from ditherlab.linalg import lu_solve, vector_norm
 from ditherlab.sim import plant as K
 from ditherlab.sim.engine import Engine, Inputs
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
@@ -224,12 +224,14 @@ def lead_through(
         a = min(1.0, (k1 - k0) * dt / max(lt["smoothing_s"], 1e-9))
         ctl["v"] = ctl["v"] + a * (v - ctl["v"])
         v = ctl["v"]
-        # the joint rates of the tool velocity, in compiled loops: the same bits on every CPU
-        # (the pseudo-inverse's answer; LAPACK's where the pose is singular)
+        # the joint rates of the tool velocity in compiled loops, independent of the BLAS kernel
+        # (J⁻¹: the pseudo-inverse's answer for a square J of full rank; LAPACK's pinv where the
+        # Jacobian is not square or the pose is singular)
         target = np.r_[v, 0.0, 0.0, 0.0]
-        dq_ref = min_norm_solve(np.ascontiguousarray(J[0]), target)
+        Jq = np.ascontiguousarray(J[0])
+        dq_ref = lu_solve(Jq, target) if Jq.shape[0] == Jq.shape[1] else None
         if dq_ref is None:
-            dq_ref = np.linalg.pinv(J[0]) @ target
+            dq_ref = np.linalg.pinv(Jq) @ target
         # the next chunk follows this velocity
         k2 = min(N, k1 + (k1 - k0))
         for kk in range(k1, k2):
