@@ -59,19 +59,26 @@ def spd_solve(A, b):  # pragma: no cover - compiled
         for c in range(a):
             v -= L[a, c] * y[c]
         y[a] = v / L[a, a]
+    return _back_substitute(L.T, y)
+
+
+@njit(cache=True)
+def _back_substitute(U, y):  # pragma: no cover - compiled
+    """``U⁻¹ y`` (n,) for an upper triangular ``U`` (n, n) (only its upper triangle is read)."""
+    n = len(y)
     x = np.empty(n)
     for a in range(n - 1, -1, -1):
         v = y[a]
         for c in range(a + 1, n):
-            v -= L[c, a] * x[c]
-        x[a] = v / L[a, a]
+            v -= U[a, c] * x[c]
+        x[a] = v / U[a, a]
     return x
 
 
 @njit(cache=True)
 def spd_inverse(A):  # pragma: no cover - compiled
     """Inverse of a symmetric positive definite matrix by Cholesky, in plain loops: the same
-    bits on every CPU (LAPACK's result depends on the BLAS kernel the CPU selects).
+    bits under every BLAS kernel (LAPACK's result depends on the kernel the CPU selects).
 
     Parameters
     ----------
@@ -80,7 +87,7 @@ def spd_inverse(A):  # pragma: no cover - compiled
     Returns
     -------
     (n, n) float64, exactly symmetric: ``A⁻¹`` (within 1e-12 of LAPACK's relative to its largest
-    entry on the IRB140's mass matrices, ``tests/test_sim_reproducible.py``) [1/(kg m²)]
+    entry on the IRB140's mass matrices, ``tests/test_linalg.py``) [1/(kg m²)]
     """
     n = A.shape[0]
     L = cholesky(A)
@@ -139,12 +146,7 @@ def lu_solve(A, b):  # pragma: no cover - compiled
             for j in range(k, n):
                 U[i, j] -= f * U[k, j]
             x[i] -= f * x[k]
-    for k in range(n - 1, -1, -1):
-        v = x[k]
-        for j in range(k + 1, n):
-            v -= U[k, j] * x[j]
-        x[k] = v / U[k, k]
-    return x
+    return _back_substitute(U, x)
 
 
 def vector_norm(x) -> float:
