@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml requirements.lock
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m ditherlab.demo --out $(OUT)
+	$(PY) -m ditherlab.app.demo --out $(OUT)
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(JOBS) --dist loadfile

@@ -21,7 +21,7 @@ SIGMA = np.array([0.25, 0.25, 0.2, 0.05, 0.05, 0.04])  # [N·m]
 
 def recording(duration: float, seed: int = 0):
     """A synthetic moving recording (N = duration·250 samples) with a ripple on joint 2."""
-    from ditherlab.recording import Recording
+    from ditherlab.data.recording import Recording
     from ditherlab.robot import RobotModel
 
     rng = np.random.default_rng(seed)
@@ -50,7 +50,7 @@ def recording(duration: float, seed: int = 0):
 
 
 def _model():
-    from ditherlab.model import Band, TorqueModel
+    from ditherlab.data.torque_model import Band, TorqueModel
 
     z = np.zeros(6)
     return TorqueModel("irb140", 6, regimes={"moving": Band(z, z, SIGMA, coulomb=FC, viscous=0.3 * FC),
@@ -62,9 +62,9 @@ def _long(quick: bool) -> list[dict]:
     candidates' designs at the scored rows against at every row (every effect treated as a
     time filter: computed on the whole recording, then taken; same diagnosis), and the numba
     band-aware fit against the numpy iteration on the stacks of that run."""
-    from ditherlab import fit
-    from ditherlab.diagnose import diagnose
-    from ditherlab.effects import EFFECTS
+    from ditherlab.analysis.diagnosis import diagnose
+    from ditherlab.physics import effect_fit as fit
+    from ditherlab.physics.effects import EFFECTS
 
     m = _model()
     out = []
@@ -123,10 +123,10 @@ def _long(quick: bool) -> list[dict]:
 
 
 def run(quick: bool = False) -> list[dict]:
-    from ditherlab.diagnose import diagnose
-    from ditherlab.effects import EFFECTS
-    from ditherlab.fit import _solve, stack
-    from ditherlab.residual import scored
+    from ditherlab.analysis.diagnosis import diagnose
+    from ditherlab.physics.effect_fit import _solve, stack
+    from ditherlab.physics.effects import EFFECTS
+    from ditherlab.physics.residual import scored
 
     rows = []
     rec = recording(8.0 if quick else 20.0)

@@ -214,7 +214,7 @@ def run(quick: bool = False) -> list[dict]:
                      ratio=r / rref))  # fmt: skip
     rows.append(dict(name="  max relative |half-width - numpy's|",
                      value=float(np.abs((zsol.F - glo) / half - 1).max()), unit=""))  # fmt: skip
-    from ditherlab import dither as D
+    from ditherlab.physics import dither as D
 
     t = np.arange(N) / FS
     tau = args["tau_bar"] + D.square_wave(t, 80.0, 0.8 * BAND)

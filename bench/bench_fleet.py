@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ditherlab.fleet import run_fleet
-from ditherlab.identify import identify
+from ditherlab.analysis.identification import identify
+from ditherlab.app.fleet import run_fleet
+from ditherlab.app.loop import add_effect
 from ditherlab.io import write
-from ditherlab.loop import add_effect
 from ditherlab.sim import simulate
 
 OPTS = {"blocks": 1, "pushes_per_block": 2}

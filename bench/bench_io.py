@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import ditherlab.io as dio
-from ditherlab.recording import Recording
+from ditherlab.data.recording import Recording
 
 
 def log(seconds: float, seed: int = 0) -> Recording:

@@ -1,7 +1,7 @@
 """End-to-end replay of a one-hour 250 Hz recording (900k samples), all four variants.
 
 The recording is the built-in simulator's dithered push campaign, long enough for one hour
-(``--quick``: six minutes). Timed: :func:`ditherlab.replay.replay` with the default profile
+(``--quick``: six minutes). Timed: :func:`ditherlab.analysis.estimation.replay` with the default profile
 intervals — gravity and Jacobian (pinocchio), the dither extraction, ``estimate`` and
 ``intervals`` for each of the four variants — and then writing the estimates Parquet, with the
 time of each phase. The model is identified beforehand (not timed) on a short campaign. The
@@ -27,9 +27,9 @@ def _recording(seconds: float):
 
 
 def run(quick: bool = False) -> list[dict]:
+    from ditherlab.analysis.estimation import replay
+    from ditherlab.analysis.identification import identify
     from ditherlab.estimator.intervals.profile import profile_reference
-    from ditherlab.identify import identify
-    from ditherlab.replay import replay
     from ditherlab.sim import simulate
 
     seconds = 360.0 if quick else 3600.0

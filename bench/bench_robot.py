@@ -3,7 +3,7 @@
 Two synthetic IRB140 logs at 250 Hz: a mostly-still one (95 % of the samples held at a few poses
 with one-count encoder flicker, 5 % moving between them) and a moving one (every sample
 distinct). The reference is the plain per-sample pinocchio loop (``evaluate(reference=True)``);
-the fast paths are the compiled kernels (:mod:`ditherlab.robot.fast`) on every sample, and with
+the fast paths are the compiled kernels (:mod:`ditherlab.robot.tree`) on every sample, and with
 the exact or quantised deduplication and the result cache.
 """
 

@@ -92,7 +92,7 @@ def _peak(args: list[str]) -> tuple[float, float]:
 def run(
     quick: bool = False, hours: float = 10.0, keep: Path | None = None, only: str | None = None
 ) -> list[dict]:
-    from ditherlab.identify import identify
+    from ditherlab.analysis.identification import identify
     from ditherlab.sim import simulate
 
     seconds = 360.0 if quick else 3600.0

@@ -15,8 +15,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ditherlab.model import Band, TorqueModel
-from ditherlab.recording import WRENCH_COLUMNS, Recording
+from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.data.recording import Recording
+from ditherlab.data.torque_model import Band, TorqueModel
 
 FS = 250.0
 VARIANTS = ("nodither_band", "nodither_noband", "dither_band", "dither_noband")
@@ -97,7 +98,7 @@ def model() -> TorqueModel:
 
 
 def run(quick: bool = False) -> list[dict]:
-    from ditherlab.viz.rerun_log import load_estimates, save_view
+    from ditherlab.output.rerun.rerun_log import load_estimates, save_view
 
     duration = 120.0 if quick else 3600.0
     rec = campaign(duration)

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from ditherlab.errors import DitherlabError, DitherlabWarning
+from ditherlab.core.errors import DitherlabError, DitherlabWarning
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ditherlab.recording import Recording
+    from ditherlab.data.recording import Recording
 
 __version__ = "0.1.0"
 __all__ = ["DitherlabError", "DitherlabWarning", "Recording", "read", "write", "__version__"]
@@ -24,9 +24,9 @@ __all__ = ["DitherlabError", "DitherlabWarning", "Recording", "read", "write", "
 
 def __getattr__(name: str) -> Any:
     # ``ditherlab.Recording`` on first use: importing the package (``ditherlab --help``, every
-    # ``from ditherlab.errors import ...``) then does not load pandas and pinocchio (~0.7 s)
+    # ``from ditherlab.core.errors import ...``) then does not load pandas and pinocchio (~0.7 s)
     if name == "Recording":
-        from ditherlab.recording import Recording
+        from ditherlab.data.recording import Recording
 
         return Recording
     raise AttributeError(f"module 'ditherlab' has no attribute {name!r}")

@@ -1,11 +1,11 @@
 """The ``ditherlab`` command line: a thin typer layer over the library.
 
 Each command parses its options and calls one library function. User mistakes raise
-:class:`~ditherlab.errors.DitherlabError`; :func:`main` turns them into one line on stderr and
+:class:`~ditherlab.core.errors.DitherlabError`; :func:`main` turns them into one line on stderr and
 exit status 2, never a traceback. Long work reports progress through a callback that the library
 calls as ``progress(done, total)``; here it drives a progress bar on stderr.
 
-Shared pieces for every command live in :mod:`ditherlab.cli_shared` (and the output guard at the
+Shared pieces for every command live in :mod:`ditherlab.cli_options` (and the output guard at the
 top of this file); commands follow, one function each. Add a command as a new function below;
 keep it ~10 lines.
 """
@@ -29,7 +29,7 @@ from typing import Annotated
 import typer
 import typer._click.exceptions as UsageErrors  # typer vendors click: its exceptions are here
 
-from ditherlab.cli_shared import (
+from ditherlab.cli_options import (
     Chunk,
     Force,
     JsonFlag,
@@ -40,10 +40,10 @@ from ditherlab.cli_shared import (
     _format_warning,
     echo,
     held_warnings,
-    progress_bar,
 )
-from ditherlab.errors import DitherlabError, DitherlabWarning
-from ditherlab.runtime import reuse_freed_memory
+from ditherlab.core.errors import DitherlabError, DitherlabWarning
+from ditherlab.core.progress import progress_bar
+from ditherlab.core.runtime import reuse_freed_memory
 
 app = typer.Typer(
     name="ditherlab",
@@ -62,10 +62,10 @@ def guard(
     folder: bool = False,
     force: bool = False,
 ) -> None:
-    """The output guard (:func:`ditherlab.io.atomic.check_output`), before any work: ``out``
+    """The output guard (:func:`ditherlab.core.files.check_output`), before any work: ``out``
     not equal to, inside or containing an input (or the mapping file), writable, and an
     existing non-empty folder only with ``--force``."""
-    from ditherlab.io.atomic import check_output
+    from ditherlab.core.files import check_output
 
     extra = [Path(mapping)] if mapping is not None and Path(mapping).exists() else []
     check_output(out, [*inputs, *extra], folder=folder, force=force)
@@ -136,7 +136,7 @@ def info(
     """Duration, sample rate and jitter, joints, optional columns, still/dither/moving time."""
     import json
 
-    from ditherlab.io.info import describe, format_info
+    from ditherlab.analysis.overview import describe, format_info
     from ditherlab.io.stream import open_source
 
     summary = describe(open_source(file, **_read_options(mapping, robot)), chunk_rows=chunk)
@@ -180,7 +180,7 @@ def view(
     quiet: Quiet = False,
 ) -> None:
     """Review a recording, its estimates and model in Rerun (3D robot, torques, forces, events)."""
-    from ditherlab.viz.rerun_log import load_view_request, run_view, wait_until_interrupted
+    from ditherlab.output.rerun.rerun_log import load_view_request, run_view, wait_until_interrupted
 
     if spawn and serve:
         raise DitherlabError("view: choose one of --spawn and --serve")
@@ -267,15 +267,15 @@ def robot(
 
     extra = (map_out, grid, model, noise_level, report)
     if not sensitivity and (any(x is not None for x in extra) or dither is not None):
-        from ditherlab.errors import ConfigError
+        from ditherlab.core.errors import ConfigError
 
         raise ConfigError(
             "robot: --map, --grid, --model, --dither, --noise-level and --report need --sensitivity"
         )
     resolved = resolve_spec(spec, tool_frame=tool_frame)
     if sensitivity:
-        from ditherlab.io.atomic import plain
-        from ditherlab.robot.sensitivity_map import run_sensitivity
+        from ditherlab.analysis.sensitivity_map import run_sensitivity
+        from ditherlab.core.files import plain
 
         if map_out is not None:
             guard(map_out, model)
@@ -322,8 +322,8 @@ def diagnose(
     """Where the model fails (residual vs noise floor, force error, worst windows) and which effect is missing."""
     import json
 
-    from ditherlab.io.atomic import all_or_nothing, json_default
-    from ditherlab.loop import diagnose_files
+    from ditherlab.app.loop import diagnose_files
+    from ditherlab.core.files import all_or_nothing, json_default
 
     if out is not None:
         guard(out, *recordings, model, mapping=mapping, folder=True, force=force)
@@ -378,8 +378,8 @@ def identify(
     quiet: Quiet = False,
 ) -> None:
     """Fit bands, noise (R_e) and sliding friction per joint and regime by maximum likelihood."""
-    from ditherlab.identify import summary
-    from ditherlab.loop import identify_files
+    from ditherlab.analysis.identification import summary
+    from ditherlab.app.loop import identify_files
 
     guard(out, *recordings, model, mapping=mapping)
     with progress_bar("identify", quiet) as progress:
@@ -486,7 +486,7 @@ def replay(
     quiet: Quiet = False,
 ) -> None:
     """Replay the estimator (no dither / dither x with / without the uniform term) -> estimates Parquet."""
-    from ditherlab.replay import describe, replay_file
+    from ditherlab.analysis.estimation import describe, replay_file
 
     guard(out, recording, model, mapping=mapping)
     with progress_bar("replay", quiet) as progress:
@@ -537,8 +537,8 @@ def report(
     """Detection thresholds per direction beside the paper's §VI-C numbers, curves, coverage, figures."""
     import json
 
-    from ditherlab.io.atomic import all_or_nothing, json_default
-    from ditherlab.report import make_report, summary_text
+    from ditherlab.core.files import all_or_nothing, json_default
+    from ditherlab.output.report_page import make_report, summary_text
 
     guard(out, *estimates, *(recording or []), folder=True, force=force)
     with progress_bar("report", quiet or json_out) as progress, all_or_nothing(out):
@@ -611,7 +611,7 @@ def fleet(
     quiet: Quiet = False,
 ) -> None:
     """Identify and diagnose many recordings as Dask tasks -> one table and a fleet report."""
-    from ditherlab.fleet import run_fleet
+    from ditherlab.app.fleet import run_fleet
 
     s = run_fleet(
         recordings or [],
@@ -689,7 +689,7 @@ def sweep(
     quiet: Quiet = False,
 ) -> None:
     """Simulated paired campaigns over a grid of simulator parameters (dither design) as Dask tasks."""
-    from ditherlab.fleet.sweep import run_sweep, summary_text
+    from ditherlab.app.sweep import run_sweep, summary_text
 
     s = run_sweep(
         grid or [],
@@ -721,11 +721,11 @@ def leadthrough(
     quiet: Quiet = False,
 ) -> None:
     """Lead-through with the 10 N dead zone vs the confidence interval (paper §V), same pushes."""
-    from ditherlab.errors import ConfigError
-    from ditherlab.io.atomic import all_or_nothing
-    from ditherlab.leadthrough import compare_laws, means_table
+    from ditherlab.analysis.lead_metrics import compare_laws, means_table
+    from ditherlab.core.errors import ConfigError
+    from ditherlab.core.files import all_or_nothing
+    from ditherlab.output.lead_figures import write_comparison
     from ditherlab.sim.params import load_params
-    from ditherlab.viz.leadthrough import write_comparison
 
     choices = {"both": (True, False), "on": (True,), "off": (False,)}
     if dither not in choices:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ditherlab.recording import Recording
+from ditherlab.data.recording import Recording
 from ditherlab.robot import RobotModel
 
 Q0 = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0])

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from synthetic import push_recording
 
-from ditherlab.effects import get_effect, signals
-from ditherlab.effects.extraction import extraction_mask, extraction_window
-from ditherlab.effects.sensor import AttenuationLag
-from ditherlab.recording import DITHER
-from ditherlab.replay import extraction_lead
-from ditherlab.signal import causal_mean
+from ditherlab.analysis.estimation import extraction_lead
+from ditherlab.core.names import DITHER
+from ditherlab.core.timeseries import causal_mean
+from ditherlab.physics.effects import get_effect, signals
+from ditherlab.physics.effects.extraction import extraction_mask, extraction_window
+from ditherlab.physics.effects.sensor import AttenuationLag
 
 
 def _raised_cosine(t: np.ndarray, t0: float, length: float, peak: float) -> np.ndarray:

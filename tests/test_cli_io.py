@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import ditherlab.io as dio
-from ditherlab.errors import DitherlabWarning
-from ditherlab.recording import Recording
+from ditherlab.core.errors import DitherlabWarning
+from ditherlab.data.recording import Recording
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "recordings" / "ur10e-static.parquet"
@@ -236,7 +236,7 @@ def test_logs_of_one_and_two_rows_end_cleanly(cli, tmp_path):
     window into the log (a traceback in replay, identify and diagnose) and a fit on no rows
     divided by zero. Now replay estimates them, identify and diagnose say in one line that the
     log is too short, exit 2."""
-    from ditherlab.identify import identify
+    from ditherlab.analysis.identification import identify
     from ditherlab.sim import simulate
 
     rec = simulate("excitation", seed=4, dither=False, blocks=1, pushes_per_block=1)

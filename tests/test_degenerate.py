@@ -12,9 +12,9 @@ import pytest
 from synthetic import Q0, push_recording
 
 import ditherlab.io as dio
-from ditherlab.diagnose.accumulate import Windows
-from ditherlab.recording import Recording, derivative_by_segment
-from ditherlab.signal import smooth_derivative
+from ditherlab.analysis.diagnosis_sums import Windows
+from ditherlab.core.timeseries import smooth_derivative
+from ditherlab.data.recording import Recording, derivative_by_segment
 
 #: seconds any command may take on these small logs (the issue's bound is 60 s)
 BOUND_S = 60.0
@@ -38,7 +38,7 @@ def assert_ok(res) -> None:
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
     """A short synthetic push log (robot at rest, 4 pushes), its model and its estimates."""
-    from ditherlab.identify import identify
+    from ditherlab.analysis.identification import identify
 
     d = tmp_path_factory.mktemp("degenerate")
     rec, _ = push_recording(0, magnitudes=(20.0, 40.0), axes=("x",))

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from ditherlab.demo import paper_agreement
-from ditherlab.thresholds import PAPER
+from ditherlab.analysis.detection import PAPER
+from ditherlab.app.demo import paper_agreement
 
 
 def _analysis(scale: float, missing: str | None = None) -> dict:

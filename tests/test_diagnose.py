@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from test_effects import make_recording
 
-from ditherlab.diagnose import diagnose, noise_floor_sq, residual_summary
-from ditherlab.identify import identify
+from ditherlab.analysis.diagnosis import diagnose, noise_floor_sq, residual_summary
+from ditherlab.analysis.identification import identify
+from ditherlab.app.loop import add_effect
+from ditherlab.data.torque_model import EffectSpec, TorqueModel
 from ditherlab.io import write
-from ditherlab.loop import add_effect
-from ditherlab.model import EffectSpec, TorqueModel
-from ditherlab.residual import scored
+from ditherlab.physics.residual import scored
 
 #: hidden effect -> joints (1-based) where the synthetic plant has it
 HIDDEN = {
@@ -114,7 +114,7 @@ def test_noise_floor_formula():
 
 def _windows_by_scanning(model, sc, width=1.0):
     """The obviously right worst windows: every window's samples found by comparing all times."""
-    from ditherlab.diagnose.accumulate import excess_and_floor, nanmean
+    from ditherlab.analysis.diagnosis_sums import excess_and_floor, nanmean
 
     ex, fl = excess_and_floor(sc)
     t = sc.sig.t
@@ -133,8 +133,8 @@ def _windows_by_scanning(model, sc, width=1.0):
 def test_worst_windows_linear_equal_the_scan():
     """The windows found by one division per sample are those of scanning every window, on
     jittered time stamps (no sample on a window edge)."""
-    from ditherlab.diagnose import worst_windows
-    from ditherlab.recording import Recording
+    from ditherlab.analysis.diagnosis import worst_windows
+    from ditherlab.data.recording import Recording
 
     rec = make_recording(("stribeck",), seed=12, duration=8.0)
     data = rec.data.copy()
@@ -154,7 +154,7 @@ def test_worst_windows_linear_equal_the_scan():
 def test_solve_kernel_equals_the_numpy_reference():
     """The compiled band-aware least squares reaches the numpy iteration's optimum: with and
     without band widening, bands of zero width (moving samples) and none, 0 to 6 columns."""
-    from ditherlab.fit import _solve, _solve_reference
+    from ditherlab.physics.effect_fit import _solve, _solve_reference
 
     rng = np.random.default_rng(5)
     cases = 0
@@ -190,7 +190,7 @@ def test_designs_at_scored_rows_equal_the_whole_recordings():
     (``Signals.take``): for each effect of the library, the design there equals the whole
     recording's design at those rows. A time-filter effect not marked ``pointwise = False``
     fails this (its design at a row would be filtered over the thinned rows)."""
-    from ditherlab.effects import EFFECTS, design_at, signals
+    from ditherlab.physics.effects import EFFECTS, design_at, signals
 
     rec = make_recording(("stribeck",), seed=4, duration=6.0, temp=True)
     sig = signals(rec)
@@ -280,10 +280,11 @@ def test_ur10e_free_motion_lacks_inertia(shared_data):
     """On the real UR10e free-motion log, a gravity + Coulomb/viscous model lacks the dynamic
     torque: diagnosis suggests ``inertia`` first (on joints 1 and 2 at least), and adding it cuts
     their residual by more than 40 %."""
-    from ditherlab.bandfit import fit_sliding
+    from ditherlab.core.names import MOVING
+    from ditherlab.data.recording import regimes
+    from ditherlab.data.torque_model import Band
     from ditherlab.io import read
-    from ditherlab.model import Band
-    from ditherlab.recording import MOVING, regimes
+    from ditherlab.physics.band_fit import fit_sliding
 
     rec = read(shared_data / "ur10e" / "no_torque.csv", mapping="ur10e")
     reg = regimes(rec)
@@ -362,7 +363,7 @@ def test_sim_attenuation_lag_found_with_its_physics(sim_runs):
 def test_sim_fixed_pose_payload_not_identifiable(sim_runs):
     """In a push campaign's single pose a payload is a constant gravity torque the bands absorb:
     add_effect refuses it with one sentence instead of storing arbitrary parameters."""
-    from ditherlab.errors import ModelError
+    from ditherlab.core.errors import ModelError
 
     rec, m, _ = sim_runs["clean"]
     with pytest.raises(ModelError, match="'payload' cannot be told apart from the bands"):

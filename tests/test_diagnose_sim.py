@@ -18,10 +18,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ditherlab.diagnose import diagnose, residual_summary
-from ditherlab.identify import identify
-from ditherlab.loop import add_effect
-from ditherlab.residual import scored
+from ditherlab.analysis.diagnosis import diagnose, residual_summary
+from ditherlab.analysis.identification import identify
+from ditherlab.app.loop import add_effect
+from ditherlab.physics.residual import scored
 from ditherlab.sim import simulate
 
 #: scenario options: two pose blocks, three pushes in each pose and two during strokes (~65 s)

@@ -1,12 +1,12 @@
-"""Tests of ditherlab.dither: square wave, signal extraction, band shrink and band-as-noise."""
+"""Tests of ditherlab.physics.dither: square wave, signal extraction, band shrink and band-as-noise."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from ditherlab import dither as D
-from ditherlab.errors import ConfigError
+from ditherlab.core.errors import ConfigError
+from ditherlab.physics import dither as D
 
 FS = 250.0  # [Hz]
 OMEGA = 80.0  # [rad/s]

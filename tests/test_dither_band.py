@@ -19,16 +19,17 @@ import numpy as np
 import pytest
 from conftest import run_cli
 
-from ditherlab.dither import extract_dither
-from ditherlab.effects import get_effect
-from ditherlab.fit import fit_effect, linear_stderr, pool_weak_joints
-from ditherlab.identify import identify
+from ditherlab.analysis.estimation import replay
+from ditherlab.analysis.identification import identify
+from ditherlab.core.names import DITHER
+from ditherlab.core.timeseries import causal_mean, jtf
+from ditherlab.data.recording import regimes
+from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io import read
-from ditherlab.model import TorqueModel
-from ditherlab.recording import DITHER, regimes
-from ditherlab.replay import replay
-from ditherlab.residual import scored
-from ditherlab.signal import causal_mean, jtf
+from ditherlab.physics.dither import extract_dither
+from ditherlab.physics.effect_fit import fit_effect, linear_stderr, pool_weak_joints
+from ditherlab.physics.effects import get_effect
+from ditherlab.physics.residual import scored
 from ditherlab.sim import simulate
 
 #: pose C of README "Pose sensitivity" [rad], pushes of 1-25 N as in its sweep

@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ditherlab.data.torque_model import PAPER_PRIOR_SIGMA
 from ditherlab.estimator import estimate
-from ditherlab.model import PAPER_PRIOR_SIGMA
 from ditherlab.robot import PAPER_POSE, RobotModel
 
 #: The demo's model (seed 1 identification campaign): half the ``dither`` band [N·m] (joint 5:

@@ -3,7 +3,7 @@
 The paper (§VII) left waveforms other than its square wave to future work. Each waveform is of
 unit peak, zero mean over whole periods and positive on the first half period; the extraction's
 ``signal`` is the window mean for each, and its ``amplitude`` is the peak (the paper's
-``(upper - lower) / 2`` times :data:`ditherlab.dither.PEAK_FACTOR`).
+``(upper - lower) / 2`` times :data:`ditherlab.physics.dither.PEAK_FACTOR`).
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import functools
 import numpy as np
 import pytest
 
-from ditherlab import dither as D
-from ditherlab.errors import ConfigError
-from ditherlab.recording import Recording
+from ditherlab.core.errors import ConfigError
+from ditherlab.data.recording import Recording
+from ditherlab.physics import dither as D
 from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.sim import simulate
 from ditherlab.sim.engine import Engine, Inputs

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from test_effects import make_recording
 
-from ditherlab.diagnose import diagnose
-from ditherlab.effects import EFFECTS, Design, Effect, effects_torque, fmt, model_text
-from ditherlab.identify import identify
-from ditherlab.loop import add_effect
-from ditherlab.model import TorqueModel
+from ditherlab.analysis.diagnosis import diagnose
+from ditherlab.analysis.identification import identify
+from ditherlab.app.loop import add_effect
+from ditherlab.data.torque_model import TorqueModel
+from ditherlab.physics.effects import EFFECTS, Design, Effect, effects_torque, fmt, model_text
 
 PLANTED = 0.06  # the logged torque reads 6 % too much gravity on joints 2 and 3
 

@@ -15,7 +15,12 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from ditherlab.effects import (
+from ditherlab.app.loop import add_effect
+from ditherlab.core.errors import ModelError
+from ditherlab.data.recording import Recording
+from ditherlab.data.torque_model import Band, EffectSpec, TorqueModel
+from ditherlab.physics.effect_fit import _solve, fit_effect, solve_signed
+from ditherlab.physics.effects import (
     EFFECTS,
     effect_names,
     effects_torque,
@@ -24,12 +29,7 @@ from ditherlab.effects import (
     model_text,
     sensor_wrench,
 )
-from ditherlab.errors import ModelError
-from ditherlab.fit import _solve, fit_effect, solve_signed
-from ditherlab.loop import add_effect
-from ditherlab.model import Band, EffectSpec, TorqueModel
-from ditherlab.recording import Recording
-from ditherlab.residual import scored
+from ditherlab.physics.residual import scored
 from ditherlab.robot import RobotModel
 
 FC = np.array([8.0, 7.5, 6.5, 2.0, 2.0, 1.2])
@@ -304,7 +304,7 @@ def test_missing_columns_are_named(recs):
 def test_periodogram_shortlist_matches_full_grid(recs):
     """The fast least-squares periodogram's shortlist holds the period that a full band-aware fit
     at every grid period finds best (the slow, obviously right reference)."""
-    from ditherlab.fit import stack
+    from ditherlab.physics.effect_fit import stack
 
     e = EFFECTS["position_ripple"]
     sc = [scored(base_model(), recs["position_ripple"])]
@@ -333,8 +333,8 @@ def test_stick_transitions_marks_breakaway_and_short_slips():
     """Of a motion out of and back into a stick, the first and last 0.2 s are marked; a short
     slip between two sticks (a pose giving way under a push) is marked whole; a velocity
     reversal inside a motion (two non-moving samples) is not a stick."""
-    from ditherlab.recording import MOVING, STILL
-    from ditherlab.signal import stick_transitions
+    from ditherlab.core.names import MOVING, STILL
+    from ditherlab.core.timeseries import stick_transitions
 
     fs = 250.0
     reg = np.full((1000, 1), STILL, dtype=np.int8)
@@ -354,7 +354,7 @@ def test_ripple_period_refined_beyond_the_grid(recs):
     """The final fit refines the ripple period between its grid neighbours: the planted 0.05 rad
     is recovered to 1e-4 rad (the quarter-cycle grid alone is off by up to 1/8 cycle over the
     span), and the refined loss is no larger than the grid's best."""
-    from ditherlab.fit import solve_signed, stack
+    from ditherlab.physics.effect_fit import solve_signed, stack
 
     e = EFFECTS["position_ripple"]
     sc = [scored(base_model(), recs["position_ripple"])]
@@ -387,7 +387,7 @@ def test_surrogate_stack_shifts_the_effect_not_the_nuisance(recs):
     """A surrogate's stack has the effect's columns circularly shifted by the lag (the driver
     moved against the residual) and everything else (residual, bands, noise, the regime and
     sliding-friction columns) unchanged; the shortlist sees the shifted driver too."""
-    from ditherlab.fit import stack
+    from ditherlab.physics.effect_fit import stack
 
     e = EFFECTS["position_ripple"]
     sc = [scored(base_model(), recs["position_ripple"])]
@@ -411,7 +411,7 @@ def test_surrogates_explain_little_of_a_real_effect(recs):
     """On a real ripple, the effect fitted to its own shifted design (at the lags where that
     design is least correlated with itself) explains a small part of what the effect explains
     (measured: under 5 % of it), so the surrogate rule passes it."""
-    from ditherlab.scoring import SURROGATE_RATIO, _score, _surrogate_gain, _surrogate_lags
+    from ditherlab.analysis.scoring import SURROGATE_RATIO, _score, _surrogate_gain, _surrogate_lags
 
     e = EFFECTS["position_ripple"]
     sc = [scored(base_model(), recs["position_ripple"])]
@@ -431,8 +431,8 @@ def test_surrogate_rule_in_the_decision(recs):
     surrogate gain under half of the effect's, and fails at half or more; a time-reversed
     residual (the structure kept, no longer a function of the logged q) fails the held-out
     criteria on its own (measured: -3 % explained, 0 of 5 folds better)."""
-    from ditherlab.residual import Scored
-    from ditherlab.scoring import SURROGATE_RATIO, _score
+    from ditherlab.analysis.scoring import SURROGATE_RATIO, _score
+    from ditherlab.physics.residual import Scored
 
     e = EFFECTS["position_ripple"]
     sc = scored(base_model(), recs["position_ripple"])
@@ -462,7 +462,7 @@ def test_signals_cache_frees_its_recording():
     import gc
     import weakref
 
-    from ditherlab.effects import signals
+    from ditherlab.physics.effects import signals
 
     rec = make_recording(seed=2, duration=1.0)
     assert signals(rec).gravity.shape == (len(rec), 6)
@@ -480,7 +480,7 @@ def test_released_signals_free_their_recording_without_the_cycle_collector():
     import gc
     import weakref
 
-    from ditherlab.effects import release, signals
+    from ditherlab.physics.effects import release, signals
 
     rec = make_recording(seed=2, duration=1.0)
     sig = signals(rec)

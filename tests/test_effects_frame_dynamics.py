@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ditherlab.diagnose import diagnose, residual_summary
-from ditherlab.effects import EFFECTS, signals
-from ditherlab.identify import identify
-from ditherlab.loop import add_effect
-from ditherlab.residual import scored
+from ditherlab.analysis.diagnosis import diagnose, residual_summary
+from ditherlab.analysis.identification import identify
+from ditherlab.app.loop import add_effect
+from ditherlab.physics.effects import EFFECTS, signals
+from ditherlab.physics.residual import scored
 from ditherlab.sim import simulate
 
 OPTS = {"blocks": 2, "pushes_per_block": 3}

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from test_diagnose_sim import _add, _baseline, _refit, _rms, _sim
 
-from ditherlab.diagnose import diagnose
+from ditherlab.analysis.diagnosis import diagnose
 
 #: hidden effect -> joints (1-based) where the plant has it (default sizes: 1.1, 0.02 rad)
 HIDDEN = {"drive_gain": [2, 3], "joint_offset": [2, 3]}
@@ -128,8 +128,8 @@ def test_drive_gain_scales_the_force_estimate(loops):
     made while every joint slides (the band collapsed) matches the sensor, force per unit
     sensor force within 2 % of 1 (measured 0.997, RMS error 0.82 N; with the unscaled J^T the
     same model's estimate read 1.087 and 1.42 N)."""
-    from ditherlab.effects import force_gain
-    from ditherlab.replay import replay
+    from ditherlab.analysis.estimation import replay
+    from ditherlab.physics.effects import force_gain
 
     rec, _, _, m2 = loops["drive_gain"]
     np.testing.assert_allclose(force_gain(m2), [1, 1.1, 1.1, 1, 1, 1], atol=0.005)

@@ -14,8 +14,8 @@ import pytest
 from scipy.stats import norm
 
 from ditherlab import estimator as E
-from ditherlab.errors import ConfigError, ModelError
-from ditherlab.estimator import core as estimator_core
+from ditherlab.core.errors import ConfigError, ModelError
+from ditherlab.estimator import problem as estimator_core
 from ditherlab.estimator.backends.exact import _solve_exact
 from ditherlab.estimator.intervals.profile import _run_profile, profile_reference
 from ditherlab.estimator.intervals.set_membership import _set_membership

@@ -17,15 +17,16 @@ import numpy as np
 import pytest
 from conftest import run_cli
 
-from ditherlab.effects import get_effect, signals
-from ditherlab.effects.extraction import extraction_window
-from ditherlab.identify import identify
+from ditherlab.analysis.identification import identify
+from ditherlab.analysis.scoring import ACTS_SNR, acting_joints
+from ditherlab.core.names import DITHER
+from ditherlab.core.timeseries import causal_mean, jtf
+from ditherlab.data.recording import regimes
+from ditherlab.data.torque_model import EffectSpec
 from ditherlab.io import read
-from ditherlab.model import EffectSpec
-from ditherlab.recording import DITHER, regimes
-from ditherlab.residual import scored
-from ditherlab.scoring import ACTS_SNR, acting_joints
-from ditherlab.signal import causal_mean, jtf
+from ditherlab.physics.effects import get_effect, signals
+from ditherlab.physics.effects.extraction import extraction_window
+from ditherlab.physics.residual import scored
 from ditherlab.sim import simulate
 
 #: the clean control's seeds (identification, evaluation), as in session 12's check

@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 from conftest import run_cli
 
-from ditherlab.model import TorqueModel
+from ditherlab.data.torque_model import TorqueModel
 
 PLAN = "[excitation]\nblocks = 2\npushes_per_block = 3\n"
 STATIC = np.array([10.0, 9.5, 8.4, 2.5, 2.5, 1.5])
@@ -205,8 +205,8 @@ def test_bad_fleet_input_one_line_exit_2(fleet, cli, tmp_path):
     """A manifest without a ``file`` column, a manifest naming a missing file, a pattern
     matching nothing, an output folder that holds the inputs, an unreachable scheduler, and one
     model for recordings of two robots: one line each, exit 2, nothing written."""
+    from ditherlab.data.recording import Recording
     from ditherlab.io import read, write
-    from ditherlab.recording import Recording
 
     d, base, _, _ = fleet
     m = tmp_path / "m.csv"
@@ -256,7 +256,7 @@ def test_local_cluster_quiet_when_8787_is_taken():
     import socket
     import warnings
 
-    from ditherlab.fleet.engine import _client
+    from ditherlab.core.tasks import _client
 
     holder = socket.socket()
     try:

@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import DATA, run_cli
 
-from ditherlab.io.atomic import all_or_nothing
+from ditherlab.core.files import all_or_nothing
 
 UR = DATA / "ur10e" / "no_torque.csv"
 

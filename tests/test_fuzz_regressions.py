@@ -17,9 +17,9 @@ import pyarrow.parquet as pq
 import pytest
 
 import ditherlab.io as dio
-from ditherlab.errors import FormatError, RecordingError
+from ditherlab.core.errors import FormatError, RecordingError
+from ditherlab.data.recording import Recording
 from ditherlab.io.stream import open_source
-from ditherlab.recording import Recording
 
 DATA = Path(__file__).resolve().parent / "data"
 META = {"schema": "ditherlab.recording/1", "robot": "irb140"}
@@ -364,9 +364,9 @@ def test_damaged_estimates_file_is_one_line_and_checked(tmp_path):
     another number. Now one line, and the pages carry checksums that are verified."""
     from synthetic import push_recording
 
-    from ditherlab.estimates import Estimates
-    from ditherlab.identify import identify
-    from ditherlab.replay import replay
+    from ditherlab.analysis.estimation import replay
+    from ditherlab.analysis.identification import identify
+    from ditherlab.data.estimates import Estimates
 
     rec, _ = push_recording(0, magnitudes=(5.0,), axes=("x",), signs=(1.0,))
     p = replay(rec.slice(0.0, 1.9), identify([rec], n_boot=0)).save(tmp_path / "e.parquet")

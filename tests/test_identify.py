@@ -1,4 +1,4 @@
-"""Tests of ditherlab.identify: the band-plus-noise maximum likelihood and the identify command."""
+"""Tests of ditherlab.analysis.identification: the band-plus-noise maximum likelihood and the identify command."""
 
 from __future__ import annotations
 
@@ -7,17 +7,17 @@ import pytest
 from scipy import integrate
 from synthetic import moving_recording, push_recording
 
-from ditherlab.bandfit import (
+from ditherlab.analysis.identification import friction_residual, identify
+from ditherlab.core.errors import RecordingError
+from ditherlab.core.timeseries import causal_mean
+from ditherlab.data.torque_model import PAPER_PRIOR_SIGMA, TorqueModel
+from ditherlab.physics.band_fit import (
     _nll_mix,
     band_noise_logpdf,
     fit_band,
     fit_sliding,
     sigma_from_differences,
 )
-from ditherlab.errors import RecordingError
-from ditherlab.identify import friction_residual, identify
-from ditherlab.model import PAPER_PRIOR_SIGMA, TorqueModel
-from ditherlab.signal import causal_mean
 
 
 @pytest.fixture(scope="module")
@@ -265,7 +265,7 @@ def test_fit_sliding_band_leaves_out_the_transients():
 
 def test_block_members_equal_a_scan_per_block():
     """The bootstrap's blocks found by one stable sort are those of scanning every block."""
-    from ditherlab.bandfit import block_members
+    from ditherlab.physics.band_fit import block_members
 
     inv = np.random.default_rng(4).integers(0, 37, 5000)
     inv[inv == 5] = 6  # a label with no sample
@@ -282,7 +282,7 @@ def test_replicate_sigma_by_weights_equals_the_built_replicate(lag):
     drawn blocks concatenated, each copy its own block) exactly: even and odd counts, ties
     (a quantised residual), blocks shorter than the lag, blocks never drawn, and the
     fallbacks (no differences, a MAD of 0) left to the built replicate."""
-    from ditherlab.bandfit import BlockDifferences, block_members
+    from ditherlab.physics.band_fit import BlockDifferences, block_members
 
     rng = np.random.default_rng(lag)
     for case in range(40):

@@ -16,10 +16,10 @@ from rosbags.typesys import Stores, get_typestore
 
 import ditherlab
 import ditherlab.io as dio
-from ditherlab.errors import ConfigError, DitherlabWarning, FormatError, RobotError
+from ditherlab.core.errors import ConfigError, DitherlabWarning, FormatError, RobotError
+from ditherlab.data.recording import Recording
 from ditherlab.io.mapping import builtin_mappings, load_mapping
 from ditherlab.io.rosbag import merge_onto
-from ditherlab.recording import Recording
 from ditherlab.robot import RobotModel
 
 REPO = Path(__file__).resolve().parents[1]

@@ -8,12 +8,12 @@ import json
 import numpy as np
 import pytest
 
+from ditherlab.analysis.lead_metrics import lead_metrics, tool_path
+from ditherlab.data.recording import Recording
 from ditherlab.io import read
-from ditherlab.leadthrough import lead_metrics, tool_path
-from ditherlab.recording import Recording
 from ditherlab.robot import RobotModel
 from ditherlab.sim import simulate
-from ditherlab.sim.leadthrough import EDGE_S, interval_command, operator_push
+from ditherlab.sim.guidance import EDGE_S, interval_command, operator_push
 from ditherlab.sim.params import load_params
 
 FS = 250.0

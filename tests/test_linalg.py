@@ -1,4 +1,4 @@
-"""ditherlab.linalg: the compiled solves against numpy's LAPACK (their slow, obviously right
+"""ditherlab.core.linalg: the compiled solves against numpy's LAPACK (their slow, obviously right
 reference), their refusals, and the norm."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ditherlab.linalg import cholesky, lu_solve, spd_inverse, spd_solve, vector_norm
+from ditherlab.core.linalg import cholesky, lu_solve, spd_inverse, spd_solve, vector_norm
 from ditherlab.robot import RobotModel
 
 

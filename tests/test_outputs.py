@@ -1,4 +1,4 @@
-"""The one output guard (:func:`ditherlab.io.atomic.check_output`), as every writing command
+"""The one output guard (:func:`ditherlab.core.files.check_output`), as every writing command
 meets it: an output equal to, inside or holding an input, an unwritable place, a folder where a
 file goes (and the reverse), an existing non-empty output folder without ``--force``. Each is
 one exact line on stderr, exit status 2, before any work, and the inputs keep their bytes and
@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 import ditherlab.io as dio
+from ditherlab.core.files import check_output, companions
 from ditherlab.io import csv as csv_io
-from ditherlab.io.atomic import check_output, companions
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "recordings" / "ur10e-static.parquet"
@@ -254,8 +254,8 @@ def test_numerical_warnings_never_precede_an_error(cli, monkeypatch):
     the warning is printed (once, as one line)."""
     import numpy as np
 
-    import ditherlab.io.info as info
-    from ditherlab.errors import RecordingError
+    import ditherlab.analysis.overview as info
+    from ditherlab.core.errors import RecordingError
 
     real = info.describe
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ditherlab.demo import pipeline_text, run_pipeline
-from ditherlab.estimates import Estimates
-from ditherlab.model import TorqueModel
+from ditherlab.app.demo import pipeline_text, run_pipeline
+from ditherlab.data.estimates import Estimates
+from ditherlab.data.torque_model import TorqueModel
 
 
 def test_pipeline_small_campaign(tmp_path):

@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from ditherlab.model import TorqueModel
+from ditherlab.data.torque_model import TorqueModel
 
 UR = ("--mapping", "ur10e")
 

@@ -6,16 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ditherlab.errors import RecordingError, RobotError
-from ditherlab.recording import (
-    DITHER,
-    MOVING,
-    SCHEMA,
-    STILL,
-    Recording,
-    differentiate,
-    regimes,
-)
+from ditherlab.core.errors import RecordingError, RobotError
+from ditherlab.core.names import DITHER, MOVING, STILL
+from ditherlab.data.recording import SCHEMA, Recording, differentiate, regimes
 
 META = {"schema": SCHEMA, "robot": "irb140"}
 
@@ -179,7 +172,7 @@ def test_dq_differentiated_from_analytic_sine():
 def test_ddq_exact_on_a_quadratic_with_jitter():
     """ddq fits a quadratic on the real time stamps: exact for q'' constant, jitter or not, and
     the uniform-grid fast path (Savitzky-Golay) equals the general fit."""
-    from ditherlab.signal import local_quadratic_derivative, smooth_derivative
+    from ditherlab.core.timeseries import local_quadratic_derivative, smooth_derivative
 
     rng = np.random.default_rng(2)
     t = np.cumsum(rng.uniform(0.0035, 0.0045, 800))

@@ -1,4 +1,4 @@
-"""Tests of ditherlab.replay: the four estimator variants and the estimates file."""
+"""Tests of ditherlab.analysis.estimation: the four estimator variants and the estimates file."""
 
 from __future__ import annotations
 
@@ -9,14 +9,14 @@ import pyarrow.parquet as pq
 import pytest
 from synthetic import BAND_HI, BAND_LO, SIGMA, push_recording
 
-from ditherlab.dither import dither_period, extract_dither, meta_dither_period
-from ditherlab.errors import ConfigError, ModelError
-from ditherlab.estimates import COMPONENTS, SCHEMA, Estimates
+from ditherlab.analysis.estimation import available_variants, replay
+from ditherlab.analysis.identification import identify
+from ditherlab.core.errors import ConfigError, ModelError
+from ditherlab.core.timeseries import runs
+from ditherlab.data.estimates import COMPONENTS, SCHEMA, Estimates
+from ditherlab.data.torque_model import Band, TorqueModel
 from ditherlab.estimator import estimate
-from ditherlab.identify import identify
-from ditherlab.model import Band, TorqueModel
-from ditherlab.replay import available_variants, replay
-from ditherlab.signal import runs
+from ditherlab.physics.dither import dither_period, extract_dither, meta_dither_period
 
 MAGS = (5.0, 15.0, 30.0, 50.0)
 
@@ -261,8 +261,8 @@ def test_cli_replay_and_bad_inputs(tmp_path, cli, recs, model):
 def test_closed_form_noband_intervals_match_general_profile(recs, model):
     """The closed-form intervals of the no-band variants equal the estimator's general profile
     search to 1e-6 N, for all six components and for a subset."""
+    from ditherlab.analysis.estimation import band_as_noise
     from ditherlab.estimator import gaussian_profile_intervals, intervals
-    from ditherlab.replay import band_as_noise
 
     dith = recs[1].slice(0, 30.0)
     r = dith.robot()
@@ -286,12 +286,12 @@ def test_fast_interval_kernels_match_their_references_on_replay_data(recs, model
     """On a replayed dithered recording (every variant's inputs), the fast profile kernel and the
     set-membership LPs give their references' bounds (profile: the per-segment refactorisation,
     1e-9; set membership: linprog on a subset, 1e-7)."""
-    from ditherlab.effects import force_gain
+    from ditherlab.analysis.estimation import model_effects, variant_inputs
+    from ditherlab.data.recording import regimes
     from ditherlab.estimator import estimate, problem, set_membership_reference
     from ditherlab.estimator.intervals.profile import _run_profile, profile_reference
     from ditherlab.estimator.intervals.set_membership import _set_membership
-    from ditherlab.recording import regimes
-    from ditherlab.replay import model_effects, variant_inputs
+    from ditherlab.physics.effects import force_gain
 
     dith = recs[1].slice(0, 60.0)
     r = dith.robot()

@@ -1,4 +1,4 @@
-"""Tests of ditherlab.report and the `ditherlab report` command."""
+"""Tests of ditherlab.output.report_page and the `ditherlab report` command."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from synthetic import push_recording
 
-from ditherlab.estimates import Estimates, EstimatesSource
-from ditherlab.identify import identify
-from ditherlab.replay import replay
-from ditherlab.report import make_report, paper_table, summary_text
-from ditherlab.thresholds import NoPushesError
+from ditherlab.analysis.detection import NoPushesError
+from ditherlab.analysis.estimation import replay
+from ditherlab.analysis.identification import identify
+from ditherlab.data.estimates import Estimates, EstimatesSource
+from ditherlab.output.report_page import make_report, paper_table, summary_text
 
 MAGS = (5.0, 15.0, 30.0, 50.0)
 
@@ -63,7 +63,7 @@ def test_report_files_and_numbers(tmp_path, pair):
 def test_report_reads_the_extraction_replay_wrote(tmp_path, pair, monkeypatch):
     """Fig. 4 takes upper, lower and signal from the estimates file (extract/*_j, written by
     replay) and its period from the file's metadata: the extraction is not redone."""
-    import ditherlab.report as report
+    import ditherlab.output.report_page as report
     from ditherlab.io import write
 
     paths, recs = pair
@@ -152,7 +152,7 @@ def test_cli_report_with_a_missing_recording_writes_nothing(tmp_path, cli, pair)
 def test_fig5_measures_a_sine_dither_as_its_peak(tmp_path, monkeypatch):
     """Fig. 5's measured amplitude uses the recording's waveform: on a sine dither it settles on
     the peak set-point (the loop's target), not on 2/pi of it (a square wave's reading)."""
-    from ditherlab.report import figs
+    from ditherlab.output.report_page import figs
     from ditherlab.sim import simulate
 
     seen = {}
@@ -180,7 +180,7 @@ def test_coverage_at_rest_per_axis(tmp_path, pair):
     sensor force along that axis, and their mean is the per-condition coverage at rest."""
     import pandas as pd
 
-    from ditherlab.thresholds import _pushes_and_rest
+    from ditherlab.analysis.detection import _pushes_and_rest
 
     paths, recs = pair
     out = tmp_path / "rep"

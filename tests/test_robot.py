@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ditherlab.errors import DitherlabWarning, RobotError
+from ditherlab.core.errors import DitherlabWarning, RobotError
 from ditherlab.robot import (
     PAPER_POSE,
     RobotModel,
@@ -622,7 +622,7 @@ def test_unique_configurations_property(pool, picks, tol):
 
 def test_recording_robot_carries_tool_offset_and_payload():
     """Recording.robot() builds the embedded URDF with the metadata's tool offset and payload."""
-    from ditherlab.recording import Recording
+    from ditherlab.data.recording import Recording
 
     N = 5
     q = np.tile([0.3, -0.4], (N, 1))
@@ -772,10 +772,10 @@ TREE = """<?xml version="1.0"?>
     ids=["irb140", "irb140-payload", "ur10e", "panda", "tree"],
 )
 def test_compiled_gravity_and_jacobian_equal_pinocchio(spec, payload):
-    """The compiled gravity torque and tool-point Jacobian (ditherlab.robot.fast) against
+    """The compiled gravity torque and tool-point Jacobian (ditherlab.robot.tree) against
     pinocchio's computeGeneralizedGravity and computeFrameJacobian on the same model, payload
     and tool point: 1e-12 relative, at poses over the whole circle and beyond."""
-    from ditherlab.robot.fast import tree_of
+    from ditherlab.robot.tree import tree_of
 
     robot = RobotModel.from_spec(spec, payload=payload, tool_offset=[0.01, -0.02, 0.15])
     assert tree_of(robot.model, robot._tool_point_id) is not None  # the compiled path is taken
@@ -797,7 +797,7 @@ def test_compiled_gravity_and_jacobian_equal_pinocchio(spec, payload):
 def test_continuous_joint_keeps_pinocchio():
     """A continuous joint (two coordinates in pinocchio) is not compiled: pinocchio's loops
     serve, with the same numbers as the revolute version compiled."""
-    from ditherlab.robot.fast import tree_of
+    from ditherlab.robot.tree import tree_of
 
     cont = RobotModel.from_spec(
         {

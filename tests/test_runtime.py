@@ -1,4 +1,4 @@
-"""The CLI's process settings (ditherlab.runtime)."""
+"""The CLI's process settings (ditherlab.core.runtime)."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import sys
 
 import pytest
 
-from ditherlab.runtime import MMAP_THRESHOLD
+from ditherlab.core.runtime import MMAP_THRESHOLD
 
 CODE = """
 import resource, sys
 import numpy as np
-from ditherlab.runtime import reuse_freed_memory
+from ditherlab.core.runtime import reuse_freed_memory
 ok = reuse_freed_memory() if sys.argv[1] == "1" else True
 n = 20 * 1024 * 1024 // 8  # 20 MB arrays
 a = np.ones(n); del a  # glibc's dynamic threshold rises to 20 MB: later ones come from the heap

@@ -22,8 +22,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import ditherlab.io as dio
+from ditherlab.data.torque_model import Band, TorqueModel
 from ditherlab.io.mcap import write_frames
-from ditherlab.model import Band, TorqueModel
 from ditherlab.robot import builtin_urdf
 from tests.conftest import run_cli
 

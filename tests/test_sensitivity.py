@@ -17,11 +17,7 @@ import pandas as pd
 import pytest
 from conftest import run_cli
 
-from ditherlab.dither import extract_dither
-from ditherlab.errors import ConfigError
-from ditherlab.model import Band, TorqueModel
-from ditherlab.robot import PAPER_POSE, RobotModel
-from ditherlab.robot.sensitivity import (
+from ditherlab.analysis.sensitivity import (
     Bands,
     campaign_states,
     centre_loop_gain,
@@ -32,7 +28,11 @@ from ditherlab.robot.sensitivity import (
     shared_fraction,
     transmission_table,
 )
-from ditherlab.robot.sensitivity_plant import extraction_peak
+from ditherlab.analysis.sensitivity_plant import extraction_peak
+from ditherlab.core.errors import ConfigError
+from ditherlab.data.torque_model import Band, TorqueModel
+from ditherlab.physics.dither import extract_dither
+from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.sim import simulate
 from ditherlab.sim.params import load_params
 

@@ -18,10 +18,10 @@ import pandas as pd
 import pytest
 from conftest import run_cli
 
-from ditherlab.model import Band, TorqueModel
+from ditherlab.analysis.sensitivity import Bands, predict, transmission_table
+from ditherlab.analysis.sensitivity_plant import extraction_peak
+from ditherlab.data.torque_model import Band, TorqueModel
 from ditherlab.robot import PAPER_POSE, RobotModel
-from ditherlab.robot.sensitivity import Bands, predict, transmission_table
-from ditherlab.robot.sensitivity_plant import extraction_peak
 from ditherlab.sim.params import load_params
 
 ROBOT = RobotModel.from_spec("irb140")

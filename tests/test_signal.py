@@ -10,9 +10,9 @@ from scipy.signal import lfilter, savgol_filter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
 
-from ditherlab.effects.sensor import _first_order_lag, rotvec_matrix
-from ditherlab.estimator.core import chi2_1_quantile, normal_quantile
-from ditherlab.signal import savgol
+from ditherlab.core.timeseries import savgol
+from ditherlab.estimator.problem import chi2_1_quantile, normal_quantile
+from ditherlab.physics.effects.sensor import _first_order_lag, rotvec_matrix
 
 
 @pytest.mark.parametrize("shape", [(9,), (50,), (400, 3), (2000, 6)])

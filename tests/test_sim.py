@@ -7,7 +7,7 @@ import functools
 import numpy as np
 import pytest
 
-from ditherlab.errors import ConfigError
+from ditherlab.core.errors import ConfigError
 from ditherlab.sim import simulate
 
 SEED = 3
@@ -394,8 +394,8 @@ def test_cli_cable_pull_is_carried_and_measured(cli, tmp_path):
     it: the logged torque minus gravity is ``J^T F`` within the friction band of the still
     regime (here the mean over the rest after the last push, against ``J^T F`` per joint,
     within the band ±Fs)."""
+    from ditherlab.core.timeseries import jtf
     from ditherlab.io import read
-    from ditherlab.signal import jtf
 
     cfg = tmp_path / "cable.toml"
     cfg.write_text("[environment]\ncable_force = [0.0, 12.0, -20.0]\n")

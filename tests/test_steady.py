@@ -1,4 +1,4 @@
-"""Rest with dither starts once the dither's loops have settled (``ditherlab.steady``).
+"""Rest with dither starts once the dither's loops have settled (``ditherlab.analysis.steady``).
 
 A short dithered push campaign of the built-in simulator with a long still time after the
 dither's ramp (``push_campaign.settle_s`` = 6 s, so the start-up lies in what the report could
@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from conftest import run_cli
 
-from ditherlab.dither import extract_dither
-from ditherlab.estimates import EstimatesSource
+from ditherlab.analysis.steady import SETTLE_SIGMAS, steady_dither
+from ditherlab.data.estimates import EstimatesSource
 from ditherlab.io import read
-from ditherlab.steady import SETTLE_SIGMAS, steady_dither
+from ditherlab.physics.dither import extract_dither
 
 SETTLE_S = 6.0  # still time after the dither's ramp before the first push [s]
 
@@ -98,7 +98,7 @@ def test_every_stretch_leaves_out_its_own_start_up():
     apart differ by 0.1 N·m, within the tolerance) does not hold rest up."""
     import pandas as pd
 
-    from ditherlab.estimates import Estimates
+    from ditherlab.data.estimates import Estimates
 
     dt = 0.004
     t = np.arange(int(40 / dt)) * dt

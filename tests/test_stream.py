@@ -8,15 +8,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ditherlab.dither import extract_dither
-from ditherlab.estimates import Estimates
-from ditherlab.identify import identify
+from ditherlab.analysis.identification import identify
+from ditherlab.core.spill import Spill
+from ditherlab.core.timeseries import causal_mean
+from ditherlab.data.estimates import Estimates
+from ditherlab.data.recording import Recording, regimes
+from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io import read, write
-from ditherlab.io.spill import Spill
 from ditherlab.io.stream import open_source
-from ditherlab.model import TorqueModel
-from ditherlab.recording import Recording, regimes
-from ditherlab.signal import causal_mean
+from ditherlab.physics.dither import extract_dither
 
 
 @pytest.fixture(scope="module")
@@ -312,7 +312,7 @@ def test_cli_report_in_pieces_equals_the_whole(campaign, still_campaign, replaye
     whole (and, for one cut, the in-memory path's)."""
     import json
 
-    from ditherlab.report import make_report
+    from ditherlab.output.report_page import make_report
 
     d, path, _ = campaign
     rec = read(path)
@@ -357,7 +357,7 @@ def test_cli_view_in_pieces_equals_the_whole(campaign, replayed, cli, where, est
     pieces cut at an awkward place: every row of the .rrd read back (all entities, times and
     values, bit for bit) is the one written from the whole log; without the estimates the
     extraction is redone on each piece."""
-    from ditherlab.viz.rrd import rrd_contents, rrd_rows
+    from ditherlab.output.rerun.rrd import rrd_contents, rrd_rows
 
     d, path, model = campaign
     rec = read(path)

@@ -15,8 +15,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from test_io import IRB_JOINTS, write_foreign_bag
 
-from ditherlab.errors import DitherlabWarning, FormatError
-from ditherlab.estimates import Estimates
+from ditherlab.core.errors import DitherlabWarning, FormatError
+from ditherlab.data.estimates import Estimates
 from ditherlab.io import read
 from ditherlab.io import rosbag as bag_io
 from ditherlab.io.stream import open_source

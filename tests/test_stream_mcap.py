@@ -13,8 +13,8 @@ from mcap.reader import SeekingReader
 from mcap.writer import CompressionType, Writer
 from test_stream import _awkward_cuts
 
-from ditherlab.errors import FormatError
-from ditherlab.estimates import Estimates
+from ditherlab.core.errors import FormatError
+from ditherlab.data.estimates import Estimates
 from ditherlab.io import mcap as mcap_io
 from ditherlab.io import read, write
 from ditherlab.io.stream import Source, open_source, write_stream

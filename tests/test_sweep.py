@@ -16,9 +16,9 @@ import pandas as pd
 import pytest
 from conftest import run_cli
 
-from ditherlab.errors import ConfigError
-from ditherlab.fleet.sweep import COLUMNS, RUN_COLUMNS, grid_points, parse_grid, vibration
-from ditherlab.recording import Recording
+from ditherlab.app.sweep import COLUMNS, RUN_COLUMNS, grid_points, parse_grid, vibration
+from ditherlab.core.errors import ConfigError
+from ditherlab.data.recording import Recording
 
 DITHER_KEYS = (
     "amplitude_cap, amplitude_fraction, amplitude_gain, centre_gain, frequency, hold_fraction, "
@@ -306,7 +306,7 @@ def test_small_sweep_is_reproducible_in_the_serial_loop(small_sweep, tmp_path):
 def test_aggregate_means_over_the_runs_that_did_not_fail():
     """A point's row: the mean over its good runs, their standard error, a bound kept only when
     every run had it, the limit on the mean vibration, failures named by seed."""
-    from ditherlab.fleet.sweep import METRICS, aggregate
+    from ditherlab.app.sweep import METRICS, aggregate
 
     def run(point, seed, ok, f50=(np.nan,) * 3, vib=np.nan, bound=("", "", ""), error=""):
         r = dict.fromkeys(METRICS, np.nan)

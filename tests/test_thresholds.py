@@ -1,4 +1,4 @@
-"""Tests of ditherlab.thresholds: push detection and the paper's detection statistics."""
+"""Tests of ditherlab.analysis.detection: push detection and the paper's detection statistics."""
 
 from __future__ import annotations
 
@@ -7,14 +7,14 @@ import pandas as pd
 import pytest
 from synthetic import push_profile
 
-from ditherlab.estimates import COMPONENTS, SCHEMA, Estimates
-from ditherlab.thresholds import (
+from ditherlab.analysis.detection import (
     NoPushesError,
     analyse,
     find_pushes,
     fit_logistic,
     rest_mask,
 )
+from ditherlab.data.estimates import COMPONENTS, SCHEMA, Estimates
 
 RATE = 250.0
 
@@ -149,8 +149,8 @@ def test_rest_with_dither_leaves_out_the_ramps():
     and ends when it last had: the ramp in and out are left out, a dip inside (a joint slipping)
     is kept, a joint that does not dither (its amplitude the noise's spread) is ignored, and a
     file without extraction columns keeps every dithered sample."""
-    from ditherlab.estimates import Estimates, EstimatesSource
-    from ditherlab.steady import steady_dither
+    from ditherlab.analysis.steady import steady_dither
+    from ditherlab.data.estimates import Estimates, EstimatesSource
 
     t = np.arange(2000) / 250.0
     dith = np.ones(2000, dtype=bool)

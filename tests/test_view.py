@@ -1,4 +1,4 @@
-"""Tests of ditherlab.viz (the Rerun view): every check reads the .rrd back with Rerun's reader."""
+"""Tests of ditherlab.output.rerun (the Rerun view): every check reads the .rrd back with Rerun's reader."""
 
 from __future__ import annotations
 
@@ -10,11 +10,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from ditherlab.errors import DitherlabError, FormatError, RecordingError
-from ditherlab.io.atomic import plain
-from ditherlab.recording import FORCE_AXES, WRENCH_COLUMNS, Recording
-from ditherlab.viz import rerun_log as rl
-from ditherlab.viz.diagnosis import load_report, write_report
+from ditherlab.core.errors import DitherlabError, FormatError, RecordingError
+from ditherlab.core.files import plain
+from ditherlab.core.names import FORCE_AXES, WRENCH_COLUMNS
+from ditherlab.data.recording import Recording
+from ditherlab.output.diagnosis_report import load_report, write_report
+from ditherlab.output.rerun import rerun_log as rl
 
 PAPER_POSE = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0])
 FS = 250.0
@@ -243,7 +244,7 @@ def test_model_bands_and_blueprint(campaign, tmp_path):
     """With a model: band edges as given, the residual tau - g - J^T F per joint, and a blueprint."""
     from rerun.chunk import RrdReader
 
-    from ditherlab.model import Band, TorqueModel
+    from ditherlab.data.torque_model import Band, TorqueModel
 
     rec = campaign["rec"]
     model = TorqueModel(
@@ -369,7 +370,7 @@ def test_progress_reaches_total(campaign, tmp_path):
 
 def test_residual_per_model_version_from_history(campaign, tmp_path):
     """Each rebuildable version of the history gets its residual: v2 with ft_bias removes J^T bias."""
-    from ditherlab.model import Band, EffectSpec, TorqueModel
+    from ditherlab.data.torque_model import Band, EffectSpec, TorqueModel
 
     rec = campaign["rec"]
     bias = {"f_x": 2.0, "f_y": -1.0, "f_z": 0.5, "m_x": 0.0, "m_y": 0.0, "m_z": 0.0}
@@ -478,7 +479,7 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
 
 def test_fig4_signal_minus_gravity_and_shrunk_band(campaign, tmp_path):
     """Fig. 4: the extracted signal minus gravity, and the still band shrunk by the amplitude under dither."""
-    from ditherlab.model import Band, TorqueModel
+    from ditherlab.data.torque_model import Band, TorqueModel
 
     rec = campaign["rec"]
     est = rl.load_estimates(campaign["est_path"]).data
@@ -507,8 +508,8 @@ def simulated(tmp_path_factory):
     import warnings
 
     import ditherlab
-    from ditherlab.identify import identify
-    from ditherlab.replay import replay
+    from ditherlab.analysis.estimation import replay
+    from ditherlab.analysis.identification import identify
     from ditherlab.sim import simulate
 
     d = tmp_path_factory.mktemp("sim")
@@ -638,9 +639,9 @@ def test_save_view_files_for_the_demo(simulated):
 
 def test_window_mean_equals_the_extraction_centre(campaign):
     """The fast window mean the view logs as the centre (identify.causal_mean) equals
-    ditherlab.dither.extract's centre (the paper's period mean)."""
-    from ditherlab.dither import extract
-    from ditherlab.signal import causal_mean
+    ditherlab.physics.dither.extract's centre (the paper's period mean)."""
+    from ditherlab.core.timeseries import causal_mean
+    from ditherlab.physics.dither import extract
 
     rec = campaign["rec"]
     ext = extract(rec.tau, rec.t, 2 * np.pi / 80)
@@ -649,10 +650,10 @@ def test_window_mean_equals_the_extraction_centre(campaign):
 
 @pytest.mark.slow
 def test_demo_writes_rrd_and_says_how_to_open(tmp_path, capsys):
-    """`make demo` (ditherlab.demo.main) writes demo.rrd with the estimates and prints `rerun <path>`."""
+    """`make demo` (ditherlab.app.demo.main) writes demo.rrd with the estimates and prints `rerun <path>`."""
     import warnings
 
-    from ditherlab.demo import main
+    from ditherlab.app.demo import main
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -664,7 +665,7 @@ def test_demo_writes_rrd_and_says_how_to_open(tmp_path, capsys):
     assert c["force/z/dither_band"]["Scalars:scalars"] > 1000
     # the residual of the demo's model, whose version is 2 when the identification campaign's
     # dithered pushes identify dither_extraction (v1 otherwise)
-    from ditherlab.model import TorqueModel
+    from ditherlab.data.torque_model import TorqueModel
 
     version = TorqueModel.load(tmp_path / "model.toml").version
     assert f"joints/1/residual/v{version}" in c and "robot/force/dither_band/interval" in c
@@ -672,7 +673,7 @@ def test_demo_writes_rrd_and_says_how_to_open(tmp_path, capsys):
 
 def test_model_of_another_robot_is_refused(campaign, tmp_path, cli):
     """A model identified on another robot gives one line naming both robots and exit 2."""
-    from ditherlab.model import Band, TorqueModel
+    from ditherlab.data.torque_model import Band, TorqueModel
 
     m = TorqueModel(
         robot="ur10e", n=6, regimes={"still": Band(-np.ones(6), np.ones(6), np.ones(6))}
@@ -766,11 +767,11 @@ def test_rerun_cli_verifies_the_file(simulated_view, tmp_path):
 
 
 def test_real_diagnosis_object(simulated, tmp_path):
-    """A Diagnosis from ditherlab.diagnose is logged: one entry per worst window, its joint named."""
+    """A Diagnosis from ditherlab.analysis.diagnosis is logged: one entry per worst window, its joint named."""
     import warnings
 
-    from ditherlab.diagnose import diagnose
-    from ditherlab.model import TorqueModel
+    from ditherlab.analysis.diagnosis import diagnose
+    from ditherlab.data.torque_model import TorqueModel
 
     model = TorqueModel.load(simulated["model_path"])
     rec = simulated["rec"]

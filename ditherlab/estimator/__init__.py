@@ -55,8 +55,8 @@ Layout
     :class:`Solution`; :mod:`.backends` holds ``exact`` (:mod:`.backends.exact`) and the
     references (:mod:`.backends.qp`); :mod:`.intervals` the confidence intervals. The
     functions :func:`problem` and :func:`intervals` re-exported here share their names with
-    those modules, so ``ditherlab.estimator.core`` and ``ditherlab.estimator.intervals``
-    are the functions; reach the modules with ``from ditherlab.estimator.core import ...``
+    those modules, so ``ditherlab.estimator.problem`` and ``ditherlab.estimator.intervals``
+    are the functions; reach the modules with ``from ditherlab.estimator.problem import ...``
     or ``importlib.import_module``.
 """
 
@@ -64,18 +64,9 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from ditherlab.errors import ConfigError
+from ditherlab.core.errors import ConfigError
 from ditherlab.estimator.backends import _available, available_backends
 from ditherlab.estimator.backends.qp import QP_OPTIONS, qp_matrices
-from ditherlab.estimator.core import (
-    CHUNK,
-    COMPONENTS,
-    RIDGE,
-    Problem,
-    Solution,
-    complete,
-    problem,
-)
 from ditherlab.estimator.intervals import INTERVAL_METHODS, intervals
 from ditherlab.estimator.intervals.gaussian import gaussian_profile_intervals
 from ditherlab.estimator.intervals.profile import UNOBSERVABLE
@@ -83,6 +74,15 @@ from ditherlab.estimator.intervals.set_membership import (
     BIG_BOX,
     interval_k,
     set_membership_reference,
+)
+from ditherlab.estimator.problem import (
+    CHUNK,
+    COMPONENTS,
+    RIDGE,
+    Problem,
+    Solution,
+    complete,
+    problem,
 )
 
 __all__ = [

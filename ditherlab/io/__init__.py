@@ -29,11 +29,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ditherlab.errors import ConfigError, FormatError
+from ditherlab.core.errors import ConfigError, FormatError
+from ditherlab.core.files import check_output
+from ditherlab.data.recording import Recording
 from ditherlab.io import csv, mapping
-from ditherlab.io.atomic import check_output
 from ditherlab.io.common import check_units
-from ditherlab.recording import Recording
 
 __all__ = ["read", "write", "convert", "check_recording_output", "detect_format", "FORMATS"]
 
@@ -156,7 +156,7 @@ def write(rec: Recording, path: str | Path, *, format: str | None = None, **opti
 def check_recording_output(
     dst: str | Path, inputs: Sequence[str | Path | None] = (), *, force: bool = False
 ) -> Path:
-    """:func:`ditherlab.io.atomic.check_output` for a recording written by :func:`write`: a
+    """:func:`ditherlab.core.files.check_output` for a recording written by :func:`write`: a
     path without a suffix is a ROS 2 bag folder, replaced as a whole (an existing non-empty one
     only with ``force``, and only when it is a bag); a CSV file brings its sidecar."""
     p = Path(dst)

@@ -8,8 +8,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ditherlab.errors import ConfigError, FormatError
-from ditherlab.recording import (
+from ditherlab.core.errors import ConfigError, FormatError
+from ditherlab.core.schema import MapOf, Table, Text, check
+from ditherlab.data.recording import (
     PAYLOAD_NODE,
     SCHEMA,
     STORED_META_SCHEMA,
@@ -17,7 +18,6 @@ from ditherlab.recording import (
     Recording,
 )
 from ditherlab.robot import RobotModel, resolve_spec
-from ditherlab.schema import MapOf, Table, Text, check
 
 #: Options every reader accepts: they fill in or override the recording's metadata.
 META_OPTIONS = ("robot", "tool_frame", "tool_offset", "payload", "source", "notes")
@@ -138,7 +138,7 @@ def dumps_meta(meta: Mapping[str, Any]) -> str:
 
 def loads_meta(text: str | bytes, where: str) -> dict[str, Any]:
     """Parse a metadata JSON string and check it against the recording's metadata schema
-    (:data:`ditherlab.recording.STORED_META_SCHEMA`: ``schema`` and ``robot`` may come from
+    (:data:`ditherlab.data.recording.STORED_META_SCHEMA`: ``schema`` and ``robot`` may come from
     reader options); FormatError naming ``where`` and the key at the first problem."""
     try:
         meta = json.loads(text)

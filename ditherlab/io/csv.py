@@ -16,8 +16,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import FormatError, one_line
-from ditherlab.io.atomic import atomic_path
+from ditherlab.core.errors import FormatError, one_line
+from ditherlab.core.files import atomic_path
+from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
     META_OPTIONS,
     check_options,
@@ -25,7 +27,6 @@ from ditherlab.io.common import (
     loads_meta,
     meta_from_options,
 )
-from ditherlab.recording import WRENCH_COLUMNS, Recording
 
 OPTIONS = (*META_OPTIONS, "meta")
 #: the recording columns that hold numbers (besides the wrench)

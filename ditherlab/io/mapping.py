@@ -54,17 +54,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import ConfigError, FormatError, one_line
-from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options, robot_spec
-from ditherlab.recording import (
+from ditherlab.core.errors import ConfigError, FormatError, one_line
+from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.core.schema import Either, Flag, Integer, ListOf, MapOf, Number, Table, Text, check
+from ditherlab.data.recording import (
     PAYLOAD_NODE,
     SCHEMA,
     STORED_META_SCHEMA,
     TOOL_OFFSET_NODE,
-    WRENCH_COLUMNS,
     Recording,
 )
-from ditherlab.schema import Either, Flag, Integer, ListOf, MapOf, Number, Table, Text, check
+from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options, robot_spec
 
 MAPPINGS_DIR = Path(__file__).parent / "mappings"
 FAMILY_UNITS: dict[str, dict[str, float]] = {

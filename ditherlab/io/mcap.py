@@ -47,9 +47,11 @@ from mcap.records import Chunk
 from mcap.writer import CompressionType, Writer
 from zstandard import ZstdError
 
-import ditherlab
-from ditherlab.errors import ConfigError, FormatError, one_line
-from ditherlab.io.atomic import atomic_path
+from ditherlab.core.errors import ConfigError, FormatError, one_line
+from ditherlab.core.files import atomic_path
+from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.core.version import __version__
+from ditherlab.data.recording import JOINT_FAMILIES, Recording
 from ditherlab.io.common import (
     META_OPTIONS,
     check_options,
@@ -57,7 +59,6 @@ from ditherlab.io.common import (
     loads_meta,
     meta_from_options,
 )
-from ditherlab.recording import JOINT_FAMILIES, WRENCH_COLUMNS, Recording
 
 PROFILE = "ditherlab"
 FORMAT = "ditherlab.mcap/1"
@@ -249,7 +250,7 @@ def write_frames(
     Parameters
     ----------
     frames : the table's rows in order, in blocks with the same columns and dtypes (a contract
-        checked :class:`~ditherlab.recording.Recording` table: ``t`` (N,) [s], ``q_j`` [rad], ...)
+        checked :class:`~ditherlab.data.recording.Recording` table: ``t`` (N,) [s], ``q_j`` [rad], ...)
     meta : the recording's metadata ; path : the ``.mcap`` file to write
     name : the recording's name (stored, and named in errors; default ``path``)
 
@@ -268,7 +269,7 @@ def write_frames(
         for data in frames:
             if enc is None:
                 enc = _Encoder(data, path, where)
-                w.start(profile=PROFILE, library=f"ditherlab {ditherlab.__version__}")
+                w.start(profile=PROFILE, library=f"ditherlab {__version__}")
                 for topic in enc.topics:
                     schema_name, schema = SCHEMAS[topic]
                     sid = w.register_schema(schema_name, "jsonschema", json.dumps(schema).encode())

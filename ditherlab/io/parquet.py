@@ -10,8 +10,10 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ditherlab.errors import FormatError
-from ditherlab.io.atomic import atomic_path
+from ditherlab.core.errors import FormatError
+from ditherlab.core.files import atomic_path, damaged
+from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
     META_OPTIONS,
     check_options,
@@ -20,7 +22,6 @@ from ditherlab.io.common import (
     meta_from_options,
 )
 from ditherlab.io.csv import NUMERIC
-from ditherlab.recording import WRENCH_COLUMNS, Recording
 
 META_KEY = b"ditherlab"
 #: rows per row group: a reader of pieces (:mod:`ditherlab.io.stream`) decodes one at a time
@@ -45,14 +46,6 @@ def read(path: Path, **options: Any) -> Recording:
     stored = loads_meta(kv[META_KEY], str(path)) if META_KEY in kv else None
     meta = meta_from_options(stored, options, where=str(path))
     return Recording(table.to_pandas(), meta, name=str(path))
-
-
-def damaged(path: Path | str, exc: BaseException) -> FormatError:
-    """The error for a Parquet file pyarrow cannot read: one line, whatever pyarrow's message
-    (a corrupt page's runs over several lines: only its first, trimmed, is kept)."""
-    lines = [x.strip() for x in str(exc).splitlines() if x.strip()]
-    why = lines[0].rstrip(":") if lines else type(exc).__name__
-    return FormatError(f"{path}: not a readable Parquet file, truncated or corrupt ({why})")
 
 
 def check_schema(schema: pa.Schema, path: Path | str) -> None:

@@ -61,8 +61,10 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
-from ditherlab.errors import ConfigError, DitherlabWarning, FormatError, one_line
-from ditherlab.io.atomic import current_umask
+from ditherlab.core.errors import ConfigError, DitherlabWarning, FormatError, one_line
+from ditherlab.core.files import current_umask
+from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
     META_OPTIONS,
     check_options,
@@ -71,7 +73,6 @@ from ditherlab.io.common import (
     meta_from_options,
     urdf_spec,
 )
-from ditherlab.recording import WRENCH_COLUMNS, Recording
 from ditherlab.robot import RobotModel
 
 JOINT_STATE = "sensor_msgs/msg/JointState"

@@ -4,8 +4,8 @@ A :class:`Source` reads a recording's table a batch of rows at a time (Parquet b
 batches, CSV by blocks of lines, ditherlab MCAP by its messages in file order, one chunk
 decompressed at a time, ROS 2 bags message by message after a first pass that keeps only the time
 stamps) and hands it out as overlapping :class:`Piece` s: each piece is a
-:class:`~ditherlab.recording.Recording` of the rows it owns plus ``halo`` rows on either side,
-carrying the whole recording's :class:`~ditherlab.recording.TimeBase` (first time stamp, median
+:class:`~ditherlab.data.recording.Recording` of the rows it owns plus ``halo`` rows on either side,
+carrying the whole recording's :class:`~ditherlab.data.recording.TimeBase` (first time stamp, median
 step, dither period). Every quantity downstream is computed from a bounded neighbourhood of a
 sample (velocity and acceleration filters ≤ 40 ms, the moving mask's 0.1 s window, the dither's
 one-period windows, the regimes), so on the rows a piece owns it gives the whole recording's
@@ -32,10 +32,20 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ditherlab.errors import ConfigError, FormatError, RecordingError, one_line
+from ditherlab.core.errors import ConfigError, FormatError, RecordingError, one_line
+from ditherlab.core.files import atomic_path, damaged
+from ditherlab.core.timeseries import (
+    PERIOD_SAMPLES,
+    period_from_feedforward,
+    period_from_spectrum,
+    runs,
+)
+from ditherlab.data.recording import Recording, TimeBase, meta_dither_period, share_meta
+from ditherlab.data.recording import _check_increasing as check_increasing
+from ditherlab.data.recording import _joint_columns as joint_columns
+from ditherlab.data.recording import _wrench_columns as wrench_columns
 from ditherlab.io import _module, detect_format, read, write
 from ditherlab.io import csv as csv_io
-from ditherlab.io.atomic import atomic_path
 from ditherlab.io.common import (
     META_OPTIONS,
     check_options,
@@ -44,12 +54,7 @@ from ditherlab.io.common import (
     loads_meta,
     meta_from_options,
 )
-from ditherlab.io.parquet import META_KEY, ROW_GROUP, check_schema, damaged, file_metadata
-from ditherlab.recording import Recording, TimeBase, meta_dither_period, share_meta
-from ditherlab.recording import _check_increasing as check_increasing
-from ditherlab.recording import _joint_columns as joint_columns
-from ditherlab.recording import _wrench_columns as wrench_columns
-from ditherlab.signal import PERIOD_SAMPLES, period_from_feedforward, period_from_spectrum, runs
+from ditherlab.io.parquet import META_KEY, ROW_GROUP, check_schema, file_metadata
 
 if TYPE_CHECKING:  # pragma: no cover
     from ditherlab.robot import RobotModel
@@ -258,7 +263,7 @@ class Source:
 
     # ------------------------------------------------------------------ the whole recording
     def timebase(self) -> TimeBase:
-        """The whole recording's :class:`~ditherlab.recording.TimeBase` (read once)."""
+        """The whole recording's :class:`~ditherlab.data.recording.TimeBase` (read once)."""
         if self._timebase is None:
             t = self.times()
             # numpy's warnings on absurd values (1e308 N·m): the pieces' checks report them
@@ -267,7 +272,7 @@ class Source:
         return self._timebase
 
     def _dither_period(self, t: np.ndarray) -> float | None:
-        """:func:`ditherlab.dither.dither_period` of the whole recording, reading only what it
+        """:func:`ditherlab.physics.dither.dither_period` of the whole recording, reading only what it
         needs: the dither flags, the first :data:`PERIOD_SAMPLES` dithered rows of ``tau_ffw``
         or the longest dithered run's first rows of ``tau``."""
         has_flag, has_ffw = "dither" in self.columns, "tau_ffw_1" in self.columns
@@ -308,7 +313,7 @@ class Source:
             return None  # each piece then fails (or finds it) as the whole recording would
 
     def _varies(self, cols: list[str]) -> bool:
-        """Whether any of the columns spans more than 1e-6 (:func:`ditherlab.dither.dither_on`)."""
+        """Whether any of the columns spans more than 1e-6 (:func:`ditherlab.physics.dither.dither_on`)."""
         lo = hi = None
         for f in self.frames(CHUNK_ROWS, cols):
             x = f.to_numpy(dtype=float)

@@ -35,7 +35,7 @@ between threads (they take turns); for parallel work give each process its own (
 Modules: :mod:`~ditherlab.robot.model` (:class:`RobotModel`, :func:`resolve_spec`),
 :mod:`~ditherlab.robot.urdf` (built-in robots, URDF parsing; the URDF files are the package data
 in ``ditherlab/robots``), :mod:`~ditherlab.robot.dedup` (:func:`unique_configurations`),
-:mod:`~ditherlab.robot.kernels` (the pinocchio loops), :mod:`~ditherlab.robot.describe`
+:mod:`~ditherlab.robot.batch` (the pinocchio loops), :mod:`~ditherlab.robot.describe`
 (:meth:`RobotModel.describe`, :func:`format_description`).
 """
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ditherlab.errors import RobotError
+from ditherlab.core.errors import RobotError
 
 __all__ = ["UniqueConfigurations", "unique_configurations"]
 

@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from ditherlab.errors import RobotError, where_prefix
+from ditherlab.core.errors import RobotError, where_prefix
+from ditherlab.robot.batch import compiled_kernels, quantity_kernels, tool_to_joint_params
 from ditherlab.robot.dedup import unique_configurations
 from ditherlab.robot.describe import describe_robot
-from ditherlab.robot.kernels import compiled_kernels, quantity_kernels, tool_to_joint_params
 from ditherlab.robot.poses import PAPER_POSE, check_units, parse_pose
 from ditherlab.robot.urdf import (
     BUILTIN,
@@ -354,7 +354,7 @@ class RobotModel:
         return out
 
     def reference_kernels(self) -> dict[str, tuple[Callable, tuple]]:
-        """Per-quantity loops over pinocchio (:func:`~ditherlab.robot.kernels.quantity_kernels`,
+        """Per-quantity loops over pinocchio (:func:`~ditherlab.robot.batch.quantity_kernels`,
         the reference of the compiled ones): ``name -> (fill(qs (U, nq), out (U, ...)), shape)``."""
         return quantity_kernels(
             self.model,
@@ -417,7 +417,7 @@ class RobotModel:
         reference : bool
             Every quantity with pinocchio's own functions (:meth:`reference_kernels`; the
             simulator's ground truth), without deduplication; by default gravity and the
-            Jacobian come from the compiled kernels of :mod:`ditherlab.robot.fast` (within
+            Jacobian come from the compiled kernels of :mod:`ditherlab.robot.tree` (within
             1e-12 relative of pinocchio's) when the robot's joints allow.
         progress : callable(done, total), optional
             Called with the number of distinct configurations evaluated so far.

@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 
-from ditherlab.errors import DitherlabWarning, RobotError, where_prefix
+from ditherlab.core.errors import DitherlabWarning, RobotError, where_prefix
 
 __all__ = ["PAPER_POSE", "check_units", "outside_limits", "parse_pose"]
 

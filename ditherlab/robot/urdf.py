@@ -1,7 +1,7 @@
 """URDF robots: the built-in ones, parsing URDF text into a pinocchio model, guessing the tool
 frame, and checking a payload.
 
-The built-in robots' URDF files live in the data folder ``ditherlab/robots`` (package data).
+The built-in robots' URDF files live in the data folder ``ditherlab/robot/descriptions`` (package data).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from ditherlab.errors import RobotError
+from ditherlab.core.errors import RobotError
 
 __all__ = [
     "BUILTIN",
@@ -31,7 +31,7 @@ __all__ = [
     "unknown_robot",
 ]
 
-#: Built-in robots: name -> (URDF file in ditherlab/robots, tool frame).
+#: Built-in robots: name -> (URDF file in ditherlab/robot/descriptions, tool frame).
 BUILTIN: dict[str, tuple[str, str]] = {
     "irb140": ("irb140.urdf", "tool0"),
     "panda": ("panda.urdf", "panda_hand_tcp"),
@@ -52,7 +52,7 @@ def builtin_urdf(name: str) -> str:
     if name not in BUILTIN:
         raise RobotError(unknown_robot(name, ""))
     fname = BUILTIN[name][0]
-    return (Path(__file__).parent.parent / "robots" / fname).read_text(encoding="utf-8")
+    return (Path(__file__).parent / "descriptions" / fname).read_text(encoding="utf-8")
 
 
 def unknown_robot(name: Any, where: str) -> str:

@@ -13,14 +13,14 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from ditherlab.errors import ConfigError
-from ditherlab.recording import Recording
+from ditherlab.core.errors import ConfigError
+from ditherlab.data.recording import Recording
 from ditherlab.robot import RobotModel
 from ditherlab.sim import scenarios as sc
 from ditherlab.sim.engine import Engine
 from ditherlab.sim.excitation import excitation
+from ditherlab.sim.guidance import lead_through
 from ditherlab.sim.hidden import EFFECTS, parse_hidden
-from ditherlab.sim.leadthrough import lead_through
 from ditherlab.sim.params import joint_array, load_params
 
 __all__ = ["simulate", "SCENARIOS", "EFFECTS"]

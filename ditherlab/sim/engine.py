@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.dither import PEAK_FACTOR, WAVEFORMS
-from ditherlab.linalg import spd_inverse
+from ditherlab.core.linalg import spd_inverse
+from ditherlab.physics.dither import PEAK_FACTOR, WAVEFORMS
 from ditherlab.sim import plant as K
 from ditherlab.sim.params import joint_array
 

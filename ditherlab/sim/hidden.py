@@ -3,7 +3,7 @@
 Each effect is written in the plant's own physical terms (a friction factor from a warming
 joint, a cogging torque on the motor rotor, a mass on the flange, a compliant support that
 carries part of the push, ...), never with the functions that diagnosis later fits
-(``ditherlab.effects`` is not imported here, and this module is not part of the effect library).
+(``ditherlab.physics.effects`` is not imported here, and this module is not part of the effect library).
 The truth of every injected effect goes into ``meta["sim"]["hidden"]``.
 
 | name | SIZE | plant physics |
@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.errors import ConfigError
-from ditherlab.linalg import vector_norm
+from ditherlab.core.errors import ConfigError
+from ditherlab.core.linalg import vector_norm
 
 #: Name -> unit of SIZE.
 EFFECTS: dict[str, str] = {

@@ -5,7 +5,7 @@ The merged parameters are a nested dict with the same tables and keys as ``irb14
 run writes it whole into ``meta["sim"]["params"]``. A config is checked against
 :func:`config_schema`, derived from the defaults: a key that the defaults do not have, a value
 of another kind than the default's, a list of another length or a number out of the key's range
-is a :class:`~ditherlab.errors.ConfigError` naming the file and the key
+is a :class:`~ditherlab.core.errors.ConfigError` naming the file and the key
 (``cfg.toml: servo.kp: got '30'; expected a number >= 0``).
 """
 
@@ -21,14 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.dither import WAVEFORMS
-from ditherlab.errors import ConfigError
+from ditherlab.core.errors import ConfigError
+from ditherlab.core.schema import Either, Flag, Integer, ListOf, Node, Number, Table, Text, check
 from ditherlab.estimator import INTERVAL_METHODS
-from ditherlab.schema import Either, Flag, Integer, ListOf, Node, Number, Table, Text, check
+from ditherlab.physics.dither import WAVEFORMS
 
 DEFAULTS_FILE = "irb140.toml"
 
-#: The lead-through's admittance laws (ditherlab.sim.leadthrough): the paper's 10 N dead zone on
+#: The lead-through's admittance laws (ditherlab.sim.guidance): the paper's 10 N dead zone on
 #: the estimate's magnitude, or its §V alternative driven by the confidence interval.
 LEAD_THROUGH_LAWS = ("dead-zone", "interval")
 #: The push campaign's orders (ditherlab.sim.scenarios): every push of every direction

@@ -107,7 +107,7 @@ N_JP = 25
     SP_VSTILL,
 ) = range(15)
 N_SP = 15
-#: ``sp[SP_WAVE]`` of each waveform (:data:`ditherlab.dither.WAVEFORMS`, in that order)
+#: ``sp[SP_WAVE]`` of each waveform (:data:`ditherlab.physics.dither.WAVEFORMS`, in that order)
 WAVE_SQUARE, WAVE_SINE, WAVE_TRIANGLE = range(3)
 # rows of the continuous state ``x`` (shape (N_X, n))
 (
@@ -228,7 +228,7 @@ def _ripple(amp, freq, qm):
 
 @njit(cache=True, inline="always")
 def _dither_wave(omega, clock, shape):
-    """The unit-peak dither waveform at the dither clock (:func:`ditherlab.dither.wave`):
+    """The unit-peak dither waveform at the dither clock (:func:`ditherlab.physics.dither.wave`):
     square +1 while ``sin(omega clock) >= 0``, else -1; sine; triangle ``(2/pi) asin(sin)``."""
     s = math.sin(omega * clock)
     if shape == WAVE_SQUARE:

@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.recording import FORCE_AXES, Recording
+from ditherlab.core.names import FORCE_AXES
+from ditherlab.data.recording import Recording
 from ditherlab.sim.engine import Engine, Inputs, PlantExtras
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
 from ditherlab.sim.params import joint_array

@@ -160,12 +160,12 @@ PRELOAD = (
     "ditherlab.io.parquet",
     "ditherlab.io.mcap",
     "ditherlab.io.rosbag",
-    "ditherlab.io.info",
-    "ditherlab.loop",
-    "ditherlab.identify",
-    "ditherlab.replay",
-    "ditherlab.report",
-    "ditherlab.viz.rerun_log",
+    "ditherlab.analysis.overview",
+    "ditherlab.app.loop",
+    "ditherlab.analysis.identification",
+    "ditherlab.analysis.estimation",
+    "ditherlab.output.report_page",
+    "ditherlab.output.rerun.rerun_log",
 )
 
 

@@ -58,9 +58,9 @@ def prepare_base(root: Path, simulate: bool = True) -> Base:
     done = root / ".ready"
     if not done.exists():
         import ditherlab.io as dio
-        from ditherlab.identify import identify
-        from ditherlab.recording import Recording
-        from ditherlab.replay import replay_file
+        from ditherlab.analysis.estimation import replay_file
+        from ditherlab.analysis.identification import identify
+        from ditherlab.data.recording import Recording
 
         if simulate:
             args = ("push-campaign", "-o", "push.parquet", "--pushes-per-direction", 1, "-q")

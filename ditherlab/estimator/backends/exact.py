@@ -9,8 +9,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.core import Problem, _chunks
-from ditherlab.estimator.kernels import _cost, _dist, _sides
+from ditherlab.estimator.piecewise import _cost, _dist, _sides
+from ditherlab.estimator.problem import Problem, _chunks
 
 
 @njit(cache=True)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ditherlab.errors import ConfigError
-from ditherlab.estimator.core import Problem
+from ditherlab.core.errors import ConfigError
+from ditherlab.estimator.problem import Problem
 
 
 def qp_matrices(prob: Problem, k: int) -> tuple[np.ndarray, ...]:

@@ -40,11 +40,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ditherlab.errors import ConfigError
+from ditherlab.core.errors import ConfigError
 from ditherlab.estimator.backends.exact import _solve_exact
-from ditherlab.estimator.core import Problem, problem
 from ditherlab.estimator.intervals.profile import _profile
 from ditherlab.estimator.intervals.set_membership import _set_membership
+from ditherlab.estimator.problem import Problem, problem
 
 INTERVAL_METHODS = ("set_membership", "profile")
 
@@ -113,7 +113,7 @@ def problem_intervals(
     level: float = 0.95,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`intervals` of a prepared :class:`~ditherlab.estimator.core.Problem` (built once
+    """:func:`intervals` of a prepared :class:`~ditherlab.estimator.problem.Problem` (built once
     and shared with :func:`~ditherlab.estimator.solve`); ``F_hat (N, 6)`` as there."""
     _check(method, level)
     N, m = prob.N, prob.m

@@ -1,5 +1,5 @@
 """Profile-likelihood intervals in closed form for zero-width bands (the no-band variants of
-:mod:`ditherlab.replay`): one Cholesky factorisation per sample (numba) instead of the general
+:mod:`ditherlab.analysis.estimation`): one Cholesky factorisation per sample (numba) instead of the general
 path search.
 """
 
@@ -12,8 +12,8 @@ import numpy as np
 from numba import njit
 
 from ditherlab.estimator.backends.exact import _newton_piece, _solve_exact
-from ditherlab.estimator.core import Problem, chi2_1_quantile, complete, problem
 from ditherlab.estimator.intervals import problem_intervals
+from ditherlab.estimator.problem import Problem, chi2_1_quantile, complete, problem
 
 #: A Cholesky pivot below this fraction of its diagonal entry (``H`` near singular in that
 #: direction: the normal equations' relative error grows as 1 / pivot) sends the sample to the

@@ -15,8 +15,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.core import Problem, _chunks, chi2_1_quantile
-from ditherlab.estimator.kernels import _cost, _dist, _givens_row, _sides
+from ditherlab.estimator.piecewise import _cost, _dist, _givens_row, _sides
+from ditherlab.estimator.problem import Problem, _chunks, chi2_1_quantile
 
 #: Intervals whose half-width exceeds this many "information units" are reported as infinite.
 UNOBSERVABLE = 1e5

@@ -10,9 +10,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ditherlab.errors import ConfigError
-from ditherlab.estimator.core import Problem, _chunks, normal_quantile
+from ditherlab.core.errors import ConfigError
 from ditherlab.estimator.intervals.sm_square import square_block, square_state
+from ditherlab.estimator.problem import Problem, _chunks, normal_quantile
 
 #: Half-width [N, N·m] of the artificial box of the set-membership LP for prior-less components.
 BIG_BOX = 1e9

@@ -1,0 +1,592 @@
+"""Replay the force estimator of eq. (3) over a recording, in up to four variants side by side.
+
+Variants (each only where the recording allows it):
+
+``nodither_band``
+    The paper's estimator [10]: ``tau_bar = tau - gravity - effects_torque`` with the ``still``
+    band (``moving`` band centred on ``coulomb·sign(dq) + viscous·dq`` where a joint moves).
+``nodither_noband``
+    The same without the uniform term: ``tau_f`` is fixed at the band centre and the band's
+    variance ``(b - a)^2 / 12`` is added to ``sigma^2`` (§IV-C).
+``dither_band``
+    Needs a ``dither`` column or ``tau_ffw``. Where a joint stands still with the dither on, the
+    torque signal is first extracted (§IV-A: per dither period the means of the samples above
+    and below the period mean, averaged; :func:`extract_dither`), and the band is the model's
+    ``dither`` band — identified on that same extracted signal (:mod:`ditherlab.analysis.identification`). A
+    model without a ``dither`` band falls back to the paper's rule: the ``still`` band shrunk by
+    the extracted dither amplitude on each side (Fig. 4). Samples without dither (before the
+    ramp, while moving, the first dither period) are treated as in ``nodither_band``.
+``dither_noband``
+    ``dither_band`` without the uniform term, as in the paper's Fig. 6 (right column).
+
+The result is an :class:`Estimates` table in the estimates format (brief: Parquet with ``t``,
+the sensor columns and ``dither`` copied, per variant ``V/f_x .. V/m_z``, ``V/<c>_lo``,
+``V/<c>_hi``, ``V/active`` as a joint bitmask; for dither variants ``extract/upper_j``,
+``extract/lower_j``, ``extract/signal_j``; key-value metadata ``ditherlab`` = JSON).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ditherlab.core.errors import ConfigError
+from ditherlab.core.files import check_not_input, plain
+from ditherlab.core.names import DITHER, MOVING
+from ditherlab.core.timeseries import causal_mean, time_spans
+from ditherlab.data.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates, EstimatesWriter
+from ditherlab.data.recording import Recording, regimes
+from ditherlab.data.torque_model import TorqueModel
+from ditherlab.estimator import problem, solve
+from ditherlab.estimator.intervals import problem_intervals
+from ditherlab.estimator.intervals.gaussian import (
+    gaussian_problem_estimate,
+    gaussian_problem_intervals,
+)
+from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
+from ditherlab.physics.dither import Extraction, dithered_band, extract_dither
+from ditherlab.physics.dither import band_as_noise as band_variance_as_noise
+from ditherlab.physics.effects import effects_torque, force_gain, release
+from ditherlab.physics.effects.extraction import extraction_gain
+
+INTERVAL_METHODS = ("profile", "set_membership")
+#: ``--components`` shorthands.
+COMPONENT_SETS = {"all": COMPONENTS, "fxyz": COMPONENTS[:3], "force": COMPONENTS[:3]}
+
+
+# ------------------------------------------------------------------------------- replay
+def parse_components(spec: str | Sequence[str] | None) -> list[str]:
+    """``"all"``, ``"fxyz"``/``"force"``, or a comma list such as ``"f_x,f_z"`` -> names."""
+    if spec is None:
+        return list(COMPONENTS)
+    if isinstance(spec, str):
+        if spec in COMPONENT_SETS:
+            return list(COMPONENT_SETS[spec])
+        spec = [s.strip() for s in spec.split(",") if s.strip()]
+    out = []
+    for c in spec:
+        if c not in COMPONENTS:
+            raise ConfigError(
+                f"component {c!r} is unknown; expected all, fxyz, or a comma list of "
+                f"{', '.join(COMPONENTS)}"
+            )
+        out.append(c)
+    return [c for c in COMPONENTS if c in out]
+
+
+def available_variants(rec: Recording) -> list[str]:
+    """The variants a recording allows: dither variants need a dither flag or ``tau_ffw``."""
+    out = ["nodither_band", "nodither_noband"]
+    if rec.timebase is not None:  # a piece: what the whole recording allows
+        on = rec.timebase.dither_period is not None
+    else:
+        on = rec.dither if rec.dither is not None else (None if rec.tau_ffw is None else True)
+    if on is not None and np.any(on):
+        out += ["dither_band", "dither_noband"]
+    return out
+
+
+def model_effects(model: TorqueModel | None, rec: Recording) -> np.ndarray:
+    """The model's effects torque (:func:`ditherlab.physics.effects.effects_torque`), (N, n) [N·m],
+    computed without the F/T sensor (the estimator is sensorless); zeros without a model or
+    without effects."""
+    if model is None or not model.effects:
+        return np.zeros((len(rec), rec.n))
+    return effects_torque(model, rec, sensor=False)
+
+
+def band_as_noise(
+    lo: np.ndarray, hi: np.ndarray, sig: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Drop the uniform term: band -> its centre, its variance ``(b - a)^2 / 12`` into the noise
+    (:func:`ditherlab.physics.dither.band_as_noise`).
+
+    Parameters
+    ----------
+    lo, hi, sig : (N, n) [N·m]
+
+    Returns
+    -------
+    (centre, centre, sqrt(sig^2 + (hi - lo)^2 / 12)), each (N, n) [N·m]
+    """
+    c = 0.5 * (lo + hi)
+    return c, c.copy(), band_variance_as_noise(lo, hi, sig)
+
+
+def replay(
+    rec: Recording,
+    model: TorqueModel,
+    *,
+    variants: Sequence[str] | None = None,
+    level: float = 0.95,
+    interval: str = "profile",
+    components: str | Sequence[str] | None = None,
+    backend: str = "exact",
+    q_tol: float = 0.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> Estimates:
+    """Run the estimator variants over a recording.
+
+    Parameters
+    ----------
+    rec : Recording (``N`` samples, ``n`` joints)
+    model : TorqueModel of the same robot (``still`` band required; ``moving``, ``dither`` used
+        when present)
+    variants : subset of :data:`VARIANTS` (default: all the recording allows)
+    level : interval confidence level in (0, 1)
+    interval : ``"profile"`` or ``"set_membership"`` (:func:`ditherlab.estimator.intervals`)
+    components : estimated wrench components (``"all"``, ``"fxyz"``, or names); the rest are held
+        at the prior mean
+    backend : estimator backend (``"exact"``; the QP references are for tests)
+    q_tol : [rad] configuration quantisation for gravity/Jacobian (0 = exact; see
+        :meth:`ditherlab.robot.RobotModel.gravity`)
+    progress : ``progress(done, total)`` callback
+
+    Returns
+    -------
+    Estimates
+
+    Raises
+    ------
+    ModelError
+        The model is for another robot, or lacks the ``still`` band.
+    ConfigError
+        Unknown variant, component or interval method, or a level outside (0, 1); a dither
+        variant requested for a recording without dither.
+    """
+    cols, meta = replay_columns(
+        rec, model, variants=variants, level=level, interval=interval, components=components,
+        backend=backend, q_tol=q_tol, progress=progress,
+    )  # fmt: skip
+    return Estimates(pd.DataFrame(cols), plain(meta), name=None)
+
+
+def replay_columns(
+    rec: Recording,
+    model: TorqueModel,
+    *,
+    variants: Sequence[str] | None = None,
+    level: float = 0.95,
+    interval: str = "profile",
+    components: str | Sequence[str] | None = None,
+    backend: str = "exact",
+    q_tol: float = 0.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """What :func:`replay` computes, as the estimates file's columns (each (N,), in file order)
+    and its metadata before :func:`~ditherlab.core.files.plain` (``recording`` is ``rec.meta``
+    itself): :func:`replay_stream` writes the columns straight to Parquet without a DataFrame
+    and converts the metadata of its first piece only. Parameters and errors as
+    :func:`replay`."""
+    model.check_robot(rec)
+    model.validate()
+    comps = parse_components(components)
+    variants = _check_options(rec, variants, interval, level)
+    steps = 2 + 2 * len(variants)
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress:
+            progress(done, steps)
+
+    robot = rec.robot()
+    # one deduplication pass for both (a whole hour is too large for the robot's cache)
+    g, J = robot.gravity_jacobian(rec.q, tol=q_tol)
+    # the log's drive gains scale the pushes' torque too (drive_gain): J^T row j times k_j
+    J *= force_gain(model)[None, None, :]
+    eff = model_effects(model, rec)
+    reg = regimes(rec)
+    model.band("still")  # the estimator needs it: a clear error without
+    base = (rec.tau - g - eff, *model.sample_bands(reg, rec.dq))
+    tick()
+    ext = extract_dither(rec) if any(v.startswith("dither") for v in variants) else None
+    w_ext = max(int(round(ext.period * rec.sample_rate)), 1) if ext is not None else 1
+    dq_mean = causal_mean(rec.dq, w_ext) if ext is not None else None
+    tick()
+
+    def columns(X: np.ndarray) -> np.ndarray:  # (N, k) -> k contiguous (N,) columns
+        return np.ascontiguousarray(X.T)
+
+    cols: dict[str, np.ndarray] = {"t": rec.t}
+    if rec.has_wrench:
+        w = columns(rec.wrench)
+        for k, c in enumerate(COMPONENTS):
+            cols[c] = w[k]
+    if rec.dither is not None:
+        cols["dither"] = rec.dither
+    bits = (1 << np.arange(rec.n)).astype(np.int64)
+    for v in variants:
+        tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext, dq_mean)
+        Jv = J
+        if v.startswith("dither"):
+            Jv = extraction_jacobian(J, model, reg, ext)
+            tb = extraction_lead(tb, model, reg, ext, w_ext)
+        # one validated problem for the estimate and its intervals
+        prob = problem(tb, Jv, a, b, s, model.prior_mean, model.prior_sigma, comps)
+        closed = interval == "profile" and v.endswith("noband")  # zero-width bands
+        if closed and backend == "exact":  # the estimate and its interval, one factorisation
+            F, active, ilo, ihi = gaussian_problem_estimate(prob, level=level)
+            tick()
+        else:
+            sol = solve(prob, backend)
+            F, active = sol.F, sol.active
+            tick()
+            if closed:
+                ilo, ihi = gaussian_problem_intervals(prob, F, level=level)
+            else:
+                ilo, ihi = problem_intervals(prob, F, method=interval, level=level)
+        tick()
+        for suffix, X in (("", F), ("_lo", ilo), ("_hi", ihi)):
+            Xc = columns(X)
+            for k, c in enumerate(COMPONENTS):
+                cols[f"{v}/{c}{suffix}"] = Xc[k]
+        cols[f"{v}/active"] = np.asarray(active, dtype=np.int64) @ bits
+    if ext is not None:
+        up, low, sig = columns(ext.upper), columns(ext.lower), columns(ext.signal)
+        for j in range(rec.n):
+            cols[f"extract/upper_{j + 1}"] = up[j]
+            cols[f"extract/lower_{j + 1}"] = low[j]
+            cols[f"extract/signal_{j + 1}"] = sig[j]
+    meta = {
+        "schema": SCHEMA,
+        "recording": rec.meta,
+        "recording_name": rec.name,
+        "model": model.to_dict(),
+        "n_joints": rec.n,
+        "variants": list(variants),
+        "interval": {"method": interval, "level": float(level)},
+        "components": comps,
+    }
+    if ext is not None:
+        meta["dither_period"] = ext.period
+    meta["moving_spans"] = time_spans(rec.t, (reg == MOVING).any(axis=1))
+    return cols, meta
+
+
+def _check_options(
+    rec: Recording, variants: Sequence[str] | None, interval: str, level: float
+) -> list[str]:
+    """The variants to run, in file order; ConfigError for an unknown or impossible option."""
+    if interval not in INTERVAL_METHODS:
+        raise ConfigError(
+            f"interval method {interval!r} is unknown; expected one of {', '.join(INTERVAL_METHODS)}"
+        )
+    if not 0.0 < float(level) < 1.0:
+        raise ConfigError(f"interval level is {level!r}, expected a number between 0 and 1")
+    allowed = available_variants(rec)
+    if variants is None:
+        variants = allowed
+    for v in variants:
+        if v not in VARIANTS:
+            raise ConfigError(f"variant {v!r} is unknown; expected one of {', '.join(VARIANTS)}")
+        if v not in allowed:
+            raise ConfigError(
+                f"{rec.name or 'recording'}: variant {v} needs a dither column or tau_ffw, "
+                "and this recording has neither (or the dither is never on)"
+            )
+    return [v for v in VARIANTS if v in variants]
+
+
+def variant_inputs(
+    variant: str,
+    base: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    model: TorqueModel,
+    reg: np.ndarray,
+    g: np.ndarray,
+    eff: np.ndarray,
+    ext: Extraction | None,
+    dq_mean: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The estimator's inputs of one variant: ``tau_bar``, band edges and noise per sample.
+
+    ``tau_bar = tau - gravity - effects`` with the model's per-sample bands
+    (:meth:`ditherlab.data.torque_model.TorqueModel.sample_bands`); a dither variant takes the extracted
+    signal and the dither band (or the still band shrunk by the dither amplitude) where a joint
+    stands still with the dither on over a whole window; a no-band variant moves the band into
+    the noise (:func:`band_as_noise`).
+
+    Parameters
+    ----------
+    variant : one of :data:`VARIANTS`
+    base : ``tau - gravity - effects`` and the model's per-sample band and noise, each (N, n)
+    reg : (N, n) regimes ; g, eff : (N, n) [N·m] gravity and the model's effects
+    ext : the recording's dither extraction (None without dither)
+    dq_mean : (N, n) [rad/s] joint velocities averaged over the last dither period: with them, a
+        dither variant also reads the extracted signal where a joint moves with the dither on
+        over a whole window (it creeps under a push: the raw torque there carries the dither's
+        square wave, up to the band), with the moving band about the sliding line at this
+        velocity (the dither's own vibration averaged out)
+
+    Returns
+    -------
+    tau_bar, tau_min, tau_max, sigma : each (N, n) [N·m]
+    """
+    tau_bar, lo, hi, sig = base
+    tb, a, b, s = base
+    if variant.startswith("dither") and ext is not None:
+        use = (reg == DITHER) & ext.valid[:, None]
+        tb = np.where(use, ext.signal - g - eff, tau_bar)
+        if "dither" in model.regimes:
+            db = model.regimes["dither"]
+            a = np.where(use, db.tau_min, lo)
+            b = np.where(use, db.tau_max, hi)
+            s = np.where(use, db.sigma, sig)
+        else:
+            a, b = dithered_band(lo, hi, ext.amplitude, on=use)
+        if dq_mean is not None and "moving" in model.regimes:
+            creep = (reg == MOVING) & (ext.valid & ext.on)[:, None]
+            if creep.any():
+                mb = model.regimes["moving"]
+                slide = mb.sliding(dq_mean)
+                tb = np.where(creep, ext.signal - g - eff, tb)
+                a = np.where(creep, mb.tau_min + slide, a)
+                b = np.where(creep, mb.tau_max + slide, b)
+                s = np.where(creep, mb.sigma, s)
+    if variant.endswith("noband"):
+        a, b, s = band_as_noise(a, b, s)
+    return tb, a, b, s
+
+
+def reads_extraction(reg: np.ndarray, ext: Extraction) -> np.ndarray:
+    """(N, n) bool: where a dither variant reads the extracted signal of a joint: the dither on
+    over a whole window, the joint in the dither regime or creeping under a push (``reg``
+    (N, n) regimes)."""
+    return ((reg == DITHER) | (reg == MOVING)) & (ext.valid & ext.on)[:, None]
+
+
+def extraction_jacobian(
+    J: np.ndarray, model: TorqueModel, reg: np.ndarray, ext: Extraction | None
+) -> np.ndarray:
+    """``J`` (N, 6, n) with joint j's row scaled by the model's ``dither_extraction`` gain
+    where a dither variant reads the extracted signal of that joint (the dither on over a whole
+    window, the joint in the dither regime or creeping under a push): the extracted signal shows
+    ``gain`` of the push's torque there (:mod:`ditherlab.physics.effects.extraction`). ``J`` itself
+    without the effect or without dither."""
+    gain = extraction_gain(model.effects, J.shape[2])
+    if gain is None or ext is None:
+        return J
+    use = reads_extraction(reg, ext)
+    scale = np.where(use, gain[None, :], 1.0)  # (N, n)
+    return J * scale[:, None, :]
+
+
+def extraction_lead(
+    tb: np.ndarray, model: TorqueModel, reg: np.ndarray, ext: Extraction | None, window: int
+) -> np.ndarray:
+    """The torque a dither variant reads, moved forward by the extraction's delay on the
+    joints the model's ``dither_extraction`` names, where the dither is on over whole windows.
+
+    The extracted signal is the mean of the last ``window`` samples, through the effect's
+    first-order lag of ``lag_j`` samples: it shows joint j's push torque of
+    ``d_j = (window - 1) / 2 + lag_j`` samples ago. For a first-order lag ``x = y + T dy/dt``;
+    the causal extrapolation ``y(t) + d_j / k (y(t) - y(t - k))`` (``k`` = half a window, the
+    shortest difference the window's ripple allows) reads it at ``t`` again. Friction held
+    still does not change ``y``: at rest only the noise of the difference is added.
+
+    Parameters
+    ----------
+    tb : (N, n) [N·m] the variant's torque ``tau_bar`` ; reg : (N, n) regimes
+    ext : the recording's extraction ; window : samples per dither period
+
+    Returns
+    -------
+    (N, n) [N·m]: ``tb`` moved (``tb`` itself when nothing applies)
+    """
+    lags = extraction_gain(model.effects, model.n, "lag")
+    if ext is None or lags is None:
+        return tb
+    named = sorted(
+        {jj - 1 for s in model.effects if s.name == "dither_extraction" for jj in s.joints}
+    )
+    k = max((window - 1) // 2, 1)
+    if len(tb) <= k:
+        return tb
+    use = reads_extraction(reg, ext)
+    use[k:] &= use[:-k]  # the older sample also read through a whole window
+    use[:k] = False
+    out = tb.copy()
+    for j in named:
+        d = (window - 1) / 2 + lags[j]
+        step = np.zeros(len(tb))
+        step[k:] = (tb[k:, j] - tb[:-k, j]) * (d / k)
+        out[:, j] = np.where(use[:, j], tb[:, j] + step, tb[:, j])
+    return out
+
+
+__all__ = [
+    "COMPONENTS",
+    "Estimates",
+    "Replayed",
+    "Tally",
+    "VARIANTS",
+    "available_variants",
+    "band_as_noise",
+    "describe",
+    "extraction_jacobian",
+    "extraction_lead",
+    "model_effects",
+    "parse_components",
+    "replay",
+    "replay_file",
+    "replay_stream",
+    "variant_inputs",
+]
+
+
+def replay_file(
+    path: str | Path,
+    model_path: str | Path,
+    out: str | Path,
+    *,
+    read_options: dict | None = None,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Callable[[int, int], None] | None = None,
+    **options: Any,
+) -> Replayed:
+    """Read a recording and a model, :func:`replay` it piece by piece (:func:`replay_stream`),
+    and save the estimates (atomic, never over an input). ``options`` are those of
+    :func:`replay`."""
+    check_not_input(out, [path, model_path])
+    model = TorqueModel.load(model_path)
+    src = open_source(path, **(read_options or {}))
+    return replay_stream(src, model, out, chunk_rows=chunk_rows, progress=progress, **options)
+
+
+def replay_stream(
+    src: Source,
+    model: TorqueModel,
+    out: str | Path,
+    *,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Callable[[int, int], None] | None = None,
+    **options: Any,
+) -> Replayed:
+    """:func:`replay` over a recording read in pieces (:class:`ditherlab.io.stream.Source`),
+    writing the estimates file as it goes: memory holds one piece, whatever the length.
+
+    Every piece is replayed with its 2 s of context on either side and keeps the rows it owns;
+    the file equals ``replay(src.read(), model, **options).save(out)`` (tested on logs cut inside
+    a dither period, a push and a stick). ``moving_spans`` are joined across pieces.
+
+    Parameters
+    ----------
+    src : the recording ; model : as for :func:`replay` ; out : the estimates file to write
+    chunk_rows : rows per piece (:data:`ditherlab.io.stream.CHUNK_ROWS`)
+    progress : ``progress(done, total)`` over the pieces
+    **options : those of :func:`replay` (not ``progress``)
+
+    Returns
+    -------
+    Replayed: the file, its metadata and the force error / coverage tally
+    """
+    spans: list[list[float]] = []
+    meta: dict[str, Any] | None = None
+    last = None
+    tally = Tally()
+    with EstimatesWriter(out) as writer:
+        for piece in src.pieces(chunk_rows):
+            cols, pmeta = replay_columns(piece.rec, model, **options)
+            rows = {k: v[piece.keep] for k, v in cols.items()}
+            writer.write(rows)
+            tally.add_columns(rows, pmeta["variants"])
+            t = rows["t"]
+            for a, b in pmeta["moving_spans"]:
+                a, b = max(a, t[0]), min(b, t[-1])
+                if a > b:
+                    continue
+                if spans and a == t[0] and spans[-1][1] == last:
+                    spans[-1][1] = b  # a motion across the cut continues
+                else:
+                    spans.append([a, b])
+            last = float(t[-1])
+            if meta is None:  # the recording's own is the source's, converted once below
+                meta = plain({**pmeta, "recording": None})
+            if piece.count > 1:  # a piece of a long log: its robot quantities go now
+                release(piece.rec)
+            if progress:
+                progress(piece.index + 1, piece.count)
+        assert meta is not None
+        meta = {**meta, "recording": plain(src.meta), "recording_name": src.name}
+        meta["moving_spans"] = spans
+        writer.meta = meta
+    return Replayed(Path(out), meta, tally)
+
+
+@dataclass
+class Replayed:
+    """What :func:`replay_stream` wrote: the estimates file, its metadata, and the running
+    force error / coverage over all its rows (:class:`Tally`)."""
+
+    path: Path
+    meta: dict[str, Any]
+    tally: Tally
+
+    @property
+    def variants(self) -> list[str]:
+        return list(self.meta["variants"])
+
+
+class Tally:
+    """Running force error and interval coverage against the F/T sensor, per variant, over
+    pieces of estimates (what :func:`describe` prints)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.variants: list[str] = []
+        self.sse: dict[str, np.ndarray] = {}
+        self.covered: dict[str, int] = {}
+
+    def add(self, est: Estimates) -> None:
+        """Count the rows of ``est`` (a whole file or one piece of it)."""
+        self.add_columns(est.data, est.variants)
+
+    def add_columns(self, cols: Mapping[str, Any], variants: Sequence[str]) -> None:
+        """Count rows given as the estimates file's columns (a DataFrame or a dict of (N,)
+        arrays) of the estimator ``variants``."""
+        self.variants = list(variants)
+        self.n += len(cols["t"])
+        if "f_x" not in cols:
+            return
+
+        def stack(names: list[str]) -> np.ndarray:
+            return np.stack([np.asarray(cols[c], dtype=float) for c in names], axis=1)
+
+        F = stack(list(COMPONENTS[:3]))
+        for v in variants:
+            Fh = stack([f"{v}/{c}" for c in COMPONENTS[:3]])
+            lo = stack([f"{v}/{c}_lo" for c in COMPONENTS[:3]])
+            hi = stack([f"{v}/{c}_hi" for c in COMPONENTS[:3]])
+            self.sse[v] = self.sse.get(v, 0.0) + ((Fh - F) ** 2).sum(axis=0)
+            self.covered[v] = self.covered.get(v, 0) + int(((lo <= F) & (F <= hi)).sum())
+
+
+def describe(est: Estimates | Replayed) -> str:
+    """A few lines: samples, variants, interval method, and per variant the force RMS error and
+    interval coverage against the F/T sensor when it is there (over the whole file for what
+    :func:`replay_stream` wrote)."""
+    if isinstance(est, Replayed):
+        tally = est.tally
+    else:
+        tally = Tally()
+        tally.add(est)
+    lines = [
+        f"{tally.n} samples, variants: {', '.join(est.variants)}; intervals "
+        f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
+    ]
+    for v in est.variants:
+        if v not in tally.sse:
+            continue
+        rms = np.sqrt(tally.sse[v] / max(tally.n, 1))
+        cov = tally.covered[v] / max(3 * tally.n, 1)
+        lines.append(
+            f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
+            f" interval coverage {cov:.1%}"
+        )
+    return "\n".join(lines)

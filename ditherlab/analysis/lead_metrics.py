@@ -1,0 +1,343 @@
+"""Lead-through quality from a recording of the simulator's lead-through (paper §V), and the
+comparison of its two admittance laws (``lead_through.law``: the 10 N dead zone, or the
+confidence interval) on the same operator pushes.
+
+Everything is measured on the tool point, from the logged joint angles through the robot's
+forward kinematics, against the operator's true push (rebuilt exactly from the plan in
+``meta["sim"]["operator"]`` by :func:`ditherlab.sim.guidance.operator_push`):
+
+path          per push (onset to the next onset, so the coast after the release counts): the
+              displacement along the pushed direction ``along`` [mm], the displacement across it
+              ``off_axis`` [mm], and ``along`` as a share of the *intended* displacement, the one
+              the same admittance would give driven by the true push (no estimate, no dead zone):
+              ``admittance * integral(P . d) dt``.
+jerk          RMS and 99th percentile of ``|d^3 x / dt^3|`` [m/s^3] of the tool point after a
+              centred moving average over one dither period applied twice (the dither's 80 rad/s
+              vibration, ~1e-4 arm rad, would otherwise dominate a third derivative: it is felt as
+              a hum, not as jerky motion); over the whole run from ``SETTLE_S`` to two smoothing
+              widths before the end.
+false motion  path length of the tool point [mm] while the operator does not push, from
+              ``REST_AFTER_S`` after each release (the commanded motion has died out by then:
+              the smoothing's time constant is 0.3 s) to the next onset; and during the rise of
+              each push while it is below the dead zone (the dead-zone law cannot move there; the
+              interval law may, and whether that is *false* depends on the operator's intent).
+force steps   the force that drives the admittance, rebuilt from the logged estimate (dead zone)
+              or interval (interval law): the 99th percentile and the maximum of its change
+              between two controller updates ``|dP_cmd|`` [N] (the paper's §V worry: the
+              interval narrows when the robot starts to move, so the force jumps).
+delay         per push, the time from the onset until the tool moves at more than
+              ``DELAY_SPEED`` along the pushed direction [s] (NaN when it never does).
+coverage      with the interval law's ``flo_x..z, fhi_x..z``: the share of samples whose true
+              push lies inside the interval the controller acted on, per axis, at rest and
+              while pushing, the mean width [N], and the share of samples whose interval is
+              empty (NaN: the set membership found no force consistent with the data; the
+              interval law then commands 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from ditherlab.core.errors import ConfigError
+from ditherlab.data.recording import Recording
+from ditherlab.sim import simulate
+from ditherlab.sim.guidance import EDGE_S, interval_command, operator_push
+from ditherlab.sim.params import LEAD_THROUGH_LAWS
+
+#: Start of the measured span: the first second settles and ramps the dither on [s].
+SETTLE_S = 1.5
+#: Rest (false motion) is counted from this long after a release [s].
+REST_AFTER_S = 1.5
+#: Tool speed along the push that counts as a response [m/s].
+DELAY_SPEED = 0.005
+AXES = "xyz"
+
+
+def _smooth(x: np.ndarray, width: int) -> np.ndarray:
+    """Centred moving average of ``x (N, 3)`` over ``width`` samples, applied twice (edges:
+    the mean of the samples available)."""
+    if width <= 1:
+        return x.copy()
+    k = np.ones(width)
+    out = x
+    for _ in range(2):
+        num = np.stack([np.convolve(out[:, i], k, mode="same") for i in range(out.shape[1])], 1)
+        den = np.convolve(np.ones(len(out)), k, mode="same")[:, None]
+        out = num / den
+    return out
+
+
+def _nanmean(values: Iterable[float]) -> float:
+    """The mean of the finite values; NaN (without numpy's warning) when there is none."""
+    v = np.asarray(list(values), dtype=float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if len(v) else float("nan")
+
+
+def _lead_meta(rec: Recording, name: str) -> dict[str, Any]:
+    sim = rec.meta.get("sim") or {}
+    if sim.get("scenario") != "lead-through" or "operator" not in sim:
+        raise ConfigError(
+            f"{name}: not a lead-through simulation (meta.sim.scenario is "
+            f"{sim.get('scenario')!r}); expected a recording of `ditherlab simulate lead-through`"
+        )
+    return sim
+
+
+def tool_path(rec: Recording) -> np.ndarray:
+    """The tool point's position ``(N, 3)`` [m, base axes] from the logged joint angles."""
+    return rec.robot().evaluate(rec.q, ["tool_pose"])["tool_pose"][:, :3, 3]
+
+
+def lead_metrics(rec: Recording, name: str = "recording") -> dict[str, Any]:
+    """The lead-through metrics of one recording (module docstring for their definitions).
+
+    Parameters
+    ----------
+    rec : a recording of the simulator's lead-through (``meta["sim"]["operator"]`` present)
+    name : how errors name it
+
+    Returns
+    -------
+    dict
+        ``pushes``: per push ``direction``, ``magnitude`` [N], ``along_mm``, ``off_axis_mm``,
+        ``intended_mm``, ``along_share`` [-], ``delay_s``; ``summary``: ``along_share``,
+        ``off_axis_mm`` and ``delay_s`` (means over the pushes), ``jerk_rms``, ``jerk_p99``
+        [m/s^3], ``rest_path_mm``, ``rest_s``, ``sub_dead_zone_path_mm``, ``fhat_rms_error``,
+        ``cmd_step_p99``, ``cmd_step_max`` [N]
+        and, with interval columns, ``coverage``, ``coverage_rest``, ``coverage_push``,
+        ``width_mean`` [N], ``empty_share``; ``law``, ``dither``, ``seed``.
+
+    Raises
+    ------
+    ConfigError
+        The recording is not a lead-through simulation.
+    """
+    sim = _lead_meta(rec, name)
+    lt = sim["params"]["lead_through"]
+    segs = sim["operator"]
+    t = rec.t
+    dt = rec.dt
+    push = operator_push(t, segs)
+    omega = float(sim["params"]["dither"]["frequency"])
+    width = max(1, round(2 * np.pi / omega / dt))
+    x = _smooth(tool_path(rec), width)
+    v = np.gradient(x, dt, axis=0)
+    jerk = np.gradient(np.gradient(v, dt, axis=0), dt, axis=0)
+    span = t >= t[0] + SETTLE_S
+    # the smoothing's partial windows at the ends would read as jerk: leave two widths out
+    jn = np.linalg.norm(jerk[span & (np.arange(len(t)) < len(t) - 2 * width)], axis=1)
+
+    onsets = [float(s["t0"]) for s in segs] + [float(t[-1]) + dt]
+    pushes = []
+    for i, s in enumerate(segs):
+        d = np.asarray(s["direction"], dtype=float)
+        a = int(np.searchsorted(t, onsets[i]))
+        b = min(int(np.searchsorted(t, onsets[i + 1])), len(t) - 1)
+        dx = x[b] - x[a]
+        along = float(dx @ d)
+        off = float(np.linalg.norm(dx - along * d))
+        intended = float(lt["admittance"] * np.sum(push[a:b] @ d) * dt)
+        moving = np.nonzero(v[a:b] @ d > DELAY_SPEED)[0]
+        pushes.append(
+            {
+                "direction": [float(c) for c in d],
+                "magnitude": float(s["magnitude"]),
+                "along_mm": 1e3 * along,
+                "off_axis_mm": 1e3 * off,
+                "intended_mm": 1e3 * intended,
+                "along_share": along / intended if intended > 0 else float("nan"),
+                "delay_s": float(moving[0] * dt) if len(moving) else float("nan"),
+            }
+        )
+
+    # rest: no push, from REST_AFTER_S after each release (and after SETTLE_S at the start)
+    pnorm = np.linalg.norm(push, axis=1)
+    rest = span & (pnorm == 0)
+    for s in segs:
+        end = s["t0"] + 2 * EDGE_S + s["flat"]
+        rest &= ~((t > s["t0"]) & (t < end + REST_AFTER_S))
+    step = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    both = rest[1:] & rest[:-1]
+    rest_path = float(step[both].sum())
+    # the rise of each push while below the dead zone
+    rise = np.zeros(len(t), dtype=bool)
+    for s in segs:
+        rise |= (t >= s["t0"]) & (t <= s["t0"] + EDGE_S) & (pnorm < lt["dead_zone"])
+    sub_path = float(step[rise[1:] & rise[:-1]].sum())
+
+    fhat = np.column_stack([rec.data[f"fhat_{a}"].to_numpy(float) for a in AXES])
+    cols = [f"flo_{a}" for a in AXES] + [f"fhi_{a}" for a in AXES]
+    bounds = all(c in rec.data.columns for c in cols)
+    if bounds:
+        lo = np.column_stack([rec.data[f"flo_{a}"].to_numpy(float) for a in AXES])
+        hi = np.column_stack([rec.data[f"fhi_{a}"].to_numpy(float) for a in AXES])
+        cmd = interval_command(lo, hi)
+    else:
+        mag = np.linalg.norm(fhat, axis=1, keepdims=True)
+        beyond = np.maximum(mag - lt["dead_zone"], 0.0)
+        cmd = np.where(mag > 0, beyond * fhat / np.where(mag > 0, mag, 1.0), 0.0)
+    steps = np.linalg.norm(np.diff(cmd, axis=0), axis=1)[span[1:]]
+    steps = steps[steps > 0]  # the updates that changed the command
+    summary: dict[str, Any] = {
+        "along_share": _nanmean(p["along_share"] for p in pushes),
+        "off_axis_mm": float(np.mean([p["off_axis_mm"] for p in pushes])),
+        "delay_s": _nanmean(p["delay_s"] for p in pushes),
+        "missed_pushes": int(sum(np.isnan(p["delay_s"]) for p in pushes)),
+        "jerk_rms": float(np.sqrt(np.mean(jn**2))),
+        "jerk_p99": float(np.percentile(jn, 99)),
+        "rest_path_mm": 1e3 * rest_path,
+        "rest_s": float(rest.sum() * dt),
+        "sub_dead_zone_path_mm": 1e3 * sub_path,
+        "fhat_rms_error": float(np.sqrt(np.mean(np.sum((fhat - push)[span] ** 2, axis=1)))),
+        "cmd_step_p99": float(np.percentile(steps, 99)) if len(steps) else 0.0,
+        "cmd_step_max": float(steps.max()) if len(steps) else 0.0,
+    }
+    if bounds:
+        inside = (lo <= push) & (push <= hi)  # NaN bounds count as a miss
+        pushing = span & (pnorm > 0)
+        summary["coverage"] = [float(c) for c in inside[span].mean(0)]
+        summary["coverage_rest"] = [float(c) for c in inside[rest].mean(0)]
+        summary["coverage_push"] = [float(c) for c in inside[pushing].mean(0)]
+        summary["empty_share"] = float(np.isnan(hi - lo).any(axis=1)[span].mean())
+        width_ok = np.isfinite(hi - lo)[span]
+        summary["width_mean"] = [
+            float((hi - lo)[span][width_ok[:, i], i].mean()) if width_ok[:, i].any() else np.nan
+            for i in range(3)
+        ]
+    return {
+        "law": lt.get("law", "dead-zone"),
+        "dither": bool(sim.get("dither", False)),
+        "seed": int(sim.get("seed", 0)),
+        "pushes": pushes,
+        "summary": summary,
+    }
+
+
+#: The summary metrics the comparison averages over seeds: (key, header, format, better).
+COMPARED = (
+    ("along_share", "along / intended", "{:.2f}", "closer to 1"),
+    ("off_axis_mm", "off-axis [mm]", "{:.1f}", "lower"),
+    ("delay_s", "delay [s]", "{:.2f}", "lower"),
+    ("jerk_rms", "jerk RMS [m/s³]", "{:.3f}", "lower"),
+    ("jerk_p99", "jerk p99 [m/s³]", "{:.3f}", "lower"),
+    ("rest_path_mm", "rest motion [mm]", "{:.2f}", "lower"),
+    ("sub_dead_zone_path_mm", "motion < dead zone [mm]", "{:.2f}", "see text"),
+    ("cmd_step_p99", "force step p99 [N]", "{:.1f}", "lower"),
+    ("cmd_step_max", "force step max [N]", "{:.1f}", "lower"),
+    ("fhat_rms_error", "F̂ RMS error [N]", "{:.1f}", "lower"),
+)
+
+
+def compare_laws(
+    seeds: Sequence[int],
+    dithers: Iterable[bool] = (True, False),
+    *,
+    config: Any = None,
+    laws: Sequence[str] = LEAD_THROUGH_LAWS,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Simulate the lead-through with each law on the same operator pushes (same seeds) and
+    measure each run with :func:`lead_metrics`.
+
+    Parameters
+    ----------
+    seeds : simulator seeds (each seed fixes the push magnitudes and the noise)
+    dithers : with and/or without dither
+    config : simulator config (TOML path or dict) every run starts from; its
+        ``lead_through.law`` is overridden per run
+    laws : the laws compared
+    progress : ``progress(done, total)`` over the runs
+
+    Returns
+    -------
+    dict
+        ``runs``: every run's :func:`lead_metrics` (without the per-push lists' arrays);
+        ``means``: per ``(law, dither)`` the mean of each :data:`COMPARED` metric over the
+        seeds (and of the coverage lists); ``seeds``, ``laws``, ``dithers``.
+    """
+    dithers = list(dithers)
+    for law in laws:
+        if law not in LEAD_THROUGH_LAWS:
+            raise ConfigError(
+                f"law {law!r} is unknown; expected one of {', '.join(LEAD_THROUGH_LAWS)}"
+            )
+    total = len(seeds) * len(dithers) * len(laws)
+    runs: list[dict[str, Any]] = []
+    paths: dict[str, Any] = {}
+    for dither in dithers:
+        for seed in seeds:
+            for law in laws:
+                rec = simulate(
+                    "lead-through",
+                    seed=int(seed),
+                    dither=dither,
+                    config=config,
+                    law=law,
+                )
+                m = lead_metrics(rec)
+                runs.append(m)
+                if seed == seeds[0]:
+                    paths[f"{law}|{dither}"] = _path_trace(rec)
+                if progress is not None:
+                    progress(len(runs), total)
+    means = []
+    for dither in dithers:
+        for law in laws:
+            sel = [r["summary"] for r in runs if r["law"] == law and r["dither"] == dither]
+            row: dict[str, Any] = {"law": law, "dither": dither, "runs": len(sel)}
+            for key, *_ in COMPARED:
+                row[key] = _nanmean(s[key] for s in sel)
+            row["missed_pushes"] = int(sum(s["missed_pushes"] for s in sel))
+            if sel and "empty_share" in sel[0]:
+                row["empty_share"] = _nanmean(s["empty_share"] for s in sel)
+            for key in ("coverage", "coverage_rest", "coverage_push", "width_mean"):
+                if sel and key in sel[0]:
+                    row[key] = [float(c) for c in np.mean([s[key] for s in sel], 0)]
+            means.append(row)
+    return {
+        "seeds": [int(s) for s in seeds],
+        "laws": list(laws),
+        "dithers": dithers,
+        "runs": runs,
+        "means": means,
+        "paths": paths,
+    }
+
+
+def _path_trace(rec: Recording, every: int = 5) -> dict[str, list[float]]:
+    """Down-sampled tool displacement and true push of one run, for the figure: ``t`` [s],
+    ``x`` (N, 3) [mm] from the start, ``intended`` (N, 3) [mm] (the admittance driven by the true
+    push), ``push`` (N, 3) [N], ``fhat`` (N, 3) [N]."""
+    sim = rec.meta["sim"]
+    x = tool_path(rec)
+    sl = slice(None, None, every)
+    fhat = np.column_stack([rec.data[f"fhat_{a}"].to_numpy(float) for a in AXES])
+    push = operator_push(rec.t, sim["operator"])
+    intended = sim["params"]["lead_through"]["admittance"] * np.cumsum(push, axis=0) * rec.dt
+    return {
+        "t": rec.t[sl].tolist(),
+        "x": (1e3 * (x - x[0]))[sl].tolist(),
+        "intended": (1e3 * intended)[sl].tolist(),
+        "push": push[sl].tolist(),
+        "fhat": fhat[sl].tolist(),
+    }
+
+
+def means_table(result: Mapping[str, Any]) -> str:
+    """The comparison's means as a Markdown table, one row per (dither, law)."""
+    head = ["dither", "law"] + [h for _, h, _, _ in COMPARED] + ["missed", "coverage x/y/z (empty)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in result["means"]:
+        cells = ["on" if row["dither"] else "off", row["law"]]
+        cells += [fmt.format(row[key]) for key, _, fmt, _ in COMPARED]
+        cells.append(str(row["missed_pushes"]))
+        cov = row.get("coverage")
+        cells.append(
+            "/".join(f"{c:.2f}" for c in cov) + f" ({row['empty_share']:.2f})" if cov else "–"
+        )
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)

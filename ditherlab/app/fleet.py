@@ -1,0 +1,259 @@
+"""Many recordings of many robots at once, on Dask distributed (``ditherlab fleet``).
+
+:func:`run_fleet` resolves the inputs (files, folders, glob patterns, or a manifest CSV with
+``file, robot, date, notes``), runs :func:`ditherlab.analysis.fleet_job.analyse_recording` on each as one
+Dask task (:func:`ditherlab.core.tasks.run_tasks`: a LocalCluster in this process by default),
+and writes, atomically, into the output folder:
+
+- ``fleet.parquet``: one row per recording, regime and joint (:data:`ditherlab.analysis.fleet_job.COLUMNS`);
+- ``fleet.json`` and ``fleet.md``: the fleet report (:mod:`ditherlab.analysis.fleet_summary`), failures
+  included;
+- ``models/<robot>__<file stem>.toml``: each recording's identified model.
+
+One recording's failure is reported in the summary; the others go on.
+"""
+
+from __future__ import annotations
+
+import glob
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from ditherlab.analysis.fleet_job import COLUMNS, analyse_recording
+from ditherlab.analysis.fleet_summary import summarise, to_markdown
+from ditherlab.core.errors import ConfigError, DitherlabError
+from ditherlab.core.files import atomic_path, atomic_write_json, atomic_write_text, check_output
+from ditherlab.core.tasks import TaskResult, run_tasks
+from ditherlab.data.recording import robot_label
+from ditherlab.data.torque_model import TorqueModel
+from ditherlab.io import csv as csv_io
+from ditherlab.io.stream import Source
+
+__all__ = ["collect_inputs", "read_manifest", "run_fleet"]
+
+#: file suffixes taken from a folder (ROS 2 bag folders are taken whole)
+SUFFIXES = (".parquet", ".pq", ".csv", ".mcap", ".db3")
+
+
+def _is_bag(p: Path) -> bool:
+    """A ROS 2 bag folder (``metadata.yaml`` or ``.db3`` storage inside). Narrower than
+    :func:`ditherlab.io.detect_format`, which also takes a folder holding ``.mcap`` files for a
+    bag: here such a folder is searched and each ``.mcap`` read on its own (a folder of
+    recordings)."""
+    return p.is_dir() and ((p / "metadata.yaml").is_file() or any(p.glob("*.db3")))
+
+
+def _from_folder(folder: Path) -> list[Path]:
+    out: list[Path] = []
+    for p in sorted(folder.iterdir()):
+        if p.name.startswith("."):
+            continue
+        if _is_bag(p):
+            out.append(p)
+        elif p.is_dir():
+            out.extend(_from_folder(p))
+        elif p.suffix.lower() in SUFFIXES:
+            out.append(p)
+    return out
+
+
+def read_manifest(path: str | Path) -> list[tuple[Path, dict[str, Any]]]:
+    """``(file, {"robot", "date", "notes"})`` per row of a manifest CSV.
+
+    Columns: ``file`` (required; relative paths are taken from the manifest's folder),
+    ``robot``, ``date`` (any date pandas parses; stored as ``YYYY-MM-DD``), ``notes``.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: no such manifest file")
+    try:
+        m = pd.read_csv(p, dtype=str, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: not a manifest CSV ({str(exc).splitlines()[0]})") from None
+    if "file" not in m.columns:
+        raise ConfigError(
+            f"{p}: column 'file' is missing (found {', '.join(m.columns) or 'none'}); expected "
+            "file, and optionally robot, date, notes"
+        )
+    out = []
+    for i, r in m.iterrows():
+        f = Path(r["file"])
+        f = f if f.is_absolute() else p.parent / f
+        if not f.exists():
+            raise ConfigError(
+                f"{p}: row {i + 2}, column 'file' is {r['file']!r}: no such file or folder"
+                + (f" ({f})" if str(f) != r["file"] else "")
+                + "; expected a recording"
+            )
+        date = r.get("date", "") or None
+        if date is not None:
+            try:
+                date = pd.Timestamp(date).date().isoformat()
+            except ValueError:
+                raise ConfigError(
+                    f"{p}: row {i + 2}, column 'date' is {r['date']!r}; expected a date such "
+                    "as 2026-11-24"
+                ) from None
+        out.append(
+            (f, {"robot": r.get("robot", "") or None, "date": date, "notes": r.get("notes", "")})
+        )
+    return out
+
+
+def collect_inputs(
+    inputs: Sequence[str | Path], manifest: str | Path | None = None
+) -> list[tuple[Path, dict[str, Any]]]:
+    """The recordings to analyse: files, folders (searched recursively; ROS 2 bag folders whole),
+    glob patterns (``'logs/**/*.parquet'``) and a manifest; each file once, in the order given."""
+    found: list[tuple[Path, dict[str, Any]]] = list(read_manifest(manifest)) if manifest else []
+    for item in inputs:
+        s = str(item)
+        if any(c in s for c in "*?["):
+            hits = sorted(Path(h) for h in glob.glob(s, recursive=True))
+            if not hits:
+                raise ConfigError(f"{s}: the pattern matches no file")
+            paths = []
+            for h in hits:
+                paths.extend([h] if (h.is_file() or _is_bag(h)) else _from_folder(h))
+        else:
+            p = Path(s)
+            if not p.exists():
+                raise ConfigError(f"{p}: no such file or folder")
+            paths = [p] if (p.is_file() or _is_bag(p)) else _from_folder(p)
+            if not paths:
+                raise ConfigError(
+                    f"{p}: a folder without recordings (expected {', '.join(SUFFIXES)} files or "
+                    "ROS 2 bag folders)"
+                )
+        found.extend((q, {"robot": None, "date": None, "notes": ""}) for q in paths)
+    seen: set[Path] = set()
+    out = []
+    for p, info in found:
+        key = p.resolve()
+        if key not in seen:
+            seen.add(key)
+            out.append((p, info))
+    if not out:
+        raise ConfigError("fleet: no recordings given (files, folders, patterns or --manifest)")
+    return out
+
+
+def _check_robots(
+    items: list[tuple[Path, dict[str, Any]]], model: TorqueModel, read: dict[str, Any]
+) -> None:
+    """One model for the whole fleet: every recording must be of its robot. Checked before any
+    task runs, on the recordings whose metadata is read without their samples (Parquet, CSV,
+    ditherlab MCAP); bags, mapped logs and unreadable files are checked (or reported) in their
+    task."""
+    for p, _ in items:
+        suffix = p.suffix.lower()
+        if "mapping" in read or _is_bag(p) or suffix not in (".parquet", ".csv", ".mcap"):
+            continue
+        try:  # a CSV's sidecar alone (a Source would read its `t` column too)
+            meta = csv_io.read_meta(p, read) if suffix == ".csv" else Source(p, **read).meta
+            spec = meta.get("robot")
+        except DitherlabError:
+            continue  # its task reports what is wrong with it
+        if spec is not None and not model.same_robot(spec):
+            raise ConfigError(
+                f"{p}: the recording's robot is {robot_label(spec)} but the model "
+                f"{model.source or ''} is for {robot_label(model.robot)}; one model serves one "
+                "robot: run the fleet once per robot, or without --model".replace("  ", " ")
+            )
+
+
+def _model_name(robot: str, path: Path) -> str:
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in f"{robot}__{path.stem}")
+    return f"{safe}.toml"
+
+
+def run_fleet(
+    inputs: Sequence[str | Path],
+    out_dir: str | Path,
+    *,
+    manifest: str | Path | None = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    base: str | Path | None = None,
+    assume_no_force: bool = False,
+    n_boot: int = 0,
+    thresholds: bool = True,
+    seed: int = 0,
+    read_options: dict[str, Any] | None = None,
+    force: bool = False,
+    progress: bool = False,
+    on_result: Callable[[TaskResult], None] | None = None,
+) -> dict[str, Any]:
+    """Analyse every recording as a Dask task and write the fleet table and report.
+
+    Parameters
+    ----------
+    inputs : files, folders or glob patterns
+    out_dir : output folder (created; must not be, contain or lie in an input; an existing
+        non-empty folder only with ``force``)
+    manifest : CSV with ``file, robot, date, notes`` (robot ids and dates for drift)
+    scheduler : None (LocalCluster here, one worker per core), ``"serial"`` or ``tcp://HOST:PORT``
+    workers : LocalCluster workers
+    base : a model file every recording starts from (its effects kept, its bands re-fitted)
+    assume_no_force, n_boot, seed : as in ``ditherlab identify``
+    thresholds : replay the estimator on recordings with pushes for F50 / F90 per axis
+    read_options : ``mapping`` / ``robot`` for foreign logs
+    progress : Dask's progress bar on stderr
+    on_result : called as each recording finishes
+
+    Returns
+    -------
+    The summary (``fleet.json``'s content) with ``"table"``: the written Parquet path.
+    """
+    items = collect_inputs(inputs, manifest)
+    out = Path(out_dir)
+    extra = [Path(manifest)] if manifest else []
+    if base is not None:
+        extra.append(Path(base))
+    check_output(out, [p for p, _ in items] + extra, folder=True, force=force)
+    base_text = None
+    if base is not None:
+        b = Path(base)
+        if not b.is_file():
+            raise ConfigError(f"{b}: no such model file")
+        base_text = b.read_text(encoding="utf-8")
+        _check_robots(items, TorqueModel.load(b), dict(read_options or {}))
+    options = {
+        "read": dict(read_options or {}),
+        "base": base_text,
+        "base_name": str(base) if base is not None else None,
+        "assume_no_force": assume_no_force,
+        "n_boot": n_boot,
+        "seed": seed,
+        "thresholds": thresholds,
+    }
+    tasks = [(str(p), (str(p), info, options)) for p, info in items]
+    results = run_tasks(
+        analyse_recording,
+        tasks,
+        scheduler=scheduler,
+        workers=workers,
+        progress=progress,
+        on_result=on_result,
+    )
+    rows: list[dict[str, Any]] = []
+    failures = []
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "models").mkdir(exist_ok=True)
+    for r, (p, _) in zip(results, items, strict=True):
+        if not r.ok:
+            failures.append({"file": str(p), "error": r.error})
+            continue
+        rows.extend(r.value["rows"])
+        robot = r.value["rows"][0]["robot"] if r.value["rows"] else p.stem
+        atomic_write_text(out / "models" / _model_name(robot, p), r.value["model"])
+    table = pd.DataFrame(rows, columns=COLUMNS)
+    with atomic_path(out / "fleet.parquet") as tmp:
+        table.to_parquet(tmp, index=False)
+    s = summarise(table, failures)
+    atomic_write_json(out / "fleet.json", s)
+    atomic_write_text(out / "fleet.md", to_markdown(s))
+    return {**s, "table": str(out / "fleet.parquet")}

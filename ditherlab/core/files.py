@@ -1,0 +1,243 @@
+"""Atomic output: write to a temporary file beside the target, then rename over it.
+
+A crash never leaves half a file, and no command may write over one of its inputs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ditherlab.core.errors import ConfigError, DitherlabError, FormatError
+
+#: the files a path brings along: a CSV file's metadata sidecar ``<stem>.json``
+#: (:func:`ditherlab.io.csv.sidecar_path`, which this layer cannot import)
+_COMPANION_SUFFIX = {".csv": ".json"}
+
+
+def companions(path: str | Path) -> list[Path]:
+    """``path`` and the files read or written with it (a CSV file's sidecar ``<stem>.json``)."""
+    p = Path(path)
+    side = _COMPANION_SUFFIX.get(p.suffix.lower())
+    return [p] + ([p.with_suffix(side)] if side else [])
+
+
+def _is_bag(folder: Path) -> bool:
+    """True when ``folder`` is a ROS 2 bag folder (it holds ``metadata.yaml``)."""
+    return (folder / "metadata.yaml").is_file()
+
+
+def _same(a: Path, b: Path) -> bool:
+    if a.resolve() == b.resolve():
+        return True
+    if a.exists() and b.exists():
+        with contextlib.suppress(OSError):
+            return os.path.samefile(a, b)
+    return False
+
+
+def check_not_input(out: str | Path, inputs: Iterable[str | Path | None]) -> None:
+    """Raise ConfigError when ``out`` (or a CSV output's sidecar) is, lies inside or
+    contains one of ``inputs`` (files or folders; a CSV input brings its sidecar, a ROS 2 bag's
+    storage file its bag folder). The input part of :func:`check_output`."""
+    for o in companions(out):
+        ro = o.resolve()
+        for given in inputs:
+            if given is None:
+                continue
+            for p in companions(given):
+                note = "" if p == Path(given) else f" (the sidecar of {given})"
+                if p.is_file() and _is_bag(p.parent):  # a bag's storage file: the bag folder
+                    p, note = p.parent, f" (the ROS 2 bag of {given})"
+                what = f"{'folder' if p.is_dir() else 'file'} {p}{note}"
+                rp = p.resolve()
+                if _same(o, p):
+                    raise ConfigError(f"{o}: refusing to write over the input {what}")
+                if p.is_dir() and ro.is_relative_to(rp):
+                    raise ConfigError(f"{o}: refusing to write inside the input {what}")
+                if rp.is_relative_to(ro):
+                    raise ConfigError(
+                        f"{o}: refusing to write a folder that holds the input {what}"
+                    )
+
+
+def _writable_ancestor(path: Path) -> None:
+    """Raise ConfigError unless the nearest existing ancestor of ``path`` is a folder this
+    process may create files in (``path`` named in the message)."""
+    a = path.parent
+    while not a.exists() and a != a.parent:
+        a = a.parent
+    if not a.is_dir():
+        raise ConfigError(f"{path}: cannot write there: {a} is a file, not a folder")
+    if not os.access(a, os.W_OK | os.X_OK):
+        why = "permission denied"
+        with contextlib.suppress(OSError):
+            if os.statvfs(a).f_flag & os.ST_RDONLY:
+                why = "read-only file system"
+        raise ConfigError(f"{path}: cannot write in the folder {a} ({why})")
+
+
+def check_output(
+    out: str | Path,
+    inputs: Iterable[str | Path | None] = (),
+    *,
+    folder: bool = False,
+    replace: bool = False,
+    force: bool = False,
+) -> Path:
+    """The one guard of every output, called before any work: refuse (DitherlabError, one
+    sentence naming the path) what would lose data or fail late.
+
+    Refused: ``out`` equal to, inside or containing one of ``inputs``
+    (:func:`check_not_input`); a location that cannot be written (under a regular file, in a
+    folder without write permission, on a read-only file system); an existing path of the wrong
+    kind (a folder where a file is written, a file where a folder is); an existing non-empty
+    output folder unless ``force``.
+
+    Parameters
+    ----------
+    out : the output file or folder
+    inputs : the files and folders the command reads (None entries are skipped)
+    folder : ``out`` is a folder (a report folder; a ROS 2 bag folder with ``replace``)
+    replace : the writer replaces the whole folder (a ROS 2 bag): with ``force`` only an
+        existing bag folder may be replaced, never another non-empty folder
+    force : allow an existing non-empty output folder
+
+    Returns
+    -------
+    ``Path(out)``
+    """
+    o = Path(out)
+    if not folder and o.is_dir():
+        raise ConfigError(f"{o}: is a folder; expected a file name")
+    check_not_input(o, inputs)
+    for p in companions(o):
+        _writable_ancestor(p)
+    if not folder:
+        return o
+    if o.exists() and not o.is_dir():
+        raise ConfigError(f"{o}: exists and is not a folder")
+    if o.is_dir():
+        if not os.access(o, os.W_OK | os.X_OK):
+            raise ConfigError(f"{o}: cannot write in the folder (permission denied)")
+        if any(o.iterdir()):
+            if not force:
+                raise ConfigError(f"{o}: the folder is not empty; use --force to write into it")
+            if replace and not _is_bag(o):
+                raise ConfigError(
+                    f"{o}: the folder is not empty and not a ROS 2 bag (no metadata.yaml); "
+                    "refusing to replace it, even with --force"
+                )
+    return o
+
+
+def current_umask() -> int:
+    """The process umask (read without changing it)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path in the target's folder; on success rename it to ``path``.
+
+    The temporary file keeps the target's suffix (writers dispatch on it). On an exception the
+    temporary file is removed and ``path`` is untouched.
+    """
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{target.name}.",
+            suffix=suffix if suffix is not None else target.suffix,
+            dir=target.parent,
+        )
+    except OSError as exc:  # a file in the way, no permission, read-only: one line
+        raise DitherlabError(f"{target}: cannot write ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.chmod(tmp, 0o666 & ~current_umask())  # mkstemp makes 0600; give the file the usual mode
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp_path.unlink()
+        raise
+
+
+@contextlib.contextmanager
+def all_or_nothing(folder: str | Path) -> Iterator[Path]:
+    """A block that writes files into ``folder``: if it raises, the files and folders it
+    created there are removed (and ``folder`` itself when the block created it), so a command
+    that fails half-way leaves no partial output. Files it replaced stay replaced (each was
+    written atomically: whole, old or new)."""
+    out = Path(folder)
+    existed = out.exists()
+    before = set(out.rglob("*")) if existed else set()
+    try:
+        yield out
+    except BaseException:
+        if out.is_dir():
+            for p in sorted(set(out.rglob("*")) - before, key=lambda p: len(p.parts), reverse=True):
+                with contextlib.suppress(OSError):
+                    p.rmdir() if p.is_dir() and not p.is_symlink() else p.unlink()
+            if not existed:
+                with contextlib.suppress(OSError):
+                    out.rmdir()
+        raise
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically; returns the path."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write UTF-8 ``text`` to ``path`` atomically; returns the path."""
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def plain(x: Any) -> Any:
+    """numpy values -> plain Python, recursively (for TOML and JSON): arrays and tuples as lists,
+    numpy scalars as numbers, dict keys as strings. The one numpy -> JSON/TOML conversion."""
+    if isinstance(x, dict):
+        return {str(k): plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return plain(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def json_default(x: Any) -> Any:
+    """``json.dumps(..., default=json_default)``: numpy scalars as Python numbers, arrays as
+    (nested) lists (:func:`plain`); anything else is not JSON (TypeError)."""
+    if isinstance(x, np.generic | np.ndarray):
+        return plain(x)
+    raise TypeError(f"{type(x).__name__} is not JSON serialisable")
+
+
+def atomic_write_json(path: str | Path, obj: Any, indent: int = 1) -> Path:
+    """Write ``obj`` as JSON (numpy values converted, :func:`json_default`) atomically."""
+    return atomic_write_text(path, json.dumps(obj, indent=indent, default=json_default))
+
+
+def damaged(path: Path | str, exc: BaseException) -> FormatError:
+    """The error for a Parquet file pyarrow cannot read: one line, whatever pyarrow's message
+    (a corrupt page's runs over several lines: only its first, trimmed, is kept)."""
+    lines = [x.strip() for x in str(exc).splitlines() if x.strip()]
+    why = lines[0].rstrip(":") if lines else type(exc).__name__
+    return FormatError(f"{path}: not a readable Parquet file, truncated or corrupt ({why})")

@@ -1,0 +1,657 @@
+"""Fitting an effect to the band-aware residual: stacked, sign-constrained least squares.
+
+:func:`fit_effect` fits one effect on one joint (or shared over all joints) to the scored
+residuals of one or more recordings (:func:`ditherlab.physics.residual.scored`): every value of the
+effect's nonlinear parameter on its grid by the band-aware least squares :func:`solve_signed`,
+with the bands and the sliding line re-fitted beside it (:func:`stack`);
+:func:`identifiability` says whether the bands could take the effect instead.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit
+from scipy.optimize import minimize_scalar
+
+from ditherlab.core.linalg import spd_solve
+from ditherlab.core.names import MOVING
+from ditherlab.core.timeseries import tmm
+from ditherlab.physics.effects import Effect, FitResult, design_at
+from ditherlab.physics.residual import Scored
+
+__all__ = [
+    "MIN_IDENTIFIABILITY",
+    "Stack",
+    "fit_effect",
+    "identifiability",
+    "linear_stderr",
+    "not_identifiable",
+    "pool_weak_joints",
+    "pooled_lines",
+    "pooled_note",
+    "solve_signed",
+    "stack",
+]
+
+
+def solve_signed(e, h, s, C, W, o, signs: Sequence[int]) -> tuple[np.ndarray, float]:
+    """:func:`_solve` with sign constraints on the parameters (+1: >= 0, -1: <= 0, 0: free).
+
+    A parameter whose unconstrained value has the wrong sign is held at 0 and the rest re-fitted
+    (an active-set loop; the problem is convex, so this reaches the constrained optimum for the
+    one- and two-parameter effects with constraints here).
+    """
+    k = C.shape[1]
+    sg = np.asarray(signs, dtype=float)
+    free = np.ones(k, dtype=bool)
+    w = np.zeros(k)
+    L = float(np.sum((np.maximum(np.abs(e - o) - h, 0.0) / s) ** 2))
+    for _ in range(k + 1):
+        if not free.any():
+            break
+        wf, L = _solve(e, h, s, C[:, free], W[:, free], o)
+        w = np.zeros(k)
+        w[free] = wf
+        bad = free & (sg * w < 0)
+        if not bad.any():
+            return w, L
+        free &= ~bad
+    w = np.zeros(k)
+    if free.any():
+        wf, L = _solve(e, h, s, C[:, free], W[:, free], o)
+        w[free] = wf
+    else:
+        L = float(np.sum((np.maximum(np.abs(e - o) - h, 0.0) / s) ** 2))
+    return w, L
+
+
+def _solve(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, float]:
+    """Minimise ``sum((max(0, |e - o - C w| - h - W w) / s)²)`` over w (convex).
+
+    Semi-smooth Gauss–Newton on the active set (samples outside the band) with a backtracking
+    line search, compiled with numba (:func:`_solve_kernel`; diagnosis runs thousands of these
+    on a few thousand samples each, where numpy's per-call overhead dominated). Shapes: e, h,
+    s, o (M,); C, W (M, k). :func:`_solve_reference` is the same iteration in numpy.
+
+    Returns
+    -------
+    w (k,), loss
+    """
+    f = np.ascontiguousarray
+    C = f(C, dtype=float)
+    W = f(W, dtype=float)
+    base = f(np.asarray(e, dtype=float) - o)
+    k = C.shape[1]
+    w = np.zeros(k) if w0 is None else np.array(w0, dtype=float)
+    if len(base) == 0:  # nothing to fit (a fold of a very short log): the start, no loss
+        return w, 0.0
+    w, L = _solve_kernel(
+        base, f(h, dtype=float), f(s, dtype=float), C, W, w, int(iters), bool(W.any())
+    )
+    return w, float(L)
+
+
+@njit(cache=True, inline="always")
+def _residual_at(base, h, C, W, w, i, widen):  # pragma: no cover - compiled
+    """Sample i's residual ``x = base - C w`` and its excess ``|x| - h - W w`` beyond the band."""
+    x = base[i]
+    ww = 0.0
+    for c in range(C.shape[1]):
+        x -= C[i, c] * w[c]
+        if widen:
+            ww += W[i, c] * w[c]
+    return x, abs(x) - h[i] - ww
+
+
+@njit(cache=True)
+def _loss_kernel(base, h, s, C, W, w, widen):  # pragma: no cover - compiled
+    L = 0.0
+    for i in range(C.shape[0]):
+        ex = _residual_at(base, h, C, W, w, i, widen)[1]
+        if ex > 0.0:
+            L += (ex / s[i]) ** 2
+    return L
+
+
+@njit(cache=True)
+def _solve_kernel(base, h, s, C, W, w, iters, widen):  # pragma: no cover - compiled
+    M, k = C.shape
+    if k == 0:
+        return w, _loss_kernel(base, h, s, C, W, w, widen)
+    L = _loss_kernel(base, h, s, C, W, w, widen)
+    scale = np.empty(k)
+    for c in range(k):
+        a = 0.0
+        b = 0.0
+        for i in range(M):
+            a += C[i, c] ** 2
+            b += W[i, c] ** 2
+        scale[c] = math.sqrt(a / M + b / M) + 1e-300
+    act = np.zeros(M, dtype=np.bool_)
+    prev = np.zeros(M, dtype=np.bool_)
+    have_prev = False
+    row = np.empty(k)
+    for _ in range(iters):
+        G = np.zeros((k, k))
+        g = np.zeros(k)
+        n_act = 0
+        for i in range(M):
+            x, ex = _residual_at(base, h, C, W, w, i, widen)
+            act[i] = ex > 0.0
+            if not act[i]:
+                continue
+            n_act += 1
+            sg = 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+            for c in range(k):
+                row[c] = (-(sg * C[i, c]) - W[i, c]) / (s[i] * scale[c])
+            r = ex / s[i]
+            for a in range(k):
+                g[a] += row[a] * r
+                for b in range(a + 1):
+                    G[a, b] += row[a] * row[b]
+        if n_act == 0:
+            break
+        if have_prev:
+            same = True
+            for i in range(M):
+                if act[i] != prev[i]:
+                    same = False
+                    break
+            if same:
+                break  # the last full Gauss-Newton step solved this piece exactly
+        tr = 0.0
+        for a in range(k):
+            for b in range(a):
+                G[b, a] = G[a, b]
+            tr += G[a, a]
+        for a in range(k):
+            G[a, a] += 1e-9 * (tr / k + 1e-300)
+        d = spd_solve(G, g)
+        if d is None:
+            break
+        for c in range(k):
+            d[c] = -d[c] / scale[c]
+        t = 1.0
+        ok = False
+        wn = w.copy()
+        Ln = L
+        while t > 1e-4:
+            for c in range(k):
+                wn[c] = w[c] + t * d[c]
+            Ln = _loss_kernel(base, h, s, C, W, wn, widen)
+            if Ln <= L:
+                ok = True
+                break
+            t *= 0.5
+        if not ok:
+            break
+        improve = L - Ln
+        w = wn
+        L = Ln
+        have_prev = t == 1.0
+        if have_prev:
+            prev[:] = act
+        if improve <= 1e-12 * max(L, 1e-300) and t == 1.0:
+            break
+    return w, L
+
+
+def _solve_reference(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, float]:
+    """The obviously right version of :func:`_solve` in numpy (its test's reference).
+
+    Minimise ``sum((max(0, |e - o - C w| - h - W w) / s)²)`` over w (convex).
+
+    Semi-smooth Gauss–Newton on the active set (samples outside the band) with a backtracking
+    line search. Shapes: e, h, s, o (M,); C, W (M, k).
+
+    Returns
+    -------
+    w (k,), loss
+    """
+    k = C.shape[1]
+    base = e - o
+    s2 = 1.0 / s**2
+    if k == 0:
+        return np.zeros(0), float(np.sum(np.maximum(np.abs(base) - h, 0.0) ** 2 * s2))
+
+    def mv(A: np.ndarray, w: np.ndarray) -> np.ndarray:
+        # single-threaded matrix-vector product (see _mm)
+        return np.einsum("mk,k->m", A, w)
+
+    def loss_of(w: np.ndarray) -> float:
+        x = base - mv(C, w)
+        return float(np.sum(np.maximum(np.abs(x) - h - mv(W, w), 0.0) ** 2 * s2))
+
+    w = np.zeros(k) if w0 is None else np.asarray(w0, dtype=float).copy()
+    L = loss_of(w)
+    scale = np.sqrt(np.mean(C**2, axis=0) + np.mean(W**2, axis=0)) + 1e-300
+    prev_act = None
+    for _ in range(iters):
+        x = base - mv(C, w)
+        sg = np.sign(x)
+        ex = np.abs(x) - h - mv(W, w)
+        act = ex > 0
+        if not act.any():
+            break
+        if prev_act is not None and np.array_equal(act, prev_act):
+            break  # the last full Gauss-Newton step solved this piece exactly
+        Jm = (-(sg[act, None] * C[act]) - W[act]) / (s[act, None] * scale)
+        r = ex[act] / s[act]
+        # ridge-regularised normal equations (keeps singular designs, e.g. no motion, finite)
+        G = tmm(Jm, Jm)
+        G[np.diag_indices(k)] += 1e-9 * (np.trace(G) / k + 1e-300)
+        try:
+            d = -np.linalg.solve(G, np.einsum("mk,m->k", Jm, r)) / scale
+        except np.linalg.LinAlgError:
+            break
+        t = 1.0
+        while t > 1e-4:
+            wn = w + t * d
+            Ln = loss_of(wn)
+            if Ln <= L:
+                break
+            t *= 0.5
+        else:
+            break
+        improve = L - Ln
+        w, L = wn, Ln
+        prev_act = act if t == 1.0 else None
+        if improve <= 1e-12 * max(L, 1e-300) and t == 1.0:
+            break
+    return w, L
+
+
+@dataclass
+class Stack:
+    """Samples of one or several recordings stacked for one joint (or all joints, shared).
+
+    The design ``C`` (and ``W``) holds the effect's ``k`` columns followed by nuisance columns:
+    one indicator per (joint, regime) group, and per joint ``sign(dq)`` and ``dq`` in the moving
+    regime (when the model has Coulomb / viscous terms). Identification re-fits the bands and
+    the sliding line with the effect in place, so they absorb whatever part of an effect is
+    constant within a regime or proportional to sign(dq) or dq: an effect is credited only with
+    the rest, and the baseline it is compared with gets the same nuisance columns.
+    """
+
+    e: np.ndarray
+    h: np.ndarray
+    s: np.ndarray
+    C: np.ndarray
+    W: np.ndarray
+    o: np.ndarray
+    block: np.ndarray  # (M,) row of the whole recordings, concatenated (for folds)
+    k: int  # number of effect columns (the rest are intercepts)
+    joint: np.ndarray | None = None  # (M,) joint of each row (time order: lexsort by joint, block)
+
+    def time_order(self) -> np.ndarray:
+        """(M,) row order by joint, then row of the recordings: the same however the
+        recordings were cut into pieces (the stack itself runs piece by piece)."""
+        if self.joint is None:
+            return np.argsort(self.block, kind="stable")
+        return np.lexsort((self.block, self.joint))
+
+    def signs(self, eff: Sequence[int]) -> tuple[int, ...]:
+        """The signs of all columns: the effect's (free where it gives fewer, e.g. an effect
+        whose number of columns is chosen from the data), then the free nuisance columns."""
+        eff = tuple(eff)[: self.k]
+        return eff + (0,) * (self.C.shape[1] - len(eff))
+
+
+def stack(
+    e: Effect,
+    sc: Sequence[Scored],
+    j: int | None,
+    h: Any,
+    ref: dict[str, Any],
+    lags: Sequence[int] | None = None,
+) -> Stack:
+    """Flatten the scored samples of joint j (or all joints when the effect is shared).
+
+    ``lags`` (one per recording, samples): the effect's design circularly shifted in time by
+    this much against the residual, a surrogate whose driving variable carries no information
+    about the residual (the bands and the sliding line stay where they are). On scored rows
+    of a recording (:meth:`Signals.take`) the lags count those rows, and ``block`` numbers the
+    samples by their rows in the whole recordings.
+    """
+    es, hs, ss, Cs, Ws, os_, bs, gs, js = [], [], [], [], [], [], [], [], []
+    ns: list[tuple[int, np.ndarray]] = []
+    t0 = 0
+    for i, s in enumerate(sc):
+        d = design_at(e, s.sig, j, h, ref)
+        if lags is not None and lags[i]:
+            d = d.rolled(int(lags[i]))
+        joints = range(s.sig.n) if j is None else [j]
+        for jj in joints:
+            if j is None:
+                C = d.centre[:, jj, :]
+                Wd = d.widen[:, jj, :] if d.widen is not None else None
+                o = d.offset[:, jj] if d.offset is not None else None
+            else:
+                C, Wd, o = d.centre, d.widen, d.offset
+            m = s.use[:, jj]
+            mv = s.sig.regime[:, jj] == MOVING
+            es.append(s.e[m, jj])
+            hs.append(s.h[m, jj])
+            ss.append(s.sigma[m, jj])
+            Cs.append(C[m])
+            Ws.append(np.zeros_like(C[m]) if Wd is None else (Wd * ~mv[:, None])[m])
+            os_.append(np.zeros(int(m.sum())) if o is None else o[m])
+            bs.append(t0 + s.sig.index[m])
+            gs.append(jj * 3 + s.sig.regime[m, jj].astype(np.int64))
+            js.append(np.full(int(m.sum()), jj, np.int64))
+            # sliding-friction nuisance (moving only): joint jj's sign(dq) and dq columns
+            dqm = np.where(mv, s.sig.dq[:, jj], 0.0)[m]
+            cols = []
+            if s.sliding[0]:
+                cols.append(np.sign(dqm))
+            if s.sliding[1]:
+                cols.append(dqm)
+            ns.append((jj, np.column_stack(cols) if cols else np.zeros((len(dqm), 0))))
+        t0 += s.sig.length
+    e_, h_, s_, C_, W_, o_, b_, g_ = (np.concatenate(a) for a in (es, hs, ss, Cs, Ws, os_, bs, gs))
+    _, gi = np.unique(g_, return_inverse=True)
+    G = np.zeros((len(g_), int(gi.max()) + 1 if len(g_) else 0))
+    G[np.arange(len(g_)), gi] = 1.0
+    # sliding columns per joint, block-placed (zeros for the other joints' rows)
+    joints_in = sorted({jj for jj, _ in ns})
+    width = max((a.shape[1] for _, a in ns), default=0)
+    S = np.zeros((len(g_), width * len(joints_in)))
+    r0 = 0
+    for jj, a in ns:
+        c0 = joints_in.index(jj) * width
+        S[r0 : r0 + len(a), c0 : c0 + a.shape[1]] = a
+        r0 += len(a)
+    S = S[:, np.any(S != 0, axis=0)]
+    N_ = np.hstack([G, S])
+    k = C_.shape[1]
+    W = np.hstack([W_, np.zeros_like(N_)])
+    return Stack(e_, h_, s_, np.hstack([C_, N_]), W, o_, b_, k, np.concatenate(js))
+
+
+#: Smallest :func:`identifiability` for which add_effect accepts a fit.
+MIN_IDENTIFIABILITY = 0.02
+
+
+def identifiability(st: Stack) -> float:
+    """How much of the effect's design is left once the nuisance columns are projected out.
+
+    The smallest singular value of the effect columns (weighted by 1/sigma) after removing
+    their least-squares projection on the intercept and sliding-friction columns, relative to
+    their own norm: 1 = fully distinct, 0 = the bands and the sliding line can take it all (e.g.
+    ``ft_bias`` or ``payload`` in one fixed pose), and then its parameters are arbitrary.
+    Effect columns that are zero on every sample (a parameter that does not act on these
+    recordings at all, e.g. the offset of a joint gravity does not depend on) are left out;
+    all zero gives 0.
+    """
+    if st.k == 0 or len(st.e) == 0:
+        return 0.0
+    w = 1.0 / st.s[:, None]
+    acts = np.any(st.C[:, : st.k] != 0, axis=0)
+    if not acts.any():
+        return 0.0
+    Ce = st.C[:, : st.k][:, acts] * w
+    N = st.C[:, st.k :] * w
+    if N.shape[1]:
+        coef, *_ = np.linalg.lstsq(N, Ce, rcond=None)
+        Ce = Ce - N @ coef
+    norms = np.linalg.norm(st.C[:, : st.k][:, acts] * w, axis=0)
+    if not np.all(norms > 0):
+        return 0.0
+    return float(np.linalg.svd(Ce / norms, compute_uv=False).min())
+
+
+def fit_effect(
+    e: Effect,
+    sc: Sequence[Scored],
+    j: int | None,
+    train: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> FitResult:
+    """Fit effect ``e`` on joint ``j`` (None: shared parameters over all joints).
+
+    Every value of the nonlinear parameter on the effect's grid is fitted by band-aware least
+    squares (:func:`_solve`); the one with the smallest loss is kept. For an effect whose
+    parameter is continuous (``position_ripple``'s period), the final fit (``train`` None)
+    refines it between the best value's grid neighbours (bounded Brent search): the grid is
+    spaced a quarter cycle over the joint's span, which leaves up to 1/8 cycle of phase error at
+    the ends of the span (on the simulator, 1.5x the noise floor on a wrist joint).
+
+    Parameters
+    ----------
+    e : Effect
+    sc : scored residuals (:func:`scored`) of one or more recordings
+    j : 0-based joint, or None for a shared effect
+    train : optional function of the stack's time index (M,) -> bool mask of training samples
+
+    Returns
+    -------
+    FitResult (w, h, ref, loss on the training samples)
+    """
+    sigs = [s.sig for s in sc]
+    ref = e.reference(sigs, j)
+    best: FitResult | None = None
+    grid = full = e.grid(sigs, j)
+    if not e.shared and j is not None and len(grid) > 1:
+        st0 = stack(e, sc, j, grid[0], ref)
+        m0 = train(st0.block) if train is not None else np.ones(len(st0.e), dtype=bool)
+        grid = e.shortlist(sc, j, grid, [m0])[0]
+
+    def fit_at(h: Any) -> FitResult:
+        st = stack(e, sc, j, h, ref)
+        m = train(st.block) if train is not None else slice(None)
+        w, L = solve_signed(
+            st.e[m], st.h[m], st.s[m], st.C[m], st.W[m], st.o[m], st.signs(e.signs(h))
+        )
+        return FitResult(w[: st.k], h, ref, L)
+
+    for h in grid:
+        f = fit_at(h)
+        if best is None or f.loss < best.loss:
+            best = f
+    assert best is not None
+    if e.continuous and train is None and len(full) > 2:
+        # the final fit: the grid's best value refined between its grid neighbours
+        k = int(np.argmin(np.abs(np.asarray(full, dtype=float) - float(best.h))))
+        lo, hi = sorted((float(full[max(k - 1, 0)]), float(full[min(k + 1, len(full) - 1)])))
+        r = minimize_scalar(
+            lambda h: fit_at(float(h)).loss,
+            bounds=(lo, hi),
+            method="bounded",
+            options={"xatol": 1e-6 * abs(float(best.h))},
+        )
+        f = fit_at(float(r.x))
+        if f.loss < best.loss:
+            best = f
+    return best
+
+
+def not_identifiable(e: Effect, sc: Sequence[Scored], j: int | None, fit: FitResult) -> str | None:
+    """Why effect ``e`` fitted on joint ``j`` (None: shared) cannot be told apart from the bands
+    on these scored recordings, or None when it can: the one rule behind both ``identify --add``
+    (which refuses) and diagnosis (which does not suggest such an effect, and says why).
+
+    The rule: :func:`identifiability` of the fitted effect's design, after the bands and the
+    sliding line have taken what they can, is at least :data:`MIN_IDENTIFIABILITY`.
+    """
+    why = e.unsupported([s.sig for s in sc], j, fit.h)
+    if why is not None:
+        return why
+    st = stack(e, sc, j, fit.h, fit.ref)
+    if identifiability(st) >= MIN_IDENTIFIABILITY:
+        return None
+    where = "these recordings" if j is None else f"joint {j + 1} of these recordings"
+    return (
+        f"effect {e.name!r} cannot be told apart from the bands in {where}: its torque "
+        f"barely changes within a regime ({e.driven_by}); record a varying pose, motion "
+        "or force"
+    )
+
+
+#: block length for the standard errors of :func:`linear_stderr` [s]: the residual of one push
+#: (0.5-2 s) and its extraction's lag are correlated; blocks of 2 s hold one each (identify's
+#: bootstrap uses the same length)
+STDERR_BLOCK_S = 2.0
+
+
+def linear_stderr(
+    e: Effect, sc: Sequence[Scored], j: int, fit: FitResult, block_s: float = STDERR_BLOCK_S
+) -> np.ndarray:
+    """Standard errors of the linear parameters of a per-joint fit, from the fit's own
+    information: the Gauss–Newton matrix of the band-aware loss at the fitted value (rows
+    outside the band), with the score's variance summed over contiguous blocks of ``block_s``
+    seconds (a cluster "sandwich": neighbouring samples of one push are not independent, and
+    counting them as such made a gain fitted on three pushes look exact).
+
+    Parameters
+    ----------
+    e, sc, j, fit : the effect, the scored recordings, the 0-based joint and its fit
+        (:func:`fit_effect`)
+    block_s : block length [s]
+
+    Returns
+    -------
+    (k,) standard errors in the parameters' units; ``inf`` where the parameter is not
+    determined (no row outside the band, or a singular information matrix).
+    """
+    st = stack(e, sc, j, fit.h, fit.ref)
+    k = st.k
+    w, _ = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, st.signs(e.signs(fit.h)))
+    r = st.e - st.o - st.C @ w
+    sg = np.sign(r)
+    ex = sg * np.maximum(np.abs(r) - st.h - st.W @ w, 0.0)  # the excess beyond the band
+    act = ex != 0
+    if act.sum() <= st.C.shape[1]:
+        return np.full(k, np.inf)
+    D = (st.C + sg[:, None] * st.W)[act] / st.s[act, None]  # d(excess / s) / dw, up to sign
+    keep = np.any(D != 0, axis=0)
+    D = D[:, keep]
+    H = D.T @ D
+    try:
+        Hi = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return np.full(k, np.inf)
+    rate = sc[0].sig.rec.sample_rate if sc else 1.0
+    blk = (st.block[act] // max(int(round(block_s * rate)), 1)).astype(np.int64)
+    _, b = np.unique(blk, return_inverse=True)
+    g = D * (ex[act] / st.s[act])[:, None]
+    G = np.zeros((int(b.max()) + 1, D.shape[1]))
+    np.add.at(G, b, g)
+    nb = G.shape[0]
+    scale = nb / (nb - D.shape[1]) if nb > D.shape[1] else np.inf
+    cov = Hi @ (G.T @ G) @ Hi * scale
+    var = np.full(keep.shape, np.inf)
+    var[keep] = np.diag(cov)
+    var = np.where(np.isfinite(var) & (var >= 0), var, np.inf)
+    return np.sqrt(var[:k])
+
+
+def _weak_reason(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> str | None:
+    """Why a per-joint fit of ``e`` rests on too little evidence (``e.evidence_rules``), or
+    None: a linear parameter whose standard error (:func:`linear_stderr`) exceeds its
+    ``stderr_max``, or that lies more than two standard errors outside its physical ``range``."""
+    rules = e.evidence_rules or {}
+    se = linear_stderr(e, sc, j, fit)
+    for i, name in enumerate(e.linear):
+        v, s = float(fit.w[i]), float(se[i])
+        top = rules.get("stderr_max", {}).get(name)
+        if top is not None and not s <= top:
+            return f"{name} {v:.3g} ± {s:.2g} (standard error above {top:g})"
+        lo, hi = rules.get("range", {}).get(name, (-np.inf, np.inf))
+        if v - 2 * s > hi or v + 2 * s < lo:
+            return (
+                f"{name} {v:.3g} ± {s:.2g} (outside {lo:g}..{hi:g} by more than 2 standard errors)"
+            )
+    return None
+
+
+def pool_weak_joints(
+    e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]
+) -> tuple[dict[int, FitResult], dict[int, str]]:
+    """Per-joint fits where the joints with too little evidence take shared parameters.
+
+    For an effect with ``evidence_rules`` (``dither_extraction``): a joint whose fit fails them
+    (:func:`_weak_reason`: its own standard error, or a value beyond the physical range) takes
+    the median of each parameter (linear ones and the searched one, e.g. the lag) over the
+    joints whose fits pass, or the effect's ``prior`` when none passes. Other effects are
+    returned unchanged.
+
+    Parameters
+    ----------
+    e : the effect; sc : the scored recordings; fits : 0-based joint -> :func:`fit_effect` result
+
+    Returns
+    -------
+    (the fits, the weak joints' reasons by 0-based joint). A shared fit keeps its joint's
+    ``ref`` and has ``loss`` NaN (not fitted there).
+    """
+    rules = e.evidence_rules
+    if not rules or e.shared or not fits:
+        return fits, {}
+    weak = {j: why for j, f in fits.items() if (why := _weak_reason(e, sc, j, f)) is not None}
+    if not weak:
+        return fits, {}
+    good = [fits[j] for j in fits if j not in weak]
+    prior = rules.get("prior", {})
+    if good:
+        w = np.median(np.array([f.w for f in good], dtype=float), axis=0)
+        hs = [f.h for f in good]
+        h = (
+            int(round(float(np.median(hs))))
+            if all(isinstance(x, int | np.integer) for x in hs)
+            else float(np.median(hs))
+        )
+    else:
+        w = np.array([float(prior[name]) for name in e.linear])
+        h = prior.get(e.hyper) if isinstance(e.hyper, str) else None
+    out = dict(fits)
+    for j in weak:
+        out[j] = FitResult(np.array(w, dtype=float), h, fits[j].ref, math.nan)
+    return out, weak
+
+
+def pooled_lines(model: Any) -> list[str]:
+    """One line per joint where a per-joint effect of ``model`` (a
+    :class:`~ditherlab.data.torque_model.TorqueModel`) took values shared over the other joints
+    (:func:`pool_weak_joints`; the model file's ``pooled`` flags), for identify's summary."""
+    lines = []
+    for spec in model.effects:
+        pooled = spec.params.get("pooled")
+        if not isinstance(pooled, list) or not any(pooled):
+            continue
+        for k, (jj, p) in enumerate(zip(spec.joints, pooled, strict=True)):
+            if p:
+                vals = ", ".join(
+                    f"{name} {v[k] if isinstance(v, list) else v:.3g}"
+                    for name, v in spec.params.items()
+                    if name != "pooled"
+                )
+                lines.append(
+                    f"[{spec.name}] joint {jj}: too little evidence, shared values ({vals})"
+                )
+    return lines
+
+
+def pooled_note(e: Effect, fits: dict[int, FitResult], weak: dict[int, str]) -> str:
+    """One sentence for the model's notes and identify's output: which joints took shared
+    parameters of ``e`` and why (``weak`` from :func:`pool_weak_joints`); '' when none."""
+    if not weak:
+        return ""
+    good = sorted(j for j in fits if j not in weak)
+    f = fits[next(iter(weak))]
+    vals = ", ".join(f"{n} {float(v):.3g}" for n, v in zip(e.linear, f.w, strict=True))
+    if isinstance(e.hyper, str):
+        vals += f", {e.hyper} {f.h}"
+    src = (
+        f"the median over joint(s) {', '.join(str(j + 1) for j in good)}"
+        if good
+        else "the effect's prior (no joint had good evidence)"
+    )
+    why = "; ".join(f"joint {j + 1}: {r}" for j, r in sorted(weak.items()))
+    return (
+        f"{e.name} on joint(s) {', '.join(str(j + 1) for j in sorted(weak))}: too little "
+        f"evidence ({why}), shared values {vals} from {src}"
+    )

@@ -1,0 +1,273 @@
+"""Lead-through (paper §V): an operator guides the tool; the robot follows the *estimated* force.
+
+The operator pushes the tool along z, then y, then x, then several directions at once (like the
+paper's Fig. 7), each push a smooth profile with a flat top, released between pushes. Every
+``timing.dynamics_update_samples`` samples the controller estimates the push from the logged
+torques with eq. (3) (:func:`ditherlab.estimator.estimate`, forces only):
+
+- still and dithering: the dither signal extracted over the last period (mean of the upper and
+  lower means), band shrunk by the measured dither amplitude;
+- moving: Coulomb + viscous friction subtracted (known when moving), no band;
+- still without dither: the full band.
+
+Zero-stiffness impedance (admittance) control in task space, linear motions only: the commanded
+tool velocity is ``admittance * P_cmd`` (limited to ``max_speed``), mapped to joint velocities
+through the pseudo-inverse of the Jacobian with zero angular velocity. ``lead_through.law``
+chooses the force ``P_cmd`` that drives it:
+
+``"dead-zone"`` (the paper's experiment, the default)
+    ``P_cmd = (|P| - dead_zone) P/|P|`` beyond the 10 N dead zone, else 0.
+``"interval"`` (the paper's §V alternative)
+    per base axis, 0 when the confidence interval of the estimated push contains 0, else the
+    bound nearest 0 (:func:`interval_command`); the interval is eq. (3)'s of the same sample,
+    ``lead_through.interval`` (set membership or profile) at ``lead_through.level``. Per axis
+    because the estimator's intervals are per component: the confidence region is the box of the
+    three intervals, and the per-axis rule returns the point of that box nearest the origin, the
+    smallest push the data cannot rule out (a per-direction rule would need the interval of the
+    projection on a data-chosen direction, which the box does not give). Extra columns
+    ``flo_x..z, fhi_x..z`` [N] hold the interval of the push the controller acted on.
+
+The dither is ramped off as soon as the commanded speed exceeds ``dither_off_speed``, and back on
+after ``still_s`` without motion.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ditherlab.core.linalg import lu_solve, vector_norm
+from ditherlab.estimator import estimate, problem, solve
+from ditherlab.estimator.intervals import problem_intervals
+from ditherlab.sim import plant as K
+from ditherlab.sim.engine import Engine, Inputs
+from ditherlab.sim.hidden import HiddenSpec, build_hidden
+from ditherlab.sim.scenarios import scenario_columns, scenario_rngs, wrench_noise
+
+#: (direction in base axes, magnitude [N], flat-top duration [s]); release 2.5 s after each.
+OPERATOR_PLAN = (
+    ((0.0, 0.0, -1.0), 30.0, 2.5),
+    ((0.0, 1.0, 0.0), 28.0, 2.5),
+    ((1.0, 0.0, 0.0), 32.0, 2.5),
+    ((-1.0, -1.0, 1.0), 35.0, 3.0),
+)
+EDGE_S, RELEASE_S, START_S = 0.4, 2.5, 4.0
+
+
+def operator_segments(rng: np.random.Generator) -> tuple[list[dict[str, Any]], float]:
+    """The operator's pushes (:data:`OPERATOR_PLAN`, magnitudes drawn +-10 % from ``rng``).
+
+    Returns (segments, end time [s]); each segment has ``t0`` [s] (onset), ``direction`` (unit,
+    base axes), ``magnitude`` [N] and ``flat`` [s] (flat-top duration); the push rises and falls
+    over :data:`EDGE_S` and is followed by :data:`RELEASE_S` of rest.
+    """
+    segments = []
+    t = START_S
+    for direction, mag, flat in OPERATOR_PLAN:
+        d = np.asarray(direction, dtype=float) / vector_norm(direction)
+        m = mag * rng.uniform(0.9, 1.1)
+        segments.append(
+            {"t0": t, "direction": [float(v) for v in d], "magnitude": float(m), "flat": flat}
+        )
+        t += 2 * EDGE_S + flat + RELEASE_S
+    return segments, t
+
+
+def operator_push(tt: np.ndarray, segments: list[dict[str, Any]]) -> np.ndarray:
+    """The operator's push on the tool, ``(N, 3)`` [N, base axes], at times ``tt (N,)`` [s]:
+    each segment a raised-cosine rise over :data:`EDGE_S`, a flat top, a raised-cosine fall."""
+    push = np.zeros((len(tt), 3))
+    for s in segments:
+        u = tt - s["t0"]
+        total = 2 * EDGE_S + s["flat"]
+        rise = 0.5 * (1 - np.cos(np.pi * np.clip(u / EDGE_S, 0, 1)))
+        fall = 0.5 * (1 - np.cos(np.pi * np.clip((total - u) / EDGE_S, 0, 1)))
+        shape = np.where((u >= 0) & (u <= total), np.minimum(rise, fall), 0.0)
+        push += s["magnitude"] * shape[:, None] * np.asarray(s["direction"])
+    return push
+
+
+def interval_command(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The interval law's force: per component 0 when ``lo <= 0 <= hi``, else the bound nearest
+    0 (``lo`` when the interval lies above 0, ``hi`` when below) -- the point of the box
+    ``[lo, hi]`` nearest the origin. A NaN bound (no force consistent with the data, the set
+    membership's verdict on data the model cannot explain) commands 0.
+
+    Parameters
+    ----------
+    lo, hi : (..., 3) [N] interval bounds of the push, ``lo <= hi``
+
+    Returns
+    -------
+    (..., 3) [N]
+    """
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    out = np.where(lo > 0, lo, np.where(hi < 0, hi, 0.0))
+    return np.where(np.isnan(lo) | np.isnan(hi), 0.0, out)
+
+
+def lead_through(
+    engine_for: Callable[[Any], Engine],
+    params: dict[str, Any],
+    *,
+    seed: int,
+    dither: bool,
+    hidden: list[HiddenSpec],
+    progress: Callable[[int, int], None] | None,
+    robot: Any,
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Simulate lead-through; returns (columns for Recording.from_arrays, meta["sim"] part).
+
+    Same parameters as :func:`ditherlab.sim.scenarios.push_campaign`. Extra columns
+    ``fhat_x, fhat_y, fhat_z`` [N] hold the push the controller estimated (on the tool); with
+    ``lead_through.law = "interval"`` also ``flo_x..z, fhi_x..z`` [N], its interval.
+    """
+    lt = params["lead_through"]
+    fs_hz = float(params["timing"]["sample_rate_hz"])
+    dt = 1.0 / fs_hz
+    n = robot.n
+    plan_rng, noise_rng, hidden_rng = scenario_rngs(seed)
+
+    segments, t = operator_segments(plan_rng)
+    N = int(np.ceil(t * fs_hz))
+    tt = np.arange(N) * dt
+    push = np.zeros((N, 6))
+    push[:, :3] = operator_push(tt, segments)
+
+    hp = build_hidden(hidden, params, tt, n, hidden_rng)
+    eng = engine_for(hp)
+    fs = eng.fs
+    sigma = params["noise"]["tau_sigma_fraction"] * fs
+    noise = noise_rng.normal(size=(N, n)) * sigma
+    ft_noise = wrench_noise(params, noise_rng, N)
+    q0 = np.asarray(params["pose"]["q0"], dtype=float)[:n]
+    inputs = Inputs(
+        push=np.ascontiguousarray(hp.arm_push(push, dt)),
+        tau_ext=np.zeros((N, n)),
+        q_ref=np.tile(q0, (N, 1)),
+        dq_ref=np.zeros((N, n)),
+        kp_on=np.ones(N),
+        dither_cmd=np.zeros(N),
+        fscale=np.ascontiguousarray(hp.fscale),
+        noise=noise,
+    )
+    period = max(1, round(2 * np.pi / params["dither"]["frequency"] * fs_hz))
+    still_after = int(lt["still_s"] * fs_hz)
+    ramp_n = int(round(float(params["dither"]["ramp_s"]) * fs_hz))
+    fhat = np.zeros((N, 3))
+    interval_law = lt["law"] == "interval"
+    flo = np.full((N, 3), np.nan)
+    fhi = np.full((N, 3), np.nan)
+    prior_sigma = np.r_[np.full(3, 100.0), np.full(3, 10.0)]
+    ctl = {
+        "v": np.zeros(3),
+        "q_ref": q0.copy(),
+        "still": still_after if dither else 0,
+        "dither": False,
+    }
+    if dither:
+        inputs.dither_cmd[: int(1.0 * fs_hz)] = 0.0  # first second: settle without dither
+
+    def control(k0: int, k1: int, state: dict[str, np.ndarray], out: np.ndarray) -> None:
+        k = k1 - 1
+        q, dq = out[K.O_QM, k], out[K.O_VM, k]
+        lo = max(0, k - period + 1)
+        # the extraction once the dither has ramped in: on for its ramp and a whole period (while
+        # it ramps the centre term moves the extracted signal, read as a push of 16-24 N)
+        settled = max(0, k - ramp_n - period + 1)
+        if k - settled + 1 == ramp_n + period and (out[K.O_DITHER, settled : k + 1, 0] > 0.5).all():
+            w = out[K.O_TAU, lo : k + 1]
+            c = w.mean(axis=0)
+            up = np.where(w > c, w, 0).sum(0) / np.maximum((w > c).sum(0), 1)
+            low = np.where(w < c, w, 0).sum(0) / np.maximum((w < c).sum(0), 1)
+            tau = 0.5 * (up + low)
+            half = np.clip(fs - out[K.O_AMEAS, k], 0.05 * fs, fs)
+        else:
+            tau = out[K.O_TAU, k]
+            half = fs.copy()
+        # moving: the mean velocity over the last dither period (the dither's vibration averages
+        # out) or the commanded velocity
+        moving = (np.abs(out[K.O_VM, lo : k + 1].mean(axis=0)) > 0.005) | (
+            np.abs(inputs.dq_ref[k]) > 0.002
+        )
+        dq = np.where(moving, dq, 0.0)
+        geo = robot.evaluate(q, ["gravity", "jacobian"], reference=True)  # as the plant's
+        tau_bar = tau - geo["gravity"][0]
+        tau_bar = tau_bar - np.where(moving, eng.fc * np.sign(dq) + eng.fv * dq, 0.0)
+        half = np.where(moving, 0.0, half)
+        J = geo["jacobian"]
+        args = (tau_bar[None], J, -half, half, sigma, np.zeros(6), prior_sigma)
+        v = np.zeros(3)
+        if interval_law:
+            prob = problem(*args, components=("f_x", "f_y", "f_z"))
+            sol = solve(prob)
+            p_hat = -sol.F[0, :3]  # the push on the tool
+            lo, hi = problem_intervals(prob, sol.F, lt["interval"], lt["level"])
+            p_lo, p_hi = -hi[0, :3], -lo[0, :3]  # the push's interval
+            flo[k0:k1], fhi[k0:k1] = p_lo, p_hi
+            v = lt["admittance"] * interval_command(p_lo, p_hi)
+        else:
+            sol = estimate(*args, components=("f_x", "f_y", "f_z"))
+            p_hat = -sol.F[0, :3]  # the push on the tool
+            mag = vector_norm(p_hat)
+            if mag > lt["dead_zone"]:
+                v = lt["admittance"] * (mag - lt["dead_zone"]) * p_hat / mag
+        fhat[k0:k1] = p_hat
+        speed = vector_norm(v)
+        if speed > lt["max_speed"]:
+            v *= lt["max_speed"] / speed
+        # the impedance's own first-order smoothing (time constant `smoothing_s`) keeps the
+        # accelerations, which the static estimator reads as force, small
+        a = min(1.0, (k1 - k0) * dt / max(lt["smoothing_s"], 1e-9))
+        ctl["v"] = ctl["v"] + a * (v - ctl["v"])
+        v = ctl["v"]
+        # the joint rates of the tool velocity in compiled loops, independent of the BLAS kernel
+        # (J⁻¹: the pseudo-inverse's answer for a square J of full rank; LAPACK's pinv where the
+        # Jacobian is not square or the pose is singular)
+        target = np.r_[v, 0.0, 0.0, 0.0]
+        Jq = np.ascontiguousarray(J[0])
+        dq_ref = lu_solve(Jq, target) if Jq.shape[0] == Jq.shape[1] else None
+        if dq_ref is None:
+            dq_ref = np.linalg.pinv(Jq) @ target
+        # the next chunk follows this velocity
+        k2 = min(N, k1 + (k1 - k0))
+        for kk in range(k1, k2):
+            inputs.q_ref[kk] = ctl["q_ref"] + dq_ref * dt * (kk - k1)
+            inputs.dq_ref[kk] = dq_ref
+        ctl["q_ref"] = ctl["q_ref"] + dq_ref * dt * (k2 - k1)
+        if k2 < N:
+            inputs.q_ref[k2:] = ctl["q_ref"]
+        if dither:
+            if vector_norm(v) > lt["dither_off_speed"]:
+                ctl["still"] = 0
+            else:
+                ctl["still"] += k1 - k0
+            on = ctl["still"] >= still_after
+            inputs.dither_cmd[k1:] = 1.0 if on else 0.0
+
+    state = eng.initial_state(q0)
+    if dither:
+        inputs.dither_cmd[int(1.0 * fs_hz) :] = 1.0
+    out = eng.run(inputs, state, progress=progress, chunk_callback=control)
+
+    wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
+    extra = {"fhat_x": fhat[:, 0], "fhat_y": fhat[:, 1], "fhat_z": fhat[:, 2]}
+    if interval_law:
+        for i, a in enumerate("xyz"):
+            extra[f"flo_{a}"] = flo[:, i]
+            extra[f"fhi_{a}"] = fhi[:, i]
+    cols = scenario_columns(tt, out, wrench, hp, extra)
+    sim_meta = {
+        "operator": segments,
+        "timeline": {"end": float(tt[-1])},
+        "lead_through": dict(lt),
+        "dither_amplitudes": {
+            "set_point": [float(v) for v in eng.jp[K.AMP_SP]],
+            "unit": "N·m (amplitude of the logged torque)",
+        },
+        "hidden": hp.truth,
+    }
+    return cols, sim_meta

@@ -1,0 +1,133 @@
+"""Write the table of the effect library into docs/effects.md, after its marker line.
+
+Usage (from the repository root)::
+
+    python scripts/effects_page.py            # rewrite docs/effects.md in place
+    python scripts/effects_page.py --check    # exit 1 when docs/effects.md is not up to date
+
+Everything above the marker line of docs/effects.md is hand-written and kept; everything after
+it is replaced by one row per registered effect, in the order diagnosis tries them: its name,
+its physics (the effect's one-line ``physics`` statement, else the first sentence of the
+class docstring), its driving variables (``driven_by``), its parameters (the linear ones, then the searched one) with
+their units where the effect declares them (an optional ``units`` mapping, parameter -> unit),
+whether one parameter set is shared by all joints, and where it acts (``kind``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "effects.md"
+MARKER = "<!-- generated below by scripts/effects_page.py -->"
+#: where the registry lives: the layered package first, then the flat one
+REGISTRY_MODULES = ("ditherlab.physics.effects.library", "ditherlab.effects.library")
+KIND_TEXT = {
+    "torque": "joint torque",
+    "external": "external torque (how the servo shows `J^T F`)",
+    "sensor": "F/T sensor reading",
+}
+
+
+def load_registry() -> tuple[str, dict]:
+    """The module path and the ``EFFECTS`` registry (name -> effect instance)."""
+    sys.path.insert(0, str(ROOT))
+    errors = []
+    for name in REGISTRY_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ImportError as exc:  # the other layout
+            errors.append(f"{name}: {exc}")
+            continue
+        return name.rsplit(".", 1)[0], dict(module.EFFECTS)
+    raise SystemExit("effects_page: no effect registry found (" + "; ".join(errors) + ")")
+
+
+def cell(text: str) -> str:
+    """``text`` as one Markdown table cell: reStructuredText literals as code, no pipes or
+    line breaks."""
+    text = " ".join(str(text).split())
+    text = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", text)  # :func:`x` -> `x`
+    text = text.replace("``", "`").replace("|", "\\|")
+    return text or "–"
+
+
+def first_sentence(doc: str | None) -> str:
+    """The first sentence of a docstring's first paragraph ('' without a docstring)."""
+    if not doc:
+        return ""
+    para = " ".join(doc.strip().split("\n\n")[0].split())
+    m = re.match(r"(.+?[.!?])(\s|$)", para)
+    return m.group(1) if m else para
+
+
+def parameters(effect) -> str:
+    """The effect's parameters with their units where declared."""
+    hyper = effect.hyper
+    names = [*effect.linear, *((hyper,) if isinstance(hyper, str) else hyper or ())]
+    units = dict(getattr(effect, "units", None) or {})
+    out = [f"`{n}` [{units[n]}]" if n in units else f"`{n}`" for n in names]
+    return ", ".join(out) if out else "the base set chosen on the data"
+
+
+def table(registry: dict) -> str:
+    """The Markdown table of the registry."""
+    rows = [
+        "| effect | physics | driven by | parameters | per joint or shared | acts on |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, e in registry.items():
+        physics = e.physics or first_sentence(type(e).__doc__)
+        rows.append(
+            "| "
+            + " | ".join(
+                (
+                    f"`{name}`",
+                    cell(physics),
+                    cell(e.driven_by),
+                    cell(parameters(e)),
+                    "shared" if e.shared else "per joint",
+                    cell(KIND_TEXT.get(e.kind, e.kind)),
+                )
+            )
+            + " |"
+        )
+    return "\n".join(rows)
+
+
+def render(page: str, module: str, registry: dict) -> str:
+    """The page with everything after the marker replaced by the generated table."""
+    if MARKER not in page:
+        raise SystemExit(f"effects_page: {PAGE} has no line {MARKER!r}")
+    head = page.split(MARKER, 1)[0]
+    body = (
+        f"\n\n{len(registry)} effects, from the registry in `{module}`, in the order "
+        "diagnosis tries them.\n\n" + table(registry) + "\n"
+    )
+    return head + MARKER + body
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--check", action="store_true", help="only check the page is current")
+    args = parser.parse_args(argv)
+    module, registry = load_registry()
+    old = PAGE.read_text(encoding="utf-8")
+    new = render(old, module, registry)
+    if args.check:
+        if new != old:
+            print(f"{PAGE.relative_to(ROOT)} is out of date: run python scripts/effects_page.py")
+            return 1
+        return 0
+    if new != old:
+        PAGE.write_text(new, encoding="utf-8")
+    print(f"wrote {PAGE.relative_to(ROOT)} ({len(registry)} effects from {module})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
