@@ -6,13 +6,13 @@ STAMP  := $(VENV)/.installed-stamp
 OUT    ?= demo-out
 JOBS   ?= 2
 
-.PHONY: setup demo test bench fuzz lint lock clean
+.PHONY: setup demo test bench fuzz lint lock clean docs
 
 $(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "ditherlab needs Python >= 3.11"'
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -c requirements.lock -e '.[dev]'
+	$(PY) -m pip install --quiet -c requirements.lock -e '.[dev,docs]'
 	touch $(STAMP)
 
 setup: $(STAMP)
@@ -22,6 +22,13 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(JOBS) --dist loadfile
+
+# The documentation site (mkdocs-material, API from the docstrings, notebooks rendered) into
+# site/: the generated pages first (the effect library, the command line), then a strict build.
+docs: $(STAMP)
+	$(PY) scripts/effects_page.py
+	$(PY) scripts/cli_page.py
+	$(VENV)/bin/mkdocs build --strict
 
 bench: $(STAMP)
 	$(PY) -m bench.run
@@ -44,4 +51,4 @@ lock: $(STAMP)
 	$(PY) -m pip freeze --exclude-editable | grep -v '^-e' > requirements.lock
 
 clean:
-	rm -rf $(VENV) $(OUT) .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(OUT) site .pytest_cache .ruff_cache

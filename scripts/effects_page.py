@@ -24,8 +24,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "effects.md"
 MARKER = "<!-- generated below by scripts/effects_page.py -->"
-#: where the registry lives: the layered package first, then the flat one
-REGISTRY_MODULES = ("ditherlab.physics.effects.library", "ditherlab.effects.library")
+#: where the registry lives
+REGISTRY_MODULE = "ditherlab.physics.effects.library"
 KIND_TEXT = {
     "torque": "joint torque",
     "external": "external torque (how the servo shows `J^T F`)",
@@ -36,15 +36,8 @@ KIND_TEXT = {
 def load_registry() -> tuple[str, dict]:
     """The module path and the ``EFFECTS`` registry (name -> effect instance)."""
     sys.path.insert(0, str(ROOT))
-    errors = []
-    for name in REGISTRY_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ImportError as exc:  # the other layout
-            errors.append(f"{name}: {exc}")
-            continue
-        return name.rsplit(".", 1)[0], dict(module.EFFECTS)
-    raise SystemExit("effects_page: no effect registry found (" + "; ".join(errors) + ")")
+    module = importlib.import_module(REGISTRY_MODULE)
+    return REGISTRY_MODULE.rsplit(".", 1)[0], dict(module.EFFECTS)
 
 
 def cell(text: str) -> str:

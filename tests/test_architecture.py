@@ -190,3 +190,22 @@ def test_module_names_are_unique():
             seen.setdefault(p.stem, []).append(str(p.relative_to(PKG)))
     clashes = {k: v for k, v in seen.items() if len(v) > 1}
     assert not clashes, f"module names used twice: {clashes}"
+
+
+def test_the_estimator_stands_alone():
+    """``import ditherlab.estimator`` loads only the estimator and the core: no recording, no
+    robot, neither pandas nor pinocchio (it runs where only numpy, numba and a QP solver are)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, ditherlab.estimator\n"
+        "mods = sorted(m for m in sys.modules if m.startswith('ditherlab.'))\n"
+        "print(' '.join(mods)); print('pandas' in sys.modules, 'pinocchio' in sys.modules)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=PKG.parent
+    ).stdout.split("\n")
+    layers = {m.split(".")[1] for m in out[0].split()}
+    assert layers <= {"core", "estimator"}, f"the estimator pulls in {sorted(layers)}"
+    assert out[1] == "False False", "the estimator imports pandas or pinocchio"

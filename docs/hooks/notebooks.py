@@ -2,10 +2,11 @@
 
 The notebooks live in ``notebooks/`` at the repository root, where the test suite executes
 them. mkdocs only renders files inside ``docs/``, so this hook adds each notebook to the site as
-``notebooks/<name>.ipynb`` (a file backed by the notebook itself: no copy, no symlink), before
+``notebooks/<name>.ipynb`` (a file read from ``notebooks/`` itself: no copy, no symlink), before
 mkdocs-jupyter turns it into a page; it is rendered as stored, without executing it. The page
 ``notebooks.md`` gets the list of them, with each notebook's first heading as its title, in
-place of the line ``<!-- notebooks -->``.
+place of the line ``<!-- notebooks -->``, and the nav's entry for that page becomes a section
+holding it and the notebooks.
 """
 
 from __future__ import annotations
@@ -40,12 +41,35 @@ def _title(path: Path) -> str:
     return path.stem
 
 
+def on_config(config):
+    """The nav's ``notebooks.md`` entry becomes a section: that page, then every notebook."""
+    found = [f"{NOTEBOOKS}/{p.name}" for p in _notebooks(config)]
+    nav = config.get("nav")
+    if not nav or not found:
+        return config
+    for i, item in enumerate(nav):
+        if isinstance(item, dict) and list(item.values()) == [f"{NOTEBOOKS}.md"]:
+            (title,) = item
+            nav[i] = {title: [f"{NOTEBOOKS}.md", *found]}
+    return config
+
+
 @event_priority(100)  # before mkdocs-jupyter's on_files, which turns .ipynb files into pages
 def on_files(files: Files, config) -> Files:
+    root = Path(config["config_file_path"]).resolve().parent
     for path in _notebooks(config):
         uri = f"{NOTEBOOKS}/{path.name}"
         if files.get_file_from_path(uri) is None:
-            files.append(File.generated(config, uri, abs_src_path=str(path)))
+            # a file whose source folder is the repository's root: its page is
+            # notebooks/<name>/ as if it were docs/notebooks/<name>.ipynb
+            files.append(
+                File(
+                    uri,
+                    src_dir=str(root),
+                    dest_dir=config["site_dir"],
+                    use_directory_urls=config["use_directory_urls"],
+                )
+            )
     return files
 
 
