@@ -5,6 +5,8 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 OUT    ?= demo-out
 JOBS   ?= 2
+# e.g. DEMO_FLAGS='--full-view --keep-data': the view at full rate, the recordings and estimates
+DEMO_FLAGS ?=
 
 .PHONY: setup demo test bench fuzz lint lock clean docs
 
@@ -18,7 +20,7 @@ $(STAMP): pyproject.toml requirements.lock
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m ditherlab.app.demo --out $(OUT)
+	$(PY) -m ditherlab.app.demo --out $(OUT) $(DEMO_FLAGS)
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(JOBS) --dist loadfile

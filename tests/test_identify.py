@@ -334,3 +334,15 @@ def test_cli_identify_prints_no_numpy_warnings(tmp_path, cli):
     # before session 11, half the friction on the motor side), else a finite positive one
     se = moving.stderr["tau_min"][4]
     assert (se == -1.0 or 0 < se < np.inf) and moving.stderr["sigma"][4] > 0
+
+
+def test_identify_through_a_process_pool_is_the_same_model(campaign, dither_campaign):
+    """The joint-regimes' fits run by an executor (the demo's process pool) give the model of
+    the serial run, bit for bit: each fit is a pure function of its samples."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    recs = [campaign[0], dither_campaign[0]]
+    serial = identify(recs, n_boot=5, seed=3).dumps()
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as ex:
+        assert identify(recs, n_boot=5, seed=3, executor=ex).dumps() == serial

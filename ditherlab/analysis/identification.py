@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
 
 import numpy as np
 
@@ -42,7 +43,13 @@ from ditherlab.core.timeseries import REVERSAL_V, causal_mean, jtf, stick_transi
 from ditherlab.data.recording import Recording, regimes
 from ditherlab.data.torque_model import PAPER_PRIOR_SIGMA, Band, TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, Source, pieces_of
-from ditherlab.physics.band_fit import BandFit, band_noise_logpdf, fit_band, fit_sliding
+from ditherlab.physics.band_fit import (
+    BandFit,
+    band_noise_logpdf,
+    fit_band,
+    fit_regimes,
+    fit_sliding,
+)
 from ditherlab.physics.dither import extract_dither
 from ditherlab.physics.effect_fit import pooled_lines
 from ditherlab.physics.effects import (
@@ -162,6 +169,7 @@ def identify(
     progress: Callable[[int, int], None] | None = None,
     chunk_rows: int = CHUNK_ROWS,
     spill_bytes: int = SPILL_BYTES,
+    executor: Executor | None = None,
 ) -> TorqueModel:
     """Fit the bands, noise and sliding friction of every joint and regime.
 
@@ -200,6 +208,8 @@ def identify(
     spill_bytes : residual samples held in memory before they go to temporary files
         (:class:`~ditherlab.core.spill.Spill`; about 16 bytes per sample and joint, 32 more per
         moving sample): memory then stays bounded however long the recordings are
+    executor : runs the joint-regimes' fits (e.g. a process pool; :func:`~ditherlab.physics.band_fit.
+        fit_regimes`): the same model, bit for bit, every joint-regime's samples held at once
 
     Returns
     -------
@@ -252,14 +262,15 @@ def identify(
         n = first.n
         store.flush()  # a long log's last held samples join the rest on disk before fitting
         fits: dict[tuple[int, int], dict[str, tuple[float, float]]] = {}
-        for code in (STILL, DITHER, MOVING):
-            for j in range(n):
-                f = samples.fit(code, j, min_samples=min_samples, n_boot=n_boot, seed=seed)
-                if f is not None:
-                    fits[(code, j)] = f
-                done += 1
-                if progress:
-                    progress(done, steps)
+        keys = [(code, j) for code in (STILL, DITHER, MOVING) for j in range(n)]
+        kw = {"min_samples": min_samples, "n_boot": n_boot, "seed": seed}
+        jobs = (samples.fit_job(code, j, **kw) for code, j in keys)
+        for (code, j), f in zip(keys, fit_regimes(jobs, executor), strict=True):
+            if f is not None:
+                fits[(code, j)] = f
+            done += 1
+            if progress:
+                progress(done, steps)
         amps = samples.amps
         # where the extracted residual rests: its median over the dithered samples (the centre
         # loop holds it there between pushes; pushes are a minority of the samples, of both
@@ -488,10 +499,11 @@ class _Samples:
         self.lags[DITHER] = max(self.lags[DITHER], int(round(sig.period * rec.sample_rate)))
         return DITHER, rho_d, dmask
 
-    def fit(
+    def fit_job(
         self, code: int, j: int, *, min_samples: int, n_boot: int, seed: int
-    ) -> dict[str, tuple[float, float]] | None:
-        """(value, standard error) per parameter of one joint-regime, or None (too few samples)."""
+    ) -> tuple | None:
+        """The arguments of :func:`~ditherlab.physics.band_fit.fit_regime` for one joint-regime (its
+        samples loaded), or None (too few samples)."""
         key = (code, j)
         if self.count(key) < min_samples:
             if code != MOVING or self.count((ALL_MOVING, j)) < min_samples:
@@ -500,25 +512,12 @@ class _Samples:
             # say so; the dynamic torque then widens the band until `inertia` is added)
             key = (ALL_MOVING, j)
             self.all_moving.append(j)
-        x = self.store.load(("x", *key))
-        bl = np.unique(self.store.load(("label", *key)), return_inverse=True)[1]
+        x, labels = self.store.load(("x", *key)), self.store.load(("label", *key))
         jseed = seed * 1000 + code * 100 + j
-        f: dict[str, tuple[float, float]] = {}
         if code == MOVING:
-            fc, fv, fit, se_c, se_v = fit_sliding(
-                x,
-                self.store.load(("dq", *key)),
-                blocks=bl,
-                n_boot=n_boot,
-                seed=jseed,
-                band_rows=self.store.load(("slide", *key)),
-            )
-            f["coulomb"], f["viscous"] = (fc, se_c), (fv, se_v)
-        else:
-            fit = fit_band(x, lag=self.lags[code], blocks=bl, n_boot=n_boot, seed=jseed)
-        f["tau_min"], f["tau_max"] = (fit.a, fit.se_a), (fit.b, fit.se_b)
-        f["sigma"] = (fit.sigma, fit.se_sigma)
-        return f
+            dq, slide = self.store.load(("dq", *key)), self.store.load(("slide", *key))
+            return x, labels, self.lags[code], n_boot, jseed, dq, slide
+        return x, labels, self.lags[code], n_boot, jseed
 
     def count(self, key: tuple[int, int]) -> int:
         """Samples of one (regime, joint)."""

@@ -17,10 +17,16 @@ Each step is a small function; :func:`run_pipeline` is what the tests call with 
 from __future__ import annotations
 
 import argparse
+import copy
+import multiprocessing
+import os
+import shutil
 import sys
+import tempfile
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,11 +42,12 @@ from ditherlab.core.errors import DitherlabError, ModelError
 from ditherlab.core.names import FORCE_AXES, WRENCH_COLUMNS
 from ditherlab.core.progress import progress_bar
 from ditherlab.data.recording import Recording
+from ditherlab.data.torque_model import TorqueModel
 from ditherlab.output.report_page import make_report, summary_text
-from ditherlab.output.rerun.rerun_log import save_view_files
+from ditherlab.output.rerun.rerun_log import save_view, save_view_files
 from ditherlab.sim import simulate
 
-RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
+RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
 SAMPLE = RECORDINGS / "ur10e-static.parquet"
 
 #: Output name per format; the bags are folders.
@@ -112,7 +119,12 @@ def report(results: list[RoundTrip]) -> str:
 
 @dataclass
 class PipelineResult:
-    """What :func:`run_pipeline` produced: files, the analysis, and seconds per step."""
+    """What :func:`run_pipeline` produced: files, the analysis, and seconds per step.
+
+    ``recordings`` and ``estimates`` name the evaluation pair's files (written only with
+    ``keep_data``; the report names them either way); ``data`` holds the objects themselves
+    (``"recordings"``, ``"estimates"``, ``"model"``); ``view`` the view's future when one was
+    asked for (:func:`run_pipeline`'s ``view``)."""
 
     out: Path
     model: Path
@@ -121,6 +133,97 @@ class PipelineResult:
     report: Path
     analysis: dict
     seconds: dict[str, float]
+    data: dict[str, Any] = field(default_factory=dict)
+    view: Future | None = None
+
+
+class Inline(Executor):
+    """An executor that runs each job when it is submitted, in this process (``--jobs 1``:
+    the steps in the order of a serial run)."""
+
+    def submit(self, fn, /, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN201
+        f: Future = Future()
+        try:
+            f.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller by result()
+            f.set_exception(exc)
+        return f
+
+
+def process_pool(jobs: int) -> Executor:
+    """``jobs`` worker processes (spawned: a fresh interpreter each, nothing inherited but the
+    arguments), or :class:`Inline` for ``jobs <= 1``."""
+    if jobs <= 1:
+        return Inline()
+    return ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"))
+
+
+def default_jobs() -> int:
+    """Worker processes: the processors this process may run on, at most 4 (four campaigns)."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(n, 4))
+
+
+def bare(rec: Recording) -> Recording:
+    """``rec`` without its cached robot and signals (a copy sharing the table), to send to
+    another process: the caches are large and rebuilt there on demand."""
+    out = copy.copy(rec)
+    out.__dict__.pop("_robot", None)
+    out.__dict__.pop("_signals", None)
+    return out
+
+
+def simulate_campaign(
+    path: str, seed: int, dither: bool, pushes: int, config: Mapping[str, Any] | None
+) -> tuple[Recording, float]:
+    """One push campaign simulated, written to ``path`` and read back (the recording every
+    later step sees is the file's); and the seconds it took."""
+
+    t0 = time.perf_counter()
+    rec = simulate(
+        "push-campaign", seed=seed, dither=dither, pushes_per_direction=pushes, config=config
+    )
+    return dio.read(dio.write(rec, Path(path))), time.perf_counter() - t0
+
+
+def replay_campaign(rec: Recording, model: Any) -> tuple[Any, float]:
+    """The estimator variants over one recording (:func:`ditherlab.analysis.estimation.replay`), seconds."""
+
+    t0 = time.perf_counter()
+    return replay(rec, model), time.perf_counter() - t0
+
+
+def write_view(
+    rrd: Path,
+    rec: Recording | Path,
+    est: Any,
+    model: Path,
+    series_rate: float | None,
+    rate_3d: float | None,
+) -> tuple[Path, float]:
+    """The Rerun view of one recording with its estimates and model: from the files
+    (``rec`` and ``est`` paths, read in pieces) or from the objects; seconds."""
+    t0 = time.perf_counter()
+    kw = {"rate_3d": rate_3d, "series_rate": series_rate}
+    if isinstance(rec, Path):
+        save_view_files(rec, rrd, estimates=est, model=model, **kw)
+    else:
+        save_view(rec, rrd, estimates=est, model=TorqueModel.load(model), **kw)
+    return rrd, time.perf_counter() - t0
+
+
+def sample_round_trips(recording: Path, out: Path) -> tuple[str, list[RoundTrip]]:
+    """``ditherlab info`` of the sample recording and its round trips through every format."""
+    rec = dio.read(recording)
+    return format_info(describe(rec)), [round_trip(rec, out, *target) for target in TARGETS]
+
+
+def _done(desc: str, seconds: float, quiet: bool) -> None:
+    if not quiet:
+        print(f"{desc}: done in {seconds:.1f} s", file=sys.stderr, flush=True)
 
 
 def run_pipeline(
@@ -132,6 +235,9 @@ def run_pipeline(
     report_boot: int = 200,
     quiet: bool = False,
     config: Mapping[str, Any] | None = None,
+    executor: Executor | None = None,
+    keep_data: bool = True,
+    view: Mapping[str, Any] | None = None,
 ) -> PipelineResult:
     """Simulate, identify, replay and report (see the module docstring).
 
@@ -146,64 +252,90 @@ def run_pipeline(
     quiet : no progress bars
     config : simulator parameters overriding ``irb140.toml`` (tables and keys as in that file),
         for both campaigns
+    executor : runs the campaigns, the band fits, the replays and the view (e.g.
+        :func:`process_pool`); None: all here, one after the other. Every result is the same,
+        bit for bit: each job is a pure function of its arguments.
+    keep_data : write the four campaigns' recordings and the two estimates files to ``out``
+        (else the recordings go through a scratch folder, removed, and the estimates stay in
+        memory; the report and the model name the files either way)
+    view : ``{"path": .rrd, "series_rate": ..., "rate_3d": ...}``: the view of the dithered
+        evaluation campaign, written by the executor while the report is made
+        (:func:`write_view`; ``PipelineResult.view`` is its future)
     """
 
     out.mkdir(parents=True, exist_ok=True)
+    ex = executor if executor is not None else Inline()
+    pool = None if isinstance(ex, Inline) else ex  # the band fits: here, one at a time
     seconds: dict[str, float] = {}
-    t0 = time.perf_counter()
-    recs = {}
-    paths = []
+    t_start = time.perf_counter()
+    scratch = None if keep_data else Path(tempfile.mkdtemp(prefix=".demo-", dir=out))
+    futures = {}
     for role, s in (("identification", seed + 1), ("evaluation", seed)):
         for dither in (False, True):
             name = f"{role}_{'dither' if dither else 'nodither'}"
-            with progress_bar(f"simulate {name}", quiet) as progress:
-                rec = simulate(
-                    "push-campaign",
-                    seed=s,
-                    dither=dither,
-                    progress=progress,
-                    pushes_per_direction=pushes_per_direction,
-                    config=config,
-                )
-            path = dio.write(rec, out / f"{name}.parquet")
-            recs[name] = dio.read(path)
-            if role == "evaluation":
-                paths.append(Path(path))
-    seconds["simulate"] = time.perf_counter() - t0
+            path = (scratch or out) / f"{name}.parquet"
+            args = (str(path), s, dither, pushes_per_direction, config)
+            futures[name] = ex.submit(simulate_campaign, *args)
+    recs: dict[str, Recording] = {}
+
+    def campaign(name: str) -> Recording:
+        rec, sec = futures[name].result()
+        object.__setattr__(rec, "name", str(out / f"{name}.parquet"))  # the file's, kept or not
+        _done(f"simulate {name}", sec, quiet)
+        return rec
+
+    try:
+        for name in ("identification_nodither", "identification_dither"):
+            recs[name] = campaign(name)
+        seconds["simulate"] = time.perf_counter() - t_start
+
+        t0 = time.perf_counter()
+        ids = [recs["identification_nodither"], recs["identification_dither"]]
+        with progress_bar("identify", quiet) as progress:
+            # the bands' point estimates: what add_effect starts from. Its re-fit replaces every
+            # band with its own (and its bootstrap's standard errors), so the bootstrap of this
+            # first fit is run only for a model that keeps it (add_effect refused)
+            model = identify(ids, n_boot=0, seed=seed, progress=progress)
+            # how the dither's extraction shows a push (late, in part): identified from the
+            # identification campaign's dithered pushes, used by replay (README "Calibrated
+            # intervals"); a campaign where it cannot be told apart from the bands keeps the
+            # model, then with its bootstrap
+            try:
+                model = add_effect(model, ids, "dither_extraction", executor=pool)
+            except ModelError:
+                model = identify(ids, n_boot=n_boot, seed=seed, executor=pool)
+        model_path = model.save(out / "model.toml")
+        seconds["identify"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        for name in ("evaluation_nodither", "evaluation_dither"):
+            recs[name] = campaign(name)
+        seconds["simulate, rest"] = time.perf_counter() - t0
+    finally:
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+    evals = [recs["evaluation_nodither"], recs["evaluation_dither"]]
+    paths = [Path(r.name) for r in evals]
 
     t0 = time.perf_counter()
-    with progress_bar("identify", quiet) as progress:
-        model = identify(
-            [recs["identification_nodither"], recs["identification_dither"]],
-            n_boot=n_boot,
-            seed=seed,
-            progress=progress,
-        )
-        # how the dither's extraction shows a push (late, in part): identified from the
-        # identification campaign's dithered pushes, used by replay (README "Calibrated
-        # intervals"); a campaign where it cannot be told apart from the bands keeps the model
-        try:
-            model = add_effect(
-                model,
-                [recs["identification_nodither"], recs["identification_dither"]],
-                "dither_extraction",
-            )
-        except ModelError:
-            pass
-    model_path = model.save(out / "model.toml")
-    seconds["identify"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    est_paths = []
-    ests = []
-    for name in ("evaluation_nodither", "evaluation_dither"):
-        with progress_bar(f"replay {name}", quiet) as progress:
-            est = replay(recs[name], model, progress=progress)
-        p = est.save(out / f"estimates_{name.split('_')[1]}.parquet")
+    jobs = [ex.submit(replay_campaign, bare(r), model) for r in evals]
+    est_paths, ests = [], []
+    for name, job in zip(("evaluation_nodither", "evaluation_dither"), jobs, strict=True):
+        est, sec = job.result()
+        p = out / f"estimates_{name.split('_')[1]}.parquet"
+        if keep_data:
+            p = Path(est.save(p))
         est.name = str(p)
-        est_paths.append(Path(p))
+        est_paths.append(p)
         ests.append(est)
+        _done(f"replay {name}", sec, quiet)
     seconds["replay"] = time.perf_counter() - t0
+
+    view_job = None
+    if view is not None:
+        src = (paths[1], est_paths[1]) if keep_data else (bare(evals[1]), ests[1])
+        rates = (view.get("series_rate"), view.get("rate_3d", 25.0))
+        view_job = ex.submit(write_view, Path(view["path"]), *src, Path(model_path), *rates)
 
     t0 = time.perf_counter()
     with progress_bar("report", quiet) as progress:
@@ -212,12 +344,20 @@ def run_pipeline(
             out / "report",
             n_boot=report_boot,
             seed=seed,
-            recordings=[recs["evaluation_nodither"], recs["evaluation_dither"]],
+            recordings=evals,
             progress=progress,
         )
     seconds["report"] = time.perf_counter() - t0
     return PipelineResult(
-        out, Path(model_path), paths, est_paths, out / "report", analysis, seconds
+        out,
+        Path(model_path),
+        paths,
+        est_paths,
+        out / "report",
+        analysis,
+        seconds,
+        {"recordings": evals, "estimates": ests, "model": model},
+        view_job,
     )
 
 
@@ -324,6 +464,13 @@ def pipeline_text(res: PipelineResult) -> str:
     return "\n".join(lines)
 
 
+#: The default view's resolution: the time series' envelope in bins of 0.5 s
+#: (:func:`ditherlab.output.rerun.columns.envelope_mask`) and the 3D scene at 10 Hz (``--full-view``:
+#: every sample, 3D at 25 Hz).
+VIEW_SERIES_RATE = 2.0
+VIEW_RATE_3D = 10.0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the demo; returns the exit status (0 when every step and round trip holds)."""
     parser = argparse.ArgumentParser(prog="python -m ditherlab.app.demo", description=__doc__)
@@ -333,29 +480,72 @@ def main(argv: list[str] | None = None) -> int:
         "--pushes", type=int, default=25, help="pushes per axis and sign in each simulated campaign"
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=default_jobs(),
+        help="worker processes for the campaigns, band fits, replays and view "
+        "(default: the processors available, at most 4; 1: all in this process, one after "
+        "the other); the outputs are the same",
+    )
+    parser.add_argument(
+        "--keep-data",
+        action="store_true",
+        help="also write the four campaigns' recordings and the two estimates files "
+        "(about 350 MB; `ditherlab report` and `ditherlab view` read them)",
+    )
+    parser.add_argument(
+        "--full-view",
+        action="store_true",
+        help="write demo.rrd with every sample of the time series and the 3D scene at 25 Hz "
+        f"(about 360 MB) instead of their envelope over {1 / VIEW_SERIES_RATE:g} s bins and "
+        f"{VIEW_RATE_3D:g} Hz",
+    )
     args = parser.parse_args(argv)
     t_start = time.perf_counter()
+    view = {
+        "path": args.out / "demo.rrd",
+        "series_rate": None if args.full_view else VIEW_SERIES_RATE,
+        "rate_3d": 25.0 if args.full_view else VIEW_RATE_3D,
+    }
+    ex = process_pool(args.jobs)
     try:
         print(
             "== push campaigns without and with dither on the built-in simulator "
             f"({args.pushes} pushes per axis and sign) -> identify -> replay -> report",
             flush=True,
         )
-        res = run_pipeline(args.out, pushes_per_direction=args.pushes, quiet=args.quiet)
-        print(pipeline_text(res), flush=True)
-
-        rrd = save_view_files(
-            res.recordings[1], args.out / "demo.rrd", estimates=res.estimates[1], model=res.model
+        args.out.mkdir(parents=True, exist_ok=True)
+        # the sample recording's round trips need nothing of the pipeline: queued behind the
+        # campaigns, for a worker that would otherwise wait
+        trips = ex.submit(sample_round_trips, args.recording, args.out)
+        res = run_pipeline(
+            args.out,
+            pushes_per_direction=args.pushes,
+            quiet=args.quiet,
+            executor=ex,
+            keep_data=args.keep_data,
+            view=view,
         )
+        print(pipeline_text(res), flush=True)
+        if not args.keep_data:
+            print(
+                "(recordings and estimates kept in memory, not written: --keep-data writes "
+                "them under the names above)",
+                flush=True,
+            )
+        assert res.view is not None
+        rrd, _ = res.view.result()
         print(f"\n== Rerun view of {res.recordings[1].name}: open it with: rerun {rrd}", flush=True)
-        rec = dio.read(args.recording)
+        info, results = trips.result()
         print(f"\n== ditherlab info {args.recording}")
-        print(format_info(describe(rec)))
+        print(info)
         print(f"\n== round trips through every format, in {args.out}/")
-        results = [round_trip(rec, args.out, *target) for target in TARGETS]
     except DitherlabError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        ex.shutdown(cancel_futures=True)
     print(report(results))
     # Parquet, CSV and MCAP are exact; a ROS 2 bag keeps t (ns stamps), q, dq, tau, wrench.
     ok = all(r.exact if not r.fmt.startswith("rosbag") else r.max_error < 1e-6 for r in results)

@@ -12,6 +12,7 @@ neither has to know the other.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,7 @@ def add_effect(
     *,
     refit: bool = True,
     assume_no_force: bool = False,
+    executor: Executor | None = None,
 ) -> TorqueModel:
     """Fit one more effect on the current residual and return the new model (version + 1).
 
@@ -56,6 +58,8 @@ def add_effect(
         (recordings with an F/T sensor, or without one with ``assume_no_force``)
     assume_no_force : the recordings have no sensor and no external force acts (as stated to
         identify): the re-fit treats the external force as zero
+    executor : runs the re-fit's band fits (:func:`ditherlab.analysis.identification.identify`'s
+        ``executor``; the same model)
 
     Returns
     -------
@@ -108,7 +112,7 @@ def add_effect(
     new.effects.append(spec)
     new.version = model.version + 1
     if refit:
-        new = _refit(new, recs, assume_no_force=assume_no_force)
+        new = _refit(new, recs, assume_no_force=assume_no_force, executor=executor)
     if weak:
         new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
     return new
@@ -120,12 +124,15 @@ def _refit(
     n_boot: int = 20,
     *,
     assume_no_force: bool = False,
+    executor: Executor | None = None,
 ) -> TorqueModel:
     """Re-fit bands and noise with the effects in place (identify), keeping version/history.
     Without a sensor the bands are re-fitted only when the user stated that no force acts."""
     if not assume_no_force and not all(r.has_wrench for r in recs):
         return model
-    out = identify(list(recs), base=model, n_boot=n_boot, assume_no_force=assume_no_force)
+    out = identify(
+        list(recs), base=model, n_boot=n_boot, assume_no_force=assume_no_force, executor=executor
+    )
     out.effects = list(model.effects)
     out.version = model.version
     out.history = list(model.history)

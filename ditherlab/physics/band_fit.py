@@ -21,6 +21,8 @@ misspecified and was measured to be off by several standard errors (see :func:`f
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import numpy as np
@@ -569,3 +571,43 @@ def fit_sliding(
         if len(labels) >= 5:
             se_c, se_v = (float(v) for v in reps.std(axis=0, ddof=1))
     return fc, fv, fit, se_c, se_v
+
+
+def fit_regime(
+    x: np.ndarray,
+    labels: np.ndarray,
+    lag: int,
+    n_boot: int,
+    seed: int,
+    dq: np.ndarray | None = None,
+    slide: np.ndarray | None = None,
+) -> dict[str, tuple[float, float]]:
+    """(value, standard error) per parameter of one joint-regime of identify: :func:`fit_band`
+    of its residual ``x`` (M,) [N·m], or with the velocity ``dq`` (M,) [rad/s] (a moving
+    regime) :func:`fit_sliding` (``slide``: its ``band_rows``); ``labels`` (M,) the bootstrap
+    blocks. A pure function of its arguments: another process gives the same numbers."""
+    bl = np.unique(labels, return_inverse=True)[1]
+    f: dict[str, tuple[float, float]] = {}
+    if dq is not None:
+        fc, fv, fit, se_c, se_v = fit_sliding(
+            x, dq, blocks=bl, n_boot=n_boot, seed=seed, band_rows=slide
+        )
+        f["coulomb"], f["viscous"] = (fc, se_c), (fv, se_v)
+    else:
+        fit = fit_band(x, lag=lag, blocks=bl, n_boot=n_boot, seed=seed)
+    f["tau_min"], f["tau_max"] = (fit.a, fit.se_a), (fit.b, fit.se_b)
+    f["sigma"] = (fit.sigma, fit.se_sigma)
+    return f
+
+
+def fit_regimes(
+    jobs: Iterable[tuple | None], executor: Executor | None = None
+) -> Iterator[dict[str, tuple[float, float]] | None]:
+    """:func:`fit_regime` of every job's arguments (None: no fit, None out), in order. Without
+    an executor one job at a time, as they come; with one, every job is submitted first (their
+    samples then held at once) and the results are returned in the jobs' order."""
+    if executor is None:
+        yield from (None if a is None else fit_regime(*a) for a in jobs)
+        return
+    futures = [None if a is None else executor.submit(fit_regime, *a) for a in jobs]
+    yield from (None if f is None else f.result() for f in futures)

@@ -302,45 +302,36 @@ class Stack:
         return eff + (0,) * (self.C.shape[1] - len(eff))
 
 
-def stack(
-    e: Effect,
-    sc: Sequence[Scored],
-    j: int | None,
-    h: Any,
-    ref: dict[str, Any],
-    lags: Sequence[int] | None = None,
-) -> Stack:
-    """Flatten the scored samples of joint j (or all joints when the effect is shared).
+@dataclass
+class StackRows:
+    """What a :class:`Stack` of joint ``j`` holds whatever the effect's parameter: the rows
+    (:func:`stack_rows`), their residual, band, noise, block and joint, and the nuisance
+    columns ``N`` (M, p); :func:`stack` adds the effect's design at one parameter value."""
 
-    ``lags`` (one per recording, samples): the effect's design circularly shifted in time by
-    this much against the residual, a surrogate whose driving variable carries no information
-    about the residual (the bands and the sliding line stay where they are). On scored rows
-    of a recording (:meth:`Signals.take`) the lags count those rows, and ``block`` numbers the
-    samples by their rows in the whole recordings.
-    """
-    es, hs, ss, Cs, Ws, os_, bs, gs, js = [], [], [], [], [], [], [], [], []
+    e: np.ndarray
+    h: np.ndarray
+    s: np.ndarray
+    block: np.ndarray
+    joint: np.ndarray
+    N: np.ndarray
+    #: per recording and joint: (recording, joint, rows used (L,) bool, moving rows (L,) bool)
+    rows: list[tuple[int, int, np.ndarray, np.ndarray]]
+
+
+def stack_rows(sc: Sequence[Scored], j: int | None) -> StackRows:
+    """The parameter-free part of :func:`stack` (joint j, or all joints when None)."""
+    es, hs, ss, bs, gs, js, rows = [], [], [], [], [], [], []
     ns: list[tuple[int, np.ndarray]] = []
     t0 = 0
     for i, s in enumerate(sc):
-        d = design_at(e, s.sig, j, h, ref)
-        if lags is not None and lags[i]:
-            d = d.rolled(int(lags[i]))
         joints = range(s.sig.n) if j is None else [j]
         for jj in joints:
-            if j is None:
-                C = d.centre[:, jj, :]
-                Wd = d.widen[:, jj, :] if d.widen is not None else None
-                o = d.offset[:, jj] if d.offset is not None else None
-            else:
-                C, Wd, o = d.centre, d.widen, d.offset
             m = s.use[:, jj]
             mv = s.sig.regime[:, jj] == MOVING
+            rows.append((i, jj, m, mv))
             es.append(s.e[m, jj])
             hs.append(s.h[m, jj])
             ss.append(s.sigma[m, jj])
-            Cs.append(C[m])
-            Ws.append(np.zeros_like(C[m]) if Wd is None else (Wd * ~mv[:, None])[m])
-            os_.append(np.zeros(int(m.sum())) if o is None else o[m])
             bs.append(t0 + s.sig.index[m])
             gs.append(jj * 3 + s.sig.regime[m, jj].astype(np.int64))
             js.append(np.full(int(m.sum()), jj, np.int64))
@@ -353,7 +344,7 @@ def stack(
                 cols.append(dqm)
             ns.append((jj, np.column_stack(cols) if cols else np.zeros((len(dqm), 0))))
         t0 += s.sig.length
-    e_, h_, s_, C_, W_, o_, b_, g_ = (np.concatenate(a) for a in (es, hs, ss, Cs, Ws, os_, bs, gs))
+    e_, h_, s_, b_, g_ = (np.concatenate(a) for a in (es, hs, ss, bs, gs))
     _, gi = np.unique(g_, return_inverse=True)
     G = np.zeros((len(g_), int(gi.max()) + 1 if len(g_) else 0))
     G[np.arange(len(g_)), gi] = 1.0
@@ -367,10 +358,48 @@ def stack(
         S[r0 : r0 + len(a), c0 : c0 + a.shape[1]] = a
         r0 += len(a)
     S = S[:, np.any(S != 0, axis=0)]
-    N_ = np.hstack([G, S])
+    return StackRows(e_, h_, s_, b_, np.concatenate(js), np.hstack([G, S]), rows)
+
+
+def stack(
+    e: Effect,
+    sc: Sequence[Scored],
+    j: int | None,
+    h: Any,
+    ref: dict[str, Any],
+    lags: Sequence[int] | None = None,
+    rows: StackRows | None = None,
+) -> Stack:
+    """Flatten the scored samples of joint j (or all joints when the effect is shared).
+
+    ``lags`` (one per recording, samples): the effect's design circularly shifted in time by
+    this much against the residual, a surrogate whose driving variable carries no information
+    about the residual (the bands and the sliding line stay where they are). On scored rows
+    of a recording (:meth:`Signals.take`) the lags count those rows, and ``block`` numbers the
+    samples by their rows in the whole recordings. ``rows``: :func:`stack_rows` of the same
+    ``sc`` and ``j``, computed once for a search over ``h`` (the same stack, bit for bit).
+    """
+    r = stack_rows(sc, j) if rows is None else rows
+    Cs, Ws, os_ = [], [], []
+    designs: dict[int, Any] = {}
+    for i, jj, m, mv in r.rows:
+        if i not in designs:
+            d = design_at(e, sc[i].sig, j, h, ref)
+            designs[i] = d.rolled(int(lags[i])) if lags is not None and lags[i] else d
+        d = designs[i]
+        if j is None:
+            C = d.centre[:, jj, :]
+            Wd = d.widen[:, jj, :] if d.widen is not None else None
+            o = d.offset[:, jj] if d.offset is not None else None
+        else:
+            C, Wd, o = d.centre, d.widen, d.offset
+        Cs.append(C[m])
+        Ws.append(np.zeros_like(C[m]) if Wd is None else (Wd * ~mv[:, None])[m])
+        os_.append(np.zeros(int(m.sum())) if o is None else o[m])
+    C_, W_, o_ = (np.concatenate(a) for a in (Cs, Ws, os_))
     k = C_.shape[1]
-    W = np.hstack([W_, np.zeros_like(N_)])
-    return Stack(e_, h_, s_, np.hstack([C_, N_]), W, o_, b_, k, np.concatenate(js))
+    W = np.hstack([W_, np.zeros_like(r.N)])
+    return Stack(r.e, r.h, r.s, np.hstack([C_, r.N]), W, o_, r.block, k, r.joint)
 
 
 #: Smallest :func:`identifiability` for which add_effect accepts a fit.
@@ -435,13 +464,14 @@ def fit_effect(
     ref = e.reference(sigs, j)
     best: FitResult | None = None
     grid = full = e.grid(sigs, j)
+    rows = stack_rows(sc, j)  # the same for every value of the parameter
     if not e.shared and j is not None and len(grid) > 1:
-        st0 = stack(e, sc, j, grid[0], ref)
+        st0 = stack(e, sc, j, grid[0], ref, rows=rows)
         m0 = train(st0.block) if train is not None else np.ones(len(st0.e), dtype=bool)
         grid = e.shortlist(sc, j, grid, [m0])[0]
 
     def fit_at(h: Any) -> FitResult:
-        st = stack(e, sc, j, h, ref)
+        st = stack(e, sc, j, h, ref, rows=rows)
         m = train(st.block) if train is not None else slice(None)
         w, L = solve_signed(
             st.e[m], st.h[m], st.s[m], st.C[m], st.W[m], st.o[m], st.signs(e.signs(h))

@@ -85,6 +85,50 @@ def decimate_index(t: np.ndarray, rate: float | None) -> np.ndarray:
     return np.flatnonzero(first)
 
 
+def envelope_mask(t: np.ndarray, values: np.ndarray, rate: float, t0: float) -> np.ndarray:
+    """Samples to keep so that a plot at ``rate`` bins per second shows the same envelope.
+
+    The time axis is cut into bins of ``1 / rate`` seconds from ``t0``; in every bin the first
+    and last samples are kept, and in every column the (first) sample of its smallest and of
+    its largest value (NaN ignored). Every kept value is a value of the input at its own time
+    stamp, bit for bit; between kept samples the line is drawn straight, so a bin's inner wiggles
+    (a square wave's flanks, noise) show as the band between its extremes.
+
+    Parameters
+    ----------
+    t : (M,) [s], non-decreasing ; values : (M,) or (M, k) ; rate : [1/s] > 0 ; t0 : [s]
+
+    Returns
+    -------
+    (M,) bool
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim == 1:
+        v = v[:, None]
+    M = len(t)
+    keep = np.zeros(M, dtype=bool)
+    if M <= 2:
+        keep[:] = True
+        return keep
+    bins = np.floor((np.asarray(t, dtype=float) - t0) * rate).astype(np.int64)
+    new_bin = np.ones(M, dtype=bool)
+    new_bin[1:] = bins[1:] != bins[:-1]
+    starts = np.flatnonzero(new_bin)
+    keep[starts] = True
+    keep[np.r_[starts[1:] - 1, M - 1]] = True
+    seg = np.cumsum(new_bin) - 1  # bin number of every sample, 0..len(starts)-1
+    for c in range(v.shape[1]):
+        col = v[:, c]
+        for red in (np.fmin, np.fmax):
+            ext = red.reduceat(col, starts)[seg]
+            hit = np.flatnonzero(col == ext)  # NaN never equals: an all-NaN bin keeps its ends
+            if len(hit):
+                first = np.ones(len(hit), dtype=bool)
+                first[1:] = seg[hit[1:]] != seg[hit[:-1]]
+                keep[hit[first]] = True
+    return keep
+
+
 # ---------------------------------------------------------------------- the logger
 @dataclass
 class ViewSummary:
@@ -105,9 +149,19 @@ class ColumnLogger:
     the whole recording sent at once.
     """
 
-    def __init__(self, stream: rr.RecordingStream, t: np.ndarray) -> None:
+    def __init__(
+        self,
+        stream: rr.RecordingStream,
+        t: np.ndarray,
+        series_rate: float | None = None,
+        t0: float = 0.0,
+    ) -> None:
         self.stream = stream
         self.t = t
+        #: [1/s] bins per second of :func:`envelope_mask` for the time series (None: full rate)
+        self.series_rate = series_rate if series_rate and series_rate > 0 else None
+        #: [s] where the bins start (the recording's first time stamp)
+        self.t0 = t0
         self.summary = ViewSummary()
         #: the current piece is the recording's last (nothing is held back)
         self.last = True
@@ -143,6 +197,9 @@ class ColumnLogger:
         t = self.t if t is None else np.asarray(t, dtype=float)
         if thin:
             v, t = self._thin(path, v, t)
+        if self.series_rate is not None and len(t) > 2:
+            keep = envelope_mask(t, v, self.series_rate, self.t0)
+            v, t = v[keep], t[keep]
         names_l = [names] if isinstance(names, str) else list(names)
         style: dict[str, Any] = {"names": names_l}
         if colors is not None:

@@ -81,6 +81,9 @@ class WholeView:
     robot_label: str
     sample_rate: float
     variants: list[str] = field(default_factory=list)
+    #: [1/s] the time series' envelope bins per second (:func:`ditherlab.output.rerun.columns.
+    #: envelope_mask`); None: every sample
+    series_rate: float | None = None
 
     @property
     def duration(self) -> float:
@@ -224,7 +227,8 @@ def log_pieces(
     ViewSummary
         Row counts per entity as sent.
     """
-    log = ColumnLogger(stream, whole.t[:0])
+    t0 = float(whole.t[0]) if len(whole.t) else 0.0
+    log = ColumnLogger(stream, whole.t[:0], series_rate=whole.series_rate, t0=t0)
     log.summary.n_joints = whole.n
     log.summary.variants = list(whole.variants)
     stream.log(

@@ -152,6 +152,7 @@ def log_view(
     rate_3d: float | None = 25.0,
     force_scale: float = 0.005,
     progress: Callable[[int, int], None] | None = None,
+    series_rate: float | None = None,
 ) -> ViewSummary:
     """Log a recording (and optionally estimates, model and diagnosis) to a Rerun stream.
 
@@ -164,9 +165,13 @@ def log_view(
     diagnosis : a diagnosis (candidates at worst windows), optional: ``load_report`` of the
         report.json of ``ditherlab diagnose -o``, or a ``ditherlab.analysis.diagnosis.Diagnosis``
     rate_3d : [Hz] rate of the 3D entities (robot pose, arrows, boxes); None = every sample.
-        Time series are always logged at full rate.
+        Time series are logged at full rate unless ``series_rate`` is given.
     force_scale : [m/N] length of a force arrow per newton in the 3D view
     progress : callable(done, total), optional
+    series_rate : [1/s] the time series decimated to their envelope in bins of
+        ``1 / series_rate`` seconds (:func:`ditherlab.output.rerun.columns.envelope_mask`: per bin its
+        first and last samples and each column's extremes, values bit for bit); None = every
+        sample (after the lossless thinning)
 
     Returns
     -------
@@ -178,6 +183,7 @@ def log_view(
     if progress is not None:
         progress(0, 1)
     whole = WholeView.of_recording(rec, estimates, rate_3d)
+    whole.series_rate = series_rate
     return log_pieces(
         stream,
         whole,
@@ -202,6 +208,7 @@ def log_view_pieces(
     force_scale: float = 0.005,
     chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
+    series_rate: float | None = None,
 ) -> ViewSummary:
     """:func:`log_view` of a recording read in pieces of ``chunk_rows`` rows
     (:func:`ditherlab.output.rerun.pieces.log_pieces`): the same rows and values, memory for one piece
@@ -211,6 +218,7 @@ def log_view_pieces(
     if progress is not None:
         progress(0, 1)
     whole = WholeView.of_source(src, head, estimates, rate_3d, chunk_rows)
+    whole.series_rate = series_rate
     return log_pieces(
         stream,
         whole,
@@ -267,6 +275,7 @@ def save_view(
     inputs: Sequence[str | Path] = (),
     rate_3d: float | None = 25.0,
     progress: Callable[[int, int], None] | None = None,
+    series_rate: float | None = None,
 ) -> ViewSummary:
     """Write the view of ``rec`` to an ``.rrd`` file atomically; see :func:`log_view`.
 
@@ -278,6 +287,7 @@ def save_view(
     stream = new_stream(rec, estimates, model)
     bp = make_blueprint(rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench)
     kw = {"estimates": estimates, "model": model, "diagnosis": diagnosis, "rate_3d": rate_3d}
+    kw["series_rate"] = series_rate
     return _save(out, stream, bp, lambda: log_view(rec, stream, progress=progress, **kw))
 
 
@@ -293,6 +303,7 @@ def save_view_pieces(
     rate_3d: float | None = 25.0,
     chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
+    series_rate: float | None = None,
 ) -> ViewSummary:
     """Write the view of a recording read in pieces to an ``.rrd`` file as the pieces come
     (Rerun's file sink streams; the file is renamed into place at the end); see
@@ -302,6 +313,7 @@ def save_view_pieces(
     variants = estimates.variants if estimates else []
     bp = make_blueprint(head.n, variants, has_wrench=head.has_wrench)
     kw = {"estimates": estimates, "model": model, "diagnosis": diagnosis, "rate_3d": rate_3d}
+    kw["series_rate"] = series_rate
 
     def log() -> ViewSummary:
         return log_view_pieces(
@@ -400,6 +412,7 @@ def run_view(
     rate_3d: float | None = 25.0,
     chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
+    series_rate: float | None = None,
 ) -> ViewResult:
     """Write (``req.save``) or show (``req.mode``) the view of a checked request, the recording
     and its estimates read in pieces of ``chunk_rows`` rows (:func:`log_view_pieces`)."""
@@ -411,6 +424,7 @@ def run_view(
         "rate_3d": rate_3d,
         "chunk_rows": chunk_rows,
         "progress": progress,
+        "series_rate": series_rate,
     }
     if req.save is not None:
         summary = save_view_pieces(req.src, req.save, inputs=req.inputs, **kw)
@@ -436,6 +450,7 @@ def save_view_files(
     rate_3d: float | None = 25.0,
     chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
+    series_rate: float | None = None,
 ) -> Path:
     """Open the files, check them and write the view to ``out`` (``.rrd``) reading the
     recording in pieces; returns ``out``.
@@ -445,5 +460,7 @@ def save_view_files(
     req = load_view_request(
         recording, estimates=estimates, model=model, diagnosis=diagnosis, save=out
     )
-    run_view(req, rate_3d=rate_3d, chunk_rows=chunk_rows, progress=progress)
+    run_view(
+        req, rate_3d=rate_3d, chunk_rows=chunk_rows, progress=progress, series_rate=series_rate
+    )
     return Path(out)
