@@ -718,6 +718,12 @@ def section_false_discoveries(cfg: argparse.Namespace, work: Path) -> dict[str, 
     }
 
 
+def family_order(d: dict[str, Any], family: str) -> tuple[int, str]:
+    """The study's order of its families (unknown ones last, by name)."""
+    known = d.get("families_described") or []
+    return (known.index(family) if family in known else len(known), family)
+
+
 def render_false_discoveries(d: dict[str, Any]) -> list[str]:
     s = d["summary"]
     out = [
@@ -735,7 +741,7 @@ def render_false_discoveries(d: dict[str, Any]) -> list[str]:
     ]
     rows = [
         [f, c.get("recordings", 0), c.get("false", 0), c.get("errors", 0)]
-        for f, c in sorted(d["families"].items())
+        for f, c in sorted(d["families"].items(), key=lambda fc: family_order(d, fc[0]))
     ]
     out.append(table(["family", "recordings", "with a suggestion", "failed"], rows))
     flagged = [r for r in d["rows"] if r.get("error") or r.get("false_discovery")]
@@ -752,15 +758,14 @@ def render_false_discoveries(d: dict[str, Any]) -> list[str]:
 
 # ------------------------------------------------------------------------------ 3. real logs
 def data_folder(cfg: argparse.Namespace) -> tuple[Path | None, str]:
-    """The folder of the real logs and how it was chosen."""
+    """The folder of the real logs (None: absent) and how it was chosen."""
     if cfg.data is not None:
         return (cfg.data if cfg.data.is_dir() else None), f"--data {cfg.data}"
-    for p, why in (
-        (REPO.parent / "shared" / "data", "../shared/data beside the repository"),
-        (REPO / "tests" / "data", "the repository's tests/data"),
-    ):
-        if p.is_dir():
-            return p, why
+    shared = REPO.parent / "shared" / "data"
+    if shared.is_dir():
+        return shared, "the default folder"
+    if (REPO / "tests" / "data").is_dir():
+        return REPO / "tests" / "data", "the repository's copy; ../shared/data is absent"
     return None, "../shared/data beside the repository"
 
 
@@ -919,8 +924,8 @@ def render_real_logs(d: dict[str, Any]) -> list[str]:
         "Each log through the loop a user runs: `identify`, `diagnose`, `identify --add` of "
         "diagnose's first suggestion, `diagnose` again. The residual is the torque RMS per "
         "joint on the scored samples against its noise floor (diagnose's JSON, "
-        f"`residual`). Real logs from {d['data_from']}"
-        + (f" (`{d['data']}`)." if d["data"] else "."),
+        "`residual`)."
+        + (f" Real logs from `{d['data']}` ({d['data_from']})." if d["data"] else ""),
         "",
     ]
     if d.get("skipped_note"):
@@ -1147,7 +1152,9 @@ def render_fuzz(d: dict[str, Any]) -> list[str]:
         f"{d['wall_seconds']:.0f} s wall, slowest case {d['slowest_case_seconds']:.1f} s.",
         "",
     ]
-    kinds = sorted({k for v in d["per_command"].values() for k in v if k != "with a finding"})
+    kinds = list(
+        dict.fromkeys(k for v in d["per_command"].values() for k in v if k != "with a finding")
+    )
     rows = []
     for cmd, v in d["per_command"].items():
         rows.append([f"`{cmd}`", *[v.get(k, 0) for k in kinds], sum(v.get(k, 0) for k in kinds),
@@ -1252,7 +1259,7 @@ def render(results: dict[str, dict[str, Any]]) -> str:
         "(`validation.json` beside this page); each section names the run it comes from.",
     ]
     if any(r.get("quick") for r in results.values()):
-        quick = ", ".join(f"{k}" for k, r in results.items() if r.get("quick"))
+        quick = ", ".join(k for k in SECTIONS if (results.get(k) or {}).get("quick"))
         out += [
             "",
             f"**Quick run** (smoke sizes) in: {quick}. Those sections check that the runs go "
