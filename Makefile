@@ -8,7 +8,7 @@ JOBS   ?= 2
 # e.g. DEMO_FLAGS='--full-view --keep-data': the view at full rate, the recordings and estimates
 DEMO_FLAGS ?=
 
-.PHONY: setup demo test bench fuzz lint lock clean docs
+.PHONY: setup demo test bench fuzz lint lock clean docs validation
 
 $(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "ditherlab needs Python >= 3.11"'
@@ -31,6 +31,14 @@ docs: $(STAMP)
 	$(PY) scripts/effects_page.py
 	$(PY) scripts/cli_page.py
 	$(VENV)/bin/mkdocs build --strict
+
+# The measured evidence of docs/validation.md (and .json), written by the script from runs: the
+# paper's table over SEEDS seeds, false discoveries on clean recordings, the real-log loop, the
+# bench's ratios, the fuzz campaign. About an hour or more on 2 cores; --quick for a smoke run.
+SEEDS  ?= 7
+PUSHES ?= 25
+validation: $(STAMP)
+	$(PY) scripts/validation.py --seeds $(SEEDS) --pushes $(PUSHES) --jobs $(JOBS) --out docs/validation.md
 
 bench: $(STAMP)
 	$(PY) -m bench.run
