@@ -16,14 +16,16 @@ from ditherlab.analysis.diagnosis_sums import Windows
 from ditherlab.core.timeseries import smooth_derivative
 from ditherlab.data.recording import Recording, derivative_by_segment
 
-#: seconds any command may take on these small logs (the issue's bound is 60 s)
+#: CPU seconds any command may take on these small logs: a bound on the work (a gap of 10⁷ s must
+#: not turn into 10⁹ samples), counted in this process's CPU time so that a busy machine does not
+#: fail it
 BOUND_S = 60.0
 
 
 def run(cli, *args):
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     res = cli(*args)
-    assert time.perf_counter() - t0 < BOUND_S, args
+    assert time.process_time() - t0 < BOUND_S, args
     return res
 
 

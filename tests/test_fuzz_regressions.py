@@ -149,9 +149,9 @@ def test_csv_row_of_200000_extra_fields_fails_fast(cli, tmp_path, rec):
         f"{p}: not a readable CSV file (Error tokenizing data. C error: Expected 13 fields in "
         "line 4, saw 200013)"
     )
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time of this process: the work, not the machine's load
     assert one_error(cli, "info", p) == f"error: {want}"
-    assert time.perf_counter() - t0 < 20
+    assert time.process_time() - t0 < 20
     with pytest.raises(FormatError) as exc:  # the first pass, which reads t, says so
         open_source(p).times()
     assert str(exc.value) == want

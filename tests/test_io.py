@@ -23,7 +23,7 @@ from ditherlab.io.rosbag import merge_onto
 from ditherlab.robot import RobotModel
 
 REPO = Path(__file__).resolve().parents[1]
-UR_URDF = REPO / "ditherlab" / "robots" / "ur10e.urdf"
+UR_URDF = REPO / "ditherlab" / "robot" / "descriptions" / "ur10e.urdf"
 UR_K = np.array([10.0, 10.6956, 8.4566, 9.0029, 9.48, 10.1232])  # [N·m/A]
 SMALL = [f"{p}_{j}" for p in ("q", "tau") for j in range(1, 7)]
 IRB_JOINTS = RobotModel.from_spec("irb140").joint_names
@@ -538,7 +538,7 @@ def test_mapping_with_header_units_factors_offsets(tmp_path):
 def test_mapping_errors_name_the_key(tmp_path, shared_data):
     """Unknown keys, wrong list lengths and columns out of range name the mapping key."""
     base = (REPO / "ditherlab" / "io" / "mappings" / "ur10e.toml").read_text()
-    base = base.replace('"../../robots/ur10e.urdf"', f'"{UR_URDF}"')
+    base = base.replace('"../../robot/descriptions/ur10e.urdf"', f'"{UR_URDF}"')
     csv = shared_data / "ur10e" / "no_torque.csv"
     cases = [
         (
