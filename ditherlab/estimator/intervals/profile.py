@@ -5,7 +5,7 @@ Two kernels follow the same path: :func:`_profile_reference_kernel` refactors th
 every segment (slow, obviously right: :func:`profile_reference`), and :func:`_profile_kernel`
 factors once per sample and carries ``H^-1`` along the path by rank-one updates (what
 :func:`ditherlab.estimator.intervals` uses; samples where the updates could lose accuracy are
-handed to the reference). The reasoning is in ``docs/design/estimator-profile.md``.
+handed to the reference). The reasoning is in ``docs/design/estimator-intervals.md``.
 """
 
 from __future__ import annotations
