@@ -2,9 +2,11 @@
 (:class:`Sample`), its cost ``f`` with ``tau_f`` profiled out (see :mod:`ditherlab.estimator`),
 the sides of its joints, and a Givens row update.
 
-numba's on-disk cache does not follow calls into other files: after editing a kernel here,
-delete the ``__pycache__`` of ``backends/`` and ``intervals/`` (or touch their modules) so
-their cached callers recompile.
+The helpers create no array and are compiled without numba's reference counts (``_nrt=False``),
+as are the kernel loops that call them (``docs/design/estimator-kernels.md``). numba's on-disk
+cache does not follow calls into other files: after editing a kernel here, delete the
+``__pycache__`` of ``backends/`` and ``intervals/`` (or touch their modules) so their cached
+callers recompile.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ class Sample(NamedTuple):
     prior_mean: np.ndarray
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def sample_at(S, k):
     """Sample ``k`` of the run ``S`` (:class:`~ditherlab.estimator.problem.Samples`)."""
     return Sample(S.tau_bar[k], S.J[k], S.tau_min[k], S.tau_max[k], S.w[k], S.p[k], S.prior_mean)
@@ -53,7 +55,7 @@ def _dist(r, lo, hi):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _cost(smp, F):
     """``f(F)`` at the sample ``smp`` (:class:`Sample`), ``F (m,)`` [N, N·m]."""
     tb, J, a, b, w, p, fb = smp
@@ -70,7 +72,7 @@ def _cost(smp, F):
     return c
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sides(smp, F, s):
     """``s (n,)``: the side of every joint of the sample ``smp`` at ``F (m,)``: +1 above its
     band, -1 below, 0 inside."""
@@ -88,7 +90,7 @@ def _sides(smp, F, s):
             s[j] = 0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _givens_row(R, u, m, z, beta, rhs):
     """Add the row ``u`` (m,) to the upper-triangular ``R`` (m, m) by Givens rotations, in place.
 

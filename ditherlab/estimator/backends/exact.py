@@ -50,6 +50,12 @@ class ExactWork(NamedTuple):
     s, sn, sa : (n,) int8
         The joints' sides at ``F``, at ``x`` and of a trial piece (+1 above the band, -1 below,
         0 inside).
+    F : (m,) [N, N·m]
+        The current point (the previous sample's solution when warm).
+    r0, c : (n,)
+        The line search's residuals [N·m] at ``F`` and their slopes along the step.
+    bps : (2n + 1,)
+        The line search's breakpoints.
     """
 
     piece: PieceWork
@@ -58,6 +64,10 @@ class ExactWork(NamedTuple):
     s: np.ndarray
     sn: np.ndarray
     sa: np.ndarray
+    F: np.ndarray
+    r0: np.ndarray
+    c: np.ndarray
+    bps: np.ndarray
 
 
 @njit(cache=True)
@@ -66,7 +76,7 @@ def piece_work(m, n):
     return PieceWork(np.empty((m, m)), np.empty(m), np.empty((n, m)), np.empty(n))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _newton_piece(smp, s, work, x):
     """Minimiser ``x (m,)`` [N, N·m] of the quadratic piece of ``f`` at the sample ``smp``
     (:class:`~ditherlab.estimator.piecewise.Sample`)
@@ -138,16 +148,26 @@ def _newton_piece(smp, s, work, x):
         x[i] += fb[i]
 
 
-@njit(cache=True)
-def _line_search(smp, F, d):
+@njit(cache=True, inline="always", _nrt=False)
+def _sort_small(x, n):
+    """``x[:n]`` sorted in place (insertion sort: a handful of breakpoints, no allocation)."""
+    for q in range(1, n):
+        v = x[q]
+        j = q
+        while j > 0 and x[j - 1] > v:
+            x[j] = x[j - 1]
+            j -= 1
+        x[j] = v
+
+
+@njit(cache=True, _nrt=False)
+def _line_search(smp, F, d, ws):
     """Exact minimiser ``t`` in [0, 1] of the convex piecewise quadratic ``phi(t) = f(F + t d)``
     at the sample ``smp`` (:class:`~ditherlab.estimator.piecewise.Sample`); ``F, d (m,)``
-    [N, N·m]."""
+    [N, N·m]; ``ws`` an :class:`ExactWork` (``r0``, ``c``, ``bps`` scratch)."""
     tb, J, a, b, w, p, fb = smp
     m, n = J.shape
-    r0 = np.empty(n)
-    c = np.empty(n)
-    bps = np.empty(2 * n + 1)
+    r0, c, bps = ws.r0, ws.c, ws.bps
     nb = 0
     for j in range(n):
         r = tb[j]
@@ -165,7 +185,7 @@ def _line_search(smp, F, d):
                     nb += 1
     bps[nb] = 1.0
     nb += 1
-    bps[:nb].sort()
+    _sort_small(bps, nb)
 
     def dphi(t):
         v = 0.0
@@ -189,7 +209,7 @@ def _line_search(smp, F, d):
     return 1.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _same_piece(smp, s, sn):
     """Whether the sides ``sn`` at the piece's minimiser are the sides ``s`` it was computed
     from. A joint of zero-width band is on the same piece on either side of it (the edge is the
@@ -201,7 +221,7 @@ def _same_piece(smp, s, sn):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _release_ambiguous(smp, F, ws):
     """Joints held active at a distance within rounding of their band edge at the piece's
     minimiser ``ws.x``: with a huge ``w_j`` (tiny noise) and a weak prior the sign of that
@@ -240,7 +260,7 @@ def _release_ambiguous(smp, F, ws):
     return improved, fbest
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _descend(smp, F, fcur, ws):
     """From ``F`` towards the piece's minimiser ``ws.x``: the full step when it lowers ``f``
     (``fcur``, f at ``F``), else the exact line search along it. Returns ``(f at F, stop)``,
@@ -260,7 +280,7 @@ def _descend(smp, F, fcur, ws):
         step = max(step, abs(d[i]) / (1.0 + abs(F[i])))
     if step < 1e-15:
         return fcur, True  # the piece's minimiser is the current point: ties at a band edge
-    t = _line_search(smp, F, d)
+    t = _line_search(smp, F, d, ws)
     if t <= 0.0:
         return fcur, True
     for i in range(m):
@@ -269,7 +289,7 @@ def _descend(smp, F, fcur, ws):
     return _cost(smp, F), False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _solve_sample(smp, F, ws, max_iter):
     """The minimiser of ``f`` at the sample ``smp`` into ``F (m,)`` (which holds the start):
     Newton steps from piece to piece, each to the minimiser of the current piece (the answer
@@ -309,19 +329,15 @@ def _solve_sample(smp, F, ws, max_iter):
     return it
 
 
-@njit(cache=True)
-def _solve_exact_kernel(S, max_iter, warm, F_out, it_out):
-    """The exact solution ``F_out (N, m)`` [N, N·m] and iterations ``it_out (N,)`` of every
-    sample of the run ``S`` (:class:`~ditherlab.estimator.problem.Samples`); ``warm``: each sample
-    starts from the previous one's solution (time series are smooth), else from the prior
-    mean."""
+@njit(cache=True, _nrt=False)
+def _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws):
+    """:func:`_solve_exact_kernel` on its scratch ``ws`` (:class:`ExactWork`), compiled without
+    reference counts."""
     N, m, n = S.J.shape
     fb = S.prior_mean
-    ws = ExactWork(
-        piece_work(m, n), np.empty(m), np.empty(m), np.zeros(n, np.int8), np.zeros(n, np.int8),
-        np.zeros(n, np.int8),
-    )  # fmt: skip
-    F = fb.copy()
+    F = ws.F
+    for i in range(m):
+        F[i] = fb[i]
     for k in range(N):
         if not warm:
             for i in range(m):
@@ -329,6 +345,20 @@ def _solve_exact_kernel(S, max_iter, warm, F_out, it_out):
         it_out[k] = _solve_sample(sample_at(S, k), F, ws, max_iter)
         for i in range(m):
             F_out[k, i] = F[i]
+
+
+@njit(cache=True)
+def _solve_exact_kernel(S, max_iter, warm, F_out, it_out):
+    """The exact solution ``F_out (N, m)`` [N, N·m] and iterations ``it_out (N,)`` of every
+    sample of the run ``S`` (:class:`~ditherlab.estimator.problem.Samples`); ``warm``: each sample
+    starts from the previous one's solution (time series are smooth), else from the prior
+    mean."""
+    N, m, n = S.J.shape
+    ws = ExactWork(
+        piece_work(m, n), np.empty(m), np.empty(m), np.zeros(n, np.int8), np.zeros(n, np.int8),
+        np.zeros(n, np.int8), np.empty(m), np.empty(n), np.empty(n), np.empty(2 * n + 1),
+    )  # fmt: skip
+    _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws)
 
 
 def _solve_exact(

@@ -46,7 +46,7 @@ class GaussWork(NamedTuple):
     s: np.ndarray
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _same_factor(S, k):
     """Whether sample ``k``'s ``(J, w, p)`` equals sample ``k - 1``'s (the same numbers: its
     factor is exact here)."""
@@ -65,7 +65,7 @@ def _same_factor(S, k):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _cholesky(S, k, H):
     """``H = J_k W_k J_k^T + diag(p_k)`` (lower triangle) factored in place, ``H = L L^T``.
     False when a pivot cancels below :data:`MIN_PIVOT` of its diagonal."""
@@ -92,7 +92,7 @@ def _cholesky(S, k, H):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _factor_by_qr(S, k, ws):
     """Ill-conditioned ``H``: the QR of ``[diag(sqrt p); sqrt(w_j) J_j^T]`` (the exact backend's
     solve of the same piece), ``L = R^T`` (``R^T R = H``) and the estimate into ``ws.x``."""
@@ -105,7 +105,7 @@ def _factor_by_qr(S, k, ws):
             ws.H[i, q] = R[q, i]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _inverse_lower(H, Li, m):
     """``Li = L^-1`` column by column (``L`` the lower triangle of ``H``)."""
     for c in range(m):
@@ -119,7 +119,7 @@ def _inverse_lower(H, Li, m):
             Li[i, c] = v / H[i, i]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _gaussian_mean(S, k, ws):
     """``x = fb + H^-1 J W (tb - a - J^T fb) = fb + Li^T (Li (J W d))``."""
     tb, J, a, w, fb = S.tau_bar, S.J, S.tau_min, S.w, S.prior_mean
@@ -146,26 +146,12 @@ def _gaussian_mean(S, k, ws):
         x[i] = fb[i] + v
 
 
-@njit(cache=True)
-def _gaussian_kernel(S, thr, solve, F_out, half, active):
-    """Zero-width bands (``a = tau_min = tau_max``) of the run ``S``
-    (:class:`~ditherlab.estimator.problem.Samples`): ``half[k, i] = sqrt(thr (H_k^-1)_ii)``,
-    ``H_k = J_k W_k J_k^T + diag(p_k)``, and with ``solve`` the minimiser
-    ``F_out[k] = fb + H_k^-1 J_k W_k (tb_k - a_k - J_k^T fb)`` of the quadratic eq. (3) and
-    ``active[k, j]`` (the residual is not exactly on the zero-width band).
-
-    One Cholesky ``H = L L^T`` per sample: ``(H^-1)_ii`` is the squared norm of column ``i`` of
-    ``L^-1`` and ``F`` two triangular solves. A sample whose ``(J, w, p)`` equals the previous
-    one's reuses its factor (exact: the same numbers). A pivot that cancels below
-    :data:`MIN_PIVOT` of its diagonal takes the QR of ``[diag(sqrt p); sqrt(w_j) J_j^T]``
-    (:func:`_newton_piece`, the exact backend's solve of the same piece) for both.
-    """
+@njit(cache=True, _nrt=False)
+def _gaussian_loop(S, thr, solve, F_out, half, active, ws):
+    """:func:`_gaussian_kernel` on its scratch ``ws`` (:class:`GaussWork`), compiled without
+    reference counts."""
     N, m, n = S.J.shape
     tb, J, a = S.tau_bar, S.J, S.tau_min
-    ws = GaussWork(
-        np.empty((m, m)), np.empty((m, m)), piece_work(m, n), np.empty(m), np.empty(m),
-        np.ones(n, np.int8),
-    )  # fmt: skip
     x = ws.x
     fresh = False
     for k in range(N):
@@ -190,6 +176,28 @@ def _gaussian_kernel(S, thr, solve, F_out, half, active):
             for i in range(m):
                 r -= J[k, i, j] * x[i]
             active[k, j] = r != 0.0
+
+
+@njit(cache=True)
+def _gaussian_kernel(S, thr, solve, F_out, half, active):
+    """Zero-width bands (``a = tau_min = tau_max``) of the run ``S``
+    (:class:`~ditherlab.estimator.problem.Samples`): ``half[k, i] = sqrt(thr (H_k^-1)_ii)``,
+    ``H_k = J_k W_k J_k^T + diag(p_k)``, and with ``solve`` the minimiser
+    ``F_out[k] = fb + H_k^-1 J_k W_k (tb_k - a_k - J_k^T fb)`` of the quadratic eq. (3) and
+    ``active[k, j]`` (the residual is not exactly on the zero-width band).
+
+    One Cholesky ``H = L L^T`` per sample: ``(H^-1)_ii`` is the squared norm of column ``i`` of
+    ``L^-1`` and ``F`` two triangular solves. A sample whose ``(J, w, p)`` equals the previous
+    one's reuses its factor (exact: the same numbers). A pivot that cancels below
+    :data:`MIN_PIVOT` of its diagonal takes the QR of ``[diag(sqrt p); sqrt(w_j) J_j^T]``
+    (:func:`_newton_piece`, the exact backend's solve of the same piece) for both.
+    """
+    N, m, n = S.J.shape
+    ws = GaussWork(
+        np.empty((m, m)), np.empty((m, m)), piece_work(m, n), np.empty(m), np.empty(m),
+        np.ones(n, np.int8),
+    )  # fmt: skip
+    _gaussian_loop(S, thr, solve, F_out, half, active, ws)
 
 
 #: Placeholders of the kernel's outputs when it computes the half-widths alone.

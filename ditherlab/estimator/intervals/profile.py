@@ -79,7 +79,7 @@ class ProfileOut(NamedTuple):
 # ------------------------------------------------------------------ the reference kernel
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _qr_factor(smp, s, R, u):
     """Upper-triangular ``R (m, m)`` with ``R^T R = diag(p) + sum_{s_j != 0} w_j J_j J_j^T`` at
     the sample ``smp`` (Givens rows; ``u (m,)`` scratch)."""
@@ -98,7 +98,7 @@ def _qr_factor(smp, s, R, u):
         _givens_row(R, u, m, u, 0.0, False)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _hinv_col(R, i, m, y, x):
     """x = H^{-1} e_i with H = R^T R (two triangular solves)."""
     for q in range(m):
@@ -129,7 +129,7 @@ class ReferenceWork(NamedTuple):
     s0: np.ndarray
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _slope_and_edge(smp, i, sg, ws):
     """On the segment from ``ws.F`` along ``v = H^-1 e_i / h`` in direction ``sg``: the slope of
     the profile ``grad f . v`` and the first joint to reach an edge of its band, ``(dp, D, j)``
@@ -171,7 +171,7 @@ def _slope_and_edge(smp, i, sg, ws):
     return dp * sg, db, jb
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _step_to_edge(smp, sg, db, jb, ws):
     """Move ``ws.F`` by ``db`` along the path to where joint ``jb`` reaches its edge, and flip
     its side (in, or out through the edge it reached)."""
@@ -189,7 +189,7 @@ def _step_to_edge(smp, sg, db, jb, ws):
         s[jb] = 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _follow_reference(smp, Fk, i, sg, f0, target, ws):
     """The path of component ``i`` from ``F_hat = Fk`` in direction ``sg`` to where the profile
     reaches ``target``, each segment refactored (``ws.R0`` holds ``F_hat``'s factor). Returns
@@ -230,7 +230,7 @@ def _follow_reference(smp, Fk, i, sg, f0, target, ws):
     return end, nseg
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _information_scale(smp, unobs, thr):
     """The half-width beyond which a ridge component's bound is infinite: ``unobs`` information
     units ``sqrt(thr / mean_i sum_j w_j J_ij^2)`` (components outer, as the reference sums)."""
@@ -244,18 +244,12 @@ def _information_scale(smp, unobs, thr):
     return unobs * math.sqrt(thr / scale)
 
 
-@njit(cache=True)
-def _profile_reference_kernel(S, Fh, opts, out):
-    """The profile bounds of every sample of the run ``S``
-    (:class:`~ditherlab.estimator.problem.Samples`) around the estimate ``Fh (N, m)`` [N, N·m],
-    refactoring at every segment; ``opts`` a :class:`ProfileOptions`, ``out`` a
-    :class:`ProfileOut` (``lo``, ``hi``, ``segments`` written)."""
+@njit(cache=True, _nrt=False)
+def _reference_loop(S, Fh, opts, out, ws):
+    """:func:`_profile_reference_kernel` on its scratch ``ws`` (:class:`ReferenceWork`),
+    compiled without reference counts."""
     N, m, n = S.J.shape
     thr = opts.threshold
-    ws = ReferenceWork(
-        np.empty((m, m)), np.empty((m, m)), np.empty(m), np.empty(m), np.empty(m), np.empty(m),
-        np.empty(n), np.zeros(n, np.int8), np.zeros(n, np.int8),
-    )  # fmt: skip
     for k in range(N):
         smp = sample_at(S, k)
         f0 = _cost(smp, Fh[k])
@@ -274,6 +268,20 @@ def _profile_reference_kernel(S, Fh, opts, out):
                     out.hi[k, i] = Fh[k, i] + end
                 else:
                     out.lo[k, i] = Fh[k, i] + end
+
+
+@njit(cache=True)
+def _profile_reference_kernel(S, Fh, opts, out):
+    """The profile bounds of every sample of the run ``S``
+    (:class:`~ditherlab.estimator.problem.Samples`) around the estimate ``Fh (N, m)`` [N, N·m],
+    refactoring at every segment; ``opts`` a :class:`ProfileOptions`, ``out`` a
+    :class:`ProfileOut` (``lo``, ``hi``, ``segments`` written)."""
+    N, m, n = S.J.shape
+    ws = ReferenceWork(
+        np.empty((m, m)), np.empty((m, m)), np.empty(m), np.empty(m), np.empty(m), np.empty(m),
+        np.empty(n), np.zeros(n, np.int8), np.zeros(n, np.int8),
+    )  # fmt: skip
+    _reference_loop(S, Fh, opts, out, ws)
 
 
 # ------------------------------------------------------------------ the fast kernel
@@ -344,7 +352,7 @@ def _profile_work(m, n, maxseg):
     )  # fmt: skip
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _first_pass(smp, Fk, ws):
     """One pass over ``J`` at ``F_hat = Fk``: the cost (as :func:`_cost`), the residuals ``r0``,
     sides ``s0``, the gradient (zero up to rounding: ``F_hat`` is the minimiser), ``1 / p``,
@@ -380,7 +388,7 @@ def _first_pass(smp, Fk, ws):
     return f0, scale
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _inverse_inside(m, n, ws):
     """Every joint inside its band: ``H0 = diag(p)``, so ``diag(H0^-1) = 1 / p``,
     ``H0^-1 grad``, ``G0 = H0^-1 U^T`` and ``M0 = U H0^-1 U^T`` directly."""
@@ -399,7 +407,7 @@ def _inverse_inside(m, n, ws):
             M0[l, j] = v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _cholesky_h0(pk, m, n, ws):
     """``R0^T R0 = H0 = diag(p) + sum over joints outside their band of U_j U_j^T``, formed and
     Cholesky-factored (m square roots, not a Givens QR's m per joint); ``u`` the reciprocal
@@ -430,7 +438,7 @@ def _cholesky_h0(pk, m, n, ws):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _inverse_diagonal(m, ws):
     """``Z = R0^-T`` (lower triangular), ``diag(H0^-1)`` and ``H0^-1 grad`` (``H0^-1 = Z^T
     Z``)."""
@@ -459,7 +467,7 @@ def _inverse_diagonal(m, ws):
         ws.hg[i] = v2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _joint_products(m, n, ws):
     """``Wt_j = Z U_j``, ``M0 = Wt Wt^T = U H0^-1 U^T`` and ``G0 = H0^-1 U^T = Z^T Wt^T``."""
     Z, U, Wt, M0, G0 = ws.Z, ws.U, ws.Wt, ws.M0, ws.G0
@@ -484,7 +492,7 @@ def _joint_products(m, n, ws):
             G0[i, j] = v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _factor_at_estimate(smp, ws):
     """What every path of the sample needs of ``H0^-1`` at ``F_hat``'s active set; False when
     ``H0``'s factor is too close to singular (the reference redoes the sample)."""
@@ -504,7 +512,7 @@ def _factor_at_estimate(smp, ws):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _next_edge(smp, fac, ws):
     """The residuals' slopes ``cs = fac g / sqrt(w)`` (``r_j(D) = r_j - D cs_j``) and the first
     joint to reach the edge it moves towards: going down (``cs_j > 0``) from inside or above,
@@ -541,7 +549,7 @@ def _next_edge(smp, fac, ws):
     return db, jb
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _cross_edge(smp, db, jb, ws):
     """The residuals after a step ``db``; joint ``jb`` on the edge it went out (or came in)
     through. Returns the sign of the update of ``H``: +1 (out: ``H + U_jb U_jb^T``) or -1."""
@@ -558,7 +566,7 @@ def _cross_edge(smp, db, jb, ws):
     return -1.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _update_inverse(jb, sig, nt, h, ws):
     """``H -> H + sig U_jb U_jb^T``: the column ``jb`` of ``M = U H^-1 U^T`` rebuilt from ``M0``
     and the path's ``nt`` earlier updates, then Sherman-Morrison on ``h`` and ``g``; the update
@@ -587,7 +595,7 @@ def _update_inverse(jb, sig, nt, h, ws):
     return h, dmag, True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _follow_fast(smp, i, sg, f0, target, maxmag, ws):
     """The path of component ``i`` in direction ``sg`` from ``F_hat`` to where the profile reaches
     ``target``, carrying ``h = (H^-1)_ii`` and ``g`` by rank-one updates, the residuals and the
@@ -641,32 +649,12 @@ def _follow_fast(smp, i, sg, f0, target, maxmag, ws):
     return end, nseg, mag, bad
 
 
-@njit(cache=True)
-def _profile_kernel(S, Fh, opts, out):
-    """The profile bounds along the path of :func:`_profile_reference_kernel`, without a
-    factorisation per segment: ``S`` a :class:`~ditherlab.estimator.problem.Samples`, ``Fh (N,
-    m)`` [N, N·m] the estimate, ``opts`` a :class:`ProfileOptions`, ``out`` a
-    :class:`ProfileOut` (all four written).
-
-    Each sample is factored once, at the active set of ``F_hat`` (the reference's ``R0``, here by
-    Cholesky of ``H0``; a pivot below :data:`MIN_PIVOT` of its diagonal hands the sample back); from
-    it come ``diag(H0^-1)``, ``H0^-1 grad``, ``G0 = H0^-1 U^T`` and ``M0 = U H0^-1 U^T``
-    (``U_j = sqrt(w_j) J_j^T``, one row per joint). Along the path of component ``i`` a
-    breakpoint adds or removes one joint, ``H -> H +- U_j U_j^T``, and all the path needs of
-    ``H^-1`` — ``h = (H^-1)_ii`` (the curvature of the profile is ``1 / h``) and
-    ``g_k = (H^-1 U_k)_i`` (the joints' residual slopes ``c_k = g_k / (sqrt(w_k) h)``) — follows
-    by the Sherman–Morrison formula, with the column of ``M`` it needs rebuilt from ``M0`` and
-    the path's earlier updates. A segment costs ``O(n)`` and a breakpoint ``O(n t)`` after ``t``
-    updates, instead of a refactorisation.
-
-    Rank-one updates lose accuracy when a denominator ``1 +- U_j^T H^-1 U_j`` cancels; a
-    sample whose path magnifies rounding by more than ``opts.max_magnification``, whose ``h``
-    turns non-positive, or that exceeds the segment limit gets ``segments = -1`` and is redone
-    by the reference kernel (:func:`_run_profile`).
-    """
+@njit(cache=True, _nrt=False)
+def _fast_loop(S, Fh, opts, out, ws):
+    """:func:`_profile_kernel` on its scratch ``ws`` (:class:`ProfileWork`), compiled without
+    reference counts."""
     N, m, n = S.J.shape
     thr = opts.threshold
-    ws = _profile_work(m, n, 4 * n + 8)
     for k in range(N):
         smp = sample_at(S, k)
         Fk = Fh[k]
@@ -698,6 +686,33 @@ def _profile_kernel(S, Fh, opts, out):
                 break
         if bad:
             out.segments[k] = -1
+
+
+@njit(cache=True)
+def _profile_kernel(S, Fh, opts, out):
+    """The profile bounds along the path of :func:`_profile_reference_kernel`, without a
+    factorisation per segment: ``S`` a :class:`~ditherlab.estimator.problem.Samples`, ``Fh (N,
+    m)`` [N, N·m] the estimate, ``opts`` a :class:`ProfileOptions`, ``out`` a
+    :class:`ProfileOut` (all four written).
+
+    Each sample is factored once, at the active set of ``F_hat`` (the reference's ``R0``, here by
+    Cholesky of ``H0``; a pivot below :data:`MIN_PIVOT` of its diagonal hands the sample back); from
+    it come ``diag(H0^-1)``, ``H0^-1 grad``, ``G0 = H0^-1 U^T`` and ``M0 = U H0^-1 U^T``
+    (``U_j = sqrt(w_j) J_j^T``, one row per joint). Along the path of component ``i`` a
+    breakpoint adds or removes one joint, ``H -> H +- U_j U_j^T``, and all the path needs of
+    ``H^-1`` — ``h = (H^-1)_ii`` (the curvature of the profile is ``1 / h``) and
+    ``g_k = (H^-1 U_k)_i`` (the joints' residual slopes ``c_k = g_k / (sqrt(w_k) h)``) — follows
+    by the Sherman–Morrison formula, with the column of ``M`` it needs rebuilt from ``M0`` and
+    the path's earlier updates. A segment costs ``O(n)`` and a breakpoint ``O(n t)`` after ``t``
+    updates, instead of a refactorisation.
+
+    Rank-one updates lose accuracy when a denominator ``1 +- U_j^T H^-1 U_j`` cancels; a
+    sample whose path magnifies rounding by more than ``opts.max_magnification``, whose ``h``
+    turns non-positive, or that exceeds the segment limit gets ``segments = -1`` and is redone
+    by the reference kernel (:func:`_run_profile`).
+    """
+    N, m, n = S.J.shape
+    _fast_loop(S, Fh, opts, out, _profile_work(m, n, 4 * n + 8))
 
 
 def _run_profile(

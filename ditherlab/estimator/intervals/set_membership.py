@@ -99,7 +99,7 @@ def _general_work(m, n):
     )  # fmt: skip
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _gram_solve(G, nW, y):
     """Cholesky of the Gram matrix ``G[:nW, :nW]`` (lower triangle filled) in place, then
     ``y[:nW] = G^-1 y[:nW]``. A pivot that is not positive becomes 1e-300 (the rows are
@@ -134,7 +134,7 @@ def _gram_solve(G, nW, y):
 # ------------------------------------------------------------------ the primal active-set method
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _projected_descent(wk, d, nW):
     """``lam = -(A_W A_W^T)^-1 A_W c`` and ``dirn = -c - A_W^T lam``: the steepest descent
     direction projected on the working rows' null space. Returns its norm."""
@@ -162,7 +162,7 @@ def _projected_descent(wk, d, nW):
     return math.sqrt(dn)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _most_negative(lam, nW, cn):
     """The working row with the most negative multiplier (below ``-1e-10 cn``), else -1."""
     worst = -1
@@ -174,7 +174,7 @@ def _most_negative(lam, nW, cn):
     return worst
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _blocking_row(wk, nr, d, nW, dn):
     """The first row outside the working set that blocks a step along ``dirn``, and the step:
     ``(alpha, row)``, row -1 when none does (unbounded)."""
@@ -206,7 +206,7 @@ def _blocking_row(wk, nr, d, nW, dn):
     return alpha, kb
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _lp_active_set(wk, nr, d, nW, maxit):
     """Minimise ``c^T x`` subject to ``A[:nr, :d] x <= bv[:nr]`` from the feasible point ``x``
     (the fields of ``wk``, :class:`GeneralWork`).
@@ -241,7 +241,7 @@ def _lp_active_set(wk, nr, d, nW, maxit):
     return 2, nW
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sm_rows(P, k, attempt, wk):
     """The LP rows of sample ``k`` (:class:`~.sm_arrays.SMProblem` ``P``) into ``wk.A, wk.bv``:
     joint slabs, the (prior or, at ``attempt`` 1, artificial) box, and ``z >= 0``. Returns
@@ -282,7 +282,7 @@ def _sm_rows(P, k, attempt, wk):
     return nrow, nj
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _lu_rows(A, Wo, m, M, piv, tmp):
     """LU with partial pivoting of the m x m matrix of rows A[Wo]; Wo is reordered to the pivot
     order (so L U = A[Wo] afterwards). False if (numerically) singular."""
@@ -319,7 +319,7 @@ def _lu_rows(A, Wo, m, M, piv, tmp):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _lu_solve(M, m, rhs, out):
     """out = (L U)^{-1} rhs."""
     for a1 in range(m):
@@ -334,7 +334,7 @@ def _lu_solve(M, m, rhs, out):
         out[a1] = v / M[a1, a1]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _lu_solve_t(M, m, rhs, out):
     """out = (L U)^{-T} rhs."""
     for a1 in range(m):
@@ -349,7 +349,7 @@ def _lu_solve_t(M, m, rhs, out):
         out[a1] = v
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _dual_vertex(wk, nrow, m, Wo, x, lam, maxit):
     """Dual simplex from the vertex ``Wo`` (m rows) for ``min c^T x`` subject to ``A x <= bv``
     (the fields of ``wk``, :class:`GeneralWork`; ``x (m,)``, ``lam (m,)`` written).
@@ -407,7 +407,7 @@ def _dual_vertex(wk, nrow, m, Wo, x, lam, maxit):
     return 2
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _onto_rows(wk, nW, m):
     """Move ``wk.x[:m]`` onto its working rows ``A[W[:nW]] x = bv[W[:nW]]`` by the least-norm
     correction ``x += A_W^T (A_W A_W^T)^-1 (b_W - A_W x)``: a point the primal steps left a
@@ -438,7 +438,7 @@ def _onto_rows(wk, nW, m):
 # ------------------------------------------------------------------ the general kernel's steps
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _row_norms(wk, nrow, m):
     """``wk.rn``: the 1-norms of the rows' ``F`` part."""
     for row in range(nrow):
@@ -448,7 +448,7 @@ def _row_norms(wk, nrow, m):
         wk.rn[row] = v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _objective(wk, m, o):
     """``wk.c[:m]``: ``min F_i`` for even ``o``, ``max F_i`` (``min -F_i``) for odd, ``i = o //
     2``. Returns ``(i, sg)``."""
@@ -460,7 +460,7 @@ def _objective(wk, m, o):
     return i, sg
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _warm_sample(P, k, nrow, nj, wk, out):
     """Sample ``k`` from the previous sample's optimal vertices, repaired by dual simplex
     pivots: True when every LP is solved so (bounds written), False when a vertex is missing or
@@ -491,7 +491,7 @@ def _warm_sample(P, k, nrow, nj, wk, out):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _phase1(P, k, nrow, nj, wk, out):
     """A point of sample ``k``'s polytope by minimising the slack ``z`` from ``F = prior_mean``,
     with the prior box, else without it. ``out.status[k]``: 0 found with the box, 1 without it,
@@ -525,7 +525,7 @@ def _phase1(P, k, nrow, nj, wk, out):
     return nrow, nj
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _check_vertex(wk, nrow, m):
     """An optimal vertex the primal method reached: solved again from its rows (not the point
     the steps accumulated) and its multipliers checked by the dual simplex, which repairs a
@@ -539,7 +539,7 @@ def _check_vertex(wk, nrow, m):
             wk.lam[a1] = wk.lamp[a1]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _optimum_value(P, k, st, nW, nj, o, wk, out):
     """The bound of LP ``o`` from its status and optimum: ``F_i``, ``-+inf`` when unbounded or
     held by an artificial box row with a positive multiplier (no prior, or the prior box
@@ -561,7 +561,7 @@ def _optimum_value(P, k, st, nW, nj, o, wk, out):
     return val
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", _nrt=False)
 def _phase2(P, k, nrow, nj, wk, out):
     """The ``2m`` LPs of sample ``k`` in ``F`` alone (``z`` fixed at 0: its column dropped, the
     rows keep their order), chained from the phase-1 point; each optimal vertex kept for the
@@ -586,13 +586,11 @@ def _phase2(P, k, nrow, nj, wk, out):
             out.hi[k, i] = val
 
 
-@njit(cache=True)
-def _set_membership_kernel(P, out):
-    """The ``2m`` LPs of every sample of ``P`` (:class:`~.sm_arrays.SMProblem`) not already
-    solved in torque coordinates (``out.status >= 5``), into ``out``
-    (:class:`~.sm_arrays.Bounds`; status codes in :func:`_set_membership`)."""
+@njit(cache=True, _nrt=False)
+def _general_loop(P, out, wk):
+    """:func:`_set_membership_kernel` on its scratch ``wk`` (:class:`GeneralWork`), compiled
+    without reference counts."""
     N, m, n = P.J.shape
-    wk = _general_work(m, n)
     for k in range(N):
         if out.status[k] >= 5:  # solved in torque coordinates (sm_square.square_block)
             continue
@@ -610,6 +608,15 @@ def _set_membership_kernel(P, out):
             continue
         _row_norms(wk, nrow, m)  # the rows may have been rebuilt without the prior box
         _phase2(P, k, nrow, nj, wk, out)
+
+
+@njit(cache=True)
+def _set_membership_kernel(P, out):
+    """The ``2m`` LPs of every sample of ``P`` (:class:`~.sm_arrays.SMProblem`) not already
+    solved in torque coordinates (``out.status >= 5``), into ``out``
+    (:class:`~.sm_arrays.Bounds`; status codes in :func:`_set_membership`)."""
+    N, m, n = P.J.shape
+    _general_loop(P, out, _general_work(m, n))
 
 
 def interval_k(level: float, n: int, n_prior: int) -> float:
