@@ -96,9 +96,10 @@ def _rate(fn, N: int, repeat: int = 3) -> tuple[float, object]:
 
 def _square_paths(prob) -> list[dict]:
     """The torque coordinates' kernel alone (``square_block``) with the lockstep passes and one
-    sample at a time (session 12's kernel), alternated, CPU time, best of three each."""
+    sample at a time, alternated, CPU time, best of three each."""
     from ditherlab.estimator.intervals import set_membership as S
-    from ditherlab.estimator.intervals.sm_square import square_block, square_state
+    from ditherlab.estimator.intervals.sm_arrays import Bounds, SMProblem, square_state
+    from ditherlab.estimator.intervals.sm_square import square_block
 
     ridge = prob.p_true == 0.0
     kk = S.interval_k(0.95, prob.n, int((~ridge).sum()))
@@ -110,14 +111,14 @@ def _square_paths(prob) -> list[dict]:
     for _ in range(3):
         for lockstep in (True, False):
             t0 = time.process_time()
-            square_block(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk,
-                         prob.prior_mean, half, ridge, S.BIG_BOX, square_state(m), lo, hi, st,
-                         lockstep)  # fmt: skip
+            P = SMProblem(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk,
+                          prob.prior_mean, half, ridge, S.BIG_BOX)  # fmt: skip
+            square_block(P, square_state(m), Bounds(lo, hi, st), lockstep)
             best[lockstep] = min(best[lockstep], time.process_time() - t0)
     return [
         dict(name="  square_block alone, lockstep passes (CPU time)", value=N / best[True],
              unit="samples/s", reference=N / best[False], ratio=best[False] / best[True]),
-        dict(name="  square_block alone, one sample at a time (session 12, CPU time)",
+        dict(name="  square_block alone, one sample at a time (CPU time)",
              value=N / best[False], unit="samples/s"),
     ]  # fmt: skip
 
@@ -130,8 +131,8 @@ def run(quick: bool = False) -> list[dict]:
     N = 20_000 if quick else 100_000
     args, _ = push_data(N)
     E.estimate(**_subset(args, slice(0, 50)))  # compile / load the numba cache
-    E.intervals(**_subset(args, slice(0, 50)), method="set_membership")
-    E.intervals(**_subset(args, slice(0, 50)), method="profile")
+    E.intervals(E.problem(**_subset(args, slice(0, 50))), method="set_membership")
+    E.intervals(E.problem(**_subset(args, slice(0, 50))), method="profile")
     p50 = E.problem(**_subset(args, slice(0, 50)))
     profile_reference(p50, E.estimate(**_subset(args, slice(0, 50))).F[:, p50.free])
     rows = []
@@ -178,8 +179,8 @@ def run(quick: bool = False) -> list[dict]:
         rows[0]["reference"] = best_ref
         rows[0]["ratio"] = rate / best_ref
     for method in ("set_membership", "profile"):
-        r, _ = _rate(lambda method=method: E.intervals(**args, F_hat=sol.F, method=method), N,
-                     repeat=2)  # fmt: skip
+        r, _ = _rate(lambda method=method: E.intervals(E.problem(**args), F_hat=sol.F,
+                                                       method=method), N, repeat=2)  # fmt: skip
         rows.append(dict(name=f"intervals {method}, {N} samples", value=r, unit="samples/s",
                          target=">= 1e6/s"))  # fmt: skip
         if method == "set_membership":
@@ -200,7 +201,7 @@ def run(quick: bool = False) -> list[dict]:
     zsol = E.estimate(**zargs)
     ga = [zargs[k] for k in ("tau_bar", "J", "tau_min", "tau_max", "sigma", "prior_mean",
                              "prior_sigma")]  # fmt: skip
-    r, (glo, _) = _rate(lambda: E.gaussian_profile_intervals(*ga, F_hat=zsol.F), N)
+    r, (glo, _) = _rate(lambda: E.gaussian_profile_intervals(E.problem(*ga), zsol.F), N)
     zprob = E.problem(**zargs)
 
     def numpy_half():

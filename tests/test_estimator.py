@@ -334,7 +334,7 @@ def test_set_membership_matches_linprog(case):
     """The numba set-membership LPs give linprog's (HiGHS) bounds, NaN and inf where it does."""
     args = _sub(_case(case), slice(0, 20))  # linprog is slow: 20 samples x 12 LPs
     prob = E.problem(**args)
-    lo, hi = E.intervals(**args, method="set_membership")
+    lo, hi = E.intervals(E.problem(**args), method="set_membership")
     rlo, rhi = E.set_membership_reference(prob)
     fr = prob.free
     for got, ref in ((lo[:, fr], rlo), (hi[:, fr], rhi)):
@@ -355,7 +355,7 @@ def test_profile_endpoints_are_at_the_threshold(case, backend, estimate, request
         request.applymarker(pytest.mark.xfail(raises=ConfigError, strict=True))
     args = _case(case)
     sol = E.estimate(**args)
-    lo, hi = E.intervals(**args, F_hat=sol.F, method="profile")
+    lo, hi = E.intervals(E.problem(**args), F_hat=sol.F, method="profile")
     assert np.all(lo <= sol.F) and np.all(sol.F <= hi)  # the estimate lies inside
     prob = E.problem(**args)
     thr = 3.841458820694124
@@ -482,7 +482,7 @@ def test_held_components_have_point_intervals():
     args, _ = random_problem(seed=21)
     args["prior_mean"] = np.array([0.0, 0.0, 0.0, 0.1, 0.2, 0.3])
     for method in E.INTERVAL_METHODS:
-        lo, hi = E.intervals(**args, method=method, components=("f_x", "f_y", "f_z"))
+        lo, hi = E.intervals(E.problem(**args, components=("f_x", "f_y", "f_z")), method=method)
         np.testing.assert_array_equal(lo[:, 3:], np.broadcast_to([0.1, 0.2, 0.3], (40, 3)))
         np.testing.assert_array_equal(hi[:, 3:], lo[:, 3:])
         assert np.all(hi[:, :3] > lo[:, :3])
@@ -493,7 +493,7 @@ def test_unobservable_prior_less_component_has_infinite_interval():
     args = _case("zero_component_row")
     args["prior_sigma"] = np.array([20.0, 20.0, 20.0, 0.3, np.inf, 0.3])
     for method in E.INTERVAL_METHODS:
-        lo, hi = E.intervals(**args, method=method)
+        lo, hi = E.intervals(E.problem(**args), method=method)
         ok = ~np.isnan(lo[:, 4])
         assert ok.sum() > 20
         assert np.all(np.isneginf(lo[ok, 4])) and np.all(np.isposinf(hi[ok, 4]))
@@ -504,16 +504,12 @@ def test_gaussian_profile_interval_is_the_posterior_interval():
     """With zero-width bands the profile interval is F_hat +- 1.96 sqrt((J W J^T + R_F^-1)^-1)_ii."""
     args, _ = model_data(22, N=50, zero_band=True)
     sol = E.estimate(**args)
-    lo, hi = E.intervals(**args, F_hat=sol.F, method="profile")
+    lo, hi = E.intervals(E.problem(**args), F_hat=sol.F, method="profile")
     W = 1.0 / args["sigma"] ** 2
     H = np.einsum("kin,n,kjn->kij", args["J"], W, args["J"]) + np.diag(1 / PAPER_PRIOR**2)
     sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
     np.testing.assert_allclose(hi - sol.F, 1.959963984540054 * sd, rtol=1e-8)
     np.testing.assert_allclose(sol.F - lo, 1.959963984540054 * sd, rtol=1e-8)
-
-
-#: Positional order of the estimator's arguments (gaussian_profile_intervals takes them so).
-ARGS = ("tau_bar", "J", "tau_min", "tau_max", "sigma", "prior_mean", "prior_sigma")
 
 
 @pytest.mark.parametrize("components", [None, ("f_x", "f_z", "m_y")])
@@ -523,7 +519,7 @@ def test_gaussian_intervals_are_the_closed_form_profile(components, estimate):
     args, _ = model_data(25, N=60, zero_band=True)
     sol = estimate(**args, components=components)
     lo, hi = E.gaussian_profile_intervals(
-        *(args[k] for k in ARGS), F_hat=sol.F, level=0.9, components=components
+        E.problem(**args, components=components), sol.F, level=0.9
     )
     free = np.isin(E.COMPONENTS, components or E.COMPONENTS)
     Jf = args["J"][:, free]
@@ -536,7 +532,9 @@ def test_gaussian_intervals_are_the_closed_form_profile(components, estimate):
     held = np.broadcast_to(args["prior_mean"][~free], (60, int((~free).sum())))
     np.testing.assert_array_equal(lo[:, ~free], held)
     np.testing.assert_array_equal(hi[:, ~free], held)
-    glo, ghi = E.intervals(**args, F_hat=sol.F, method="profile", level=0.9, components=components)
+    glo, ghi = E.intervals(
+        E.problem(**args, components=components), F_hat=sol.F, method="profile", level=0.9
+    )
     np.testing.assert_allclose(lo, glo, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(hi, ghi, rtol=1e-9, atol=1e-9)
 
@@ -548,7 +546,7 @@ def test_gaussian_intervals_on_repeated_geometry():
     rows = np.repeat(np.arange(30), 3)
     args = _sub(args, rows)
     sol = E.estimate(**args)
-    lo, hi = E.gaussian_profile_intervals(*(args[k] for k in ARGS), F_hat=sol.F, level=0.95)
+    lo, hi = E.gaussian_profile_intervals(E.problem(**args), sol.F, level=0.95)
     W = 1.0 / np.broadcast_to(args["sigma"], (90, 6)) ** 2
     H = np.einsum("kin,kn,kjn->kij", args["J"], W, args["J"]) + np.diag(1 / PAPER_PRIOR**2)
     sd = np.sqrt(np.diagonal(np.linalg.inv(H), axis1=1, axis2=2))
@@ -566,7 +564,7 @@ def test_gaussian_estimate_is_the_exact_solve_and_its_intervals(case):
     from ditherlab.estimator.intervals.gaussian import (
         MIN_PIVOT,
         gaussian_problem_estimate,
-        gaussian_problem_intervals,
+        gaussian_profile_intervals,
     )
 
     args, _ = model_data(28, N=80, zero_band=True)
@@ -588,7 +586,7 @@ def test_gaussian_estimate_is_the_exact_solve_and_its_intervals(case):
     prob = E.problem(**args)
     sol = E.solve(prob, "exact")
     F, active, lo, hi = gaussian_problem_estimate(prob, level=0.9)
-    rlo, rhi = gaussian_problem_intervals(prob, sol.F, level=0.9)
+    rlo, rhi = gaussian_profile_intervals(prob, sol.F, level=0.9)
     scale = np.abs(sol.F).max(axis=0) + 1.0
     assert np.abs((F - sol.F) / scale).max() < 1e-9
     np.testing.assert_array_equal(active, sol.active)
@@ -615,7 +613,7 @@ def test_gaussian_estimate_falls_back_with_a_band():
     sol = E.solve(prob, "exact")
     np.testing.assert_array_equal(F, sol.F)
     np.testing.assert_array_equal(active, sol.active)
-    ref = E.intervals(**args, F_hat=sol.F, method="profile")
+    ref = E.intervals(E.problem(**args), F_hat=sol.F, method="profile")
     np.testing.assert_array_equal(lo, ref[0])
     np.testing.assert_array_equal(hi, ref[1])
 
@@ -628,8 +626,8 @@ def test_gaussian_intervals_fall_back_to_the_profile_search(change):
     if change == "no_prior":
         args["prior_sigma"] = np.array([np.inf, 20.0, 20.0, 0.3, 0.3, 0.3])
     sol = E.estimate(**args)
-    got = E.gaussian_profile_intervals(*(args[k] for k in ARGS), F_hat=sol.F, level=0.9)
-    ref = E.intervals(**args, F_hat=sol.F, method="profile", level=0.9)
+    got = E.gaussian_profile_intervals(E.problem(**args), sol.F, level=0.9)
+    ref = E.intervals(E.problem(**args), F_hat=sol.F, method="profile", level=0.9)
     np.testing.assert_array_equal(got[0], ref[0])
     np.testing.assert_array_equal(got[1], ref[1])
 
@@ -644,7 +642,7 @@ def test_coverage_on_data_from_the_model(zero_band, method):
     and for set membership (Bonferroni), the intervals are conservative: coverage >= 0.94.
     """
     args, F = model_data(23, zero_band=zero_band)
-    lo, hi = E.intervals(**args, method=method)
+    lo, hi = E.intervals(E.problem(**args), method=method)
     cover = ((F >= lo) & (F <= hi)).mean()
     if zero_band and method == "profile":
         assert abs(cover - 0.95) < 0.01, cover
@@ -672,7 +670,7 @@ def test_coverage_at_the_prior_mean_exceeds_the_level():
     noise = rng.normal(size=(N, n)) * sig
     args = dict(tau_bar=np.einsum("kin,i->kn", J, fb) + noise, J=J, tau_min=np.zeros(n),
                 tau_max=np.zeros(n), sigma=sig, prior_mean=fb, prior_sigma=PAPER_PRIOR.copy())  # fmt: skip
-    lo, hi = E.intervals(**args, method="profile")
+    lo, hi = E.intervals(E.problem(**args), method="profile")
     cover = ((fb >= lo) & (fb <= hi)).mean(axis=0)
     Rf = np.diag(1 / PAPER_PRIOR**2)
     P = np.linalg.inv(J1 @ np.diag(1 / sig**2) @ J1.T + Rf)
@@ -684,13 +682,13 @@ def test_coverage_at_the_prior_mean_exceeds_the_level():
     np.testing.assert_array_less(np.abs(cover - predicted), 4 * se + 1e-9)
     # the same data with a flat prior on the force cover at the level: the excess is the prior
     flat = dict(args, prior_sigma=np.r_[np.full(3, 1e6), PAPER_PRIOR[3:]])
-    lo, hi = E.intervals(**flat, method="profile")
+    lo, hi = E.intervals(E.problem(**flat), method="profile")
     assert np.all(np.abs(((fb >= lo) & (fb <= hi)).mean(axis=0)[:3] - 0.95) < 0.015)
     # the same geometry with the force drawn from the prior covers at the level (the interval
     # is the posterior's): the excess above is the prior's mean, not a loose interval
     F = fb + rng.normal(size=(N, 6)) * PAPER_PRIOR
     drawn = dict(args, tau_bar=np.einsum("kin,ki->kn", J, F) + noise)
-    lo, hi = E.intervals(**drawn, method="profile")
+    lo, hi = E.intervals(E.problem(**drawn), method="profile")
     assert np.all(np.abs(((F >= lo) & (F <= hi)).mean(axis=0) - 0.95) < 0.015)
     # with a band: every sample inside its bands estimates the prior's mean (that estimate is
     # test_inside_band_means_prior_estimate's), and its interval contains it
@@ -698,7 +696,7 @@ def test_coverage_at_the_prior_mean_exceeds_the_level():
     inside = rng.uniform(a, b, (N, n)) * 0.9
     banded = dict(args, tau_bar=np.einsum("kin,i->kn", J, fb) + inside, tau_min=a, tau_max=b,
                   sigma=np.full(n, 0.1))  # fmt: skip
-    lo, hi = E.intervals(**banded, F_hat=E.estimate(**banded).F, method="profile")
+    lo, hi = E.intervals(E.problem(**banded), F_hat=E.estimate(**banded).F, method="profile")
     assert np.all((fb >= lo) & (fb <= hi))
 
 
@@ -706,9 +704,9 @@ def test_interval_bad_method_and_level():
     """An unknown interval method or a level outside (0, 1) raises a ConfigError naming it."""
     args, _ = random_problem(seed=24, N=3)
     with pytest.raises(ConfigError, match="interval method 'bootstrap' is unknown"):
-        E.intervals(**args, method="bootstrap")
+        E.intervals(E.problem(**args), method="bootstrap")
     with pytest.raises(ConfigError, match="interval level 1.5 is invalid"):
-        E.intervals(**args, level=1.5)
+        E.intervals(E.problem(**args), level=1.5)
 
 
 def smooth_series(seed=0, N=250, n=6):
@@ -735,7 +733,7 @@ def test_set_membership_warm_start_matches_linprog_on_a_time_series(seed, n, pat
     """On a smooth time series the bounds equal linprog's: six joints take the torque
     coordinates' path (status 5), seven the general kernel's warm-started dual simplex (4)."""
     args, _ = smooth_series(seed, N=100, n=n)
-    lo, hi = E.intervals(**args, method="set_membership")
+    lo, hi = E.intervals(E.problem(**args), method="set_membership")
     prob = E.problem(**args)
     assert (_set_membership(prob, 0.95)[2] == path).mean() > 0.5  # mostly that path
     rlo, rhi = E.set_membership_reference(prob)
@@ -766,9 +764,9 @@ def test_square_set_membership_matches_the_general_kernel(case):
 def test_profile_on_a_time_series_matches_sample_by_sample():
     """Profile intervals of a whole series equal those computed one sample at a time."""
     args, _ = smooth_series(2, N=40)
-    lo, hi = E.intervals(**args, method="profile")
+    lo, hi = E.intervals(E.problem(**args), method="profile")
     for k in range(0, 40, 7):
-        lo1, hi1 = E.intervals(**_sub(args, [k]), method="profile")
+        lo1, hi1 = E.intervals(E.problem(**_sub(args, [k])), method="profile")
         np.testing.assert_allclose(lo1[0], lo[k], rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(hi1[0], hi[k], rtol=1e-9, atol=1e-9)
 
@@ -806,9 +804,11 @@ def test_interval_progress_chunks_give_the_same_answer(monkeypatch):
     calls = []
     for method in E.INTERVAL_METHODS:
         calls.clear()
-        lo, hi = E.intervals(**args, method=method, progress=lambda d, t: calls.append((d, t)))
+        lo, hi = E.intervals(
+            E.problem(**args), method=method, progress=lambda d, t: calls.append((d, t))
+        )
         assert calls[-1] == (300, 300) and len(calls) == 5
-        lo0, hi0 = E.intervals(**args, method=method)
+        lo0, hi0 = E.intervals(E.problem(**args), method=method)
         np.testing.assert_allclose(lo, lo0, rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(hi, hi0, rtol=1e-9, atol=1e-9)
 

@@ -262,7 +262,7 @@ def test_closed_form_noband_intervals_match_general_profile(recs, model):
     """The closed-form intervals of the no-band variants equal the estimator's general profile
     search to 1e-6 N, for all six components and for a subset."""
     from ditherlab.analysis.estimation import band_as_noise
-    from ditherlab.estimator import gaussian_profile_intervals, intervals
+    from ditherlab.estimator import gaussian_profile_intervals, intervals, problem
 
     dith = recs[1].slice(0, 30.0)
     r = dith.robot()
@@ -276,8 +276,9 @@ def test_closed_form_noband_intervals_match_general_profile(recs, model):
     for comps in (None, ["f_x", "f_z"]):
         args = (tb, J, a_, b_, s_, model.prior_mean, model.prior_sigma)
         sol = estimate(*args, components=comps)
-        fast = gaussian_profile_intervals(*args, F_hat=sol.F, level=0.9, components=comps)
-        ref = intervals(*args, F_hat=sol.F, method="profile", level=0.9, components=comps)
+        prob = problem(*args, components=comps)
+        fast = gaussian_profile_intervals(prob, sol.F, level=0.9)
+        ref = intervals(prob, F_hat=sol.F, method="profile", level=0.9)
         np.testing.assert_allclose(fast[0], ref[0], atol=1e-6)
         np.testing.assert_allclose(fast[1], ref[1], atol=1e-6)
 

@@ -1,6 +1,5 @@
-"""The torque coordinates' set-membership path (``sm_square``) after issue 14's speed work: the
-kernel without numba's reference counts, Gauss-Jordan ``J^-T`` and Bland's rule against cycling,
-the lockstep passes (``sm_lockstep``: a block's ``J^-T`` and each LP's working set checked for
+"""The torque coordinates' set-membership path (``sm_square``): the kernel without numba's
+reference counts, Gauss-Jordan ``J^-T`` and Bland's rule against cycling, the lockstep passes (``sm_lockstep``: a block's ``J^-T`` and each LP's working set checked for
 many samples at once), checked against the per-sample path, the general kernel and linprog,
 including the samples it must refuse or leave to the per-sample code."""
 
@@ -18,8 +17,14 @@ from ditherlab.estimator.intervals.set_membership import (
     interval_k,
     set_membership_reference,
 )
+from ditherlab.estimator.intervals.sm_arrays import (
+    Bounds,
+    SMProblem,
+    block_work,
+    square_state,
+)
 from ditherlab.estimator.intervals.sm_lockstep import lockstep_inverse
-from ditherlab.estimator.intervals.sm_square import BLOCK, MAX_CONDITION, square_block, square_state
+from ditherlab.estimator.intervals.sm_square import BLOCK, MAX_CONDITION, square_block
 
 
 def _sub(args: dict, rows) -> dict:
@@ -38,8 +43,9 @@ def _square_only(prob, level=0.95, lockstep=True):
     half = np.where(ridge, 0.0, _halfbox(prob, kk))
     lo, hi = np.full((prob.N, prob.m), np.nan), np.full((prob.N, prob.m), np.nan)
     st = np.zeros(prob.N, np.int64)
-    square_block(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk, prob.prior_mean, half,
-                 ridge, BIG_BOX, square_state(prob.m), lo, hi, st, lockstep)  # fmt: skip
+    P = SMProblem(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk, prob.prior_mean, half,
+                  ridge, BIG_BOX)  # fmt: skip
+    square_block(P, square_state(prob.m), Bounds(lo, hi, st), lockstep)
     return lo, hi, st
 
 
@@ -180,13 +186,12 @@ def test_lockstep_inverse_leaves_samples_its_pivot_order_does_not_fit():
     kk = interval_k(0.95, 6, 6)
     sig = 1.0 / np.sqrt(prob.w)
     W, m = BLOCK, 6
-    Ls, Us, rns = np.empty((m, W)), np.empty((m, W)), np.empty((m, W))
-    Bs, Ms = np.empty((m, m, W)), np.empty((m, m, W))
-    okv, cnv, fq = np.empty(W), np.empty(W), np.empty(W)
+    blk = block_work(m, W)
     _, _, P = _lu_order(J[0].T)
-    lockstep_inverse(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk, prob.prior_mean,
-                     BIG_BOX, MAX_CONDITION, 0, W, m, P, Ls, Us, Bs, rns, okv, Ms, cnv,
-                     fq)  # fmt: skip
+    run = SMProblem(prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, sig, kk, prob.prior_mean,
+                    np.zeros(m), np.zeros(m, np.bool_), BIG_BOX)  # fmt: skip
+    lockstep_inverse(run, MAX_CONDITION, 0, W, P, blk)
+    Bs, rns, okv = blk.Bs, blk.rns, blk.okv
     bad = np.array([5, 6, 70, 90, 100])
     assert (okv[bad] == 0.0).all()
     good = np.setdiff1d(np.arange(W), bad)

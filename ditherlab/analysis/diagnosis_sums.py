@@ -17,7 +17,7 @@ from scipy.stats import norm
 
 from ditherlab.core.names import DITHER, MOVING, STILL, WRENCH_COLUMNS, Regime
 from ditherlab.data.torque_model import TorqueModel
-from ditherlab.estimator import estimate, intervals
+from ditherlab.estimator import estimate, intervals, problem
 from ditherlab.physics.effects import effects_torque, force_gain, sensor_wrench
 from ditherlab.physics.residual import Scored
 
@@ -296,13 +296,15 @@ class ForceError:
             return
         try:
             ilo, ihi = intervals(
-                tau_bar[sub],
-                J[sub],
-                lo[sub],
-                hi[sub],
-                sg[sub],
-                model.prior_mean,
-                model.prior_sigma,
+                problem(
+                    tau_bar[sub],
+                    J[sub],
+                    lo[sub],
+                    hi[sub],
+                    sg[sub],
+                    model.prior_mean,
+                    model.prior_sigma,
+                ),
                 F_hat=sol.F[sub],
                 method="set_membership",
                 level=self.level,

@@ -42,11 +42,10 @@ from ditherlab.core.timeseries import causal_mean, time_spans
 from ditherlab.data.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates, EstimatesWriter
 from ditherlab.data.recording import Recording, regimes
 from ditherlab.data.torque_model import TorqueModel
-from ditherlab.estimator import problem, solve
-from ditherlab.estimator.intervals import problem_intervals
+from ditherlab.estimator import intervals, problem, solve
 from ditherlab.estimator.intervals.gaussian import (
     gaussian_problem_estimate,
-    gaussian_problem_intervals,
+    gaussian_profile_intervals,
 )
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.physics.dither import Extraction, dithered_band, extract_dither
@@ -239,9 +238,9 @@ def replay_columns(
             F, active = sol.F, sol.active
             tick()
             if closed:
-                ilo, ihi = gaussian_problem_intervals(prob, F, level=level)
+                ilo, ihi = gaussian_profile_intervals(prob, F, level=level)
             else:
-                ilo, ihi = problem_intervals(prob, F, method=interval, level=level)
+                ilo, ihi = intervals(prob, F, method=interval, level=level)
         tick()
         for suffix, X in (("", F), ("_lo", ilo), ("_hi", ihi)):
             Xc = columns(X)

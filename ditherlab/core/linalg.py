@@ -2,8 +2,8 @@
 
 numpy's LAPACK and BLAS (OpenBLAS) choose their kernels by CPU when they start, and kernels sum
 in different orders. The plant is chaotic (stick or slip is a comparison), so a last-bit
-difference in its inverse mass matrix grows into other recordings on other machines (README
-"The built-in simulator", session 17). Written out in plain loops and compiled without
+difference in its inverse mass matrix grows into other recordings on other machines
+(``docs/design/reproducible-plant.md``). Written out in plain loops and compiled without
 ``fastmath``, these give the same bits under every OpenBLAS kernel (checked with two, and with
 numpy's AVX2/FMA paths off: ``tests/test_sim_reproducible.py``). The least squares of
 :mod:`ditherlab.physics.effect_fit` solve with the same factor; the simulator's lead-through solves for its

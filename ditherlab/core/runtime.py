@@ -2,13 +2,10 @@
 a library: they are the embedding program's choice).
 
 :func:`reuse_freed_memory`: the commands work piece by piece (``io.stream``), and every piece
-allocates arrays of a few to 20 MB (``(N, 6, 6)`` Jacobians, ``(N, 6)`` columns). glibc's malloc
-hands allocations above its mmap threshold (128 KB, raised adaptively up to 32 MB) to fresh
-``mmap`` pages and returns them on ``free``, and trims the heap's free top above twice that
-threshold: pieces then page-fault their memory in again (replay of the one-hour log spent ~1 s
-of system time so, and cache misses in user time). With the threshold fixed at 32 MB (glibc's
-maximum on 64-bit) and trimming above 1 GB, freed pieces are reused from the heap: replay of the
-hour 5 % less CPU (farm-bench, 3 alternating runs), the same peak (10 h: 999 MB).
+allocates arrays of a few to 20 MB. With glibc's mmap threshold fixed at its 64-bit maximum
+(32 MB) and the heap trimmed only above 1 GB, a freed piece's memory is reused by the next piece
+instead of being unmapped and faulted in again; the peak memory stays the same. The reasoning is
+in ``docs/design/core-freed-memory.md``.
 """
 
 from __future__ import annotations

@@ -23,14 +23,8 @@ computes with have ranges, so nothing downstream overflows (a band of ±1e308 wo
 name a value bound earlier in the same file (``n_joints`` binds ``n``; ``regimes.*.sigma`` has
 ``n`` values).
 
-Why not pydantic or msgspec: pydantic (present as typer's dependency) was tried on the model file.
-Its schema is about as long as the one here, but its errors need translating into the project's
-one line (union members appear in the key path, ``robot.str``; the wording is pydantic's, "Input
-should be a valid dictionary or instance of Effect"), a length that depends on another key needs a
-model validator whose message pydantic rewraps, the simulator's schema is derived from a TOML
-file at run time (``create_model``), and importing it costs 0.16 s at every start. msgspec is not
-installed (a new dependency) and its messages would need the same translation. This module is one
-small class per node type, its messages are the project's own, and it has no dependency.
+This module is one small class per node type, its messages are the project's own, and it has no
+dependency; why it is not pydantic or msgspec: ``docs/design/core-schemas.md``.
 """
 
 from __future__ import annotations

@@ -3,10 +3,10 @@
 Identification of a long log keeps, per joint and regime, every friction-residual sample (the
 maximum-likelihood fits and their block bootstrap need them all, in time order). Ten hours at
 250 Hz is 9 M samples per joint: held in memory for every joint and regime at once that is
-several GB. A :class:`Spill` holds the appended arrays in memory until they reach
-``budget`` bytes, then appends them to one temporary file per key (raw bytes, in order) and
-starts again; :meth:`Spill.load` returns one key's array whole — what was written, then what is
-still held — so only one key's samples are in memory while it is fitted. The files live in a
+several GB. A :class:`Spill` holds the appended arrays in memory up to ``budget`` bytes, then
+appends them to one temporary file per key (raw bytes, in order) and starts again;
+:meth:`Spill.load` returns one key's array whole — what is on disk, then what is held — so only
+one key's samples are in memory while it is fitted. The files live in a
 temporary folder (``TMPDIR``, default ``/tmp``) removed by :meth:`Spill.close` (or ``with``).
 """
 
@@ -49,7 +49,7 @@ class Spill:
         self.spilled = 0
 
     def append(self, key: Hashable, a: np.ndarray) -> None:
-        """Append the 1-D array ``a`` to ``key``'s array."""
+        """Append the array ``a`` (flattened to 1-D, any unit) to ``key``'s array."""
         a = np.ascontiguousarray(a).reshape(-1)
         dt = self._dtype.setdefault(key, a.dtype)
         if a.dtype != dt:
@@ -61,7 +61,7 @@ class Spill:
             self._flush()
 
     def flush(self) -> None:
-        """Write what is held to disk, if anything was written before (then only one key's
+        """Write what is held to disk, if anything is on disk already (then only one key's
         array is in memory at a time from here on, as :meth:`load` reads it)."""
         if self._files:
             self._flush()

@@ -90,7 +90,7 @@ def savgol(x: np.ndarray, w: int, deriv: int = 0, delta: float = 1.0, order: int
     polynomial of the first or last ``w`` samples (scipy's ``mode="interp"``).
 
     What :func:`scipy.signal.savgol_filter` computes (tested against it to 1e-12), without
-    importing scipy.signal (about a second of every command's start).
+    importing scipy.signal (slow to import: it would lengthen every command's start).
 
     Parameters
     ----------
@@ -285,8 +285,18 @@ def stick_transitions(
     describes. A velocity reversal of continuous motion (a few non-moving samples) is not a stick.
     A short slip between sticks (shorter than ``min_motion_s``, e.g. a pose giving way under a
     push beyond the band) is break-away and stop with nothing in between: it is marked whole
-    (on the simulator such slips of a wrist joint left 0.4-0.6 N·m of residual against a
-    0.08 N·m noise floor).
+    (on the simulator such slips of a wrist joint leave a residual far above the noise floor).
+
+    Parameters
+    ----------
+    reg : (N, n) int
+        Regime codes (:class:`~ditherlab.core.names.Regime`).
+    sample_rate : float [Hz]
+    min_stick_s, settle_s, min_motion_s : float [s]
+
+    Returns
+    -------
+    (N, n) bool
     """
     N, n = reg.shape
     out = np.zeros((N, n), dtype=bool)
@@ -316,8 +326,9 @@ def stick_transitions(
 
 
 def tmm(W: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """``W.T @ X`` for tall skinny matrices without BLAS threads (which oversubscribe a shared
-    two-core machine and run ~10x slower than this single-threaded loop)."""
+    """``W.T @ X`` for tall skinny matrices ``W (M, f)``, ``X (M, p)`` (any units; the result
+    ``(f, p)`` in their product) without BLAS threads, which oversubscribe a shared machine
+    where this single-threaded loop does not."""
     return np.einsum("mf,mp->fp", W, X)
 
 

@@ -20,21 +20,13 @@ Backends (one function, :func:`estimate`, dispatches on ``backend``):
 
 ``"exact"``
     Semi-smooth Newton / active-set iteration on ``f``, compiled with numba, all samples in one
-    call. Given the set ``A`` of joints outside their band (and on which side), the minimiser of
-    the quadratic piece is one ``m x m`` solve (``m`` = number of estimated components). The
-    iteration stops when the active set of the new point equals the one it was computed from:
-    then the gradient of ``f`` equals the gradient of that quadratic piece, which is zero, so the
-    point is the global minimiser of the convex ``f`` (exact up to the rounding of one Cholesky
-    solve; :attr:`Solution.kkt` reports the scaled gradient, typically ~1e-15). A full step that
-    does not lower ``f`` is replaced by an exact line search on the piecewise-quadratic ``f``
-    along the Newton direction, which makes the iteration monotone and finite. The pieces are
-    solved by QR (not the normal equations), so tiny noise does not square the conditioning.
-    Limit: when ``max(w) / min(p)`` exceeds ~1e14 (e.g. sigma 1e-4 N·m with prior_sigma 2e4 N)
-    whether a joint held at its band edge is active is decided below double precision; the
-    solver then tries releasing each such joint and keeps the release when it lowers ``f``,
-    which fixed the cases found by fuzzing but not all of them (a fuzz of 300 problems at that
-    conditioning left 5 samples up to 6 N away from quadprog; at sane conditioning the worst
-    deviation was 5e-8 relative).
+    call. Given the set of joints outside their band (and on which side), the minimiser of the
+    quadratic piece is one ``m x m`` least-squares solve (by QR); the iteration stops when the
+    minimiser lies on the piece it was computed from, which makes it the global minimiser of
+    the convex ``f`` (:attr:`Solution.kkt` reports the scaled gradient). A step that does not
+    lower ``f`` is replaced by an exact line search, which makes the iteration monotone and
+    finite. Why it is built so, and where it reaches the limits of double precision (noise
+    weights ``max(w) / min(p)`` beyond ~1e14): ``docs/design/estimator-exact-solver.md``.
 ``"proxsuite"`` / ``"quadprog"``
     The reference: the same QP in ``(F, tau_f)`` solved per sample through ``qpsolvers``
     (ProxQP with ``eps_abs = 1e-12`` on a scaled problem; quadprog's dual active set method).
@@ -50,6 +42,11 @@ Components and priors
     minimiser of ``f`` closest to ``prior_mean`` (the Tikhonov limit); directions the data cannot
     see stay at ``prior_mean``, and their intervals are infinite.
 
+Use
+    :func:`estimate` states and solves the problem in one call. To solve and bound the same
+    samples, state the problem once with :func:`problem` (a :class:`Problem`) and pass it to
+    :func:`solve` and :func:`intervals`.
+
 Layout
     :mod:`.problem` validates and reduces the inputs to a :class:`Problem` and completes a
     :class:`Solution`; :mod:`.backends` holds ``exact`` (:mod:`.backends.exact`) and the
@@ -57,7 +54,9 @@ Layout
     functions :func:`problem` and :func:`intervals` re-exported here share their names with
     those modules, so ``ditherlab.estimator.problem`` and ``ditherlab.estimator.intervals``
     are the functions; reach the modules with ``from ditherlab.estimator.problem import ...``
-    or ``importlib.import_module``.
+    or ``importlib.import_module``. The compiled kernels take their arrays grouped in
+    ``NamedTuple`` s (:class:`~ditherlab.estimator.problem.Samples` and the scratch of each
+    kernel): ``docs/design/estimator-kernels.md``.
 """
 
 from __future__ import annotations
@@ -80,6 +79,7 @@ from ditherlab.estimator.problem import (
     COMPONENTS,
     RIDGE,
     Problem,
+    Samples,
     Solution,
     complete,
     problem,
@@ -94,6 +94,7 @@ __all__ = [
     "RIDGE",
     "UNOBSERVABLE",
     "Problem",
+    "Samples",
     "Solution",
     "available_backends",
     "complete",
@@ -157,7 +158,15 @@ def estimate(
 def solve(
     prob: Problem, backend: str = "exact", progress: Callable[[int, int], None] | None = None
 ) -> Solution:
-    """Solve a prepared :class:`Problem` with one backend (see :func:`estimate`)."""
+    """Solve a prepared :class:`Problem` (:func:`problem`) with one backend; ``backend`` and
+    ``progress`` as for :func:`estimate`.
+
+    Returns
+    -------
+    Solution
+        ``F (N, 6)`` [N, N·m], ``tau_f (N, n)`` [N·m], ``active (N, n)``, ``cost (N,)``,
+        ``iterations (N,)``, ``kkt (N,)``.
+    """
     backends = _available(references=backend != "exact")
     if backend not in backends:
         raise ConfigError(

@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from statistics import NormalDist
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -27,7 +28,7 @@ CHUNK = 65536
 
 def normal_quantile(p: float) -> float:
     """``Phi^-1(p)`` of the standard normal (the stdlib's, within 1e-15 of scipy.stats' norm.ppf
-    and without importing scipy.stats: half a second of a command's start)."""
+    and without importing scipy.stats, which is slow to import at a command's start)."""
     return NormalDist().inv_cdf(p)
 
 
@@ -74,7 +75,37 @@ class Solution:
     kkt: np.ndarray
 
 
-@dataclass
+class Samples(NamedTuple):
+    """Eq. (3) for a run of ``N`` samples as the compiled kernels take it (numba accepts a
+    NamedTuple of arrays as one argument): the fields of a :class:`Problem` a kernel reads,
+    sliced to the run (:meth:`Problem.samples`).
+
+    Attributes
+    ----------
+    tau_bar : (N, n) [N·m]
+        Gravity-compensated torque minus the held components' torque.
+    J : (N, m, n) [m, 1]
+        The estimated components' rows of the tool-point Jacobian.
+    tau_min, tau_max : (N, n) [N·m]
+        Band edges (``-inf``/``inf`` allowed).
+    w : (N, n) [1/(N·m)^2]
+        Noise weights ``1 / sigma^2``.
+    p : (N, m) [1/N^2, 1/(N·m)^2]
+        Prior weights ``1 / prior_sigma^2`` (with the ridge).
+    prior_mean : (m,) [N, N·m]
+        Prior mean of the estimated components.
+    """
+
+    tau_bar: np.ndarray
+    J: np.ndarray
+    tau_min: np.ndarray
+    tau_max: np.ndarray
+    w: np.ndarray
+    p: np.ndarray
+    prior_mean: np.ndarray
+
+
+@dataclass(frozen=True)
 class Problem:
     """Eq. (3) for N samples, reduced to the ``m`` estimated components and broadcast.
 
@@ -84,15 +115,15 @@ class Problem:
     ----------
     tau_bar : (N, n) [N·m]
         Gravity-compensated torque minus the torque of the held components ``J_held^T F_bar``.
-    J : (N, m, n)
+    J : (N, m, n) [m, 1]
         Rows of the Jacobian (transposed ``J^T`` columns) of the estimated components.
     tau_min, tau_max : (N, n) [N·m]
         Band edges (``-inf``/``inf`` allowed).
     w : (N, n) [1/(N·m)^2]
         Noise weights ``1 / sigma^2``.
-    p : (N, m)
+    p : (N, m) [1/N^2, 1/(N·m)^2]
         Prior weights ``1 / prior_sigma^2`` (with the ridge where ``prior_sigma = inf``).
-    p_true : (m,)
+    p_true : (m,) [1/N^2, 1/(N·m)^2]
         Prior weights without the ridge (0 where ``prior_sigma = inf``).
     prior_mean : (m,) [N, N·m]
         Prior mean of the estimated components.
@@ -115,15 +146,25 @@ class Problem:
 
     @property
     def N(self) -> int:
+        """Number of samples."""
         return self.tau_bar.shape[0]
 
     @property
     def n(self) -> int:
+        """Number of joints."""
         return self.tau_bar.shape[1]
 
     @property
     def m(self) -> int:
+        """Number of estimated components."""
         return len(self.free)
+
+    def samples(self, rows: slice | np.ndarray = slice(None)) -> Samples:
+        """The per-sample arrays of ``rows`` (a slice or indices) for a compiled kernel."""
+        return Samples(
+            self.tau_bar[rows], self.J[rows], self.tau_min[rows], self.tau_max[rows],
+            self.w[rows], self.p[rows], self.prior_mean,
+        )  # fmt: skip
 
     def save(self, path) -> None:
         """Write the problem to an ``.npz`` file (a failing case becomes a test fixture)."""
@@ -165,31 +206,8 @@ def _component_indices(components: Sequence[str] | None) -> np.ndarray:
     return np.array(sorted(set(idx)), dtype=np.int64)
 
 
-def problem(
-    tau_bar,
-    J,
-    tau_min,
-    tau_max,
-    sigma,
-    prior_mean,
-    prior_sigma,
-    components: Sequence[str] | None = None,
-) -> Problem:
-    """Validate and reduce eq. (3) to the estimated components; see :func:`estimate`.
-
-    Returns
-    -------
-    Problem
-        Broadcast, contiguous arrays every backend consumes.
-
-    Raises
-    ------
-    ConfigError
-        Wrong shapes, non-finite torques or Jacobians, unknown component names.
-    ModelError
-        An inverted band (``tau_min > tau_max``), a noise ``sigma`` that is not positive and finite,
-        a negative ``prior_sigma``.
-    """
+def _check_data(tau_bar, J) -> tuple[np.ndarray, np.ndarray]:
+    """``tau_bar (N, n)`` [N·m] and ``J (N, 6, n)`` as float arrays: shapes and finite values."""
     tb = np.asarray(tau_bar, dtype=float)
     if tb.ndim != 2:
         raise ConfigError(f"estimator: tau_bar has shape {tb.shape}; expected (N, n)")
@@ -206,6 +224,12 @@ def problem(
             raise ConfigError(
                 f"estimator: {name} at sample {k} is not finite; expected finite values"
             )
+    return tb, Jx
+
+
+def _check_noise(tau_min, tau_max, sigma, N: int, n: int) -> tuple[np.ndarray, ...]:
+    """The bands and the noise broadcast to ``(N, n)`` [N·m]: bands not inverted nor NaN,
+    ``sigma`` positive and finite."""
     a = _per_sample("tau_min", tau_min, N, n)
     b = _per_sample("tau_max", tau_max, N, n)
     s = _per_sample("sigma", sigma, N, n)
@@ -225,6 +249,11 @@ def problem(
             f"estimator: sigma of joint {j + 1} at sample {k} is {s[k, j]:g}; "
             "expected a positive finite noise level [N·m]"
         )
+    return a, b, s
+
+
+def _check_prior(prior_mean, prior_sigma) -> tuple[np.ndarray, np.ndarray]:
+    """``prior_mean (6,)`` finite and ``prior_sigma (6,)`` >= 0 [N, N·m] as float arrays."""
     fbar = np.asarray(prior_mean, dtype=float).reshape(-1)
     psig = np.asarray(prior_sigma, dtype=float).reshape(-1)
     if fbar.shape != (6,) or not np.isfinite(fbar).all():
@@ -233,6 +262,58 @@ def problem(
         raise ModelError(
             f"estimator: prior_sigma is {psig!r}; expected 6 values >= 0 (inf = no prior) [N, N·m]"
         )
+    return fbar, psig
+
+
+def _prior_weights(
+    psig: np.ndarray, free: np.ndarray, Jf: np.ndarray, w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(p (N, m), p_true (m,))``: the prior weights ``1 / prior_sigma^2`` of the estimated
+    components, with the vanishing ridge (:data:`RIDGE` times the sample's mean data
+    information) in ``p`` where ``prior_sigma = inf``."""
+    N = len(w)
+    with np.errstate(divide="ignore"):
+        p_true = np.where(np.isinf(psig[free]), 0.0, 1.0 / psig[free] ** 2)
+    p = np.broadcast_to(p_true, (N, len(free))).copy()
+    noprior = np.isinf(psig[free])
+    if noprior.any():
+        info = np.einsum("kin,kn->ki", Jf**2, w)  # per-component data information
+        scale = info.mean(axis=1) if len(free) else np.ones(N)
+        scale = np.where(scale > 0, scale, 1.0)
+        p[:, noprior] = RIDGE * scale[:, None]
+    return p, p_true
+
+
+def problem(
+    tau_bar,
+    J,
+    tau_min,
+    tau_max,
+    sigma,
+    prior_mean,
+    prior_sigma,
+    components: Sequence[str] | None = None,
+) -> Problem:
+    """Validate and reduce eq. (3) to the estimated components; the parameters are
+    :func:`~ditherlab.estimator.estimate`'s.
+
+    Returns
+    -------
+    Problem
+        Broadcast, contiguous arrays every backend consumes.
+
+    Raises
+    ------
+    ConfigError
+        Wrong shapes, non-finite torques or Jacobians, unknown component names.
+    ModelError
+        An inverted band (``tau_min > tau_max``), a noise ``sigma`` that is not positive and finite,
+        a negative ``prior_sigma``.
+    """
+    tb, Jx = _check_data(tau_bar, J)
+    N, n = tb.shape
+    a, b, s = _check_noise(tau_min, tau_max, sigma, N, n)
+    fbar, psig = _check_prior(prior_mean, prior_sigma)
     free = _component_indices(components)
     free = free[psig[free] > 0]
     held = np.setdiff1d(np.arange(6), free)
@@ -243,15 +324,7 @@ def problem(
     else:  # all six estimated: no copies
         tb_red, Jf = np.ascontiguousarray(tb), np.ascontiguousarray(Jx)
     w = 1.0 / s**2
-    with np.errstate(divide="ignore"):
-        p_true = np.where(np.isinf(psig[free]), 0.0, 1.0 / psig[free] ** 2)
-    p = np.broadcast_to(p_true, (N, len(free))).copy()
-    noprior = np.isinf(psig[free])
-    if noprior.any():
-        info = np.einsum("kin,kn->ki", Jf**2, w)  # per-component data information
-        scale = info.mean(axis=1) if len(free) else np.ones(N)
-        scale = np.where(scale > 0, scale, 1.0)
-        p[:, noprior] = RIDGE * scale[:, None]
+    p, p_true = _prior_weights(psig, free, Jf, w)
     return Problem(
         tau_bar=np.ascontiguousarray(tb_red),
         J=Jf,
@@ -270,7 +343,11 @@ def problem(
 
 
 @njit(cache=True)
-def _complete_kernel(tb, J, a, b, w, p, p_true, fb, Fm, tau_f, active, cost, kkt):
+def _complete_kernel(S, p_true, Fm, tau_f, active, cost, kkt):
+    """``tau_f (N, n)``, ``active (N, n)``, ``cost (N,)`` and ``kkt (N,)`` of the estimate
+    ``Fm (N, m)`` of the run ``S`` (:class:`Samples`), ``p_true (m,)`` the prior weights without
+    the ridge (see :func:`complete`)."""
+    tb, J, a, b, w, p, fb = S
     N, m, n = J.shape
     grad = np.empty(m)
     mag = np.empty(m)
@@ -318,9 +395,7 @@ def complete(prob: Problem, Fm: np.ndarray, iterations: np.ndarray | None = None
     active = np.empty((N, n), np.bool_)
     cost = np.empty(N)
     kkt = np.empty(N)
-    _complete_kernel(
-        prob.tau_bar, prob.J, prob.tau_min, prob.tau_max, prob.w, prob.p, prob.p_true,
-        prob.prior_mean, np.ascontiguousarray(Fm, dtype=float), tau_f, active, cost, kkt,
-    )  # fmt: skip
+    Fc = np.ascontiguousarray(Fm, dtype=float)
+    _complete_kernel(prob.samples(), prob.p_true, Fc, tau_f, active, cost, kkt)
     its = np.zeros(N, np.int64) if iterations is None else np.asarray(iterations)
     return Solution(F=F, tau_f=tau_f, active=active, cost=cost, iterations=its, kkt=kkt)

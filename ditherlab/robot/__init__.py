@@ -23,7 +23,7 @@ method computes each *distinct* configuration once and scatters the result back
 an optional quantisation ``tol`` [rad] merges configurations that differ by less than the
 encoder resolution, at a bounded error (see :meth:`RobotModel.gravity`).
 
-Conventions (RECORDING.md): the tool point is the origin of the tool frame moved by
+Conventions (``docs/recording-format.md``): the tool point is the origin of the tool frame moved by
 ``tool_offset`` (tool-frame axes, [m]); the payload ``{"mass": kg, "com": [x, y, z]}`` (tool
 frame, [m]) is a point mass added to the link that carries the tool frame. Gravity is
 pinocchio's, 9.81 m/s² along -z of the URDF's root link (a wall or ceiling mounting goes into

@@ -71,8 +71,8 @@ def unique_configurations(q: np.ndarray, tol: float = 0.0) -> UniqueConfiguratio
     2. The run representatives are grouped by a 64-bit hash of their bits (``pandas.factorize``,
        O(R)), so a configuration that recurs later (encoder flicker between two counts) is also
        computed once.
-    3. The grouping is verified bit for bit; on a hash collision (never observed) it falls back to
-       sorting the rows (``numpy.unique``), so the result is exact either way.
+    3. The grouping is verified bit for bit; on a hash collision (2**-64 per pair) it falls back
+       to sorting the rows (``numpy.unique``), so the result is exact either way.
     """
     q = np.ascontiguousarray(q, dtype=np.float64)
     if q.ndim != 2:

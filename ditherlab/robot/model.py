@@ -46,7 +46,7 @@ def resolve_spec(
     Parameters
     ----------
     spec : str or dict
-        A built-in name (kept as is), a path to a ``.urdf`` file (read and embedded, so the
+        A built-in name (returned as is), a path to a ``.urdf`` file (read and embedded, so the
         recording is self-describing), or ``{"urdf": text, "tool_frame": name}`` (checked).
     tool_frame : str, optional
         Tool frame for a URDF file; default: the first of ``tool0``, ``flange``, ``ee_link``,
@@ -77,6 +77,55 @@ def resolve_spec(
         robot = RobotModel(text, tool_frame, where=str(path))
         return {"urdf": text, "tool_frame": robot.tool_frame, "name": robot.name}
     raise RobotError(unknown_robot(spec, w))
+
+
+def _tool_frame(model: pin.Model, tool_frame: str | None, w: str) -> str:
+    """The tool frame's name: ``tool_frame`` when the URDF has it, the guess when None
+    (:func:`~.urdf.guess_tool_frame`); RobotError otherwise."""
+    if tool_frame is None:
+        tool_frame = guess_tool_frame(model)
+    if not isinstance(tool_frame, str) or not model.existFrame(tool_frame):
+        links = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
+        raise RobotError(
+            f"{w}tool frame {tool_frame!r} is not in the robot's URDF (expected one of its "
+            f"links: {', '.join(links)})"
+        )
+    return tool_frame
+
+
+def _tool_offset(tool_offset: Sequence[float] | np.ndarray | None, w: str) -> np.ndarray:
+    """The tool point's offset ``(3,)`` [m] in tool-frame axes (zeros when None)."""
+    offset = np.zeros(3) if tool_offset is None else np.asarray(tool_offset, dtype=float)
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise RobotError(
+            f"{w}tool_offset is {tool_offset!r}, expected three finite numbers [x, y, z] in m"
+        )
+    return offset
+
+
+def _add_payload(
+    model: pin.Model, tf_id: int, payload: Mapping[str, Any], w: str
+) -> dict[str, Any]:
+    """Add the payload, a point mass [kg] at ``com`` [m] in the tool frame, to the inertia of the
+    link that carries the tool frame ``tf_id`` (in place); returns it as ``{"mass", "com"}``."""
+    mass, com = parse_payload(payload, w)
+    if mass > 0:
+        tf = model.frames[tf_id]
+        parent_joint = tf.parentJoint
+        # point mass at `com` in the tool frame, expressed in the parent joint's frame
+        inertia = pin.Inertia(mass, com, np.zeros((3, 3)))
+        model.inertias[parent_joint] = model.inertias[parent_joint] + tf.placement.act(inertia)
+    return {"mass": mass, "com": com.tolist()}
+
+
+def _add_tool_point(model: pin.Model, tf_id: int, offset: np.ndarray) -> int:
+    """Add the frame :data:`TOOL_POINT_FRAME` at ``offset (3,)`` [m] from the tool frame
+    ``tf_id`` (in place); returns its id."""
+    tf = model.frames[tf_id]
+    placement = tf.placement * pin.SE3(np.eye(3), offset)
+    return model.addFrame(
+        pin.Frame(TOOL_POINT_FRAME, tf.parentJoint, tf_id, placement, pin.FrameType.OP_FRAME)
+    )
 
 
 class RobotModel:
@@ -118,37 +167,14 @@ class RobotModel:
     ) -> None:
         w = where_prefix(where)
         model = build_model(urdf, w)
-        if tool_frame is None:
-            tool_frame = guess_tool_frame(model)
-        if not isinstance(tool_frame, str) or not model.existFrame(tool_frame):
-            links = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
-            raise RobotError(
-                f"{w}tool frame {tool_frame!r} is not in the robot's URDF (expected one of its "
-                f"links: {', '.join(links)})"
-            )
-        offset = np.zeros(3) if tool_offset is None else np.asarray(tool_offset, dtype=float)
-        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
-            raise RobotError(
-                f"{w}tool_offset is {tool_offset!r}, expected three finite numbers [x, y, z] in m"
-            )
+        tool_frame = _tool_frame(model, tool_frame, w)
+        offset = _tool_offset(tool_offset, w)
         tf_id = model.getFrameId(tool_frame)
-        tf = model.frames[tf_id]
-        parent_joint = tf.parentJoint
         if payload is not None:
-            mass, com = parse_payload(payload, w)
-            if mass > 0:
-                # point mass at `com` in the tool frame, expressed in the parent joint's frame
-                inertia = pin.Inertia(mass, com, np.zeros((3, 3)))
-                model.inertias[parent_joint] = model.inertias[parent_joint] + tf.placement.act(
-                    inertia
-                )
-            payload = {"mass": mass, "com": com.tolist()}
-        placement = tf.placement * pin.SE3(np.eye(3), offset)
-        self._tool_point_id = model.addFrame(
-            pin.Frame(TOOL_POINT_FRAME, parent_joint, tf_id, placement, pin.FrameType.OP_FRAME)
-        )
+            payload = _add_payload(model, tf_id, payload, w)
+        self._tool_point_id = _add_tool_point(model, tf_id, offset)
         self._tool_frame_id = tf_id
-        self._tool_joint = parent_joint
+        self._tool_joint = model.frames[tf_id].parentJoint
         self.model = model
         self._data = model.createData()
         self.urdf = urdf
@@ -157,7 +183,24 @@ class RobotModel:
         self.payload = payload
         self.name = name or robot_name(urdf) or "urdf"
         self.n = int(model.nv)
-        # continuous joints have (cos, sin) coordinates in pinocchio; ditherlab's q is the angle
+        self._read_joints()
+        self.link_names = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
+        self._where = where
+        self._lock = threading.RLock()
+        self._cache: OrderedDict[tuple, dict[str, np.ndarray | None]] = OrderedDict()
+        #: Byte budget of the per-configuration result cache (see :meth:`evaluate`).
+        self.cache_bytes = 256 * 2**20
+        self._reference_cache = self.reference_kernels()
+        self._kernels_cache = compiled_kernels(
+            self.model, self._tool_point_id, self._reference_cache
+        )
+
+    def _read_joints(self) -> None:
+        """The joints' names, position limits ``q_lower, q_upper (n,)`` [rad] (infinite for a
+        continuous joint), velocity [rad/s] and effort [N·m] limits, and the map from
+        ditherlab's angles to pinocchio's coordinates (a continuous joint has ``(cos, sin)``
+        in pinocchio; ditherlab's ``q`` is the angle)."""
+        model = self.model
         self._q_map = [
             (int(model.idx_qs[j]), int(model.idx_vs[j]), int(model.joints[j].nq))
             for j in range(1, model.njoints)
@@ -172,16 +215,6 @@ class RobotModel:
                 self.q_upper[iv] = model.upperPositionLimit[iq]
         self.velocity_limit = np.array(model.velocityLimit, dtype=float)
         self.effort_limit = np.array(model.effortLimit, dtype=float)
-        self.link_names = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
-        self._where = where
-        self._lock = threading.RLock()
-        self._cache: OrderedDict[tuple, dict[str, np.ndarray | None]] = OrderedDict()
-        #: Byte budget of the per-configuration result cache (see :meth:`evaluate`).
-        self.cache_bytes = 256 * 2**20
-        self._reference_cache = self.reference_kernels()
-        self._kernels_cache = compiled_kernels(
-            self.model, self._tool_point_id, self._reference_cache
-        )
 
     def __reduce__(self):
         """Pickle as the constructor's arguments (pinocchio objects are rebuilt)."""
@@ -263,7 +296,7 @@ class RobotModel:
         Parameters
         ----------
         meta : dict
-            Recording metadata (RECORDING.md).
+            Recording metadata (``docs/recording-format.md``).
         n_expected : int, optional
             Number of joints in the recording; RobotError when the robot has another count.
         where : str, optional
@@ -431,7 +464,7 @@ class RobotModel:
         When some configurations repeat, their results are kept in a small cache keyed by a
         BLAKE2 digest of ``q`` and ``tol`` (at most :attr:`cache_bytes` bytes, least recently
         used evicted), so the gravity of one recording asked for by several consumers is
-        computed once (a repeated call costs a digest and a copy, ~30x faster than computing).
+        computed once (a repeated call costs a digest and a copy, far less than computing).
         """
         unknown = [k for k in quantities if k not in self._kernels_cache]
         if unknown:
@@ -505,10 +538,9 @@ class RobotModel:
             Quantisation step for deduplication (0 = exact repeats only, bit-identical to the
             per-sample loop). With ``tol > 0`` each sample is evaluated at most ``tol / 2`` per
             joint from its own configuration, so the error is at most
-            ``(tol / 2) · max_i Σ_j |∂g_i/∂q_j|``. For the IRB140 that Lipschitz constant is
-            267 N·m/rad without payload and 361 N·m/rad with 6 kg at 0.1 m (worst of 20 000
-            random configurations), so ``tol = 1e-5`` rad costs at most 1.3e-3 (1.8e-3) N·m;
-            one count of a 20-bit encoder is 6.0e-6 rad.
+            ``(tol / 2) · max_i Σ_j |∂g_i/∂q_j|``. For the IRB140 that Lipschitz constant is a
+            few hundred N·m/rad, so ``tol = 1e-5`` rad costs about 1e-3 N·m; one count of a
+            20-bit encoder is 6.0e-6 rad.
         dedup : bool
             False evaluates every sample (the reference path).
         progress : callable(done, total), optional
@@ -784,7 +816,8 @@ class RobotModel:
         return out if inverse is None or len(xs) == N else out[inverse]
 
     def link_parameters(self) -> np.ndarray:
-        """(10 n,): every link's (m, m c, I) in its joint frame (pinocchio's order), payload in."""
+        """(10 n,): every link's dynamic parameters (m [kg], m c [kg m], I [kg m²]) in its joint
+        frame (pinocchio's order), payload in."""
         return np.concatenate(
             [self.model.inertias[i].toDynamicParameters() for i in range(1, self.model.njoints)]
         )

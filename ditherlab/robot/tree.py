@@ -19,7 +19,7 @@ prismatic one; the Jacobian's column of a joint that carries the tool point ``x`
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -27,21 +27,44 @@ from numba import njit
 
 __all__ = ["Tree", "gravity", "jacobian", "tree_of"]
 
-#: fused multiply-adds and reordered sums (gravity 1.7x faster); not "nnan"/"ninf": a NaN stays
+#: fused multiply-adds and reordered sums (faster; the results stay within rounding of
+#: pinocchio's, ``tests/test_robot.py``); not "nnan"/"ninf": a NaN stays
 _FAST = {"contract", "reassoc", "nsz", "arcp"}
 _AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
 
 
-@dataclass(frozen=True)
-class Tree:
-    """A pinocchio model's joints as arrays (joint 0, the universe, has no motion).
+class Tree(NamedTuple):
+    """A pinocchio model's joints as arrays (joint 0, the universe, has no motion); a NamedTuple,
+    so that the compiled kernels take it as one argument.
 
-    parent : (J,) int ; R0 : (J, 3, 3), p0 : (J, 3) placement in the parent joint's frame [m] ;
-    prismatic : (J,) bool ; axis : (J, 3) unit, in the joint's frame ; iq : (J,) int the joint's
-    coordinate ; mass : (J,) [kg] ; com : (J, 3) [m] in the joint's frame ; g : (3,) [m/s²] ;
-    tool_joint : the joint that carries the tool point ; pf : (3,) [m] the tool point in that
-    joint's frame ; carries : (J,) bool the joints between the
-    universe and the tool point ; nv : joint velocities (columns of the outputs).
+    Attributes
+    ----------
+    parent : (J,) int
+        Each joint's parent joint.
+    R0 : (J, 3, 3)
+        The joint's placement in its parent's frame: rotation.
+    p0 : (J, 3) [m]
+        The joint's placement in its parent's frame: origin.
+    prismatic : (J,) bool
+        Prismatic (else revolute).
+    axis : (J, 3)
+        The joint's unit axis, in its own frame.
+    iq : (J,) int
+        The joint's coordinate (column of ``q`` and of the outputs).
+    mass : (J,) [kg]
+        The mass of the joint's link (with the payload).
+    com : (J, 3) [m]
+        The link's centre of mass, in the joint's frame.
+    g : (3,) [m/s²]
+        Gravity.
+    tool_joint : int
+        The joint that carries the tool point.
+    pf : (3,) [m]
+        The tool point in that joint's frame.
+    carries : (J,) bool
+        The joints between the universe and the tool point.
+    nv : int
+        Joint velocities (columns of the outputs).
     """
 
     parent: np.ndarray
@@ -126,8 +149,12 @@ def tree_of(model: pin.Model, frame_id: int) -> Tree | None:
 
 
 @njit(cache=True, fastmath=_FAST, error_model="numpy")
-def _pose(q, parent, R0, p0, prismatic, axis, iq, R, p, w):
-    """World rotation R (J, 3, 3), origin p (J, 3) and axis w (J, 3) of every joint."""
+def _pose(tree, q, R, p, w):
+    """World rotation ``R (J, 3, 3)``, origin ``p (J, 3)`` [m] and axis ``w (J, 3)`` of every
+    joint of ``tree`` at the configuration ``q (nq,)`` [rad, m]."""
+    parent, R0, p0, prismatic, axis, iq = (
+        tree.parent, tree.R0, tree.p0, tree.prismatic, tree.axis, tree.iq
+    )  # fmt: skip
     J = len(parent)
     for i in range(1, J):
         k = parent[i]
@@ -166,13 +193,18 @@ def _scratch(J):
 
 
 @njit(cache=True, fastmath=_FAST, error_model="numpy")
-def _gravity_kernel(qs, parent, R0, p0, prismatic, axis, iq, mass, com, g, out):
+def _gravity_kernel(tree, qs, out):
+    """``out (U, nv)`` [N·m]: the gravity torque of ``tree`` at each configuration ``qs (U, nq)``
+    [rad, m] (module docstring)."""
+    parent, prismatic, iq, mass, com, g = (
+        tree.parent, tree.prismatic, tree.iq, tree.mass, tree.com, tree.g
+    )  # fmt: skip
     J = len(parent)
     R, p, w = _scratch(J)
     M = np.empty(J)
     S = np.empty((J, 3))
     for s in range(qs.shape[0]):
-        _pose(qs[s], parent, R0, p0, prismatic, axis, iq, R, p, w)
+        _pose(tree, qs[s], R, p, w)
         for i in range(J):
             M[i] = mass[i]
             for r in range(3):
@@ -202,12 +234,17 @@ def _gravity_kernel(qs, parent, R0, p0, prismatic, axis, iq, mass, com, g, out):
 
 
 @njit(cache=True, fastmath=_FAST, error_model="numpy")
-def _jacobian_kernel(qs, parent, R0, p0, prismatic, axis, iq, tool_joint, pf, carries, out):
+def _jacobian_kernel(tree, qs, out):
+    """``out (U, 6, nv)``: the tool point's Jacobian of ``tree`` at each configuration
+    ``qs (U, nq)`` [rad, m] (module docstring)."""
+    parent, prismatic, iq, tool_joint, pf, carries = (
+        tree.parent, tree.prismatic, tree.iq, tree.tool_joint, tree.pf, tree.carries
+    )  # fmt: skip
     J = len(parent)
     R, p, w = _scratch(J)
     x = np.empty(3)
     for s in range(qs.shape[0]):
-        _pose(qs[s], parent, R0, p0, prismatic, axis, iq, R, p, w)
+        _pose(tree, qs[s], R, p, w)
         f = tool_joint
         for r in range(3):
             x[r] = p[f, r] + R[f, r, 0] * pf[0] + R[f, r, 1] * pf[1] + R[f, r, 2] * pf[2]
@@ -231,14 +268,10 @@ def _jacobian_kernel(qs, parent, R0, p0, prismatic, axis, iq, tool_joint, pf, ca
 
 def gravity(tree: Tree, qs: np.ndarray, out: np.ndarray) -> None:
     """out (U, nv) [N·m] = the gravity torque at each configuration qs (U, nq) [rad, m]."""
-    t = tree
-    _gravity_kernel(qs, t.parent, t.R0, t.p0, t.prismatic, t.axis, t.iq, t.mass, t.com, t.g, out)
+    _gravity_kernel(tree, qs, out)
 
 
 def jacobian(tree: Tree, qs: np.ndarray, out: np.ndarray) -> None:
     """out (U, 6, nv) = the tool point's Jacobian (linear [m/rad] over angular rows, world
     axes) at each configuration qs (U, nq) [rad, m]."""
-    t = tree
-    _jacobian_kernel(
-        qs, t.parent, t.R0, t.p0, t.prismatic, t.axis, t.iq, t.tool_joint, t.pf, t.carries, out
-    )
+    _jacobian_kernel(tree, qs, out)

@@ -56,6 +56,7 @@ def builtin_urdf(name: str) -> str:
 
 
 def unknown_robot(name: Any, where: str) -> str:
+    """The error message for a robot ``name`` that is not built in (``where`` its prefix)."""
     return (
         f"{where}robot {short_repr(name)} is not a built-in robot (expected one of: "
         f"{', '.join(builtin_robots())}, a path to a .urdf file, or an object "
@@ -93,6 +94,9 @@ def _urdfdom_reason(text: str) -> str:
 
 
 def build_model(urdf: str, where: str) -> pin.Model:
+    """The pinocchio model of URDF text (lengths [m], masses [kg], inertias [kg m²]); RobotError,
+    prefixed with ``where``, when it does not parse, has an implausible inertial, no movable
+    joint or a joint of several degrees of freedom."""
     if not isinstance(urdf, str) or not urdf.strip():
         raise RobotError(f"{where}robot URDF is empty (expected URDF XML text)")
     try:
@@ -160,6 +164,8 @@ def _check_inertials(root: ET.Element, where: str) -> None:
 
 
 def guess_tool_frame(model: pin.Model) -> str:
+    """The tool frame of a URDF given without one: the first of ``tool0``, ``flange``,
+    ``ee_link``, ``tool``, ``end_effector`` that exists, else the last link of the chain."""
     for name in _TOOL_FRAME_GUESSES:
         if model.existFrame(name):
             return name
@@ -171,6 +177,8 @@ def guess_tool_frame(model: pin.Model) -> str:
 
 
 def parse_payload(payload: Mapping[str, Any], w: str) -> tuple[float, np.ndarray]:
+    """``(mass [kg], com (3,) [m])`` of a payload ``{"mass": kg, "com": [x, y, z] m}`` (tool
+    frame; ``com`` defaults to the origin); RobotError, prefixed with ``w``, otherwise."""
     if not isinstance(payload, Mapping) or "mass" not in payload:
         raise RobotError(f"{w}payload is {payload!r}, expected {{'mass': kg, 'com': [x, y, z] m}}")
     try:
@@ -191,6 +199,7 @@ def parse_payload(payload: Mapping[str, Any], w: str) -> tuple[float, np.ndarray
 
 
 def robot_name(urdf: str) -> str | None:
+    """The ``<robot name=...>`` of URDF text, or None."""
     try:
         return ET.fromstring(urdf).get("name")
     except ET.ParseError:
@@ -198,5 +207,6 @@ def robot_name(urdf: str) -> str | None:
 
 
 def short_repr(value: Any) -> str:
+    """``repr`` of a value cut to 40 characters, for messages (a URDF text can be 100 kB)."""
     r = repr(value)
     return r if len(r) <= 40 else r[:37] + "..."

@@ -39,8 +39,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.core.linalg import lu_solve, vector_norm
-from ditherlab.estimator import estimate, problem, solve
-from ditherlab.estimator.intervals import problem_intervals
+from ditherlab.estimator import estimate, intervals, problem, solve
 from ditherlab.sim import plant as K
 from ditherlab.sim.engine import Engine, Inputs
 from ditherlab.sim.hidden import HiddenSpec, build_hidden
@@ -205,7 +204,7 @@ def lead_through(
             prob = problem(*args, components=("f_x", "f_y", "f_z"))
             sol = solve(prob)
             p_hat = -sol.F[0, :3]  # the push on the tool
-            lo, hi = problem_intervals(prob, sol.F, lt["interval"], lt["level"])
+            lo, hi = intervals(prob, sol.F, lt["interval"], lt["level"])
             p_lo, p_hi = -hi[0, :3], -lo[0, :3]  # the push's interval
             flo[k0:k1], fhi[k0:k1] = p_lo, p_hi
             v = lt["admittance"] * interval_command(p_lo, p_hi)

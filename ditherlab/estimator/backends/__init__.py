@@ -12,8 +12,8 @@ from ditherlab.estimator.backends.qp import QP_OPTIONS, _solve_reference
 
 def _available(references: bool = True) -> dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]]:
     """The backends by name: ``exact`` always; with ``references`` the qpsolvers ones installed
-    here (looking them up imports qpsolvers and with it scipy.sparse: 0.2 s of a command's
-    start-up that the exact backend does not need)."""
+    here (looking them up imports qpsolvers and with it scipy.sparse, slow to import at a
+    command's start, which the exact backend does not need)."""
     out: dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]] = {
         "exact": lambda prob, progress=None: _solve_exact(prob, progress=progress)
     }

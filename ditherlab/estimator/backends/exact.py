@@ -1,31 +1,100 @@
 """The ``exact`` backend: semi-smooth Newton / active-set iteration on ``f``, compiled with
-numba, all samples in one call (see :mod:`ditherlab.estimator` for the method and its limits).
+numba, all samples in one call (see :mod:`ditherlab.estimator` for the method and
+``docs/design/estimator-exact-solver.md`` for its reasoning and limits).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.piecewise import _cost, _dist, _sides
+from ditherlab.estimator.piecewise import _cost, _dist, _sides, sample_at
 from ditherlab.estimator.problem import Problem, _chunks
 
 
+class PieceWork(NamedTuple):
+    """Scratch of :func:`_newton_piece` for ``m`` components and ``n`` joints.
+
+    Attributes
+    ----------
+    R : (m, m)
+        The triangular factor of the stacked least-squares matrix.
+    z : (m,)
+        Its right-hand side, rotated.
+    Bm : (n, m)
+        The active joints' rows ``sqrt(w_j) J_j^T``.
+    bb : (n,)
+        Their right-hand side.
+    """
+
+    R: np.ndarray
+    z: np.ndarray
+    Bm: np.ndarray
+    bb: np.ndarray
+
+
+class ExactWork(NamedTuple):
+    """Scratch of the exact solver at one sample.
+
+    Attributes
+    ----------
+    piece : PieceWork
+        The piece's solve.
+    x : (m,) [N, N·m]
+        The minimiser of the current piece.
+    d : (m,) [N, N·m]
+        A step, or the minimiser of a trial piece.
+    s, sn, sa : (n,) int8
+        The joints' sides at ``F``, at ``x`` and of a trial piece (+1 above the band, -1 below,
+        0 inside).
+    F : (m,) [N, N·m]
+        The current point (the previous sample's solution when warm).
+    r0, c : (n,)
+        The line search's residuals [N·m] at ``F`` and their slopes along the step.
+    bps : (2n + 1,)
+        The line search's breakpoints.
+    """
+
+    piece: PieceWork
+    x: np.ndarray
+    d: np.ndarray
+    s: np.ndarray
+    sn: np.ndarray
+    sa: np.ndarray
+    F: np.ndarray
+    r0: np.ndarray
+    c: np.ndarray
+    bps: np.ndarray
+
+
 @njit(cache=True)
-def _newton_piece(tb, J, a, b, w, p, fb, s, m, n, R, z, Bm, bb, x):
-    """Minimiser x of the quadratic piece of f with active set s (joint j outside on side s_j).
+def piece_work(m, n):
+    """A :class:`PieceWork` for ``m`` components and ``n`` joints (uninitialised)."""
+    return PieceWork(np.empty((m, m)), np.empty(m), np.empty((n, m)), np.empty(n))
+
+
+@njit(cache=True, _nrt=False)
+def _newton_piece(smp, s, work, x):
+    """Minimiser ``x (m,)`` [N, N·m] of the quadratic piece of ``f`` at the sample ``smp``
+    (:class:`~ditherlab.estimator.piecewise.Sample`)
+    with active set ``s (n,)`` (joint ``j`` outside on side ``s_j``); ``work`` a
+    :class:`PieceWork`.
 
     The piece is the least-squares problem ``|sqrt(p) (F - F_bar)|^2 + sum_{j active}
     w_j (tau_bar_j - e_j - J_j^T F)^2``; it is solved by QR, not by the normal equations: with
-    tiny noise the normal equations square a condition number of ~1e5 and lose 1e-4 N in the
+    tiny noise the normal equations square a large condition number and lose accuracy in the
     prior-held directions. The QR is by Householder reflections on the stacked matrix
     ``[diag(sqrt(p)); sqrt(w_j) J_j^T for the active joints]`` (``Bm``, ``bb``: the active rows
     and their right-hand side): the top block stays triangular, so column ``c`` reflects its
     diagonal entry and the active rows only — one square root per column instead of one per
     column and active joint by Givens rotations.
     """
+    tb, J, a, b, w, p, fb = smp
+    m, n = J.shape
+    R, z, Bm, bb = work
     na = 0
     for j in range(n):
         if s[j] == 0:
@@ -79,12 +148,26 @@ def _newton_piece(tb, J, a, b, w, p, fb, s, m, n, R, z, Bm, bb, x):
         x[i] += fb[i]
 
 
-@njit(cache=True)
-def _line_search(tb, J, a, b, w, p, fb, F, d, m, n):
-    """Exact minimiser t in [0, 1] of the convex piecewise quadratic phi(t) = f(F + t d)."""
-    r0 = np.empty(n)
-    c = np.empty(n)
-    bps = np.empty(2 * n + 1)
+@njit(cache=True, inline="always", _nrt=False)
+def _sort_small(x, n):
+    """``x[:n]`` sorted in place (insertion sort: a handful of breakpoints, no allocation)."""
+    for q in range(1, n):
+        v = x[q]
+        j = q
+        while j > 0 and x[j - 1] > v:
+            x[j] = x[j - 1]
+            j -= 1
+        x[j] = v
+
+
+@njit(cache=True, _nrt=False)
+def _line_search(smp, F, d, ws):
+    """Exact minimiser ``t`` in [0, 1] of the convex piecewise quadratic ``phi(t) = f(F + t d)``
+    at the sample ``smp`` (:class:`~ditherlab.estimator.piecewise.Sample`); ``F, d (m,)``
+    [N, N·m]; ``ws`` an :class:`ExactWork` (``r0``, ``c``, ``bps`` scratch)."""
+    tb, J, a, b, w, p, fb = smp
+    m, n = J.shape
+    r0, c, bps = ws.r0, ws.c, ws.bps
     nb = 0
     for j in range(n):
         r = tb[j]
@@ -102,7 +185,7 @@ def _line_search(tb, J, a, b, w, p, fb, F, d, m, n):
                     nb += 1
     bps[nb] = 1.0
     nb += 1
-    bps[:nb].sort()
+    _sort_small(bps, nb)
 
     def dphi(t):
         v = 0.0
@@ -126,122 +209,169 @@ def _line_search(tb, J, a, b, w, p, fb, F, d, m, n):
     return 1.0
 
 
-@njit(cache=True)
-def _solve_exact_kernel(tb, J, a, b, w, p, fb, max_iter, warm, F_out, it_out):
-    N, m, n = J.shape
-    R = np.empty((m, m))
-    z = np.empty(m)
-    Bm = np.empty((n, m))
-    bb = np.empty(n)
-    x = np.empty(m)
-    d = np.empty(m)
-    F = fb.copy()
-    s = np.zeros(n, np.int8)
-    sn = np.zeros(n, np.int8)
-    sa = np.zeros(n, np.int8)
+@njit(cache=True, inline="always", _nrt=False)
+def _same_piece(smp, s, sn):
+    """Whether the sides ``sn`` at the piece's minimiser are the sides ``s`` it was computed
+    from. A joint of zero-width band is on the same piece on either side of it (the edge is the
+    same number): a sign change there is not a new active set."""
+    a, b = smp.tau_min, smp.tau_max
+    for j in range(len(s)):
+        if sn[j] != s[j] and not (a[j] == b[j] and sn[j] != 0 and s[j] != 0):
+            return False
+    return True
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _release_ambiguous(smp, F, ws):
+    """Joints held active at a distance within rounding of their band edge at the piece's
+    minimiser ``ws.x``: with a huge ``w_j`` (tiny noise) and a weak prior the sign of that
+    distance is noise, and the piece without such a joint may be the true optimum. Each is
+    released in turn (its piece solved into ``ws.d``); ``F`` takes the best that lowers ``f``.
+    Returns ``(improved, f at F)``."""
+    tb, J, a, b = smp.tau_bar, smp.J, smp.tau_min, smp.tau_max
+    m, n = J.shape
+    s, sa, x, d = ws.s, ws.sa, ws.x, ws.d
+    improved = False
+    fbest = np.nan  # computed at the first joint near its edge
+    for j in range(n):
+        if s[j] == 0:
+            continue
+        e = b[j] if s[j] > 0 else a[j]
+        r = tb[j]
+        size = abs(tb[j]) + abs(e)
+        for i in range(m):
+            r -= J[i, j] * x[i]
+            size += abs(J[i, j] * x[i])
+        if abs(r - e) > 1e-9 * size:
+            continue
+        if fbest != fbest:
+            f1 = _cost(smp, x)
+            fbest = f1 - 1e-12 * (1.0 + f1)
+        for q in range(n):
+            sa[q] = s[q]
+        sa[j] = 0
+        _newton_piece(smp, sa, ws.piece, d)
+        f2 = _cost(smp, d)
+        if f2 < fbest:
+            fbest = f2
+            improved = True
+            for i in range(m):
+                F[i] = d[i]
+    return improved, fbest
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _descend(smp, F, fcur, ws):
+    """From ``F`` towards the piece's minimiser ``ws.x``: the full step when it lowers ``f``
+    (``fcur``, f at ``F``), else the exact line search along it. Returns ``(f at F, stop)``,
+    ``stop`` when ``F`` cannot move (the minimiser is ``F`` up to ties at a band edge)."""
+    m = len(F)
+    x, d = ws.x, ws.d
+    fnew = _cost(smp, x)
+    if fnew < fcur:
+        for i in range(m):
+            F[i] = x[i]
+        for j in range(len(ws.s)):
+            ws.s[j] = ws.sn[j]
+        return fnew, False
+    step = 0.0
+    for i in range(m):
+        d[i] = x[i] - F[i]
+        step = max(step, abs(d[i]) / (1.0 + abs(F[i])))
+    if step < 1e-15:
+        return fcur, True  # the piece's minimiser is the current point: ties at a band edge
+    t = _line_search(smp, F, d, ws)
+    if t <= 0.0:
+        return fcur, True
+    for i in range(m):
+        F[i] += t * d[i]
+    _sides(smp, F, ws.s)
+    return _cost(smp, F), False
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _solve_sample(smp, F, ws, max_iter):
+    """The minimiser of ``f`` at the sample ``smp`` into ``F (m,)`` (which holds the start):
+    Newton steps from piece to piece, each to the minimiser of the current piece (the answer
+    when it lies on that piece), with the line search when a step does not lower ``f``. Returns
+    the iterations."""
+    m = len(F)
+    _sides(smp, F, ws.s)
+    # the cost at F, computed when first needed (most samples stop at the first piece)
+    fcur = 0.0
+    have_fcur = False
+    it = 0
+    n_amb_tries = 0
+    while it < max_iter:
+        it += 1
+        _newton_piece(smp, ws.s, ws.piece, ws.x)
+        _sides(smp, ws.x, ws.sn)
+        if _same_piece(smp, ws.s, ws.sn):
+            improved = False
+            fbest = 0.0
+            if n_amb_tries < 8:
+                improved, fbest = _release_ambiguous(smp, F, ws)
+            if improved:
+                n_amb_tries += 1
+                fcur = fbest
+                have_fcur = True
+                _sides(smp, F, ws.s)
+                continue
+            for i in range(m):
+                F[i] = ws.x[i]
+            break
+        if not have_fcur:
+            fcur = _cost(smp, F)
+            have_fcur = True
+        fcur, stop = _descend(smp, F, fcur, ws)
+        if stop:
+            break
+    return it
+
+
+@njit(cache=True, _nrt=False)
+def _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws):
+    """:func:`_solve_exact_kernel` on its scratch ``ws`` (:class:`ExactWork`), compiled without
+    reference counts."""
+    N, m, n = S.J.shape
+    fb = S.prior_mean
+    F = ws.F
+    for i in range(m):
+        F[i] = fb[i]
     for k in range(N):
-        tbk, Jk, ak, bk, wk, pk = tb[k], J[k], a[k], b[k], w[k], p[k]
-        # warm start from the previous sample's solution (time series are smooth)
         if not warm:
             for i in range(m):
                 F[i] = fb[i]
-        _sides(tbk, Jk, ak, bk, F, m, n, s)
-        # the cost at F, computed when first needed (most samples stop at the first piece)
-        fcur = 0.0
-        have_fcur = False
-        it = 0
-        n_amb_tries = 0
-        while it < max_iter:
-            it += 1
-            _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, s, m, n, R, z, Bm, bb, x)
-            _sides(tbk, Jk, ak, bk, x, m, n, sn)
-            same = True
-            for j in range(n):
-                # a joint of zero-width band is on the same piece on either side of it (the
-                # edge is the same number): a sign change there is not a new active set
-                if sn[j] != s[j] and not (ak[j] == bk[j] and sn[j] != 0 and s[j] != 0):
-                    same = False
-                    break
-            if same:
-                # Joints held active at a distance within rounding of their edge: with a huge
-                # w_j (tiny noise) and a weak prior the sign of that distance is noise, and the
-                # piece without them may be the true optimum (13 N away in a fuzzed case).
-                improved = False
-                if n_amb_tries < 8:
-                    fbest = np.nan  # computed at the first joint near its edge
-                    for j in range(n):
-                        if s[j] == 0:
-                            continue
-                        e = bk[j] if s[j] > 0 else ak[j]
-                        r = tbk[j]
-                        size = abs(tbk[j]) + abs(e)
-                        for i in range(m):
-                            r -= Jk[i, j] * x[i]
-                            size += abs(Jk[i, j] * x[i])
-                        if abs(r - e) > 1e-9 * size:
-                            continue
-                        if fbest != fbest:
-                            f1 = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
-                            fbest = f1 - 1e-12 * (1.0 + f1)
-                        for q in range(n):
-                            sa[q] = s[q]
-                        sa[j] = 0
-                        _newton_piece(tbk, Jk, ak, bk, wk, pk, fb, sa, m, n, R, z, Bm, bb, d)
-                        f2 = _cost(tbk, Jk, ak, bk, wk, pk, fb, d, m, n)
-                        if f2 < fbest:
-                            fbest = f2
-                            improved = True
-                            for i in range(m):
-                                F[i] = d[i]
-                if improved:
-                    n_amb_tries += 1
-                    fcur = fbest
-                    have_fcur = True
-                    _sides(tbk, Jk, ak, bk, F, m, n, s)
-                    continue
-                for i in range(m):
-                    F[i] = x[i]
-                break
-            fnew = _cost(tbk, Jk, ak, bk, wk, pk, fb, x, m, n)
-            if not have_fcur:
-                fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
-                have_fcur = True
-            if fnew < fcur:
-                for i in range(m):
-                    F[i] = x[i]
-                fcur = fnew
-                for j in range(n):
-                    s[j] = sn[j]
-            else:
-                step = 0.0
-                for i in range(m):
-                    d[i] = x[i] - F[i]
-                    step = max(step, abs(d[i]) / (1.0 + abs(F[i])))
-                if step < 1e-15:
-                    break  # the piece's minimiser is the current point: ties at a band edge
-                t = _line_search(tbk, Jk, ak, bk, wk, pk, fb, F, d, m, n)
-                if t <= 0.0:
-                    break
-                for i in range(m):
-                    F[i] += t * d[i]
-                fcur = _cost(tbk, Jk, ak, bk, wk, pk, fb, F, m, n)
-                _sides(tbk, Jk, ak, bk, F, m, n, s)
+        it_out[k] = _solve_sample(sample_at(S, k), F, ws, max_iter)
         for i in range(m):
             F_out[k, i] = F[i]
-        it_out[k] = it
+
+
+@njit(cache=True)
+def _solve_exact_kernel(S, max_iter, warm, F_out, it_out):
+    """The exact solution ``F_out (N, m)`` [N, N·m] and iterations ``it_out (N,)`` of every
+    sample of the run ``S`` (:class:`~ditherlab.estimator.problem.Samples`); ``warm``: each sample
+    starts from the previous one's solution (time series are smooth), else from the prior
+    mean."""
+    N, m, n = S.J.shape
+    ws = ExactWork(
+        piece_work(m, n), np.empty(m), np.empty(m), np.zeros(n, np.int8), np.zeros(n, np.int8),
+        np.zeros(n, np.int8), np.empty(m), np.empty(n), np.empty(n), np.empty(2 * n + 1),
+    )  # fmt: skip
+    _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws)
 
 
 def _solve_exact(
     prob: Problem, max_iter: int = 100, warm: bool = True, progress=None
 ) -> tuple[np.ndarray, np.ndarray]:
+    """The exact backend on a prepared :class:`Problem`: ``F (N, m)`` [N, N·m] and the Newton
+    iterations ``(N,)``, by chunks of :data:`~ditherlab.estimator.problem.CHUNK` when
+    ``progress`` is given."""
     F = np.empty((prob.N, prob.m))
     it = np.zeros(prob.N, np.int64)
     if prob.N and prob.m:
         for sl in _chunks(prob.N, progress):
-            _solve_exact_kernel(
-                prob.tau_bar[sl], prob.J[sl], prob.tau_min[sl], prob.tau_max[sl], prob.w[sl],
-                prob.p[sl], prob.prior_mean, max_iter, warm, F[sl], it[sl],
-            )  # fmt: skip
+            _solve_exact_kernel(prob.samples(sl), max_iter, warm, F[sl], it[sl])
             if progress is not None:
                 progress(sl.stop, prob.N)
     return F, it

@@ -19,8 +19,7 @@ def qp_matrices(prob: Problem, k: int) -> tuple[np.ndarray, ...]:
     is ``|t - v|^2 + sum_i p_i c_i^2 y_i^2`` with ``t = (tau_bar - J^T F_bar) / (S sigma)``.
     ``c_i = 1 / sqrt(p_i)`` (the prior sigma, or the ridge's) makes the Hessian the identity;
     ``S`` makes ``t`` and the bounds O(1). (The textbook form in ``(F, tau_f)`` has a condition
-    number ~ w J^2 / p, 1e11 with tiny noise, on which ProxQP at eps_abs = 1e-10 is off by tens
-    of newtons.)
+    number ~ w J^2 / p, huge with tiny noise, on which ProxQP stops far from the optimum.)
 
     Returns
     -------
@@ -64,8 +63,9 @@ def qp_matrices(prob: Problem, k: int) -> tuple[np.ndarray, ...]:
     return P, q, G, h, A_eq, b_eq, c * S
 
 
-#: qpsolvers options per reference backend: tight tolerances (the issue measured proxsuite at its
-#: default eps = 1e-5 off by up to 20 N on these problems).
+#: qpsolvers options per reference backend: tight tolerances (at its default eps = 1e-5 proxsuite's
+#: answer to these problems is not accurate enough for a reference; the estimator bench measures
+#: the deviation).
 QP_OPTIONS = {
     "proxsuite": ("proxqp", {"eps_abs": 1e-14, "eps_rel": 0.0, "max_iter": 100_000}),
     "quadprog": ("quadprog", {}),

@@ -20,23 +20,21 @@ profile         {t : min_{F: F_i = t} f(F) - min_F f(F) <= chi2_1(level)}, f the
                 (tau_f profiled out inside its band). The profile is convex and piecewise
                 quadratic in t; it is followed exactly from F_hat along the piecewise-linear path
                 of constrained minimisers (a parametric active set: one joint enters or leaves
-                at each breakpoint) until it reaches the threshold. In the purely Gaussian case
-                (zero-width bands) this is the Bayesian 95 % interval F_hat_i +- 1.96 sd_i and
-                covers exactly; a band makes it wider (residuals inside the band cost nothing).
+                at each breakpoint) as far as the threshold. In the purely Gaussian case
+                (zero-width bands) this is the Bayesian interval F_hat_i +- z sd_i and covers
+                exactly; a band makes it wider (residuals inside the band cost nothing).
 
-Measured coverage of 95 % intervals on data drawn from the model (tests, seeded): profile
-0.949 with Gaussian noise only, 0.975 with bands (forces ~0.999, moments ~0.95); set membership
-0.996-0.997. The LP fast path agrees with linprog (HiGHS) to ~1e-8 on the test problems and to
-~4e-6 relative on fuzzed ill-conditioned ones (HiGHS's own feasibility tolerance is 1e-7).
-Prior-less components whose data bound exceeds BIG_BOX = 1e9 are reported infinite.
+Prior-less components whose data bound exceeds BIG_BOX = 1e9 are reported infinite. Components
+held at the prior give lo = hi = prior_mean. Components without a prior that the data cannot see
+(information below 1e-10 of the sample's mean) give -inf / +inf.
 
-Components held at the prior give lo = hi = prior_mean. Components without a prior that the
-data cannot see (information below 1e-10 of the sample's mean) give -inf / +inf.
+Why these two, and how their coverage is checked: ``docs/design/estimator-intervals.md``; the
+measured coverage is on the Validation page (``docs/validation.md``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import numpy as np
 
@@ -44,33 +42,38 @@ from ditherlab.core.errors import ConfigError
 from ditherlab.estimator.backends.exact import _solve_exact
 from ditherlab.estimator.intervals.profile import _profile
 from ditherlab.estimator.intervals.set_membership import _set_membership
-from ditherlab.estimator.problem import Problem, problem
+from ditherlab.estimator.problem import Problem
 
 INTERVAL_METHODS = ("set_membership", "profile")
 
 
+def _check(method: str, level: float) -> None:
+    if method not in INTERVAL_METHODS:
+        raise ConfigError(
+            f"estimator: interval method {method!r} is unknown; expected one of "
+            f"{', '.join(INTERVAL_METHODS)}"
+        )
+    if not 0.0 < float(level) < 1.0:
+        raise ConfigError(f"estimator: interval level {level!r} is invalid; expected 0 < level < 1")
+
+
 def intervals(
-    tau_bar,
-    J,
-    tau_min,
-    tau_max,
-    sigma,
-    prior_mean,
-    prior_sigma,
+    prob: Problem,
     F_hat=None,
     method: str = "set_membership",
     level: float = 0.95,
-    components: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Confidence interval of every wrench component, per sample.
 
     Parameters
     ----------
-    tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components
-        As for :func:`estimate`.
+    prob : Problem
+        Eq. (3) for N samples (:func:`~ditherlab.estimator.problem`, the same one
+        :func:`~ditherlab.estimator.solve` takes).
     F_hat : (N, 6) [N, N·m], optional
-        The estimate of :func:`estimate` (computed when not given; used by ``profile``).
+        The estimate of :func:`~ditherlab.estimator.estimate` (computed when not given; used by
+        ``profile``).
     method : {"set_membership", "profile"}
         ``set_membership``: ``[min F_i, max F_i]`` over every ``F`` whose residuals lie in the
         bands widened by ``k sigma`` and which lies in the prior box ``F_bar +- k prior_sigma``,
@@ -91,30 +94,6 @@ def intervals(
         Interval bounds; ``lo = hi = prior_mean`` for components held at the prior; ``-inf`` /
         ``inf`` for prior-less components the data cannot determine.
     """
-    _check(method, level)
-    prob = problem(tau_bar, J, tau_min, tau_max, sigma, prior_mean, prior_sigma, components)
-    return problem_intervals(prob, F_hat, method, level, progress)
-
-
-def _check(method: str, level: float) -> None:
-    if method not in INTERVAL_METHODS:
-        raise ConfigError(
-            f"estimator: interval method {method!r} is unknown; expected one of "
-            f"{', '.join(INTERVAL_METHODS)}"
-        )
-    if not 0.0 < float(level) < 1.0:
-        raise ConfigError(f"estimator: interval level {level!r} is invalid; expected 0 < level < 1")
-
-
-def problem_intervals(
-    prob: Problem,
-    F_hat=None,
-    method: str = "set_membership",
-    level: float = 0.95,
-    progress: Callable[[int, int], None] | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`intervals` of a prepared :class:`~ditherlab.estimator.problem.Problem` (built once
-    and shared with :func:`~ditherlab.estimator.solve`); ``F_hat (N, 6)`` as there."""
     _check(method, level)
     N, m = prob.N, prob.m
     if F_hat is None and method == "profile":
