@@ -113,6 +113,7 @@ __all__ = [
     "STILL",
     "WRENCH_COLUMNS",
     "Recording",
+    "RecordingArrays",
     "Regime",
     "SharedMeta",
     "TimeBase",
@@ -162,6 +163,60 @@ class TimeBase:
         return cls(float(t[0]), dt, bool(np.max(np.abs(steps - dt)) <= 1e-6 * dt), dither_period)
 
 
+@dataclass(frozen=True)
+class RecordingArrays:
+    """The arrays of a recording, time first, SI, for :meth:`Recording.from_arrays`.
+
+    Attributes
+    ----------
+    t : (N,) [s]
+    q : (N, n) [rad]
+    tau : (N, n) [N·m]
+    dq : (N, n) [rad/s], optional
+    tau_ffw : (N, n) [N·m], optional
+    wrench : (N, 6) [N, N·m], optional, ``f_x .. m_z``
+    temp : (N, n) [°C], optional
+    dither : (N,) bool, optional
+    extra : further columns by name, each (N,), passed through untouched
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    tau: np.ndarray
+    dq: np.ndarray | None = None
+    tau_ffw: np.ndarray | None = None
+    wrench: np.ndarray | None = None
+    temp: np.ndarray | None = None
+    dither: np.ndarray | None = None
+    extra: Mapping[str, np.ndarray] | None = None
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The table's columns by name (``docs/recording-format.md``), in the file's order."""
+        q = np.atleast_2d(np.asarray(self.q, dtype=float))
+        cols: dict[str, np.ndarray] = {"t": np.asarray(self.t, dtype=float)}
+        for prefix, arr in (
+            ("q", q),
+            ("dq", self.dq),
+            ("tau", self.tau),
+            ("tau_ffw", self.tau_ffw),
+            ("temp", self.temp),
+        ):
+            if arr is None:
+                continue
+            arr = np.asarray(arr, dtype=float).reshape(len(cols["t"]), -1)
+            for j in range(arr.shape[1]):
+                cols[f"{prefix}_{j + 1}"] = arr[:, j]
+        if self.wrench is not None:
+            w = np.asarray(self.wrench, dtype=float).reshape(len(cols["t"]), 6)
+            for k, c in enumerate(WRENCH_COLUMNS):
+                cols[c] = w[:, k]
+        if self.dither is not None:
+            cols["dither"] = np.asarray(self.dither, dtype=bool)
+        if self.extra:
+            cols.update({k: np.asarray(v) for k, v in self.extra.items()})
+        return cols
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """A validated joint log.
@@ -201,59 +256,17 @@ class Recording:
     # ------------------------------------------------------------------ construction helpers
     @classmethod
     def from_arrays(
-        cls,
-        t: np.ndarray,
-        q: np.ndarray,
-        tau: np.ndarray,
-        meta: Mapping[str, Any],
-        *,
-        dq: np.ndarray | None = None,
-        tau_ffw: np.ndarray | None = None,
-        wrench: np.ndarray | None = None,
-        temp: np.ndarray | None = None,
-        dither: np.ndarray | None = None,
-        extra: Mapping[str, np.ndarray] | None = None,
-        name: str | None = None,
+        cls, arrays: RecordingArrays, meta: Mapping[str, Any], name: str | None = None
     ) -> Recording:
-        """Build a recording from arrays.
+        """Build a recording from its arrays.
 
         Parameters
         ----------
-        t : (N,) [s]
-        q : (N, n) [rad]
-        tau : (N, n) [N·m]
+        arrays : the columns, time first (:class:`RecordingArrays`)
         meta : metadata (``robot`` required; ``schema`` is filled in)
-        dq : (N, n) [rad/s], optional
-        tau_ffw : (N, n) [N·m], optional
-        wrench : (N, 6) [N, N·m], optional, ``f_x .. m_z``
-        temp : (N, n) [°C], optional
-        dither : (N,) bool, optional
-        extra : further columns, passed through untouched
+        name : where the recording came from, for messages
         """
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        cols: dict[str, np.ndarray] = {"t": np.asarray(t, dtype=float)}
-        for prefix, arr in (
-            ("q", q),
-            ("dq", dq),
-            ("tau", tau),
-            ("tau_ffw", tau_ffw),
-            ("temp", temp),
-        ):
-            if arr is None:
-                continue
-            arr = np.asarray(arr, dtype=float).reshape(len(cols["t"]), -1)
-            for j in range(arr.shape[1]):
-                cols[f"{prefix}_{j + 1}"] = arr[:, j]
-        if wrench is not None:
-            w = np.asarray(wrench, dtype=float).reshape(len(cols["t"]), 6)
-            for k, c in enumerate(WRENCH_COLUMNS):
-                cols[c] = w[:, k]
-        if dither is not None:
-            cols["dither"] = np.asarray(dither, dtype=bool)
-        if extra:
-            cols.update({k: np.asarray(v) for k, v in extra.items()})
-        m = {"schema": SCHEMA, **dict(meta)}
-        return cls(pd.DataFrame(cols), m, name=name)
+        return cls(pd.DataFrame(arrays.columns()), {"schema": SCHEMA, **dict(meta)}, name=name)
 
     # ------------------------------------------------------------------ accessors
     def __len__(self) -> int:
