@@ -1,4 +1,5 @@
-"""The Recording: one time-indexed table plus metadata (contract: RECORDING.md, version 1).
+"""The Recording: one time-indexed table plus metadata (contract: ``docs/recording-format.md``,
+version 1).
 
 Every reader and the simulator produce a :class:`Recording`; everything downstream consumes one.
 Arrays returned by its accessors have time as the first axis and SI units (arm side of the
@@ -84,7 +85,8 @@ _DITHER_NODE = Either(
     ),
     what="true, false or a table {period [s], omega [rad/s]}",
 )
-#: The recording's metadata (RECORDING.md); other keys (``sim``, ``mapping``, ...) pass through.
+#: The recording's metadata (``docs/recording-format.md``); other keys (``sim``, ``mapping``, ...)
+#: pass through.
 META_SCHEMA = Table(
     keys={
         "schema": Text(choices=(SCHEMA,)),
@@ -224,8 +226,9 @@ class Recording:
     Parameters
     ----------
     data : pandas.DataFrame
-        One row per sample, columns per RECORDING.md (``t``, ``q_1..q_n``, ``tau_1..tau_n`` and
-        optional families). Numeric columns are converted to float64, ``dither`` to bool.
+        One row per sample, columns per ``docs/recording-format.md`` (``t``, ``q_1..q_n``,
+        ``tau_1..tau_n`` and optional families). Numeric columns are converted to float64,
+        ``dither`` to bool.
     meta : dict
         Metadata; ``schema`` and ``robot`` are required.
     name : str, optional
@@ -335,7 +338,7 @@ class Recording:
     def wrench(self) -> np.ndarray | None:
         """F/T sensor wrench at the tool point in base axes, (N, 6) [N, N·m], or None.
 
-        Sign: the wrench the robot exerts on its environment (RECORDING.md).
+        Sign: the wrench the robot exerts on its environment (``docs/recording-format.md``).
         """
         if not self.has_wrench:
             return None
@@ -409,7 +412,8 @@ class Recording:
 
     # ------------------------------------------------------------------ transformations
     def slice(self, t0: float | None = None, t1: float | None = None) -> Recording:
-        """The samples with ``t0 <= t < t1`` (either bound may be None), as a new Recording."""
+        """The samples with ``t0 <= t < t1`` [s] (either bound may be None), as a new
+        Recording."""
         t = self.t
         mask = np.ones(len(t), dtype=bool)
         if t0 is not None:
@@ -430,7 +434,7 @@ class Recording:
         return Recording(data, meta, name=self.name, timebase=self.timebase)
 
     def with_columns(self, **cols: np.ndarray) -> Recording:
-        """A new Recording with columns added or replaced."""
+        """A new Recording with columns added or replaced, each (N,)."""
         data = self.data.copy()
         for k, v in cols.items():
             data[k] = v
@@ -621,7 +625,7 @@ class SharedMeta(dict):
     """Metadata checked and copied once (:func:`share_meta`) and shared, read-only, by the
     recordings built from it — the pieces of one long log (:mod:`ditherlab.io.stream`): a
     recording given one keeps it as it is instead of checking and deep-copying it again (a
-    simulator's metadata is ~190 kB of nested objects: 40 ms a piece)."""
+    simulator's metadata is a large nested object; ``docs/design/long-logs.md``)."""
 
 
 def share_meta(meta: Mapping[str, Any], name: str | None = None) -> SharedMeta:

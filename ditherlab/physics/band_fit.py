@@ -16,7 +16,7 @@ band edges by maximum likelihood of the uniform-plus-Gaussian density at that si
 point masses at the edges added to the uniform part (a push beyond the band leaves the friction
 exactly on an edge). The joint maximum likelihood of all three is available (``sigma="ml"``,
 ``edges=False``) and is what the plain model of the paper prescribes; on push campaigns it is
-misspecified and was measured to be off by several standard errors (see :func:`fit_band`).
+misspecified (:func:`fit_band`; ``docs/design/physics-band-fit.md``).
 """
 
 from __future__ import annotations
@@ -147,7 +147,16 @@ def _histogram(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
 def block_members(inv: np.ndarray, nb: int) -> list[np.ndarray]:
     """The sample indices of each block, ascending: ``[flatnonzero(inv == k) for k < nb]`` by
     one stable sort (that comprehension scans all samples once per block: quadratic in the
-    length of a log, hours for ten hours of samples in 2 s blocks)."""
+    length of a log).
+
+    Parameters
+    ----------
+    inv : (M,) int, each sample's block in ``0 .. nb - 1`` ; nb : the number of blocks
+
+    Returns
+    -------
+    nb arrays of sample indices
+    """
     order = np.argsort(inv, kind="stable")
     ends = np.cumsum(np.bincount(inv, minlength=nb))
     return np.split(order, ends[:-1])
@@ -196,8 +205,8 @@ class BlockDifferences:
     the block was drawn; their median and their median absolute deviation are found in that
     multiset by weights (the differences sorted once), so :meth:`sigma` equals
     ``sigma_from_differences(concatenated blocks, lag, copy labels)`` exactly, in memory and
-    time linear in the samples (that concatenation held about ten copies of a joint-regime's
-    samples per replicate: 0.6 GB at once for ten hours of one joint standing still).
+    time linear in the samples (the concatenation holds several copies of the samples per
+    replicate).
 
     Parameters
     ----------
@@ -220,8 +229,8 @@ class BlockDifferences:
         self.owner = (np.concatenate(owner) if owner else np.zeros(0, np.int64))[order]
 
     def sigma(self, mult: np.ndarray) -> float | None:
-        """The noise level of the replicate that draws block ``k`` ``mult[k]`` times (integer
-        counts), or None where :func:`sigma_from_differences` would not use the differences'
+        """The noise level [N·m] of the replicate that draws block ``k`` ``mult[k]`` times
+        (``mult`` (nb,), integer counts), or None where :func:`sigma_from_differences` would not use the differences'
         MAD (too few samples, no differences, a MAD of 0): the caller builds the replicate."""
         n_samples = int(self.sizes @ mult.astype(np.int64))
         w = mult.astype(np.int64)[self.owner]
@@ -342,9 +351,8 @@ def _fit_weighted(
     c0, h0, s0 = start[:3]
     rest = tuple(start[3:7]) if len(start) >= 7 else (-2.0, -2.0, -4.0, -4.0)
     h0 = max(h0, 1e-6 * s0)
-    # unconstrained coordinates: (c, log h, log sigma, eta_a, eta_b, zeta_a, zeta_b); BFGS
-    # (L-BFGS-B in this scipy spent ~2 ms per iteration in its own bookkeeping, 5x the cost of
-    # the likelihood here)
+    # unconstrained coordinates: (c, log h, log sigma, eta_a, eta_b, zeta_a, zeta_b); BFGS (its
+    # own bookkeeping is cheaper than L-BFGS-B's here; docs/design/physics-band-fit.md)
     full = np.array([c0, np.log(h0), np.log(max(s0, s_floor)), *rest])
     free = np.array([True, True, not fixed_sigma, edges, edges, edges, edges])
     if not edges:
@@ -372,8 +380,8 @@ def _fit_weighted(
         return f + pen, g[free]
 
     # the line search tries steps far out (a band 1e300 wide, sigma -> 0): the likelihood is
-    # inf or NaN there and BFGS steps back; numpy's overflow warnings about those trials went
-    # to the user's terminal (32 of 35 lines for one identify of an excitation log)
+    # inf or NaN there and BFGS steps back; numpy's overflow warnings about those trials are
+    # not the user's business
     with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
         res = optimize.minimize(
             fun, full[free], jac=True, method="BFGS", options={"maxiter": 3000, "gtol": 1e-9}

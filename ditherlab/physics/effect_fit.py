@@ -470,7 +470,7 @@ def fit_effect(
     parameter is continuous (``position_ripple``'s period), the final fit (``train`` None)
     refines it between the best value's grid neighbours (bounded Brent search): the grid is
     spaced a quarter cycle over the joint's span, which leaves up to 1/8 cycle of phase error at
-    the ends of the span (on the simulator, 1.5x the noise floor on a wrist joint).
+    the ends of the span (``docs/design/physics-effect-fit.md``).
 
     Parameters
     ----------
@@ -556,7 +556,8 @@ def linear_stderr(
     information: the Gauss–Newton matrix of the band-aware loss at the fitted value (rows
     outside the band), with the score's variance summed over contiguous blocks of ``block_s``
     seconds (a cluster "sandwich": neighbouring samples of one push are not independent, and
-    counting them as such made a gain fitted on three pushes look exact).
+    counting them as such makes a gain fitted on a few pushes look exact;
+    ``docs/design/physics-effect-fit.md``).
 
     Parameters
     ----------

@@ -266,8 +266,9 @@ class Admittance:
         return self.lt["law"] == "interval"
 
     def control(self, k0: int, k1: int, state: dict[str, np.ndarray], out: np.ndarray) -> None:
-        """The engine's chunk callback after samples ``k0 .. k1``: estimate the push at the
-        chunk's last sample, command the next chunk's joint rates, switch the dither."""
+        """The engine's chunk callback after samples ``k0 .. k1`` (``out`` (N_OUT, N, n), the
+        run's raw outputs; ``state`` the engine's): estimate the push at the chunk's last sample,
+        command the next chunk's joint rates, switch the dither."""
         k = k1 - 1
         tau_bar, half, J = self._residual(out, k)
         v = self._tool_velocity(tau_bar, half, J, k0, k1)

@@ -94,8 +94,10 @@ def drive(
     robot: Any,
     progress: Callable[[int, int], None] | None,
 ) -> Driven:
-    """Run ``plan`` on the plant with the ``hidden`` effects: the torque and F/T noise from the
-    first of ``rngs``, the hidden effects' draws from the second (:func:`scenario_rngs`)."""
+    """Run ``plan`` on the plant with the ``hidden`` effects: the logged torque's noise
+    (N, n) [N·m] and the F/T noise (N, 6) [N, N·m] from the first of ``rngs``, the hidden
+    effects' draws from the second (:func:`scenario_rngs`); ``robot`` is the controller's
+    RobotModel (the F/T sensor's tool axes)."""
     noise_rng, hidden_rng = rngs
     tt, n = plan.t, len(plan.q0)
     N, dt = len(tt), 1.0 / float(params["timing"]["sample_rate_hz"])
