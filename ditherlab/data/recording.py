@@ -165,7 +165,7 @@ class TimeBase:
         return cls(float(t[0]), dt, bool(np.max(np.abs(steps - dt)) <= 1e-6 * dt), dither_period)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RecordingArrays:
     """The arrays of a recording, time first, SI, for :meth:`Recording.from_arrays`.
 

@@ -449,7 +449,7 @@ def fit_band(
     return BandFit(a, b, s, se[0], se[1], se[2], n=len(x), nll=nll)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _BandProblem:
     """One band fit's samples, their histogram and its settings (:func:`fit_band`).
 

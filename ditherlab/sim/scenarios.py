@@ -52,7 +52,7 @@ def wrench_noise(params: Mapping[str, Any], rng: np.random.Generator, N: int) ->
     return rng.normal(size=(N, 6)) * sigma
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Plan:
     """What an open-loop scenario asks of the robot, sample by sample.
 
@@ -74,7 +74,7 @@ class Plan:
     dither_cmd: np.ndarray
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Driven:
     """What the plant did with a :class:`Plan`: the engine's outputs, the hidden plant, the
     engine, and the F/T sensor's columns (N, 6) [N, N·m] (the robot's wrench, noise included)."""
