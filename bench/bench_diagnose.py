@@ -21,7 +21,7 @@ SIGMA = np.array([0.25, 0.25, 0.2, 0.05, 0.05, 0.04])  # [N·m]
 
 def recording(duration: float, seed: int = 0):
     """A synthetic moving recording (N = duration·250 samples) with a ripple on joint 2."""
-    from ditherlab.data.recording import Recording
+    from ditherlab.data.recording import Recording, RecordingArrays
     from ditherlab.robot import RobotModel
 
     rng = np.random.default_rng(seed)
@@ -46,7 +46,7 @@ def recording(duration: float, seed: int = 0):
     tau = robot.gravity(q) + FC * np.tanh(dq / 0.003) + 0.3 * FC * dq
     tau += np.einsum("tkn,tk->tn", robot.jacobian(q), F) + rng.normal(size=q.shape) * SIGMA
     tau[:, 1] += 1.5 * np.sin(2 * np.pi * q[:, 1] / 0.05)
-    return Recording.from_arrays(t, q, tau, {"robot": "irb140"}, dq=dq, wrench=F)
+    return Recording.from_arrays(RecordingArrays(t, q, tau, dq=dq, wrench=F), {"robot": "irb140"})
 
 
 def _model():

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import ditherlab.io as dio
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 
 
 def log(seconds: float, seed: int = 0) -> Recording:
@@ -25,15 +25,17 @@ def log(seconds: float, seed: int = 0) -> Recording:
     t = np.arange(n_rows) / 250.0 + rng.normal(0, 1e-5, n_rows)  # [s] with jitter
     q = np.cumsum(rng.normal(0, 1e-4, (n_rows, 6)), axis=0)
     return Recording.from_arrays(
-        t,
-        q,
-        rng.normal(0, 20, (n_rows, 6)),
+        RecordingArrays(
+            t,
+            q,
+            rng.normal(0, 20, (n_rows, 6)),
+            dq=rng.normal(0, 0.01, (n_rows, 6)),
+            tau_ffw=rng.normal(0, 2, (n_rows, 6)),
+            temp=30 + rng.random((n_rows, 6)),
+            wrench=rng.normal(0, 5, (n_rows, 6)),
+            dither=rng.random(n_rows) > 0.5,
+        ),
         {"robot": "irb140"},
-        dq=rng.normal(0, 0.01, (n_rows, 6)),
-        tau_ffw=rng.normal(0, 2, (n_rows, 6)),
-        temp=30 + rng.random((n_rows, 6)),
-        wrench=rng.normal(0, 5, (n_rows, 6)),
-        dither=rng.random(n_rows) > 0.5,
     )
 
 

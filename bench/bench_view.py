@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from ditherlab.core.names import WRENCH_COLUMNS
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.data.torque_model import Band, TorqueModel
 
 FS = 250.0
@@ -42,13 +42,8 @@ def campaign(duration: float, seed: int = 0) -> Recording:
     dither = (t % 600.0) >= 300.0
     ffw = np.where(dither[:, None], 3.0 * np.sign(np.sin(80 * t))[:, None], 0.0) * np.ones(n)
     return Recording.from_arrays(
-        t,
-        q,
-        tau,
+        RecordingArrays(t, q, tau, wrench=w, dither=dither, tau_ffw=ffw),
         {"robot": "irb140", "source": "bench", "sample_rate_hz": FS},
-        wrench=w,
-        dither=dither,
-        tau_ffw=ffw,
         name="bench.parquet",
     )
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.robot import RobotModel
 
 Q0 = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0])
@@ -89,14 +89,10 @@ def push_recording(
         tau_ffw = wave + g
     tau = u + rng.normal(0.0, 1.0, (N, n)) * SIGMA
     rec = Recording.from_arrays(
-        t,
-        q,
-        tau,
+        RecordingArrays(
+            t, q, tau, dq=np.zeros((N, n)), wrench=F, dither=on if dither else None, tau_ffw=tau_ffw
+        ),
         {"robot": "irb140", "sample_rate_hz": rate, "source": "synthetic"},
-        dq=np.zeros((N, n)),
-        wrench=F,
-        dither=on if dither else None,
-        tau_ffw=tau_ffw,
         name="synthetic.parquet",
     )
     truth = {
@@ -126,12 +122,8 @@ def moving_recording(seed: int = 0, duration: float = 60.0, rate: float = 250.0)
     blocks = np.repeat(rng.uniform(-1, 1, (N // 50 + 1, n)), 50, axis=0)[:N] * half
     tau = g + coulomb * np.sign(dq) + viscous * dq + blocks + rng.normal(0, 1, (N, n)) * SIGMA
     rec = Recording.from_arrays(
-        t,
-        q,
-        tau,
+        RecordingArrays(t, q, tau, dq=dq, wrench=np.zeros((N, 6))),
         {"robot": "irb140", "sample_rate_hz": rate},
-        dq=dq,
-        wrench=np.zeros((N, 6)),
         name="moving.parquet",
     )
     return rec, {"coulomb": coulomb, "viscous": viscous, "band": (-half, half), "sigma": SIGMA}

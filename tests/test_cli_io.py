@@ -12,7 +12,7 @@ import pytest
 
 import ditherlab.io as dio
 from ditherlab.core.errors import DitherlabWarning
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "recordings" / "ur10e-static.parquet"
@@ -102,7 +102,9 @@ def test_info_warns_about_degrees(cli, tmp_path):
     t = np.arange(100) * 0.004
     q = np.tile([10.0, 80.0, -120.0, 170.0, 95.0, 300.0], (100, 1))
     p = tmp_path / "deg.parquet"
-    dio.write(Recording.from_arrays(t, q, np.zeros_like(q), {"robot": "irb140"}), p)
+    dio.write(
+        Recording.from_arrays(RecordingArrays(t, q, np.zeros_like(q)), {"robot": "irb140"}), p
+    )
     with pytest.warns(
         DitherlabWarning, match=r"deg\.parquet: q_6 reaches 300, .* as if in degrees"
     ):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from ditherlab.core.errors import ConfigError
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.physics import dither as D
 from ditherlab.robot import PAPER_POSE, RobotModel
 from ditherlab.sim import simulate
@@ -146,7 +146,8 @@ def _recording(waveform_meta, waveform="sine", A=2.0):
     if waveform_meta is not None:
         meta["dither"] = {"waveform": waveform_meta}
     return Recording.from_arrays(
-        t, np.zeros((len(t), n)), tau, meta, tau_ffw=tau, dither=np.ones(len(t), bool)
+        RecordingArrays(t, np.zeros((len(t), n)), tau, tau_ffw=tau, dither=np.ones(len(t), bool)),
+        meta,
     )
 
 

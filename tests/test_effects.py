@@ -17,7 +17,7 @@ from scipy.optimize import minimize
 
 from ditherlab.app.loop import add_effect
 from ditherlab.core.errors import ModelError
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.data.torque_model import Band, EffectSpec, TorqueModel
 from ditherlab.physics.effect_fit import _solve, fit_effect, solve_signed
 from ditherlab.physics.effects import (
@@ -122,13 +122,10 @@ def make_recording(
     if temp and T is None:
         T = 30.0 + 0 * q
     return Recording.from_arrays(
-        t,
-        q,
-        tau,
+        RecordingArrays(
+            t, q, tau, dq=dq, wrench=sensor if wrench else None, temp=T if temp else None
+        ),
         {"robot": "irb140", "source": "synthetic"},
-        dq=dq,
-        wrench=sensor if wrench else None,
-        temp=T if temp else None,
         name=f"synth[{','.join(hidden) or 'clean'}:{seed}]",
     )
 
@@ -376,7 +373,8 @@ def test_effects_torque_without_sensor_is_the_recording_without_ft(recs):
     rec = recs["load_friction"]
     m = add_effect(base_model(), [rec], "load_friction", joints=[2, 3], refit=False)
     bare = Recording.from_arrays(
-        rec.t, rec.q, rec.tau, {"robot": "irb140", "source": "synthetic"}, dq=rec.dq
+        RecordingArrays(rec.t, rec.q, rec.tau, dq=rec.dq),
+        {"robot": "irb140", "source": "synthetic"},
     )
     off = effects_torque(m, rec, sensor=False)
     np.testing.assert_allclose(off, effects_torque(m, bare), atol=1e-12)

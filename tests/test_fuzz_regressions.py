@@ -18,7 +18,7 @@ import pytest
 
 import ditherlab.io as dio
 from ditherlab.core.errors import FormatError, RecordingError
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.io.stream import open_source
 
 DATA = Path(__file__).resolve().parent / "data"
@@ -32,7 +32,7 @@ def rec() -> Recording:
     t = np.arange(300) * 0.004
     q = 0.3 * np.sin(np.outer(t, np.arange(1, 7)) * 0.5)
     tau = rng.normal(0, 1, (300, 6))
-    return Recording.from_arrays(t, q, tau, META)
+    return Recording.from_arrays(RecordingArrays(t, q, tau), META)
 
 
 def one_error(cli, *args) -> str:

@@ -17,7 +17,7 @@ from rosbags.typesys import Stores, get_typestore
 import ditherlab
 import ditherlab.io as dio
 from ditherlab.core.errors import ConfigError, DitherlabWarning, FormatError, RobotError
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.io.mapping import builtin_mappings, load_mapping
 from ditherlab.io.rosbag import merge_onto
 from ditherlab.robot import RobotModel
@@ -82,7 +82,9 @@ def recordings(draw, *, text_columns: bool = True, nan_extra: bool = True) -> Re
     meta = {"robot": "irb140", "notes": draw(text)}
     if draw(st.booleans()):
         meta["tool_offset"] = [draw(st.floats(-0.5, 0.5)) for _ in range(3)]
-    return Recording.from_arrays(t, block(6, -2.0, 2.0), block(6), meta, extra=extra, **opt)
+    return Recording.from_arrays(
+        RecordingArrays(t, block(6, -2.0, 2.0), block(6), extra=extra, **opt), meta
+    )
 
 
 settings.register_profile(
@@ -273,7 +275,7 @@ def test_degrees_give_a_unit_warning(tmp_path):
     """Joint angles logged in degrees trigger the DitherlabWarning about units."""
     t = np.arange(50) * 0.004
     q = np.tile(np.array([10.0, 80.0, -120.0, 170.0, 95.0, 300.0]), (50, 1))
-    rec = Recording.from_arrays(t, q, np.zeros_like(q), {"robot": "irb140"})
+    rec = Recording.from_arrays(RecordingArrays(t, q, np.zeros_like(q)), {"robot": "irb140"})
     p = tmp_path / "deg.parquet"
     dio.write(rec, p)
     with pytest.warns(DitherlabWarning, match=r"as if in degrees"):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ditherlab.analysis.lead_metrics import lead_metrics, tool_path
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.io import read
 from ditherlab.robot import RobotModel
 from ditherlab.sim import simulate
@@ -115,7 +115,7 @@ def _recording(xs: np.ndarray, t: np.ndarray, extra: dict | None = None) -> Reco
             "params": params,
         },
     }
-    return Recording.from_arrays(t, q, np.zeros_like(q), meta, extra=cols)
+    return Recording.from_arrays(RecordingArrays(t, q, np.zeros_like(q), extra=cols), meta)
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 
 from ditherlab.core.errors import RecordingError, RobotError
 from ditherlab.core.names import DITHER, MOVING, STILL
-from ditherlab.data.recording import SCHEMA, Recording, differentiate, regimes
+from ditherlab.data.recording import SCHEMA, Recording, RecordingArrays, differentiate, regimes
 
 META = {"schema": SCHEMA, "robot": "irb140"}
 
@@ -158,7 +158,7 @@ def test_dq_differentiated_from_analytic_sine():
     t = np.cumsum(rng.uniform(0.0035, 0.0045, 2000))
     amp, w = 0.3, 2 * np.pi * 0.7
     q = np.stack([amp * np.sin(w * t), 2 * amp * np.sin(w * t + 1)], axis=1)
-    rec = Recording.from_arrays(t, q, np.zeros_like(q), {"robot": "irb140"})
+    rec = Recording.from_arrays(RecordingArrays(t, q, np.zeros_like(q)), {"robot": "irb140"})
     assert not rec.has_dq
     truth = np.stack([amp * w * np.cos(w * t), 2 * amp * w * np.cos(w * t + 1)], axis=1)
     err = np.abs(rec.dq - truth).max()
@@ -196,7 +196,9 @@ def test_logged_dq_is_used_as_is():
     """Logged dq columns are returned unchanged, not differentiated."""
     t = np.arange(20) * 0.01
     dq = np.full((20, 6), 0.5)
-    rec = Recording.from_arrays(t, np.zeros((20, 6)), np.zeros((20, 6)), {"robot": "irb140"}, dq=dq)
+    rec = Recording.from_arrays(
+        RecordingArrays(t, np.zeros((20, 6)), np.zeros((20, 6)), dq=dq), {"robot": "irb140"}
+    )
     np.testing.assert_array_equal(rec.dq, dq)
 
 
@@ -206,7 +208,9 @@ def test_regimes_still_dither_moving():
     q = np.zeros((500, 2))
     q[:, 1] = 0.2 * t  # joint 2 moves at 0.2 rad/s
     dither = t >= 1.0
-    rec = Recording.from_arrays(t, q, np.zeros_like(q), {"robot": "irb140"}, dither=dither)
+    rec = Recording.from_arrays(
+        RecordingArrays(t, q, np.zeros_like(q), dither=dither), {"robot": "irb140"}
+    )
     r = regimes(rec)
     assert (r[:, 1] == MOVING).all()
     assert (r[t < 1.0, 0] == STILL).all() and (r[t >= 1.0, 0] == DITHER).all()

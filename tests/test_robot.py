@@ -622,7 +622,7 @@ def test_unique_configurations_property(pool, picks, tol):
 
 def test_recording_robot_carries_tool_offset_and_payload():
     """Recording.robot() builds the embedded URDF with the metadata's tool offset and payload."""
-    from ditherlab.data.recording import Recording
+    from ditherlab.data.recording import Recording, RecordingArrays
 
     N = 5
     q = np.tile([0.3, -0.4], (N, 1))
@@ -631,7 +631,9 @@ def test_recording_robot_carries_tool_offset_and_payload():
         "tool_offset": [0.1, 0.0, 0.0],
         "payload": {"mass": 1.5, "com": [0.1, 0.0, 0.0]},
     }
-    rec = Recording.from_arrays(np.arange(N) / 250.0, q, np.zeros((N, 2)), meta, name="p.parquet")
+    rec = Recording.from_arrays(
+        RecordingArrays(np.arange(N) / 250.0, q, np.zeros((N, 2))), meta, name="p.parquet"
+    )
     robot = rec.robot()
     assert robot.name == "planar2" and robot.payload == {"mass": 1.5, "com": [0.1, 0.0, 0.0]}
     np.testing.assert_array_equal(robot.tool_offset, [0.1, 0, 0])

@@ -18,7 +18,7 @@ from conftest import run_cli
 
 from ditherlab.app.sweep import COLUMNS, RUN_COLUMNS, grid_points, parse_grid, vibration
 from ditherlab.core.errors import ConfigError
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 
 DITHER_KEYS = (
     "amplitude_cap, amplitude_fraction, amplitude_gain, centre_gain, frequency, hold_fraction, "
@@ -217,14 +217,17 @@ def test_vibration_is_the_half_peak_to_peak_at_rest_without_drift():
     qq[:, :2] = q
     extra = {f"q_link_{j + 1}": qq[:, j] for j in range(6)}
     rec = Recording.from_arrays(
-        t, qq, np.zeros((len(t), 6)), meta, dither=np.ones(len(t), bool), extra=extra
+        RecordingArrays(t, qq, np.zeros((len(t), 6)), dither=np.ones(len(t), bool), extra=extra),
+        meta,
     )
     for angle in ("link", "motor"):
         v = vibration(rec, angle)
         assert v.shape == (6,)
         np.testing.assert_allclose(v[:2], amp, rtol=0.03)
         assert np.all(v[2:] == 0)
-    rec2 = Recording.from_arrays(t, qq, np.zeros((len(t), 6)), meta, dither=np.ones(len(t), bool))
+    rec2 = Recording.from_arrays(
+        RecordingArrays(t, qq, np.zeros((len(t), 6)), dither=np.ones(len(t), bool)), meta
+    )
     with pytest.raises(ConfigError, match="no q_link_j columns"):
         vibration(rec2, "link")
 

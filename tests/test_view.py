@@ -13,7 +13,7 @@ import pytest
 from ditherlab.core.errors import DitherlabError, FormatError, RecordingError
 from ditherlab.core.files import plain
 from ditherlab.core.names import FORCE_AXES, WRENCH_COLUMNS
-from ditherlab.data.recording import Recording
+from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.output.diagnosis_report import load_report, write_report
 from ditherlab.output.rerun import rerun_log as rl
 
@@ -38,14 +38,8 @@ def synthetic_campaign(
     ffw = np.where(dither[:, None], 3.0 * np.sign(np.sin(80 * t))[:, None] + 0.5, 0.0) * np.ones(n)
     amp_ref = {f"dither_amp_ref_{j + 1}": np.where(dither, 2.7, 0.0) for j in range(n)}
     return Recording.from_arrays(
-        t,
-        q,
-        tau,
+        RecordingArrays(t, q, tau, wrench=w, dither=dither, tau_ffw=ffw, extra=amp_ref),
         {"robot": "irb140", "source": source, "sample_rate_hz": FS},
-        wrench=w,
-        dither=dither,
-        tau_ffw=ffw,
-        extra=amp_ref,
         name=f"{source}.parquet",
     )
 

@@ -69,15 +69,17 @@ class Estimates:
 
     @property
     def variants(self) -> list[str]:
+        """The estimator variants in the file (of :data:`VARIANTS`), in file order."""
         return list(self.meta.get("variants", []))
 
     @property
     def t(self) -> np.ndarray:
-        """(N,) [s]"""
+        """Sample times, (N,) [s]."""
         return self.data["t"].to_numpy(dtype=float)
 
     @property
     def has_wrench(self) -> bool:
+        """True when the F/T sensor columns ``f_x .. m_z`` are present."""
         return "f_x" in self.data.columns
 
     @property
@@ -89,6 +91,7 @@ class Estimates:
 
     @property
     def dither(self) -> np.ndarray | None:
+        """Dither flag, (N,) bool, or None when not logged."""
         return self.data["dither"].to_numpy(dtype=bool) if "dither" in self.data.columns else None
 
     def F(self, variant: str) -> np.ndarray:
@@ -196,10 +199,12 @@ class EstimatesSource:
 
     @property
     def variants(self) -> list[str]:
+        """The estimator variants in the file (of :data:`VARIANTS`), in file order."""
         return list(self.meta.get("variants", []))
 
     @property
     def has_wrench(self) -> bool:
+        """True when the F/T sensor columns ``f_x .. m_z`` are present."""
         return "f_x" in self.columns
 
     def blocks(self, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
@@ -228,7 +233,7 @@ class EstimatesSource:
             yield pa.Table.from_batches(buf).to_pandas()
 
     def column(self, name: str, rows: int = 1 << 16) -> np.ndarray:
-        """One whole column, (N,)."""
+        """One whole column, (N,), in the column's unit (``t`` [s], a force [N], ...)."""
         if name not in self.columns:
             raise FormatError(f"{self.name}: required column {name} is missing")
         parts = [b[name].to_numpy() for b in self.blocks(rows, [name])]
@@ -293,13 +298,9 @@ class EstimatesWriter:
 
 
 def _write_options(schema: pa.Schema) -> dict[str, Any]:
-    """LZ4, and dictionary encoding only for the integer columns (``dither``, ``V/active``): the
-    float columns are all distinct, and trying a dictionary on them first doubled the time of
-    writing the replay hour's estimates (7.4 s against 3.5 s) and made the file 26 % larger
-    (657 MB against 521 MB). LZ4 rather than zstd: on the estimates (distinct doubles, which
-    neither compresses much) it takes 0.35 s of CPU per 300 000 rows against zstd's 0.57 s, for a
-    file 10 % larger (195 MB against 178 MB; no compression: 0.28 s, 233 MB). Page checksums: a
-    reader finds a damaged page (checked on read)."""
+    """The Parquet writer's options: LZ4, dictionary encoding only for the integer columns
+    (``dither``, ``V/active``; the float columns are all distinct), page checksums (a reader
+    finds a damaged page). Why these: ``docs/design/data-estimates-file.md``."""
     ints = [f.name for f in schema if not pa.types.is_floating(f.type)]
     return {"compression": "lz4", "use_dictionary": ints, "write_page_checksum": True}
 

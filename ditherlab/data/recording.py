@@ -1,4 +1,5 @@
-"""The Recording: one time-indexed table plus metadata (contract: RECORDING.md, version 1).
+"""The Recording: one time-indexed table plus metadata (contract: ``docs/recording-format.md``,
+version 1).
 
 Every reader and the simulator produce a :class:`Recording`; everything downstream consumes one.
 Arrays returned by its accessors have time as the first axis and SI units (arm side of the
@@ -84,7 +85,8 @@ _DITHER_NODE = Either(
     ),
     what="true, false or a table {period [s], omega [rad/s]}",
 )
-#: The recording's metadata (RECORDING.md); other keys (``sim``, ``mapping``, ...) pass through.
+#: The recording's metadata (``docs/recording-format.md``); other keys (``sim``, ``mapping``, ...)
+#: pass through.
 META_SCHEMA = Table(
     keys={
         "schema": Text(choices=(SCHEMA,)),
@@ -113,6 +115,7 @@ __all__ = [
     "STILL",
     "WRENCH_COLUMNS",
     "Recording",
+    "RecordingArrays",
     "Regime",
     "SharedMeta",
     "TimeBase",
@@ -163,14 +166,69 @@ class TimeBase:
 
 
 @dataclass(frozen=True, eq=False)
+class RecordingArrays:
+    """The arrays of a recording, time first, SI, for :meth:`Recording.from_arrays`.
+
+    Attributes
+    ----------
+    t : (N,) [s]
+    q : (N, n) [rad]
+    tau : (N, n) [N·m]
+    dq : (N, n) [rad/s], optional
+    tau_ffw : (N, n) [N·m], optional
+    wrench : (N, 6) [N, N·m], optional, ``f_x .. m_z``
+    temp : (N, n) [°C], optional
+    dither : (N,) bool, optional
+    extra : further columns by name, each (N,), passed through untouched
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    tau: np.ndarray
+    dq: np.ndarray | None = None
+    tau_ffw: np.ndarray | None = None
+    wrench: np.ndarray | None = None
+    temp: np.ndarray | None = None
+    dither: np.ndarray | None = None
+    extra: Mapping[str, np.ndarray] | None = None
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The table's columns by name (``docs/recording-format.md``), in the file's order."""
+        q = np.atleast_2d(np.asarray(self.q, dtype=float))
+        cols: dict[str, np.ndarray] = {"t": np.asarray(self.t, dtype=float)}
+        for prefix, arr in (
+            ("q", q),
+            ("dq", self.dq),
+            ("tau", self.tau),
+            ("tau_ffw", self.tau_ffw),
+            ("temp", self.temp),
+        ):
+            if arr is None:
+                continue
+            arr = np.asarray(arr, dtype=float).reshape(len(cols["t"]), -1)
+            for j in range(arr.shape[1]):
+                cols[f"{prefix}_{j + 1}"] = arr[:, j]
+        if self.wrench is not None:
+            w = np.asarray(self.wrench, dtype=float).reshape(len(cols["t"]), 6)
+            for k, c in enumerate(WRENCH_COLUMNS):
+                cols[c] = w[:, k]
+        if self.dither is not None:
+            cols["dither"] = np.asarray(self.dither, dtype=bool)
+        if self.extra:
+            cols.update({k: np.asarray(v) for k, v in self.extra.items()})
+        return cols
+
+
+@dataclass(frozen=True, eq=False)
 class Recording:
     """A validated joint log.
 
     Parameters
     ----------
     data : pandas.DataFrame
-        One row per sample, columns per RECORDING.md (``t``, ``q_1..q_n``, ``tau_1..tau_n`` and
-        optional families). Numeric columns are converted to float64, ``dither`` to bool.
+        One row per sample, columns per ``docs/recording-format.md`` (``t``, ``q_1..q_n``,
+        ``tau_1..tau_n`` and optional families). Numeric columns are converted to float64,
+        ``dither`` to bool.
     meta : dict
         Metadata; ``schema`` and ``robot`` are required.
     name : str, optional
@@ -201,59 +259,17 @@ class Recording:
     # ------------------------------------------------------------------ construction helpers
     @classmethod
     def from_arrays(
-        cls,
-        t: np.ndarray,
-        q: np.ndarray,
-        tau: np.ndarray,
-        meta: Mapping[str, Any],
-        *,
-        dq: np.ndarray | None = None,
-        tau_ffw: np.ndarray | None = None,
-        wrench: np.ndarray | None = None,
-        temp: np.ndarray | None = None,
-        dither: np.ndarray | None = None,
-        extra: Mapping[str, np.ndarray] | None = None,
-        name: str | None = None,
+        cls, arrays: RecordingArrays, meta: Mapping[str, Any], name: str | None = None
     ) -> Recording:
-        """Build a recording from arrays.
+        """Build a recording from its arrays.
 
         Parameters
         ----------
-        t : (N,) [s]
-        q : (N, n) [rad]
-        tau : (N, n) [N·m]
+        arrays : the columns, time first (:class:`RecordingArrays`)
         meta : metadata (``robot`` required; ``schema`` is filled in)
-        dq : (N, n) [rad/s], optional
-        tau_ffw : (N, n) [N·m], optional
-        wrench : (N, 6) [N, N·m], optional, ``f_x .. m_z``
-        temp : (N, n) [°C], optional
-        dither : (N,) bool, optional
-        extra : further columns, passed through untouched
+        name : where the recording came from, for messages
         """
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        cols: dict[str, np.ndarray] = {"t": np.asarray(t, dtype=float)}
-        for prefix, arr in (
-            ("q", q),
-            ("dq", dq),
-            ("tau", tau),
-            ("tau_ffw", tau_ffw),
-            ("temp", temp),
-        ):
-            if arr is None:
-                continue
-            arr = np.asarray(arr, dtype=float).reshape(len(cols["t"]), -1)
-            for j in range(arr.shape[1]):
-                cols[f"{prefix}_{j + 1}"] = arr[:, j]
-        if wrench is not None:
-            w = np.asarray(wrench, dtype=float).reshape(len(cols["t"]), 6)
-            for k, c in enumerate(WRENCH_COLUMNS):
-                cols[c] = w[:, k]
-        if dither is not None:
-            cols["dither"] = np.asarray(dither, dtype=bool)
-        if extra:
-            cols.update({k: np.asarray(v) for k, v in extra.items()})
-        m = {"schema": SCHEMA, **dict(meta)}
-        return cls(pd.DataFrame(cols), m, name=name)
+        return cls(pd.DataFrame(arrays.columns()), {"schema": SCHEMA, **dict(meta)}, name=name)
 
     # ------------------------------------------------------------------ accessors
     def __len__(self) -> int:
@@ -322,7 +338,7 @@ class Recording:
     def wrench(self) -> np.ndarray | None:
         """F/T sensor wrench at the tool point in base axes, (N, 6) [N, N·m], or None.
 
-        Sign: the wrench the robot exerts on its environment (RECORDING.md).
+        Sign: the wrench the robot exerts on its environment (``docs/recording-format.md``).
         """
         if not self.has_wrench:
             return None
@@ -396,7 +412,8 @@ class Recording:
 
     # ------------------------------------------------------------------ transformations
     def slice(self, t0: float | None = None, t1: float | None = None) -> Recording:
-        """The samples with ``t0 <= t < t1`` (either bound may be None), as a new Recording."""
+        """The samples with ``t0 <= t < t1`` [s] (either bound may be None), as a new
+        Recording."""
         t = self.t
         mask = np.ones(len(t), dtype=bool)
         if t0 is not None:
@@ -417,7 +434,7 @@ class Recording:
         return Recording(data, meta, name=self.name, timebase=self.timebase)
 
     def with_columns(self, **cols: np.ndarray) -> Recording:
-        """A new Recording with columns added or replaced."""
+        """A new Recording with columns added or replaced, each (N,)."""
         data = self.data.copy()
         for k, v in cols.items():
             data[k] = v
@@ -608,7 +625,7 @@ class SharedMeta(dict):
     """Metadata checked and copied once (:func:`share_meta`) and shared, read-only, by the
     recordings built from it — the pieces of one long log (:mod:`ditherlab.io.stream`): a
     recording given one keeps it as it is instead of checking and deep-copying it again (a
-    simulator's metadata is ~190 kB of nested objects: 40 ms a piece)."""
+    simulator's metadata is a large nested object; ``docs/design/long-logs.md``)."""
 
 
 def share_meta(meta: Mapping[str, Any], name: str | None = None) -> SharedMeta:

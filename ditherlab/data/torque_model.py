@@ -165,6 +165,7 @@ class Band:
 
     @property
     def n(self) -> int:
+        """The number of joints."""
         return len(self.sigma)
 
     def sliding(self, dq: np.ndarray) -> np.ndarray:
@@ -178,6 +179,7 @@ class Band:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        """The band as the model file's ``[regimes.NAME]`` table (lists per joint, N·m)."""
         d: dict[str, Any] = {
             "tau_min": self.tau_min.tolist(),
             "tau_max": self.tau_max.tolist(),
@@ -206,6 +208,7 @@ class EffectSpec:
     source: str | None = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
+        """The effect as one ``[[effects]]`` entry of the model file."""
         return {"name": self.name, "joints": list(self.joints), "params": plain(self.params)}
 
 
@@ -296,9 +299,11 @@ class TorqueModel:
         return self.regimes[regime]
 
     def effect_names(self) -> list[str]:
+        """The names of the model's effects, in order."""
         return [e.name for e in self.effects]
 
     def copy(self) -> TorqueModel:
+        """A deep copy."""
         return copy.deepcopy(self)
 
     def same_robot(self, spec: str | dict) -> bool:
@@ -387,6 +392,7 @@ class TorqueModel:
 
     # -------------------------------------------------------------- file I/O
     def to_dict(self) -> dict[str, Any]:
+        """The model as the model file's tables (``docs/recording-format.md``)."""
         d: dict[str, Any] = {
             "schema": SCHEMA,
             "robot": self.robot,

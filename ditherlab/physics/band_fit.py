@@ -16,7 +16,7 @@ band edges by maximum likelihood of the uniform-plus-Gaussian density at that si
 point masses at the edges added to the uniform part (a push beyond the band leaves the friction
 exactly on an edge). The joint maximum likelihood of all three is available (``sigma="ml"``,
 ``edges=False``) and is what the plain model of the paper prescribes; on push campaigns it is
-misspecified and was measured to be off by several standard errors (see :func:`fit_band`).
+misspecified (:func:`fit_band`; ``docs/design/physics-band-fit.md``).
 """
 
 from __future__ import annotations
@@ -149,7 +149,16 @@ def _histogram(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
 def block_members(inv: np.ndarray, nb: int) -> list[np.ndarray]:
     """The sample indices of each block, ascending: ``[flatnonzero(inv == k) for k < nb]`` by
     one stable sort (that comprehension scans all samples once per block: quadratic in the
-    length of a log, hours for ten hours of samples in 2 s blocks)."""
+    length of a log).
+
+    Parameters
+    ----------
+    inv : (M,) int, each sample's block in ``0 .. nb - 1`` ; nb : the number of blocks
+
+    Returns
+    -------
+    nb arrays of sample indices
+    """
     order = np.argsort(inv, kind="stable")
     ends = np.cumsum(np.bincount(inv, minlength=nb))
     return np.split(order, ends[:-1])
@@ -198,8 +207,8 @@ class BlockDifferences:
     the block was drawn; their median and their median absolute deviation are found in that
     multiset by weights (the differences sorted once), so :meth:`sigma` equals
     ``sigma_from_differences(concatenated blocks, lag, copy labels)`` exactly, in memory and
-    time linear in the samples (that concatenation held about ten copies of a joint-regime's
-    samples per replicate: 0.6 GB at once for ten hours of one joint standing still).
+    time linear in the samples (the concatenation holds several copies of the samples per
+    replicate).
 
     Parameters
     ----------
@@ -222,8 +231,8 @@ class BlockDifferences:
         self.owner = (np.concatenate(owner) if owner else np.zeros(0, np.int64))[order]
 
     def sigma(self, mult: np.ndarray) -> float | None:
-        """The noise level of the replicate that draws block ``k`` ``mult[k]`` times (integer
-        counts), or None where :func:`sigma_from_differences` would not use the differences'
+        """The noise level [N·m] of the replicate that draws block ``k`` ``mult[k]`` times
+        (``mult`` (nb,), integer counts), or None where :func:`sigma_from_differences` would not use the differences'
         MAD (too few samples, no differences, a MAD of 0): the caller builds the replicate."""
         n_samples = int(self.sizes @ mult.astype(np.int64))
         w = mult.astype(np.int64)[self.owner]
@@ -344,9 +353,8 @@ def _fit_weighted(
     c0, h0, s0 = start[:3]
     rest = tuple(start[3:7]) if len(start) >= 7 else (-2.0, -2.0, -4.0, -4.0)
     h0 = max(h0, 1e-6 * s0)
-    # unconstrained coordinates: (c, log h, log sigma, eta_a, eta_b, zeta_a, zeta_b); BFGS
-    # (L-BFGS-B in this scipy spent ~2 ms per iteration in its own bookkeeping, 5x the cost of
-    # the likelihood here)
+    # unconstrained coordinates: (c, log h, log sigma, eta_a, eta_b, zeta_a, zeta_b); BFGS (its
+    # own bookkeeping is cheaper than L-BFGS-B's here; docs/design/physics-band-fit.md)
     full = np.array([c0, np.log(h0), np.log(max(s0, s_floor)), *rest])
     free = np.array([True, True, not fixed_sigma, edges, edges, edges, edges])
     if not edges:
@@ -374,8 +382,8 @@ def _fit_weighted(
         return f + pen, g[free]
 
     # the line search tries steps far out (a band 1e300 wide, sigma -> 0): the likelihood is
-    # inf or NaN there and BFGS steps back; numpy's overflow warnings about those trials went
-    # to the user's terminal (32 of 35 lines for one identify of an excitation log)
+    # inf or NaN there and BFGS steps back; numpy's overflow warnings about those trials are
+    # not the user's business
     with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
         res = optimize.minimize(
             fun, full[free], jac=True, method="BFGS", options={"maxiter": 3000, "gtol": 1e-9}
@@ -409,23 +417,18 @@ def fit_band(
         ``"differences"``: two-stage — sigma from lagged differences
         (:func:`sigma_from_differences`), then ``a, b`` by maximum likelihood at that sigma.
         ``"ml"``: all three by maximum likelihood. A number holds sigma fixed at it.
-        Why two-stage by default: at rest the friction is not uniformly distributed *in time*
-        (it sits for seconds wherever the last push left it), so the joint fit of the three
-        parameters is misspecified and trades noise for band; on the synthetic push campaign of
-        the tests it returned sigma = 0.77 N·m for a wrist joint whose noise is 0.075 N·m. The
-        differences see the noise alone; the band edges then come from the extremes the friction
-        visited, which is what the estimator needs.
+        Two-stage by default because at rest the friction is not uniformly distributed *in
+        time* (it sits wherever the last push left it), so the joint fit of the three
+        parameters is misspecified and trades noise for band; the differences see the noise
+        alone, and the band edges then come from the extremes the friction visited, which is
+        what the estimator needs (``docs/design/physics-band-fit.md``).
     edges : add two point masses to the uniform part (default), each free to sit between its
-        band edge and the centre. Physics: a joint at rest keeps the friction wherever the last
-        push left it; a push beyond the band ends in a slip, after which the friction re-sticks
-        at the sliding level (Coulomb, inside the static band) or on the edge. So the friction of
-        a push campaign is a uniform part plus two atoms. Without them the atoms, blurred by the
-        noise, pull the fitted edges outwards (by 2.6 sigma in the synthetic campaign of the
-        tests); with atoms tied to the edges the edges fall onto the Coulomb level (±8.5 N·m on
-        the simulator's joint 1, whose static band is ±10 N·m); with free atoms they came out at
-        ±9.7 N·m, the atoms at ±8.5 N·m. The atoms' weights and places are nuisance parameters;
-        ``a, b, sigma`` keep their meaning.
-    lag : correlation length of the noise [samples] for ``sigma="differences"``
+        band edge and the centre: a push beyond the band ends in a slip, after which the
+        friction re-sticks at the sliding level or on the edge, so the friction of a push
+        campaign is a uniform part plus two atoms, which would otherwise pull the fitted edges
+        outwards. The atoms' weights and places are nuisance parameters; ``a, b, sigma`` keep
+        their meaning (``docs/design/physics-band-fit.md``).
+    lag : [samples] correlation length of the noise for ``sigma="differences"``
     blocks : (M,) int, optional
         Block label of each sample (time blocks or pushes); the bootstrap resamples whole blocks.
         Default: one block per 500 consecutive samples.
@@ -442,6 +445,48 @@ def fit_band(
     if blocks is None:
         blocks = np.arange(len(x)) // 500
     blocks = np.asarray(blocks).reshape(-1)
+    prob = _band_problem(x, sigma, edges, lag, blocks)
+    a, b, s, nll, warm = _best_fit(prob)
+    se = _bootstrap_se(prob, warm, s, n_boot, seed) if n_boot > 0 else (float("nan"),) * 3
+    return BandFit(a, b, s, se[0], se[1], se[2], n=len(x), nll=nll)
+
+
+@dataclass(frozen=True, eq=False)
+class _BandProblem:
+    """One band fit's samples, their histogram and its settings (:func:`fit_band`).
+
+    Attributes
+    ----------
+    x : (M,) [N·m] the samples ; blocks : (M,) their block labels
+    idx : (M,) int, each sample's bin ; centres : (B,) [N·m] the bins' centres
+    counts : (B,) samples per bin
+    sigma0 : [N·m] sigma from the differences or the given number (the ML fit's start)
+    s_floor : [N·m] the smallest sigma the bins resolve
+    q_lo, q_hi : [N·m] the samples' 0.1 % and 99.9 % quantiles
+    lag : [samples] ; edges : the two atoms are fitted
+    fixed : sigma is held (not fitted by maximum likelihood)
+    from_differences : sigma comes from the lagged differences (each replicate its own)
+    """
+
+    x: np.ndarray
+    blocks: np.ndarray
+    idx: np.ndarray
+    centres: np.ndarray
+    counts: np.ndarray
+    sigma0: float
+    s_floor: float
+    q_lo: float
+    q_hi: float
+    lag: int
+    edges: bool
+    fixed: bool
+    from_differences: bool
+
+
+def _band_problem(
+    x: np.ndarray, sigma: str | float, edges: bool, lag: int, blocks: np.ndarray
+) -> _BandProblem:
+    """The checked settings of :func:`fit_band` and the samples' histogram."""
     q_lo, q_hi = np.quantile(x, [0.001, 0.999])
     if isinstance(sigma, str) and sigma not in ("differences", "ml"):
         raise RecordingError(
@@ -457,58 +502,91 @@ def fit_band(
     # the binned likelihood needs bins well below sigma (sigma / 8 here: the binning adds
     # width^2 / 12 to the variance, 0.13 % of sigma^2); a sigma far below the finest bin is floored
     idx, centres = _histogram(x, s_diff / 8.0)
-    nbins = len(centres)
-    counts = np.bincount(idx, minlength=nbins).astype(float)
+    counts = np.bincount(idx, minlength=len(centres)).astype(float)
     width = centres[1] - centres[0]
-    s_floor = max(1e-6 * s_diff, width / 20.0)
-    starts = [s_diff] if fixed else [s_diff, max(0.02 * float(q_hi - q_lo), s_floor)]
+    return _BandProblem(
+        x=x,
+        blocks=blocks,
+        idx=idx,
+        centres=centres,
+        counts=counts,
+        sigma0=s_diff,
+        s_floor=max(1e-6 * s_diff, width / 20.0),
+        q_lo=q_lo,
+        q_hi=q_hi,
+        lag=lag,
+        edges=edges,
+        fixed=fixed,
+        from_differences=fixed and isinstance(sigma, str),
+    )
+
+
+def _best_fit(prob: _BandProblem) -> tuple[float, float, float, float, tuple[float, ...]]:
+    """The maximum-likelihood fit of the whole sample from several starts, the best of them:
+    (a, b, sigma, nll per sample, its warm start) as :func:`_fit_weighted` returns it."""
+    s_diff, s_floor, q_lo, q_hi = prob.sigma0, prob.s_floor, prob.q_lo, prob.q_hi
+    starts = [s_diff] if prob.fixed else [s_diff, max(0.02 * float(q_hi - q_lo), s_floor)]
     best = None
     for s_start in starts:
         s_start = max(s_start, s_floor)
         h_start = max(0.5 * (q_hi - q_lo) - 2.5 * s_start, 0.0)
         c_start = 0.5 * (q_lo + q_hi)
         # atoms at the edges, or the band 10 % wider with the atoms a little inside
-        for extra in ((-2.0, -2.0, -4.0, -4.0), (-2.0, -2.0, -2.0, -2.0)) if edges else ((),):
+        for extra in ((-2.0, -2.0, -4.0, -4.0), (-2.0, -2.0, -2.0, -2.0)) if prob.edges else ((),):
             hh = h_start * (1.0 if not extra or extra[2] < -3 else 1.1)
             cand = _fit_weighted(
-                centres, counts, (c_start, hh, s_start, *extra), s_floor, fixed, edges
+                prob.centres,
+                prob.counts,
+                (c_start, hh, s_start, *extra),
+                s_floor,
+                prob.fixed,
+                prob.edges,
             )
             if best is None or cand[3] < best[3]:
                 best = cand
-    a, b, s, nll, warm = best
-    se = (float("nan"),) * 3
-    if n_boot > 0:
-        labels, inv = np.unique(blocks, return_inverse=True)
-        nb = len(labels)
-        members = None
-        rng = np.random.default_rng(seed)
-        reps = np.empty((n_boot, 3))
-        for r in range(n_boot):
-            pick = rng.integers(0, nb, nb)
-            mult = np.bincount(pick, minlength=nb).astype(float)
-            # the replicate's histogram: every sample counted as often as its block was drawn
-            # (sums of whole numbers: exact, in any order)
-            wts = np.bincount(idx, weights=mult[inv], minlength=nbins)
-            rs0 = s
-            if fixed and isinstance(sigma, str):
-                if members is None:
-                    members = block_members(inv, nb)
-                    diffs = BlockDifferences(x, lag, members)
-                rs = diffs.sigma(mult)
-                if rs is None:  # the rare fallbacks of sigma_from_differences: build it
-                    xs = np.concatenate([x[members[k]] for k in pick])
-                    bl = np.concatenate([np.full(len(members[k]), i) for i, k in enumerate(pick)])
-                    rs = sigma_from_differences(xs, lag, bl)
-                rs0 = max(rs, s_floor)
-            reps[r] = _fit_weighted(
-                centres, wts, (warm[0], warm[1], rs0, *warm[3:]), s_floor, fixed, edges
-            )[:3]
-        # fewer than 5 blocks cannot say how much the fit varies: no standard error (nor with a
-        # replicate that diverged: NaN, quietly)
-        with np.errstate(invalid="ignore"):
-            sd = reps.std(axis=0, ddof=1) if (n_boot > 1 and nb >= 5) else np.full(3, np.nan)
-        se = (float(sd[0]), float(sd[1]), float(sd[2]))
-    return BandFit(a, b, s, se[0], se[1], se[2], n=len(x), nll=nll)
+    return best
+
+
+def _bootstrap_se(
+    prob: _BandProblem, warm: tuple[float, ...], s: float, n_boot: int, seed: int
+) -> tuple[float, float, float]:
+    """Block-bootstrap standard errors [N·m] of (a, b, sigma): ``n_boot`` replicates drawn from
+    ``seed``, each fitted from the whole sample's optimum ``warm`` (sigma ``s``); NaN with
+    fewer than 5 blocks (too few to say how much the fit varies) or a replicate that diverged."""
+    labels, inv = np.unique(prob.blocks, return_inverse=True)
+    nb = len(labels)
+    nbins = len(prob.centres)
+    members = None
+    rng = np.random.default_rng(seed)
+    reps = np.empty((n_boot, 3))
+    for r in range(n_boot):
+        pick = rng.integers(0, nb, nb)
+        mult = np.bincount(pick, minlength=nb).astype(float)
+        # the replicate's histogram: every sample counted as often as its block was drawn
+        # (sums of whole numbers: exact, in any order)
+        wts = np.bincount(prob.idx, weights=mult[inv], minlength=nbins)
+        rs0 = s
+        if prob.from_differences:
+            if members is None:
+                members = block_members(inv, nb)
+                diffs = BlockDifferences(prob.x, prob.lag, members)
+            rs = diffs.sigma(mult)
+            if rs is None:  # the rare fallbacks of sigma_from_differences: build it
+                xs = np.concatenate([prob.x[members[k]] for k in pick])
+                bl = np.concatenate([np.full(len(members[k]), i) for i, k in enumerate(pick)])
+                rs = sigma_from_differences(xs, prob.lag, bl)
+            rs0 = max(rs, prob.s_floor)
+        reps[r] = _fit_weighted(
+            prob.centres,
+            wts,
+            (warm[0], warm[1], rs0, *warm[3:]),
+            prob.s_floor,
+            prob.fixed,
+            prob.edges,
+        )[:3]
+    with np.errstate(invalid="ignore"):
+        sd = reps.std(axis=0, ddof=1) if (n_boot > 1 and nb >= 5) else np.full(3, np.nan)
+    return float(sd[0]), float(sd[1]), float(sd[2])
 
 
 def fit_sliding(

@@ -17,27 +17,26 @@ variant without the uniform term moves the band's variance into the Gaussian noi
 its period (:func:`dither_period`) and extracts the signal: the one extraction that identify,
 diagnose and replay use (replay writes it to the estimates file, which report and view read).
 
-The window holds ``round(periods * period / dt)`` samples. At 80 rad/s and 250 Hz one period is
-19.63 samples, so a window of 20 samples holds 1.019 periods. Measured in
-``tests/test_dither.py`` (amplitude A): on a clean square wave ``upper`` and ``lower`` are exact
-(``signal`` has no ripple) and only ``centre`` ripples, by one unbalanced sample, ``2 A / W``;
-through a 4 ms first-order lag (a servo-like edge) ``signal`` ripples by 3.7 % of A with one
-period per window, 1.6 % with two and 1.0 % with three (59 samples for 58.9).
+The window holds ``round(periods * period / dt)`` samples, the whole number nearest to the
+dither's periods (at 80 rad/s and 250 Hz a period is not a whole number of samples). On a clean
+square wave ``upper`` and ``lower`` are then exact and only ``centre`` ripples, by the one
+unbalanced sample (``2 A / W`` for amplitude A); through a servo-like edge ``signal`` ripples a
+little, less with more periods per window (``tests/test_dither.py``).
 
 Waveforms (§VII left them open): ``square`` (the paper's), ``sine`` and ``triangle``
 (:data:`WAVEFORMS`, :func:`wave`), each of unit peak, zero mean over whole periods and
 positive on the first half period. A recording names its waveform in its metadata
 (``dither.waveform``, :func:`dither_waveform`); without the key it is square. What this module
-decides per waveform (measured in ``tests/test_dither_waveforms.py``):
+decides per waveform (``tests/test_dither_waveforms.py``; the reasoning:
+``docs/design/physics-dither-window.md``):
 
 - the **signal**. Each waveform is symmetric about its mean, so ``(upper + lower) / 2`` and the
   window mean both follow an external torque. For the square wave the paper's
   ``(upper + lower) / 2`` stays (no ripple on a clean square wave, where the window mean
-  ripples by ``2 A / W``). For a sine or a triangle the split above / below the centre moves
-  with the partial period a 20-sample window holds (19.63 samples a period), and
-  ``(upper + lower) / 2`` ripples by 6.1 % (sine) and 5.0 % (triangle) of A, the whole-sample
-  window mean by 1.8 %; the signal is therefore the mean over *exactly* ``periods`` periods (the
-  oldest sample weighted by the fraction of it inside, :func:`_period_mean`): 0.2 % and 0.3 %.
+  ripples). For a sine or a triangle the split above / below the centre moves with the partial
+  period a whole-sample window holds, so ``(upper + lower) / 2`` ripples more than the window
+  mean; the signal is therefore the mean over *exactly* ``periods`` periods (the oldest sample
+  weighted by the fraction of it inside, :func:`_period_mean`), which hardly ripples at all.
 - the **amplitude**. ``(upper - lower) / 2`` is the mean of ``|w|``: ``A`` for a square wave of
   peak ``A``, ``2 A / pi`` for a sine, ``A / 2`` for a triangle. What shrinks the friction band
   is the peak (the joint slips once ``centre + tau_ext + peak`` reaches the band's edge), so
@@ -180,8 +179,8 @@ def wave(t, omega: float, amplitude, waveform: str = "square", phase: float = 0.
 
 def dither_waveform(meta: Mapping[str, Any]) -> str:
     """The dither waveform a recording's metadata states: ``dither.waveform``, else the
-    simulator's ``sim.params.dither.waveform``, else ``"square"`` (RECORDING.md: a recording
-    without the key is square). A name not in :data:`WAVEFORMS` is a ConfigError."""
+    simulator's ``sim.params.dither.waveform``, else ``"square"`` (``docs/recording-format.md``:
+    a recording without the key is square). A name not in :data:`WAVEFORMS` is a ConfigError."""
     d = meta.get("dither")
     if isinstance(d, Mapping) and d.get("waveform") is not None:
         return check_waveform(d["waveform"], "metadata key dither.waveform")

@@ -74,13 +74,21 @@ def _solve(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, floa
     """Minimise ``sum((max(0, |e - o - C w| - h - W w) / s)²)`` over w (convex).
 
     Semi-smooth Gauss–Newton on the active set (samples outside the band) with a backtracking
-    line search, compiled with numba (:func:`_solve_kernel`; diagnosis runs thousands of these
-    on a few thousand samples each, where numpy's per-call overhead dominated). Shapes: e, h,
-    s, o (M,); C, W (M, k). :func:`_solve_reference` is the same iteration in numpy.
+    line search, compiled with numba (:func:`_solve_kernel`: diagnosis runs thousands of these
+    on a few thousand samples each, too small for numpy's per-call overhead;
+    ``docs/design/physics-effect-fit.md``). :func:`_solve_reference` is the same iteration in
+    numpy.
+
+    Parameters
+    ----------
+    e : (M,) [N·m] residual about the band centre ; o : (M,) [N·m] its offset
+    h : (M,) [N·m] band half-widths ; s : (M,) [N·m] noise levels
+    C, W : (M, k) [N·m per unit parameter] the designs that shift and widen
+    w0 : (k,) the start (default 0) ; iters : most Gauss-Newton steps
 
     Returns
     -------
-    w (k,), loss
+    w (k,), loss [-]
     """
     f = np.ascontiguousarray
     C = f(C, dtype=float)
@@ -110,6 +118,7 @@ def _residual_at(base, h, C, W, w, i, widen):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _loss_kernel(base, h, s, C, W, w, widen):  # pragma: no cover - compiled
+    """The loss ``sum((max(0, excess) / s)²)`` at the parameters ``w`` (k,)."""
     L = 0.0
     for i in range(C.shape[0]):
         ex = _residual_at(base, h, C, W, w, i, widen)[1]
@@ -118,76 +127,28 @@ def _loss_kernel(base, h, s, C, W, w, widen):  # pragma: no cover - compiled
     return L
 
 
+# Its problem as flat arrays: bundled in a NamedTuple they slow it (docs/design/physics-effect-fit.md)
 @njit(cache=True)
 def _solve_kernel(base, h, s, C, W, w, iters, widen):  # pragma: no cover - compiled
+    """:func:`_solve`'s iteration from the start ``w`` (k,) -> (w, loss)."""
     M, k = C.shape
-    if k == 0:
-        return w, _loss_kernel(base, h, s, C, W, w, widen)
     L = _loss_kernel(base, h, s, C, W, w, widen)
-    scale = np.empty(k)
-    for c in range(k):
-        a = 0.0
-        b = 0.0
-        for i in range(M):
-            a += C[i, c] ** 2
-            b += W[i, c] ** 2
-        scale[c] = math.sqrt(a / M + b / M) + 1e-300
+    if k == 0:
+        return w, L
+    scale = _column_scale(C, W)
     act = np.zeros(M, dtype=np.bool_)
     prev = np.zeros(M, dtype=np.bool_)
     have_prev = False
-    row = np.empty(k)
     for _ in range(iters):
-        G = np.zeros((k, k))
-        g = np.zeros(k)
-        n_act = 0
-        for i in range(M):
-            x, ex = _residual_at(base, h, C, W, w, i, widen)
-            act[i] = ex > 0.0
-            if not act[i]:
-                continue
-            n_act += 1
-            sg = 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
-            for c in range(k):
-                row[c] = (-(sg * C[i, c]) - W[i, c]) / (s[i] * scale[c])
-            r = ex / s[i]
-            for a in range(k):
-                g[a] += row[a] * r
-                for b in range(a + 1):
-                    G[a, b] += row[a] * row[b]
+        G, g, n_act = _gauss_newton(base, h, s, C, W, w, widen, scale, act)
         if n_act == 0:
             break
-        if have_prev:
-            same = True
-            for i in range(M):
-                if act[i] != prev[i]:
-                    same = False
-                    break
-            if same:
-                break  # the last full Gauss-Newton step solved this piece exactly
-        tr = 0.0
-        for a in range(k):
-            for b in range(a):
-                G[b, a] = G[a, b]
-            tr += G[a, a]
-        for a in range(k):
-            G[a, a] += 1e-9 * (tr / k + 1e-300)
-        d = spd_solve(G, g)
+        if have_prev and _same(act, prev):
+            break  # the last full Gauss-Newton step solved this piece exactly
+        d = _newton_step(G, g, scale)
         if d is None:
             break
-        for c in range(k):
-            d[c] = -d[c] / scale[c]
-        t = 1.0
-        ok = False
-        wn = w.copy()
-        Ln = L
-        while t > 1e-4:
-            for c in range(k):
-                wn[c] = w[c] + t * d[c]
-            Ln = _loss_kernel(base, h, s, C, W, wn, widen)
-            if Ln <= L:
-                ok = True
-                break
-            t *= 0.5
+        ok, t, wn, Ln = _line_search(base, h, s, C, W, w, widen, d, L)
         if not ok:
             break
         improve = L - Ln
@@ -199,6 +160,97 @@ def _solve_kernel(base, h, s, C, W, w, iters, widen):  # pragma: no cover - comp
         if improve <= 1e-12 * max(L, 1e-300) and t == 1.0:
             break
     return w, L
+
+
+@njit(cache=True, inline="always")
+def _column_scale(C, W):  # pragma: no cover - compiled
+    """(k,): each parameter's RMS design, ``sqrt(mean(C²) + mean(W²))`` (never 0)."""
+    M, k = C.shape
+    scale = np.empty(k)
+    for c in range(k):
+        a = 0.0
+        b = 0.0
+        for i in range(M):
+            a += C[i, c] ** 2
+            b += W[i, c] ** 2
+        scale[c] = math.sqrt(a / M + b / M) + 1e-300
+    return scale
+
+
+@njit(cache=True, inline="always")
+def _gauss_newton(base, h, s, C, W, w, widen, scale, act):  # pragma: no cover - compiled
+    """The Gauss-Newton system at ``w`` in the scaled parameters: ``G`` (k, k) (its lower
+    triangle), ``g`` (k,) and the number of samples outside the band, marked in ``act`` (M,)."""
+    k = C.shape[1]
+    G = np.zeros((k, k))
+    g = np.zeros(k)
+    row = np.empty(k)
+    n_act = 0
+    for i in range(C.shape[0]):
+        x, ex = _residual_at(base, h, C, W, w, i, widen)
+        act[i] = ex > 0.0
+        if not act[i]:
+            continue
+        n_act += 1
+        sg = 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+        for c in range(k):
+            row[c] = (-(sg * C[i, c]) - W[i, c]) / (s[i] * scale[c])
+        r = ex / s[i]
+        for a in range(k):
+            g[a] += row[a] * r
+            for b in range(a + 1):
+                G[a, b] += row[a] * row[b]
+    return G, g, n_act
+
+
+@njit(cache=True, inline="always")
+def _same(act, prev):  # pragma: no cover - compiled
+    """The two (M,) bool arrays are equal."""
+    for i in range(act.shape[0]):
+        if act[i] != prev[i]:
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _newton_step(G, g, scale):  # pragma: no cover - compiled
+    """The step (k,) in the parameters: ``G`` symmetrised from its lower triangle, a ridge of
+    1e-9 of its mean diagonal (keeps singular designs, e.g. no motion, finite), solved and
+    unscaled; None when ``G`` is not positive definite."""
+    k = G.shape[0]
+    tr = 0.0
+    for a in range(k):
+        for b in range(a):
+            G[b, a] = G[a, b]
+        tr += G[a, a]
+    for a in range(k):
+        G[a, a] += 1e-9 * (tr / k + 1e-300)
+    d = spd_solve(G, g)
+    if d is None:
+        return None
+    for c in range(k):
+        d[c] = -d[c] / scale[c]
+    return d
+
+
+@njit(cache=True, inline="always")
+def _line_search(base, h, s, C, W, w, widen, d, L):  # pragma: no cover - compiled
+    """Backtracking from the full step ``d`` until the loss is not above ``L``: (found, step
+    length, parameters, loss)."""
+    k = w.shape[0]
+    t = 1.0
+    ok = False
+    wn = w.copy()
+    Ln = L
+    while t > 1e-4:
+        for c in range(k):
+            wn[c] = w[c] + t * d[c]
+        Ln = _loss_kernel(base, h, s, C, W, wn, widen)
+        if Ln <= L:
+            ok = True
+            break
+        t *= 0.5
+    return ok, t, wn, Ln
 
 
 def _solve_reference(e, h, s, C, W, o, w0=None, iters: int = 40) -> tuple[np.ndarray, float]:
@@ -447,7 +499,7 @@ def fit_effect(
     parameter is continuous (``position_ripple``'s period), the final fit (``train`` None)
     refines it between the best value's grid neighbours (bounded Brent search): the grid is
     spaced a quarter cycle over the joint's span, which leaves up to 1/8 cycle of phase error at
-    the ends of the span (on the simulator, 1.5x the noise floor on a wrist joint).
+    the ends of the span (``docs/design/physics-effect-fit.md``).
 
     Parameters
     ----------
@@ -534,7 +586,8 @@ def linear_stderr(
     information: the Gauss–Newton matrix of the band-aware loss at the fitted value (rows
     outside the band), with the score's variance summed over contiguous blocks of ``block_s``
     seconds (a cluster "sandwich": neighbouring samples of one push are not independent, and
-    counting them as such made a gain fitted on three pushes look exact).
+    counting them as such makes a gain fitted on a few pushes look exact;
+    ``docs/design/physics-effect-fit.md``).
 
     Parameters
     ----------

@@ -70,6 +70,38 @@ def simulate(
             f"scenario '{scenario}' is unknown; expected one of {', '.join(SCENARIOS)}"
         )
     specs = parse_hidden(hidden)
+    params = load_params(config, _overrides(scenario, options))
+    if int(seed) < 0:
+        raise ConfigError(f"seed {seed} is negative; expected an integer >= 0")
+    robot = RobotModel.from_spec("irb140")
+
+    def engine_for(hp: Any) -> Engine:
+        return Engine(params, robot, hp.plant_robot(robot), sc.plant_extras(hp))
+
+    arrays, sim_meta = _RUNS[scenario](
+        engine_for,
+        params,
+        seed=int(seed),
+        dither=bool(dither),
+        hidden=specs,
+        progress=progress,
+        robot=robot,
+    )
+    meta = _meta(scenario, seed, dither, options, params, robot.n, sim_meta)
+    return sc.to_recording(arrays, meta)
+
+
+#: The function that runs each scenario.
+_RUNS: dict[str, Callable[..., tuple[Any, dict[str, Any]]]] = {
+    "push-campaign": sc.push_campaign,
+    "lead-through": lead_through,
+    "excitation": excitation,
+}
+
+
+def _overrides(scenario: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    """The parameter overrides of ``simulate``'s options: each a key of the scenario's table
+    (None: not given), ``log_temperature`` one of ``hidden.temperature_friction``'s."""
     table = scenario.replace("-", "_")
     overrides: dict[str, Any] = {}
     for key, value in options.items():
@@ -83,30 +115,20 @@ def simulate(
         if isinstance(value, int | float) and not isinstance(value, bool) and value < 0:
             raise ConfigError(f"option '{key}' = {value!r} is negative; expected a value >= 0")
         overrides.setdefault(table, {})[key] = value
-    params = load_params(config, overrides)
-    if int(seed) < 0:
-        raise ConfigError(f"seed {seed} is negative; expected an integer >= 0")
+    return overrides
 
-    robot = RobotModel.from_spec("irb140")
 
-    def engine_for(hp: Any) -> Engine:
-        return Engine(params, robot, hp.plant_robot(robot), sc.plant_extras(hp))
-
-    if scenario == "push-campaign":
-        run = sc.push_campaign
-    elif scenario == "excitation":
-        run = excitation
-    else:
-        run = lead_through
-    cols, sim_meta = run(
-        engine_for,
-        params,
-        seed=int(seed),
-        dither=bool(dither),
-        hidden=specs,
-        progress=progress,
-        robot=robot,
-    )
+def _meta(
+    scenario: str,
+    seed: int,
+    dither: bool,
+    options: Mapping[str, Any],
+    params: dict[str, Any],
+    n: int,
+    sim_meta: dict[str, Any],
+) -> dict[str, Any]:
+    """The recording's metadata: the robot, the rate, and under ``sim`` every parameter used,
+    the ``n`` joints' true friction and the scenario's truth (``sim_meta``)."""
     sim_meta_all = {
         "scenario": scenario,
         "seed": int(seed),
@@ -114,7 +136,7 @@ def simulate(
         "options": {k: v for k, v in options.items() if v is not None},
         "params": copy.deepcopy(params),
         "friction_model": "rigid stick-slip, implicit at velocity level",
-        "bands": _bands(params, robot.n),
+        "bands": _bands(params, n),
         **sim_meta,
     }
     meta = {
@@ -125,17 +147,19 @@ def simulate(
         "sim": sim_meta_all,
     }
     if dither:
-        # RECORDING.md: the dither's waveform and angular frequency (dither_period reads omega
-        # before measuring tau_ffw, whose zero crossings fail below ~6 samples a half period).
-        # Only when dithering: a streamed recording that states a period counts as dithered.
+        # the dither's waveform and angular frequency (docs/recording-format.md): the period is
+        # read from omega before it is measured from tau_ffw, whose zero crossings are unreliable
+        # at few samples a half period; stated only when dithering, since a recording that
+        # states a period counts as dithered
         meta["dither"] = {
             "waveform": params["dither"]["waveform"],
             "omega": float(params["dither"]["frequency"]),
         }
-    return sc.to_recording(cols, meta)
+    return meta
 
 
 def _bands(params: Mapping[str, Any], n: int) -> dict[str, Any]:
+    """The true friction of the ``n`` joints [N·m, N·m·s/rad] for ``meta["sim"]["bands"]``."""
     fs = joint_array(params, "friction.static", n)
     return {
         "static": [float(v) for v in fs],

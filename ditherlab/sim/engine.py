@@ -25,12 +25,15 @@ from ditherlab.sim.params import joint_array
 class Inputs:
     """Per-sample inputs of a run (N samples, n joints).
 
+    Attributes
+    ----------
     push : (N, 6) [N, N·m] wrench applied TO the tool point by the environment (base axes)
     tau_ext : (N, n) [N·m] external torque applied directly at the joints (link side)
     q_ref, dq_ref : (N, n) [rad], [rad/s] motor-angle reference (arm side) and its rate
-    kp_on : (N,) position loop enabled (Kp is 0 for dithering joints regardless)
-    dither_cmd : (N,) dither requested
-    fscale : (N, n) friction factor (1 = nominal), e.g. from joint temperature
+    kp_on : (N,) [-] 1 while the position loop is enabled (Kp is 0 for dithering joints
+        regardless)
+    dither_cmd : (N,) [-] 1 while the dither is requested
+    fscale : (N, n) [-] friction factor (1 = nominal), e.g. from joint temperature
     noise : (N, n) [N·m] measurement noise added to the logged torque
     """
 
@@ -45,7 +48,7 @@ class Inputs:
 
     @classmethod
     def still(cls, n_samples: int, q0: np.ndarray) -> Inputs:
-        """Standing still at ``q0`` (n,), no push, no dither, no noise."""
+        """``n_samples`` standing still at ``q0`` (n,) [rad], no push, no dither, no noise."""
         n = len(q0)
         return cls(
             np.zeros((n_samples, 6)),
@@ -61,18 +64,39 @@ class Inputs:
 
 @dataclass
 class PlantExtras:
-    """Plant terms beyond the base model (set by hidden effects), per joint (n,)."""
+    """Plant terms beyond the base model (set by hidden effects).
 
-    load: np.ndarray | None = None  # band growth per |gear torque| [-]
-    stribeck: np.ndarray | None = None  # relative excess friction at zero speed [-]
-    stribeck_v: float = 0.02  # [rad/s]
-    ripple_amp: np.ndarray | None = None  # [N·m]
-    ripple_freq: np.ndarray | None = None  # [1/rad] periods per arm radian times 2 pi
+    Attributes
+    ----------
+    load : (n,) [-] band growth per N·m of gear torque, relative to the band; None: 0
+    stribeck : (n,) [-] excess friction at zero speed, relative to Coulomb; None: 0
+    stribeck_v : [rad/s] Stribeck velocity
+    ripple_amp : (n,) [N·m] cogging ripple amplitude on the motor; None: 0
+    ripple_freq : (n,) [1/rad] its periods per arm radian times 2 pi; None: 0
+    """
+
+    load: np.ndarray | None = None
+    stribeck: np.ndarray | None = None
+    stribeck_v: float = 0.02
+    ripple_amp: np.ndarray | None = None
+    ripple_freq: np.ndarray | None = None
 
 
 @dataclass
 class Outputs:
-    """Per-sample outputs (N samples, n joints); see :mod:`ditherlab.sim.plant` for meaning."""
+    """Per-sample outputs of a run (N samples, n joints; :mod:`ditherlab.sim.plant`).
+
+    Attributes
+    ----------
+    tau : (N, n) [N·m] the logged torque (torque reference plus noise)
+    q_motor, dq_motor : (N, n) [rad], [rad/s] motor angle (arm side) and velocity
+    q_link : (N, n) [rad] link angle behind the gear spring
+    tau_ffw : (N, n) [N·m] dither feedforward (centre plus the wave)
+    centre_meas, amp_meas : (N, n) [N·m] the dither loops' measured centre and peak amplitude
+    centre_ref, amp_ref : (N, n) [N·m] their references
+    centre_ffw, amp_ffw : (N, n) [N·m] the centre and amplitude feedforward
+    dither : (N,) bool, the dither loops on
+    """
 
     tau: np.ndarray
     q_motor: np.ndarray
@@ -98,6 +122,13 @@ class Engine:
     robot : RobotModel the controller uses (gravity feedforward)
     plant_robot : RobotModel of the true plant (differs with a hidden payload); default robot
     extras : hidden plant terms
+
+    Attributes
+    ----------
+    jp, sp : the compiled step's parameter arrays (:class:`ditherlab.sim.plant.Params`)
+    fs, fc, fv : (n,) [N·m, N·m, N·m·s/rad] static, Coulomb and viscous friction
+    window : [samples] the dither loops' window
+    sample_rate : [Hz]
     """
 
     params: dict[str, Any]
@@ -110,10 +141,21 @@ class Engine:
             self.plant_robot = self.robot
         p, n = self.params, self.robot.n
         self.n = n
-        fs = joint_array(p, "friction.static", n)
+        self.fs = joint_array(p, "friction.static", n)
+        self.fc = self.fs * p["friction"]["coulomb_ratio"]
+        self.fv = joint_array(p, "friction.viscous", n)
+        self.jp = self._joint_parameters()
+        t = p["timing"]
+        self.sample_rate = float(t["sample_rate_hz"])
+        period = 2 * np.pi / p["dither"]["frequency"]
+        self.window = max(1, round(p["dither"]["periods"] * period * self.sample_rate))
+        self.sp = self._scalar_parameters()
+        self.output_inertia = joint_array(p, "joints.output_inertia", n)
+
+    def _joint_parameters(self) -> np.ndarray:
+        """The per-joint parameter array ``jp`` (N_JP, n) of :class:`ditherlab.sim.plant.Params`."""
+        p, n, fs, fc, fv = self.params, self.n, self.fs, self.fc, self.fv
         share = float(p["friction"]["motor_share"])
-        fc = fs * p["friction"]["coulomb_ratio"]
-        fv = joint_array(p, "friction.viscous", n)
         jm = joint_array(p, "joints.motor_inertia", n)
         kg = joint_array(p, "joints.gear_stiffness", n)
         jp = np.zeros((K.N_JP, n))
@@ -138,35 +180,33 @@ class Engine:
         jp[K.STRIB_V] = ex.stribeck_v
         jp[K.RIP_A] = 0.0 if ex.ripple_amp is None else ex.ripple_amp
         jp[K.RIP_F] = 0.0 if ex.ripple_freq is None else ex.ripple_freq
-        self.jp = jp
-        t = p["timing"]
-        fs_hz, servo_hz = float(t["sample_rate_hz"]), float(t["servo_rate_hz"])
-        nservo = round(servo_hz / fs_hz)
+        return jp
+
+    def _scalar_parameters(self) -> np.ndarray:
+        """The scalar parameter array ``sp`` (N_SP,) of :class:`ditherlab.sim.plant.Params`."""
+        p, t, d = self.params, self.params["timing"], self.params["dither"]
+        servo_hz = float(t["servo_rate_hz"])
         sp = np.zeros(K.N_SP)
         sp[K.SP_DTS] = 1.0 / servo_hz
         sp[K.SP_H] = sp[K.SP_DTS] / t["plant_substeps"]
-        sp[K.SP_NSERVO], sp[K.SP_NSUB] = nservo, t["plant_substeps"]
+        sp[K.SP_NSERVO], sp[K.SP_NSUB] = round(servo_hz / self.sample_rate), t["plant_substeps"]
         sp[K.SP_OMEGA] = d["frequency"]
         sp[K.SP_WAVE] = WAVEFORMS.index(d["waveform"])
         sp[K.SP_PEAK] = PEAK_FACTOR[d["waveform"]]
-        period = 2 * np.pi / d["frequency"]
-        self.window = max(1, round(d["periods"] * period * fs_hz))
         sp[K.SP_WIN] = self.window
         sp[K.SP_UPD] = d["update_every"]
         sp[K.SP_KC], sp[K.SP_KA] = d["centre_gain"], d["amplitude_gain"]
         sp[K.SP_HOLD] = d["hold_fraction"]
-        sp[K.SP_RAMP] = max(1.0, d["ramp_s"] * fs_hz)
+        sp[K.SP_RAMP] = max(1.0, d["ramp_s"] * self.sample_rate)
         sp[K.SP_SWEEPS] = t["gauss_seidel_sweeps"]
         sp[K.SP_VSTILL] = p["servo"]["standstill_velocity"]
-        self.sp = sp
-        self.sample_rate = fs_hz
-        self.fs, self.fc, self.fv = fs, fc, fv
-        self.output_inertia = joint_array(p, "joints.output_inertia", n)
+        return sp
 
     # ------------------------------------------------------------------ state
     def initial_state(self, q0: np.ndarray) -> dict[str, np.ndarray]:
         """Standing still at motor angle ``q0`` (n,) [rad], the gear spring carrying gravity,
-        all friction stuck and unloaded."""
+        all friction stuck and unloaded: the arrays of :class:`ditherlab.sim.plant.State` by
+        name (``x``, ``ist``, ``fst``, ``hist``)."""
         n = self.n
         x = np.zeros((K.N_X, n))
         # reference=True here and below: pinocchio's own functions, the simulator's ground truth
@@ -184,7 +224,9 @@ class Engine:
             "hist": np.zeros((n, self.window)),
         }
 
-    def _dynamics(self, q_link: np.ndarray, q_motor: np.ndarray) -> tuple[np.ndarray, ...]:
+    def _dynamics(self, q_link: np.ndarray, q_motor: np.ndarray) -> K.Dynamics:
+        """The link-side dynamics at link angle ``q_link`` and motor angle ``q_motor`` (n,)
+        [rad]: pinocchio's, gravity and the mass matrix differentiated by forward differences."""
         n, eps = self.n, 1e-6
         qs = np.vstack([q_link, q_link + eps * np.eye(n)])
         pl = self.plant_robot.evaluate(qs, ["gravity", "mass_matrix", "jacobian"], reference=True)
@@ -198,7 +240,9 @@ class Engine:
         gc = self.robot.evaluate(qs, ["gravity"], reference=True)["gravity"]
         Gc = ((gc[1:] - gc[0]) / eps).T
         JT = pl["jacobian"][0].T.copy()
-        return W, gp[0].copy(), Gp, q_link.copy(), gc[0].copy(), Gc, q_motor.copy(), JT, Gam
+        return K.Dynamics(
+            W, gp[0].copy(), Gp, q_link.copy(), gc[0].copy(), Gc, q_motor.copy(), JT, Gam
+        )
 
     # ------------------------------------------------------------------ run
     def run(
@@ -215,7 +259,7 @@ class Engine:
         Parameters
         ----------
         inputs : per-sample inputs (N samples)
-        state : from :meth:`initial_state`
+        state : from :meth:`initial_state`, updated in place
         progress : ``progress(done, total)`` in samples
         reference : use the plain numpy step instead of the compiled kernel
         chunk_callback : ``f(k0, k1, state, out)`` after every chunk with the raw output array
@@ -224,46 +268,40 @@ class Engine:
 
         Returns
         -------
-        Outputs with arrays (N, n).
+        Outputs
         """
         N, n = inputs.push.shape[0], self.n
         out = np.zeros((K.N_OUT, N, n))
         step = K.run_reference if reference else K.run_kernel
         tol = float(self.params["timing"]["relinearise_tolerance"])
         every = int(self.params["timing"]["dynamics_update_samples"])
-        x = state["x"]
+        par = K.Params(self.jp, self.sp)
+        st = K.State(state["x"], state["ist"], state["fst"], state["hist"])
+        x = st.x
         dyn = self._dynamics(x[K.X_Q].copy(), x[K.X_QM].copy())
-        arrays = [
-            np.ascontiguousarray(a, dtype=float)
-            for a in (
-                inputs.push,
-                inputs.tau_ext,
-                inputs.q_ref,
-                inputs.dq_ref,
-                inputs.kp_on,
-                inputs.dither_cmd,
-                inputs.noise,
-                inputs.fscale,
+        samples = K.Samples(
+            *(
+                np.ascontiguousarray(a, dtype=float)
+                for a in (
+                    inputs.push,
+                    inputs.tau_ext,
+                    inputs.q_ref,
+                    inputs.dq_ref,
+                    inputs.kp_on,
+                    inputs.dither_cmd,
+                    inputs.noise,
+                    inputs.fscale,
+                )
             )
-        ]
+        )
         k0 = 0
         last_report = 0
         while k0 < N:
             k1 = min(N, k0 + every)
-            if np.max(np.abs(x[K.X_Q] - dyn[3])) > tol or np.max(np.abs(x[K.X_QM] - dyn[6])) > tol:
+            moved = np.max(np.abs(x[K.X_Q] - dyn.qp_lin)) > tol
+            if moved or np.max(np.abs(x[K.X_QM] - dyn.qc_lin)) > tol:
                 dyn = self._dynamics(x[K.X_Q].copy(), x[K.X_QM].copy())
-            step(
-                self.jp,
-                self.sp,
-                *dyn,
-                *(a[k0:k1] for a in arrays),
-                x,
-                state["ist"],
-                state["fst"],
-                state["hist"],
-                out,
-                k0,
-            )
+            step(par, dyn, K.Samples(*(a[k0:k1] for a in samples)), st, out, k0)
             if chunk_callback is not None:
                 chunk_callback(k0, k1, state, out)
             k0 = k1

@@ -27,19 +27,21 @@ The plan depends only on the seed and the options, never on ``dither``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
-from ditherlab.sim.engine import Engine, Inputs
-from ditherlab.sim.hidden import HiddenSpec, build_hidden
+from ditherlab.data.recording import RecordingArrays
+from ditherlab.sim.engine import Engine
+from ditherlab.sim.hidden import HiddenSpec
 from ditherlab.sim.scenarios import (
     AXES,
+    Plan,
     cable_force,
+    drive,
     scenario_columns,
     scenario_rngs,
-    wrench_noise,
 )
 
 
@@ -142,22 +144,40 @@ def excitation(
     hidden: list[HiddenSpec],
     progress: Callable[[int, int], None] | None,
     robot: Any,
-) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Simulate the excitation scenario; returns (columns, meta["sim"] part).
+) -> tuple[RecordingArrays, dict[str, Any]]:
+    """Simulate the excitation scenario; returns (the recording's arrays, meta["sim"] part).
 
-    Same parameters as :func:`ditherlab.sim.scenarios.push_campaign`. Columns as there
+    Same parameters as :func:`ditherlab.sim.scenarios.push_campaign`. Arrays as there
     (``q, dq, tau, tau_ffw (N, n)``, ``wrench (N, 6)``, ``dither (N,)``, ``temp``), plus the
     extra integer column ``push`` (index of the push, -1 outside pushes).
     """
     ex = params["excitation"]
-    fs_hz = float(params["timing"]["sample_rate_hz"])
-    dt = 1.0 / fs_hz
-    n = robot.n
     plan_rng, noise_rng, hidden_rng = scenario_rngs(seed)
-    segs = _plan(ex, n, plan_rng)
+    segs = _plan(ex, robot.n, plan_rng)
+    plan, push_id, pushes = _follow(params, robot.n, segs, dither)
+    run = drive(plan, engine_for, params, hidden, (noise_rng, hidden_rng), robot, progress)
+    arrays = scenario_columns(plan.t, run.out, run.wrench, run.hp, {"push": push_id})
+    poses = np.asarray(ex["poses"], dtype=float)[:, : robot.n]
+    sim_meta = {
+        "pushes": pushes,
+        "poses": [[float(v) for v in p] for p in poses],
+        "timeline": {"end": float(plan.t[-1])},
+        "hidden": run.hp.truth,
+    }
+    return arrays, sim_meta
+
+
+def _follow(
+    params: Mapping[str, Any], n: int, segs: list[dict[str, Any]], dither: bool
+) -> tuple[Plan, np.ndarray, list[dict[str, Any]]]:
+    """The segments ``segs`` (:func:`_plan`) one after another, sampled: the :class:`Plan`
+    (minimum-jerk moves, holds, pushes; the cable's force on the tool throughout), the push
+    index of each sample (N,) (-1 outside pushes) and the pushes as they were placed."""
+    ex = params["excitation"]
+    fs_hz = float(params["timing"]["sample_rate_hz"])
     t_total = sum(s["t"] + s.get("rest", 0.0) for s in segs) + float(ex["settle_s"])
     N = int(np.ceil(t_total * fs_hz))
-    tt = np.arange(N) * dt
+    tt = np.arange(N) * (1.0 / fs_hz)
     poses = np.asarray(ex["poses"], dtype=float)[:, :n]
     q_ref = np.tile(poses[0], (N, 1))
     dq_ref = np.zeros((N, n))
@@ -186,31 +206,5 @@ def excitation(
                 _add_push(push, push_id, pushes, tt, t0, s, s["rest"], False)
         t0 += length
     q_ref[tt >= t0] = here
-
     push[:, :3] += cable_force(params)
-    hp = build_hidden(hidden, params, tt, n, hidden_rng)
-    engine = engine_for(hp)
-    noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * engine.fs
-    ft_noise = wrench_noise(params, noise_rng, N)
-    inputs = Inputs(
-        push=hp.arm_push(push, dt),
-        tau_ext=np.zeros((N, n)),
-        q_ref=q_ref,
-        dq_ref=dq_ref,
-        kp_on=np.ones(N),
-        dither_cmd=dcmd,
-        fscale=hp.fscale,
-        noise=noise,
-    )
-    state = engine.initial_state(poses[0])
-    out = engine.run(inputs, state, progress=progress)
-    # F = the wrench the robot exerts = -push
-    wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
-    cols = scenario_columns(tt, out, wrench, hp, {"push": push_id})
-    sim_meta = {
-        "pushes": pushes,
-        "poses": [[float(v) for v in p] for p in poses],
-        "timeline": {"end": float(tt[-1])},
-        "hidden": hp.truth,
-    }
-    return cols, sim_meta
+    return Plan(tt, poses[0], q_ref, dq_ref, push, dcmd), push_id, pushes

@@ -34,11 +34,13 @@ after ``still_s`` without motion.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ditherlab.core.linalg import lu_solve, vector_norm
+from ditherlab.data.recording import RecordingArrays
 from ditherlab.estimator import estimate, intervals, problem, solve
 from ditherlab.sim import plant as K
 from ditherlab.sim.engine import Engine, Inputs
@@ -117,8 +119,8 @@ def lead_through(
     hidden: list[HiddenSpec],
     progress: Callable[[int, int], None] | None,
     robot: Any,
-) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Simulate lead-through; returns (columns for Recording.from_arrays, meta["sim"] part).
+) -> tuple[RecordingArrays, dict[str, Any]]:
+    """Simulate lead-through; returns (the recording's arrays, meta["sim"] part).
 
     Same parameters as :func:`ditherlab.sim.scenarios.push_campaign`. Extra columns
     ``fhat_x, fhat_y, fhat_z`` [N] hold the push the controller estimated (on the tool); with
@@ -129,55 +131,162 @@ def lead_through(
     dt = 1.0 / fs_hz
     n = robot.n
     plan_rng, noise_rng, hidden_rng = scenario_rngs(seed)
-
     segments, t = operator_segments(plan_rng)
     N = int(np.ceil(t * fs_hz))
     tt = np.arange(N) * dt
     push = np.zeros((N, 6))
     push[:, :3] = operator_push(tt, segments)
-
     hp = build_hidden(hidden, params, tt, n, hidden_rng)
     eng = engine_for(hp)
-    fs = eng.fs
-    sigma = params["noise"]["tau_sigma_fraction"] * fs
-    noise = noise_rng.normal(size=(N, n)) * sigma
+    ctl = Admittance.start(params, eng, robot, hp.arm_push(push, dt), hp.fscale, noise_rng, dither)
     ft_noise = wrench_noise(params, noise_rng, N)
-    q0 = np.asarray(params["pose"]["q0"], dtype=float)[:n]
-    inputs = Inputs(
-        push=np.ascontiguousarray(hp.arm_push(push, dt)),
-        tau_ext=np.zeros((N, n)),
-        q_ref=np.tile(q0, (N, 1)),
-        dq_ref=np.zeros((N, n)),
-        kp_on=np.ones(N),
-        dither_cmd=np.zeros(N),
-        fscale=np.ascontiguousarray(hp.fscale),
-        noise=noise,
-    )
-    period = max(1, round(2 * np.pi / params["dither"]["frequency"] * fs_hz))
-    still_after = int(lt["still_s"] * fs_hz)
-    ramp_n = int(round(float(params["dither"]["ramp_s"]) * fs_hz))
-    fhat = np.zeros((N, 3))
-    interval_law = lt["law"] == "interval"
-    flo = np.full((N, 3), np.nan)
-    fhi = np.full((N, 3), np.nan)
-    prior_sigma = np.r_[np.full(3, 100.0), np.full(3, 10.0)]
-    ctl = {
-        "v": np.zeros(3),
-        "q_ref": q0.copy(),
-        "still": still_after if dither else 0,
-        "dither": False,
+    state = eng.initial_state(ctl.q0)
+    if dither:  # the first second settles without dither
+        ctl.inputs.dither_cmd[int(1.0 * fs_hz) :] = 1.0
+    out = eng.run(ctl.inputs, state, progress=progress, chunk_callback=ctl.control)
+    wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
+    extra = {"fhat_x": ctl.fhat[:, 0], "fhat_y": ctl.fhat[:, 1], "fhat_z": ctl.fhat[:, 2]}
+    if ctl.interval_law:
+        for i, a in enumerate("xyz"):
+            extra[f"flo_{a}"] = ctl.flo[:, i]
+            extra[f"fhi_{a}"] = ctl.fhi[:, i]
+    arrays = scenario_columns(tt, out, wrench, hp, extra)
+    sim_meta = {
+        "operator": segments,
+        "timeline": {"end": float(tt[-1])},
+        "lead_through": dict(lt),
+        "dither_amplitudes": {
+            "set_point": [float(v) for v in eng.jp[K.AMP_SP]],
+            "unit": "N·m (amplitude of the logged torque)",
+        },
+        "hidden": hp.truth,
     }
-    if dither:
-        inputs.dither_cmd[: int(1.0 * fs_hz)] = 0.0  # first second: settle without dither
+    return arrays, sim_meta
 
-    def control(k0: int, k1: int, state: dict[str, np.ndarray], out: np.ndarray) -> None:
+
+#: [N, N, N, N·m, N·m, N·m] the controller's prior on the wrench (eq. (3)'s R_F, square roots)
+PRIOR_SIGMA = (100.0, 100.0, 100.0, 10.0, 10.0, 10.0)
+
+
+@dataclass
+class Admittance:
+    """The lead-through controller: every chunk it estimates the push from the logged torques
+    and commands the joints to follow it (module docstring); its state carries over.
+
+    Attributes
+    ----------
+    lt : the ``lead_through`` parameter table
+    eng, robot : the Engine (its friction) and the controller's RobotModel
+    inputs : the run's Inputs, written ahead of the engine
+    q0 : (n,) [rad] the starting pose
+    sigma : (n,) [N·m] the logged torque's noise
+    dt : [s] the sample step
+    period, still_after, ramp_n : [samples] one dither period, the stillness before the dither
+        comes back on, the dither's ramp
+    dither : the dither is used at all
+    fhat, flo, fhi : (N, 3) [N] the estimated push on the tool and its interval (NaN without
+        the interval law)
+    v : (3,) [m/s] the commanded tool velocity, smoothed
+    q_ref : (n,) [rad] the motor-angle reference where the next chunk begins
+    still : [samples] how long the commanded speed has been below ``dither_off_speed``
+    """
+
+    lt: dict[str, Any]
+    eng: Engine
+    robot: Any
+    inputs: Inputs
+    q0: np.ndarray
+    sigma: np.ndarray
+    dt: float
+    period: int
+    still_after: int
+    ramp_n: int
+    dither: bool
+    fhat: np.ndarray
+    flo: np.ndarray
+    fhi: np.ndarray
+    v: np.ndarray
+    q_ref: np.ndarray
+    still: int
+
+    @classmethod
+    def start(
+        cls,
+        params: dict[str, Any],
+        eng: Engine,
+        robot: Any,
+        arm_push: np.ndarray,
+        fscale: np.ndarray,
+        noise_rng: np.random.Generator,
+        dither: bool,
+    ) -> Admittance:
+        """The controller at the start of a run: standing at the pose ``pose.q0``, no dither
+        for the first second; ``arm_push`` (N, 6) [N, N·m] is the wrench reaching the arm,
+        ``fscale`` (N, n) [-] the friction factor, the torque noise drawn from ``noise_rng``."""
+        lt = params["lead_through"]
+        fs_hz = float(params["timing"]["sample_rate_hz"])
+        N, n = len(arm_push), robot.n
+        sigma = params["noise"]["tau_sigma_fraction"] * eng.fs
+        q0 = np.asarray(params["pose"]["q0"], dtype=float)[:n]
+        inputs = Inputs(
+            push=np.ascontiguousarray(arm_push),
+            tau_ext=np.zeros((N, n)),
+            q_ref=np.tile(q0, (N, 1)),
+            dq_ref=np.zeros((N, n)),
+            kp_on=np.ones(N),
+            dither_cmd=np.zeros(N),
+            fscale=np.ascontiguousarray(fscale),
+            noise=noise_rng.normal(size=(N, n)) * sigma,
+        )
+        still_after = int(lt["still_s"] * fs_hz)
+        return cls(
+            lt=lt,
+            eng=eng,
+            robot=robot,
+            inputs=inputs,
+            q0=q0,
+            sigma=sigma,
+            dt=1.0 / fs_hz,
+            period=max(1, round(2 * np.pi / params["dither"]["frequency"] * fs_hz)),
+            still_after=still_after,
+            ramp_n=int(round(float(params["dither"]["ramp_s"]) * fs_hz)),
+            dither=dither,
+            fhat=np.zeros((N, 3)),
+            flo=np.full((N, 3), np.nan),
+            fhi=np.full((N, 3), np.nan),
+            v=np.zeros(3),
+            q_ref=q0.copy(),
+            still=still_after if dither else 0,
+        )
+
+    @property
+    def interval_law(self) -> bool:
+        """The interval law drives the admittance (else the dead zone)."""
+        return self.lt["law"] == "interval"
+
+    def control(self, k0: int, k1: int, state: dict[str, np.ndarray], out: np.ndarray) -> None:
+        """The engine's chunk callback after samples ``k0 .. k1`` (``out`` (N_OUT, N, n), the
+        run's raw outputs; ``state`` the engine's): estimate the push at the chunk's last sample,
+        command the next chunk's joint rates, switch the dither."""
         k = k1 - 1
+        tau_bar, half, J = self._residual(out, k)
+        v = self._tool_velocity(tau_bar, half, J, k0, k1)
+        self._command_joints(v, J, k0, k1)
+        if self.dither:
+            self._switch_dither(v, k0, k1)
+
+    def _residual(self, out: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """At sample ``k``: the torque less gravity (and less the sliding friction of moving
+        joints) (n,) [N·m], the friction band's half-width (n,) [N·m] (0 moving) and the
+        Jacobian (1, 6, n)."""
+        fs = self.eng.fs
         q, dq = out[K.O_QM, k], out[K.O_VM, k]
-        lo = max(0, k - period + 1)
+        lo = max(0, k - self.period + 1)
         # the extraction once the dither has ramped in: on for its ramp and a whole period (while
-        # it ramps the centre term moves the extracted signal, read as a push of 16-24 N)
-        settled = max(0, k - ramp_n - period + 1)
-        if k - settled + 1 == ramp_n + period and (out[K.O_DITHER, settled : k + 1, 0] > 0.5).all():
+        # it ramps the centre term moves the extracted signal, which would read as a push)
+        settled = max(0, k - self.ramp_n - self.period + 1)
+        whole = k - settled + 1 == self.ramp_n + self.period
+        if whole and (out[K.O_DITHER, settled : k + 1, 0] > 0.5).all():
             w = out[K.O_TAU, lo : k + 1]
             c = w.mean(axis=0)
             up = np.where(w > c, w, 0).sum(0) / np.maximum((w > c).sum(0), 1)
@@ -190,23 +299,30 @@ def lead_through(
         # moving: the mean velocity over the last dither period (the dither's vibration averages
         # out) or the commanded velocity
         moving = (np.abs(out[K.O_VM, lo : k + 1].mean(axis=0)) > 0.005) | (
-            np.abs(inputs.dq_ref[k]) > 0.002
+            np.abs(self.inputs.dq_ref[k]) > 0.002
         )
         dq = np.where(moving, dq, 0.0)
-        geo = robot.evaluate(q, ["gravity", "jacobian"], reference=True)  # as the plant's
+        geo = self.robot.evaluate(q, ["gravity", "jacobian"], reference=True)  # as the plant's
         tau_bar = tau - geo["gravity"][0]
-        tau_bar = tau_bar - np.where(moving, eng.fc * np.sign(dq) + eng.fv * dq, 0.0)
-        half = np.where(moving, 0.0, half)
-        J = geo["jacobian"]
-        args = (tau_bar[None], J, -half, half, sigma, np.zeros(6), prior_sigma)
+        tau_bar = tau_bar - np.where(moving, self.eng.fc * np.sign(dq) + self.eng.fv * dq, 0.0)
+        return tau_bar, np.where(moving, 0.0, half), geo["jacobian"]
+
+    def _tool_velocity(
+        self, tau_bar: np.ndarray, half: np.ndarray, J: np.ndarray, k0: int, k1: int
+    ) -> np.ndarray:
+        """The commanded tool velocity (3,) [m/s] from the push estimated by eq. (3) (recorded
+        for samples ``k0 .. k1``) through the admittance law, limited to ``max_speed`` and
+        smoothed by the impedance's first-order filter."""
+        lt = self.lt
+        args = (tau_bar[None], J, -half, half, self.sigma, np.zeros(6), np.array(PRIOR_SIGMA))
         v = np.zeros(3)
-        if interval_law:
+        if self.interval_law:
             prob = problem(*args, components=("f_x", "f_y", "f_z"))
             sol = solve(prob)
             p_hat = -sol.F[0, :3]  # the push on the tool
             lo, hi = intervals(prob, sol.F, lt["interval"], lt["level"])
             p_lo, p_hi = -hi[0, :3], -lo[0, :3]  # the push's interval
-            flo[k0:k1], fhi[k0:k1] = p_lo, p_hi
+            self.flo[k0:k1], self.fhi[k0:k1] = p_lo, p_hi
             v = lt["admittance"] * interval_command(p_lo, p_hi)
         else:
             sol = estimate(*args, components=("f_x", "f_y", "f_z"))
@@ -214,15 +330,19 @@ def lead_through(
             mag = vector_norm(p_hat)
             if mag > lt["dead_zone"]:
                 v = lt["admittance"] * (mag - lt["dead_zone"]) * p_hat / mag
-        fhat[k0:k1] = p_hat
+        self.fhat[k0:k1] = p_hat
         speed = vector_norm(v)
         if speed > lt["max_speed"]:
             v *= lt["max_speed"] / speed
         # the impedance's own first-order smoothing (time constant `smoothing_s`) keeps the
         # accelerations, which the static estimator reads as force, small
-        a = min(1.0, (k1 - k0) * dt / max(lt["smoothing_s"], 1e-9))
-        ctl["v"] = ctl["v"] + a * (v - ctl["v"])
-        v = ctl["v"]
+        a = min(1.0, (k1 - k0) * self.dt / max(lt["smoothing_s"], 1e-9))
+        self.v = self.v + a * (v - self.v)
+        return self.v
+
+    def _command_joints(self, v: np.ndarray, J: np.ndarray, k0: int, k1: int) -> None:
+        """The next chunk (as long as this one) follows the tool velocity ``v`` (3,) [m/s]
+        without turning: joint rates and the ramped motor-angle reference from sample ``k1``."""
         # the joint rates of the tool velocity in compiled loops, independent of the BLAS kernel
         # (J⁻¹: the pseudo-inverse's answer for a square J of full rank; LAPACK's pinv where the
         # Jacobian is not square or the pose is singular)
@@ -231,42 +351,22 @@ def lead_through(
         dq_ref = lu_solve(Jq, target) if Jq.shape[0] == Jq.shape[1] else None
         if dq_ref is None:
             dq_ref = np.linalg.pinv(Jq) @ target
-        # the next chunk follows this velocity
+        inputs, dt = self.inputs, self.dt
+        N = len(inputs.q_ref)
         k2 = min(N, k1 + (k1 - k0))
         for kk in range(k1, k2):
-            inputs.q_ref[kk] = ctl["q_ref"] + dq_ref * dt * (kk - k1)
+            inputs.q_ref[kk] = self.q_ref + dq_ref * dt * (kk - k1)
             inputs.dq_ref[kk] = dq_ref
-        ctl["q_ref"] = ctl["q_ref"] + dq_ref * dt * (k2 - k1)
+        self.q_ref = self.q_ref + dq_ref * dt * (k2 - k1)
         if k2 < N:
-            inputs.q_ref[k2:] = ctl["q_ref"]
-        if dither:
-            if vector_norm(v) > lt["dither_off_speed"]:
-                ctl["still"] = 0
-            else:
-                ctl["still"] += k1 - k0
-            on = ctl["still"] >= still_after
-            inputs.dither_cmd[k1:] = 1.0 if on else 0.0
+            inputs.q_ref[k2:] = self.q_ref
 
-    state = eng.initial_state(q0)
-    if dither:
-        inputs.dither_cmd[int(1.0 * fs_hz) :] = 1.0
-    out = eng.run(inputs, state, progress=progress, chunk_callback=control)
-
-    wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
-    extra = {"fhat_x": fhat[:, 0], "fhat_y": fhat[:, 1], "fhat_z": fhat[:, 2]}
-    if interval_law:
-        for i, a in enumerate("xyz"):
-            extra[f"flo_{a}"] = flo[:, i]
-            extra[f"fhi_{a}"] = fhi[:, i]
-    cols = scenario_columns(tt, out, wrench, hp, extra)
-    sim_meta = {
-        "operator": segments,
-        "timeline": {"end": float(tt[-1])},
-        "lead_through": dict(lt),
-        "dither_amplitudes": {
-            "set_point": [float(v) for v in eng.jp[K.AMP_SP]],
-            "unit": "N·m (amplitude of the logged torque)",
-        },
-        "hidden": hp.truth,
-    }
-    return cols, sim_meta
+    def _switch_dither(self, v: np.ndarray, k0: int, k1: int) -> None:
+        """The dither off from sample ``k1`` while the tool is commanded to move faster than
+        ``dither_off_speed``, back on after ``still_s`` without such motion."""
+        if vector_norm(v) > self.lt["dither_off_speed"]:
+            self.still = 0
+        else:
+            self.still += k1 - k0
+        on = self.still >= self.still_after
+        self.inputs.dither_cmd[k1:] = 1.0 if on else 0.0

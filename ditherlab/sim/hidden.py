@@ -23,9 +23,9 @@ The truth of every injected effect goes into ``meta["sim"]["hidden"]``.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -185,6 +185,15 @@ def _fixed_sum(x: np.ndarray) -> np.ndarray:
     return (x[..., 0] + x[..., 1]) + x[..., 2]
 
 
+class _Run(NamedTuple):
+    """What an effect's plant terms may depend on: the run's sample times ``t`` (N,) [s], its
+    joint count ``n`` and the hidden effects' random stream ``rng``."""
+
+    t: np.ndarray
+    n: int
+    rng: np.random.Generator
+
+
 def build_hidden(
     specs: list[HiddenSpec],
     params: Mapping[str, Any],
@@ -192,13 +201,14 @@ def build_hidden(
     n: int,
     rng: np.random.Generator,
 ) -> HiddenPlant:
-    """Turn the requested effects into plant terms for a run at times ``t`` (N,) [s].
+    """Turn the requested effects into plant terms for a run at times ``t`` (N,) [s] of ``n``
+    joints, drawing from ``rng`` where an effect's direction or axis is random.
 
     Sizes not given take ``params["hidden"][name]["size"]``; the other constants of each
-    effect come from the same table.
+    effect come from the same table. Each effect's truth goes into ``HiddenPlant.truth``.
     """
     hp = HiddenPlant()
-    N = len(t)
+    run = _Run(t, n, rng)
     for spec in specs:
         cfg = dict(params["hidden"][spec.name])
         size = float(cfg["size"] if spec.size is None else spec.size)
@@ -208,65 +218,109 @@ def build_hidden(
             "unit": EFFECTS[spec.name],
             "joints": list(range(1, n + 1)),
         }
-        if spec.name == "load_friction":
-            hp.load = np.full(n, size)
-        elif spec.name == "drive_gain":
-            share = _share(cfg, spec.name, n)
-            hp.tau_scale = 1.0 + share * (size - 1.0)
-            truth["joints"] = [int(j) + 1 for j in np.flatnonzero(share)]
-            truth["scale"] = [float(v) for v in hp.tau_scale]
-        elif spec.name == "joint_offset":
-            share = _share(cfg, spec.name, n)
-            hp.q_offset = share * size
-            truth["joints"] = [int(j) + 1 for j in np.flatnonzero(share)]
-            truth["offset"] = [float(v) for v in hp.q_offset]
-        elif spec.name == "temperature_friction":
-            temp = cfg["ambient"] + size * (1.0 - np.exp(-(t - t[0]) / cfg["time_constant"]))
-            temp = np.tile(temp[:, None], (1, n))
-            factor = np.clip(1.0 - cfg["coefficient"] * (temp - cfg["ambient"]), 0.05, None)
-            hp.fscale = factor if hp.fscale is None else hp.fscale * factor
-            hp.temp = temp if cfg["log_temperature"] else None
-            truth.update(
-                {k: cfg[k] for k in ("coefficient", "time_constant", "ambient", "log_temperature")}
-            )
-        elif spec.name == "position_ripple":
-            hp.ripple_amp = np.full(n, size)
-            hp.ripple_freq = np.full(n, float(cfg["periods_per_rev"]))
-            truth["periods_per_rev"] = cfg["periods_per_rev"]
-        elif spec.name == "payload":
-            hp.payload = {"mass": size, "com": [float(c) for c in cfg["com"]]}
-            truth["com"] = hp.payload["com"]
-        elif spec.name == "attenuation_lag":
-            hp.arm_share = max(0.0, 1.0 - size)
-            hp.lag = float(cfg["time_constant"])
-            truth["time_constant"] = hp.lag
-        elif spec.name == "stribeck":
-            hp.stribeck = np.full(n, size)
-            hp.stribeck_v = float(cfg["velocity"])
-            truth["velocity"] = hp.stribeck_v
-        elif spec.name == "ft_bias":
-            d = rng.normal(size=3)
-            d /= vector_norm(d)
-            hp.ft_bias = np.concatenate([size * d, np.zeros(3)])
-            truth["bias"] = [float(v) for v in hp.ft_bias]
-        elif spec.name == "ft_frame":
-            axis = rng.normal(size=3)
-            axis /= vector_norm(axis)
-            a = np.radians(size)
-            X = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-            XX = _fixed_sum(np.moveaxis(X[:, :, None] * X, 1, 2))  # X @ X
-            hp.ft_mount = np.eye(3) + np.sin(a) * X + (1 - np.cos(a)) * XX  # Rodrigues
-            truth["axis"] = [float(v) for v in axis]
-            truth["rotation"] = [float(v) for v in a * axis]
-        elif spec.name == "dynamics":
-            link = int(cfg["link"])
-            shift = [float(c) for c in cfg["com_shift"]]
-            hp.link_change = {"link": link, "mass_factor": 1.0 + size, "com_shift": shift}
-            truth.update({"link": link, "mass_factor": 1.0 + size, "com_shift": shift})
+        truth.update(_PLANT_TERMS[spec.name](hp, size, cfg, run))
         hp.truth.append(truth)
     if hp.fscale is None:
-        hp.fscale = np.ones((N, n))
+        hp.fscale = np.ones((len(t), n))
     return hp
+
+
+# One function per effect: it sets the effect's terms on the HiddenPlant from its SIZE and its
+# table ``cfg`` and returns what the truth records beyond name, size, unit and joints.
+def _load_friction(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    hp.load = np.full(run.n, size)
+    return {}
+
+
+def _drive_gain(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    share = _share(cfg, "drive_gain", run.n)
+    hp.tau_scale = 1.0 + share * (size - 1.0)
+    return {
+        "joints": [int(j) + 1 for j in np.flatnonzero(share)],
+        "scale": [float(v) for v in hp.tau_scale],
+    }
+
+
+def _joint_offset(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    share = _share(cfg, "joint_offset", run.n)
+    hp.q_offset = share * size
+    return {
+        "joints": [int(j) + 1 for j in np.flatnonzero(share)],
+        "offset": [float(v) for v in hp.q_offset],
+    }
+
+
+def _temperature_friction(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    t = run.t
+    temp = cfg["ambient"] + size * (1.0 - np.exp(-(t - t[0]) / cfg["time_constant"]))
+    temp = np.tile(temp[:, None], (1, run.n))
+    factor = np.clip(1.0 - cfg["coefficient"] * (temp - cfg["ambient"]), 0.05, None)
+    hp.fscale = factor if hp.fscale is None else hp.fscale * factor
+    hp.temp = temp if cfg["log_temperature"] else None
+    return {k: cfg[k] for k in ("coefficient", "time_constant", "ambient", "log_temperature")}
+
+
+def _position_ripple(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    hp.ripple_amp = np.full(run.n, size)
+    hp.ripple_freq = np.full(run.n, float(cfg["periods_per_rev"]))
+    return {"periods_per_rev": cfg["periods_per_rev"]}
+
+
+def _payload(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    hp.payload = {"mass": size, "com": [float(c) for c in cfg["com"]]}
+    return {"com": hp.payload["com"]}
+
+
+def _attenuation_lag(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    hp.arm_share = max(0.0, 1.0 - size)
+    hp.lag = float(cfg["time_constant"])
+    return {"time_constant": hp.lag}
+
+
+def _stribeck(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    hp.stribeck = np.full(run.n, size)
+    hp.stribeck_v = float(cfg["velocity"])
+    return {"velocity": hp.stribeck_v}
+
+
+def _ft_bias(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    d = run.rng.normal(size=3)
+    d /= vector_norm(d)
+    hp.ft_bias = np.concatenate([size * d, np.zeros(3)])
+    return {"bias": [float(v) for v in hp.ft_bias]}
+
+
+def _ft_frame(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    axis = run.rng.normal(size=3)
+    axis /= vector_norm(axis)
+    a = np.radians(size)
+    X = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    XX = _fixed_sum(np.moveaxis(X[:, :, None] * X, 1, 2))  # X @ X
+    hp.ft_mount = np.eye(3) + np.sin(a) * X + (1 - np.cos(a)) * XX  # Rodrigues
+    return {"axis": [float(v) for v in axis], "rotation": [float(v) for v in a * axis]}
+
+
+def _dynamics(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    link = int(cfg["link"])
+    shift = [float(c) for c in cfg["com_shift"]]
+    hp.link_change = {"link": link, "mass_factor": 1.0 + size, "com_shift": shift}
+    return {"link": link, "mass_factor": 1.0 + size, "com_shift": shift}
+
+
+#: Each effect's plant terms, by name (the names of :data:`EFFECTS`).
+_PLANT_TERMS: dict[str, Callable[[HiddenPlant, float, dict, _Run], dict[str, Any]]] = {
+    "load_friction": _load_friction,
+    "drive_gain": _drive_gain,
+    "joint_offset": _joint_offset,
+    "temperature_friction": _temperature_friction,
+    "position_ripple": _position_ripple,
+    "payload": _payload,
+    "attenuation_lag": _attenuation_lag,
+    "stribeck": _stribeck,
+    "ft_bias": _ft_bias,
+    "ft_frame": _ft_frame,
+    "dynamics": _dynamics,
+}
 
 
 def _share(cfg: Mapping[str, Any], name: str, n: int) -> np.ndarray:

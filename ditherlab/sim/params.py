@@ -281,6 +281,7 @@ def load_params(
 
 
 def joint_array(p: Mapping[str, Any], dotted: str, n: int = 6) -> np.ndarray:
-    """A per-joint parameter as a float array of shape (n,) (scalars are broadcast)."""
+    """A per-joint parameter ``dotted`` (e.g. ``"friction.static"``) as a float array (n,) in
+    the key's unit (``irb140.toml``); a scalar is broadcast to every joint."""
     v = np.asarray(_get(p, dotted), dtype=float)
     return np.broadcast_to(v, (n,)).copy() if v.ndim == 0 else v[:n].copy()

@@ -14,14 +14,15 @@ to push.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ditherlab.core.names import FORCE_AXES
-from ditherlab.data.recording import Recording
-from ditherlab.sim.engine import Engine, Inputs, PlantExtras
-from ditherlab.sim.hidden import HiddenSpec, build_hidden
+from ditherlab.data.recording import Recording, RecordingArrays
+from ditherlab.sim.engine import Engine, Inputs, Outputs, PlantExtras
+from ditherlab.sim.hidden import HiddenPlant, HiddenSpec, build_hidden
 from ditherlab.sim.params import joint_array
 
 AXES = FORCE_AXES
@@ -51,31 +52,104 @@ def wrench_noise(params: Mapping[str, Any], rng: np.random.Generator, N: int) ->
     return rng.normal(size=(N, 6)) * sigma
 
 
+@dataclass(frozen=True, eq=False)
+class Plan:
+    """What an open-loop scenario asks of the robot, sample by sample.
+
+    Attributes
+    ----------
+    t : (N,) [s] sample times
+    q0 : (n,) [rad] the pose the run starts in, standing still
+    q_ref, dq_ref : (N, n) [rad], [rad/s] motor-angle reference and its rate
+    push : (N, 6) [N, N·m] wrench on the tool point from the environment (base axes), before the
+        hidden effects
+    dither_cmd : (N,) [-] 1 while the dither is requested
+    """
+
+    t: np.ndarray
+    q0: np.ndarray
+    q_ref: np.ndarray
+    dq_ref: np.ndarray
+    push: np.ndarray
+    dither_cmd: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Driven:
+    """What the plant did with a :class:`Plan`: the engine's outputs, the hidden plant, the
+    engine, and the F/T sensor's columns (N, 6) [N, N·m] (the robot's wrench, noise included)."""
+
+    out: Outputs
+    hp: HiddenPlant
+    engine: Engine
+    wrench: np.ndarray
+
+
+def drive(
+    plan: Plan,
+    engine_for: Callable[[Any], Engine],
+    params: Mapping[str, Any],
+    hidden: list[HiddenSpec],
+    rngs: tuple[np.random.Generator, np.random.Generator],
+    robot: Any,
+    progress: Callable[[int, int], None] | None,
+) -> Driven:
+    """Run ``plan`` on the plant with the ``hidden`` effects: the logged torque's noise
+    (N, n) [N·m] and the F/T noise (N, 6) [N, N·m] from the first of ``rngs``, the hidden
+    effects' draws from the second (:func:`scenario_rngs`); ``robot`` is the controller's
+    RobotModel (the F/T sensor's tool axes)."""
+    noise_rng, hidden_rng = rngs
+    tt, n = plan.t, len(plan.q0)
+    N, dt = len(tt), 1.0 / float(params["timing"]["sample_rate_hz"])
+    hp = build_hidden(hidden, params, tt, n, hidden_rng)
+    engine = engine_for(hp)
+    noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * engine.fs
+    ft_noise = wrench_noise(params, noise_rng, N)
+    inputs = Inputs(
+        push=hp.arm_push(plan.push, dt),
+        tau_ext=np.zeros((N, n)),
+        q_ref=plan.q_ref,
+        dq_ref=plan.dq_ref,
+        kp_on=np.ones(N),
+        dither_cmd=plan.dither_cmd,
+        fscale=hp.fscale,
+        noise=noise,
+    )
+    out = engine.run(inputs, engine.initial_state(plan.q0), progress=progress)
+    # F = the wrench the robot exerts = -push
+    wrench = hp.logged_wrench(-plan.push, robot, out.q_link) + ft_noise
+    return Driven(out, hp, engine, wrench)
+
+
 def scenario_columns(
-    tt: np.ndarray, out: Any, wrench: np.ndarray, hp: Any, extra: dict[str, np.ndarray]
-) -> dict[str, Any]:
-    """The columns for :func:`to_recording` from the engine's outputs.
+    tt: np.ndarray,
+    out: Outputs,
+    wrench: np.ndarray,
+    hp: HiddenPlant,
+    extra: dict[str, np.ndarray],
+) -> RecordingArrays:
+    """The recording's arrays from the engine's outputs.
 
     Parameters
     ----------
     tt : (N,) [s]
     out : the Engine's outputs (motor-side q, dq, logged tau, tau_ffw, dither flag)
     wrench : (N, 6) [N, N·m] the F/T sensor
-    hp : the HiddenPlant (its temperature)
+    hp : the HiddenPlant (its encoder offsets, drive scales and temperature)
     extra : further columns, each (N,)
     """
     q, tau = hp.logged(out.q_motor, out.tau)  # encoder offsets, drive torque scales
-    return {
-        "t": tt,
-        "q": q,
-        "dq": out.dq_motor,
-        "tau": tau,
-        "tau_ffw": out.tau_ffw,
-        "wrench": wrench,
-        "dither": out.dither,
-        "temp": hp.temp,
-        "extra": extra,
-    }
+    return RecordingArrays(
+        t=tt,
+        q=q,
+        dq=out.dq_motor,
+        tau=tau,
+        tau_ffw=out.tau_ffw,
+        wrench=wrench,
+        dither=out.dither,
+        temp=hp.temp,
+        extra=extra,
+    )
 
 
 def _plan_pushes(pc: Mapping[str, Any], rng: np.random.Generator) -> list[dict[str, Any]]:
@@ -124,6 +198,17 @@ def push_shape(tau: np.ndarray, duration: float, release_fraction: float = 0.5) 
     return np.where(tau < rise, up, down)
 
 
+@dataclass(frozen=True)
+class _Timeline:
+    """When the push campaign's phases begin [s]: the excitation ends, the dither is requested
+    on and off, the last sample's time; the pushes' onsets are in the plan (``t0``)."""
+
+    excitation_end: float
+    dither_on: float
+    dither_off: float
+    end: float
+
+
 def push_campaign(
     engine_for: Callable[[Any], Engine],
     params: dict[str, Any],
@@ -133,8 +218,8 @@ def push_campaign(
     hidden: list[HiddenSpec],
     progress: Callable[[int, int], None] | None,
     robot: Any,
-) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Simulate the push campaign; returns (columns for Recording.from_arrays, meta["sim"] part).
+) -> tuple[RecordingArrays, dict[str, Any]]:
+    """Simulate the push campaign; returns (the recording's arrays, meta["sim"] part).
 
     Parameters
     ----------
@@ -147,31 +232,77 @@ def push_campaign(
     robot : the controller's RobotModel
     """
     pc = params["push_campaign"]
-    fs_hz = float(params["timing"]["sample_rate_hz"])
-    dt = 1.0 / fs_hz
-    n = robot.n
     plan_rng, noise_rng, hidden_rng = scenario_rngs(seed)
     pushes = _plan_pushes(pc, plan_rng)
+    amp, periods = _excitation_strokes(pc, hidden)
+    times = _schedule(params, periods, pushes)
+    plan, push_id = _campaign_plan(params, robot.n, amp, periods, pushes, times, dither)
+    run = drive(plan, engine_for, params, hidden, (noise_rng, hidden_rng), robot, progress)
+    extra = {"push": push_id}
+    if pc["log_link_angle"]:  # the arm's angle behind the gear spring: ground truth (sweeps)
+        extra.update({f"q_link_{j + 1}": run.out.q_link[:, j] for j in range(robot.n)})
+    arrays = scenario_columns(plan.t, run.out, run.wrench, run.hp, extra)
+    sim_meta = {
+        "pushes": [
+            {k: p[k] for k in ("t0", "duration", "rest", "axis", "sign", "magnitude")}
+            for p in pushes
+        ],
+        "timeline": {
+            "excitation_end": times.excitation_end,
+            "dither_on": times.dither_on if dither else None,
+            "first_push": pushes[0]["t0"] if pushes else None,
+            "dither_off": times.dither_off if dither else None,
+            "end": float(plan.t[-1]),
+        },
+        "excitation": {"amplitude": amp, "periods": periods},
+        "dither_amplitudes": _campaign_amplitudes(params, run, plan.t, times),
+        "hidden": run.hp.truth,
+    }
+    return arrays, sim_meta
 
+
+def _excitation_strokes(pc: Mapping[str, Any], hidden: list[HiddenSpec]) -> tuple[float, list]:
+    """The opening excitation: amplitude [rad] and the period [s] of each sine cycle; with a
+    hidden ``position_ripple`` stretched so that the strokes sweep several ripple periods at the
+    same speeds (the ripple shows only in motion)."""
     amp = float(pc["excitation_amplitude"])
     periods = [float(T) for T in pc["excitation_periods"]]
     if any(h.name == "position_ripple" for h in hidden):
-        # ripple shows only in motion: sweep several ripple periods at the same speeds
         scale = max(amp, 0.35) / amp if amp > 0 else 1.0
         amp, periods = amp * scale, [T * scale for T in periods]
-    t_exc = float(sum(periods))
+    return amp, periods
+
+
+def _schedule(
+    params: Mapping[str, Any], periods: list[float], pushes: list[dict[str, Any]]
+) -> _Timeline:
+    """The campaign's timeline: excitation, settle, dither ramp, settle, the pushes each with
+    its rest (their onsets written to ``t0``), the dither ramped off, half a second more."""
     ramp = float(params["dither"]["ramp_s"])
-    settle = float(pc["settle_s"])
+    settle = float(params["push_campaign"]["settle_s"])
+    t_exc = float(sum(periods))
     t_dither_on = t_exc + settle
     t = t_dither_on + ramp + settle
     for p in pushes:
         p["t0"] = t
         t += p["duration"] + p["rest"]
-    t_dither_off = t
-    t_end = t + ramp + 0.5
-    N = int(np.ceil(t_end * fs_hz))
-    tt = np.arange(N) * dt
+    return _Timeline(t_exc, t_dither_on, t, t + ramp + 0.5)
 
+
+def _campaign_plan(
+    params: Mapping[str, Any],
+    n: int,
+    amp: float,
+    periods: list[float],
+    pushes: list[dict[str, Any]],
+    times: _Timeline,
+    dither: bool,
+) -> tuple[Plan, np.ndarray]:
+    """The campaign's :class:`Plan` and the push index of each sample (N,) (-1 outside)."""
+    pc = params["push_campaign"]
+    fs_hz = float(params["timing"]["sample_rate_hz"])
+    N = int(np.ceil(times.end * fs_hz))
+    tt = np.arange(N) * (1.0 / fs_hz)
     q0 = np.asarray(params["pose"]["q0"], dtype=float)[:n]
     q_ref = np.tile(q0, (N, 1))
     dq_ref = np.zeros((N, n))
@@ -182,7 +313,6 @@ def push_campaign(
         q_ref[m] += amp * np.sin(ph)[:, None]
         dq_ref[m] += (amp * 2 * np.pi / T * np.cos(ph))[:, None]
         t0 += T
-
     push = np.zeros((N, 6))
     push_id = np.full(N, -1, dtype=np.int64)
     for i, p in enumerate(pushes):
@@ -190,87 +320,45 @@ def push_campaign(
         shape = push_shape(tt[m] - p["t0"], p["duration"], pc["release_fraction"])
         push[m, AXES.index(p["axis"])] += p["sign"] * p["magnitude"] * shape
         push_id[m] = i
-
     push[:, :3] += cable_force(params)
-    hp = build_hidden(hidden, params, tt, n, hidden_rng)
-    engine = engine_for(hp)
-    fs = engine.fs
-    noise = noise_rng.normal(size=(N, n)) * params["noise"]["tau_sigma_fraction"] * fs
-    ft_noise = wrench_noise(params, noise_rng, N)
-
     dcmd = np.zeros(N)
     if dither:
-        dcmd[(tt >= t_dither_on) & (tt < t_dither_off)] = 1.0
-    inputs = Inputs(
-        push=hp.arm_push(push, dt),
-        tau_ext=np.zeros((N, n)),
-        q_ref=q_ref,
-        dq_ref=dq_ref,
-        kp_on=np.ones(N),
-        dither_cmd=dcmd,
-        fscale=hp.fscale,
-        noise=noise,
-    )
-    state = engine.initial_state(q0)
-    out = engine.run(inputs, state, progress=progress)
+        dcmd[(tt >= times.dither_on) & (tt < times.dither_off)] = 1.0
+    return Plan(tt, q0, q_ref, dq_ref, push, dcmd), push_id
 
-    # F = wrench the robot exerts = -push
-    wrench = hp.logged_wrench(-push, robot, out.q_link) + ft_noise
-    extra = {"push": push_id}
-    if pc["log_link_angle"]:  # the arm's angle behind the gear spring: ground truth (sweeps)
-        extra.update({f"q_link_{j + 1}": out.q_link[:, j] for j in range(n)})
-    cols = scenario_columns(tt, out, wrench, hp, extra)
-    on = out.dither & (tt >= t_dither_on + ramp + settle)
-    dsp = joint_array(params, "dither.amplitude_fraction", n) * fs
+
+def _campaign_amplitudes(
+    params: Mapping[str, Any], run: Driven, tt: np.ndarray, times: _Timeline
+) -> dict[str, Any]:
+    """The dither's peak amplitudes [N·m] per joint: the set-point, and the mean feedforward
+    and measured amplitude once the ramp has settled."""
+    n = run.engine.n
+    ramp = float(params["dither"]["ramp_s"])
+    settle = float(params["push_campaign"]["settle_s"])
+    out = run.out
+    on = out.dither & (tt >= times.dither_on + ramp + settle)
+    dsp = joint_array(params, "dither.amplitude_fraction", n) * run.engine.fs
     mask = np.asarray(params["dither"]["joints"][:n], dtype=bool)
-    sim_meta = {
-        "pushes": [
-            {k: p[k] for k in ("t0", "duration", "rest", "axis", "sign", "magnitude")}
-            for p in pushes
+    return {
+        "set_point": [float(v) if mk else 0.0 for v, mk in zip(dsp, mask, strict=True)],
+        "feedforward_mean": [
+            float(out.amp_ffw[on, j].mean()) if on.any() and mask[j] else 0.0 for j in range(n)
         ],
-        "timeline": {
-            "excitation_end": t_exc,
-            "dither_on": t_dither_on if dither else None,
-            "first_push": pushes[0]["t0"] if pushes else None,
-            "dither_off": t_dither_off if dither else None,
-            "end": float(tt[-1]),
-        },
-        "excitation": {"amplitude": amp, "periods": periods},
-        "dither_amplitudes": {
-            "set_point": [float(v) if mk else 0.0 for v, mk in zip(dsp, mask, strict=True)],
-            "feedforward_mean": [
-                float(out.amp_ffw[on, j].mean()) if on.any() and mask[j] else 0.0 for j in range(n)
-            ],
-            "measured_mean": [
-                float(out.amp_meas[on, j].mean()) if on.any() and mask[j] else 0.0 for j in range(n)
-            ],
-            "unit": "N·m (peak amplitude of the dither in the logged torque; feedforward = "
-            "the waveform's peak amplitude)",
-        },
-        "hidden": hp.truth,
+        "measured_mean": [
+            float(out.amp_meas[on, j].mean()) if on.any() and mask[j] else 0.0 for j in range(n)
+        ],
+        "unit": "N·m (peak amplitude of the dither in the logged torque; feedforward = "
+        "the waveform's peak amplitude)",
     }
-    return cols, sim_meta
 
 
-def to_recording(cols: dict[str, Any], meta: dict[str, Any]) -> Recording:
-    """Build the Recording from scenario columns."""
-    return Recording.from_arrays(
-        cols["t"],
-        cols["q"],
-        cols["tau"],
-        meta,
-        dq=cols["dq"],
-        tau_ffw=cols["tau_ffw"],
-        wrench=cols["wrench"],
-        temp=cols["temp"],
-        dither=cols["dither"],
-        extra=cols["extra"],
-        name="sim",
-    )
+def to_recording(arrays: RecordingArrays, meta: dict[str, Any]) -> Recording:
+    """The simulated Recording (named ``sim``) of a scenario's arrays and metadata."""
+    return Recording.from_arrays(arrays, meta, name="sim")
 
 
-def plant_extras(hp: Any) -> PlantExtras:
-    """Hidden plant terms for the Engine."""
+def plant_extras(hp: HiddenPlant) -> PlantExtras:
+    """The hidden plant's terms the Engine's compiled step takes."""
     return PlantExtras(
         load=hp.load,
         stribeck=hp.stribeck,

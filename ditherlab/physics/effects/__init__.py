@@ -1,6 +1,7 @@
 """The physical effects a torque model is made of: a pure library of named terms.
 
-The base model is ``tau = tau_grav(q) + J(q)^T F + tau_f + e`` (DESIGN.md). Each named effect adds
+The base model is ``tau = tau_grav(q) + J(q)^T F + tau_f + e`` (``docs/method.md``). Each named
+effect adds
 a torque with a physical form, driven by logged variables, with a few parameters:
 
 =======================  ====================================================  ==================

@@ -4,7 +4,7 @@ An effect is one class in one file of this package (``friction.py``, ``transmiss
 ``rigid.py``, ``sensor.py``); defining it registers it in the library
 (:mod:`ditherlab.physics.effects.library`) under its ``name``. Everything that applies, fits, scores,
 prints or plots effects goes through the methods below, never through an effect's name: to add an
-effect, write the class and its test (README, "Adding an effect").
+effect, write the class and its test (``docs/contributing.md``, "Add an effect").
 """
 
 from __future__ import annotations
@@ -32,7 +32,12 @@ class Design:
     """The linear part of an effect on one joint (or all joints, for shared parameters).
 
     ``shift = centre @ w + offset`` moves the predicted torque; ``widen @ w`` widens the stick
-    band's half-width (still/dither regimes only). Shapes: (N, k) per joint, (N, n, k) shared.
+    band's half-width (still/dither regimes only).
+
+    Attributes
+    ----------
+    centre, widen : (N, k) per joint, (N, n, k) shared [N·m per unit parameter]
+    offset : (N,) per joint, (N, n) shared [N·m], or None
     """
 
     centre: np.ndarray
@@ -118,9 +123,12 @@ class Effect(abc.ABC):
     # -- to implement
     @abc.abstractmethod
     def design(self, sig: Signals, j: int | None, h: Any, ref: dict[str, Any]) -> Design:
-        """The effect's :class:`Design` on joint j (None: all joints) for nonlinear value h."""
+        """The effect's :class:`Design` on joint j (0-based; None: all joints) for the value
+        ``h`` of its searched parameter and the reference values ``ref`` (:meth:`reference`)."""
 
     def grid(self, sig: Sequence[Signals], j: int | None) -> list[Any]:
+        """The values of the searched parameter tried on joint j of these recordings ([None]:
+        nothing is searched), in the parameter's unit."""
         return [None]
 
     def reference(self, sig: Sequence[Signals], j: int | None) -> dict[str, Any]:
@@ -203,6 +211,7 @@ class Effect(abc.ABC):
 
     @property
     def k(self) -> int:
+        """The number of linear parameters."""
         return len(self.linear)
 
 
@@ -224,4 +233,5 @@ def design_at(e: Effect, sig: Signals, j: int | None, h: Any, ref: dict[str, Any
 
 
 def fmt(x: float) -> str:
+    """A number in three significant digits, for printed equations."""
     return f"{x:.3g}"

@@ -117,15 +117,13 @@ class JointOffset(Effect):
     central differences of the robot model (its tool and payload included); ``J^T F`` only
     where the F/T sensor is seen. The offset's change of ``M(q)`` is left out.
 
-    The first-order term's error is ``½ δᵀ (∂²tau/∂q²) δ``: on the IRB140 over the excitation
-    scenario's poses, offsets of 2 / 5 / 10 / 20 mrad on joints 2 and 3 leave at most
-    0.0005 / 0.003 / 0.012 / 0.047 N·m on joint 2 (of a gravity change of 0.45 / 1.1 / 2.2 /
-    4.5 N·m; noise floor 0.29 N·m). The ``J^T F`` term matters: at 20 mrad it is up to 0.35 N·m
-    on joint 3 and 0.12 N·m on joint 5 (floors 0.24, 0.065) during 50 N pushes; fitted with
-    gravity alone the wrist offset δ5 came out 13 mrad for a true 0. An offset nothing depends
-    on (joint 1 about the vertical without pushes, a last joint with its mass on its axis) has a
-    zero column: it stays 0 and the identifiability test leaves it out. A single fixed pose
-    without force gives constant columns that the bands take: refused there.
+    The first-order term's error is ``½ δᵀ (∂²tau/∂q²) δ``, second order in offsets of a few
+    mrad and far below a joint's noise floor; the ``J^T F`` term is first order and matters
+    during pushes: without it a push's torque is read as an offset
+    (``docs/design/physics-effect-models.md``). An offset nothing depends on (joint 1 about the
+    vertical without pushes, a last joint with its mass on its axis) has a zero column: it stays
+    0 and the identifiability test leaves it out. A single fixed pose without force gives
+    constant columns that the bands take: refused there.
     """
 
     name = "joint_offset"

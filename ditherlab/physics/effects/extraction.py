@@ -99,9 +99,8 @@ class DitherExtraction(Effect):
     #: 0.25 (a 95 % interval of more than ±0.5: it cannot tell a joint that shows half of a
     #: push from one that shows all of it), or whose gain lies beyond that range by more than
     #: two standard errors, has too little evidence: it takes the median gain and lag of the
-    #: joints with good evidence, or with none the prior: the medians over the clean dithered
-    #: controls' 20 joint fits (seeds 977-983, joints 1-5: gain 0.80-0.90, median 0.84; lag
-    #: 0-32 samples, median 16).
+    #: joints with good evidence, or with none the prior: the medians of the joint fits on
+    #: clean dithered simulator recordings (``docs/design/physics-effect-models.md``).
     evidence_rules: ClassVar[dict[str, Any]] = {
         "stderr_max": {"gain": 0.25},
         "range": {"gain": (0.0, 1.0)},

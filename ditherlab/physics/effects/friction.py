@@ -76,12 +76,8 @@ class LoadFriction(Effect):
     are searched on a grid; while the joint sticks the split of the held friction is unknown and
     ``L = |tau_grav + J^T F|``. All terms are the model's, never the measured torque: a load
     taken from the measured torque contains the residual itself, and then "explains" any
-    missing effect (a payload, a ripple) through ``k·|tau|``.
-
-    Measured on the simulator's 3-pose excitation (0.15 N·m of band per N·m of gear torque,
-    joint 2 loads up to 170 N·m): after fitting, the rigid-body load ``|tau_grav + J^T F|``
-    leaves joint 2 at 2.6x the noise floor, ``+ M ddq + c·sign(dq)`` at 1.26x (and a payload is
-    then wrongly suggested), the growing output friction at 0.85x.
+    missing effect (a payload, a ripple) through ``k·|tau|``. Why each term of the load:
+    ``docs/design/physics-effect-models.md``.
     """
 
     name = "load_friction"

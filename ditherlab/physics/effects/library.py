@@ -99,6 +99,8 @@ def hyper_params(e: Effect, h: Any) -> dict[str, Any]:
 
 
 def joint_params(spec: EffectSpec, j: int) -> dict[str, Any]:
+    """The parameters of joint j (0-based) of an EffectSpec, one value each (a shared
+    effect's all)."""
     e = get_effect(spec.name)
     if e.shared:
         return dict(spec.params)
@@ -136,6 +138,7 @@ def make_spec(e: Effect, fits: dict[int, FitResult]) -> EffectSpec:
 
 
 def plain_h(h: Any) -> Any:
+    """A searched value as a plain Python number (int for a sample count), or None."""
     if h is None:
         return None
     if isinstance(h, int | np.integer):
@@ -144,7 +147,8 @@ def plain_h(h: Any) -> Any:
 
 
 def clean_none(spec: EffectSpec) -> EffectSpec:
-    # TOML has no null: drop parameters that are all None (e.g. time_constant with a temp column)
+    """The spec without the parameters that are all None (TOML has no null), e.g. a
+    ``time_constant`` where a temperature column drives the effect."""
     p = {
         k: v
         for k, v in spec.params.items()

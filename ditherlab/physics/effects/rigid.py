@@ -15,8 +15,8 @@ class Payload(Effect):
     """An unmodelled mass at the tool: its gravity torque, and while moving its inertia and
     Coriolis torques (pinocchio's joint-torque regressor of the tool link, linear in the mass
     and its first moments; the point mass's own rotational inertia, ``m·|c|²``, is neglected).
-    Measured on the simulator's 3-pose excitation with a 2 kg payload: gravity alone left a
-    residual that load_friction was then suggested for (max 1.13x the floor)."""
+    The inertia and Coriolis terms matter: gravity alone leaves a moving payload's residual for
+    another effect to take (``docs/design/physics-effect-models.md``)."""
 
     name = "payload"
     order = 6
@@ -82,9 +82,8 @@ class Dynamics(Effect):
     - ``s · (M ddq + C dq)``: the URDF's own dynamic torque (:attr:`Signals.dynamic_torque`).
       A model's baseline has gravity only, so on a model without ``inertia`` the fit gives
       ``s ≈ 1``; next to a fitted ``inertia`` ``s ≈ 0``. Without this column ``Y · Δπ`` would have
-      to produce the URDF's dynamics together with a second copy of its gravity: through the CLI
-      on an untuned simulator seed (11, link 3 x 1.3, no ``inertia``) joints 1-2 stayed at
-      1.7-2.1x the noise floor.
+      to produce the URDF's dynamics together with a second copy of its gravity, which its base
+      set cannot do (``docs/design/physics-effect-models.md``).
     - ``Ia_j ddq_j``: each joint's armature (the reflected rotor inertia, on joint j's row alone),
       the standard base-parameter set of rigid-robot identification.
 
@@ -93,11 +92,10 @@ class Dynamics(Effect):
     together). The base set is chosen on the data (:meth:`reference`): the regressor of every
     ``STEP``-th sample stacked over joints, each column scaled to unit norm, QR with column
     pivoting, and the columns kept whose ``|R_ii|`` is above ``RANK_TOL`` times the largest.
-    On the simulator's excitation (2 pose blocks) the diagonal of the links' 60 columns falls from
-    1 to 0.22 over 36 columns, then to 5e-15: the other 24 are structurally dependent.
-    ``RANK_TOL = 1e-3`` sits in that gap (a condition number of at most 1000 for the kept
-    columns): a recording that hardly excites a direction drops it rather than fit noise along
-    it. The dropped columns' parameters fold into the kept ones, so ``delta`` (on
+    The pivots fall gradually over the identifiable columns, then by many orders of magnitude
+    over the structurally dependent ones; ``RANK_TOL = 1e-3`` sits in that gap (a condition
+    number of at most 1000 for the kept columns): a recording that hardly excites a direction
+    drops it rather than fit noise along it (``docs/design/physics-effect-models.md``). The dropped columns' parameters fold into the kept ones, so ``delta`` (on
     ``base_columns``) is a change of base parameters, not of the URDF's individual links.
     Physical consistency is not imposed; :meth:`full_correction` gives the smallest change of all
     links' parameters that produces the fitted torque and the masses it implies, so one can check
@@ -135,8 +133,8 @@ class Dynamics(Effect):
         Y = np.concatenate([self._rows(s) for s in sig])
         norms = np.linalg.norm(Y, axis=0)
         live = np.flatnonzero(norms > 1e-9 * norms.max())
-        # scipy.linalg (numpy's QR does not pivot) is imported here: at module level it was a
-        # third of every command's start-up (0.3 s), for diagnose's dynamics candidate alone
+        # scipy.linalg (numpy's QR does not pivot) is imported here: at module level it would
+        # slow every command's start-up, for diagnose's dynamics candidate alone
         from scipy.linalg import qr
 
         _, R, piv = qr(Y[:, live] / norms[live], mode="economic", pivoting=True)
@@ -172,7 +170,8 @@ class Dynamics(Effect):
         return Y @ self.weights(p), f"dynamics torque joint {j + 1} [N·m]"
 
     def urdf_scale(self, sig: Signals, p: dict) -> float:
-        """``s``: the share of the URDF's dynamic torque the fit added (0 when not kept)."""
+        """``s`` [-]: the share of the URDF's dynamic torque the fit added (0 when its column is
+        not in the base set)."""
         last = 11 * sig.rec.n
         cols = list(p["base_columns"])
         return float(self.weights(p)[cols.index(last)]) if last in cols else 0.0

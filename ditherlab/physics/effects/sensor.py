@@ -62,10 +62,8 @@ class AttenuationLag(Effect):
     damper in series with the tool), ``gain · lag(J^T F(t - delay))``.
 
     Both are searched, each on its own grid with the other zero (a pure delay or a pure lag),
-    and the one that fits best is kept. Measured on the simulator (70 % of the push reaching the
-    arm through a 0.15 s first-order lag, pushes up to 50 N while moving): the best pure delay
-    (0.12 s, gain 0.61) leaves joint 2 at 1.33x the noise floor, the first-order lag (0.152 s,
-    gain 0.68-0.72) at 0.85x.
+    and the one that fits best is kept: a compliant support passes the push through a lag,
+    which a delay only approximates (``docs/design/physics-effect-models.md``).
     """
 
     name = "attenuation_lag"

@@ -105,7 +105,7 @@ class Signals:
         """Make :meth:`take` n rows of a piece of a recording ready for :meth:`join`: the
         whole-recording quantities join needs (regimes, ``ddq``, the F/T columns raw and
         low-passed) kept at the rows, the rows numbered in the recording (the piece's row 0 is
-        its row ``first_row``), and the piece let go (its Signals and table: about 100 MB), with
+        its row ``first_row``), and the piece let go (its Signals and table, most of its memory), with
         ``rec`` (one recording of the same robot and time base) in its place."""
         _ = self.regime, self.ddq
         if self.has_wrench:
@@ -199,6 +199,7 @@ class Signals:
 
     @property
     def regime(self) -> np.ndarray:
+        """(N, n) int8 regime codes (:func:`ditherlab.data.recording.regimes`)."""
         return self._whole_or("regime", lambda: regimes(self.rec))
 
     @property
@@ -208,18 +209,22 @@ class Signals:
 
     @property
     def ddq(self) -> np.ndarray:
+        """(N, n) [rad/s²] (:attr:`ditherlab.data.recording.Recording.ddq`)."""
         return self._whole_or("ddq", lambda: self.rec.ddq)
 
     @property
     def gravity(self) -> np.ndarray:
+        """(N, n) [N·m] the robot model's gravity torque at ``q``."""
         return self.cached("gravity", lambda: self.rec.robot().gravity(self.q))
 
     @property
     def jac(self) -> np.ndarray:
+        """(N, 6, n) [m or 1] the tool point's Jacobian at ``q`` (base axes)."""
         return self.cached("jac", lambda: self.rec.robot().jacobian(self.q))
 
     @property
     def mass(self) -> np.ndarray:
+        """(N, n, n) [kg·m²] the mass matrix at ``q``."""
         return self.cached("mass", lambda: self.rec.robot().mass_matrix(self.q))
 
     @property
@@ -231,6 +236,8 @@ class Signals:
 
     @property
     def regressor(self) -> np.ndarray:
+        """(N, n, 10) the gravity regressor of the tool link at ``q``
+        (:meth:`ditherlab.robot.RobotModel.gravity_regressor`)."""
         return self.cached("regressor", lambda: self.rec.robot().gravity_regressor(self.q))
 
     @property
@@ -249,8 +256,8 @@ class Signals:
     @property
     def dynamic_torque(self) -> np.ndarray:
         """(N, n) [N·m]: the links' dynamic torque ``M(q) ddq + C(q, dq) dq`` (pinocchio's RNEA
-        less gravity) at :attr:`motion`. The Coriolis and centrifugal part is 0.4-0.6 N·m RMS on
-        joints 1-2 of the simulator's excitation (up to 4 N·m), above their noise floor."""
+        less gravity) at :attr:`motion`; its Coriolis and centrifugal part is above the noise
+        floor of the proximal joints in ordinary motions."""
 
         def make() -> np.ndarray:
             dq, ddq = self.motion
@@ -263,8 +270,8 @@ class Signals:
         """``(dq, ddq)``, each (N, n) [rad/s, rad/s²]: the one motion every rigid-body quantity
         is evaluated at. The logged values where any joint moves, 0 where the whole arm stands
         (there ``ddq`` is differentiation noise). A joint that reverses or pauses while others
-        move keeps its acceleration: the links still feel it (zeroing it per joint left joint 3
-        of a synthetic moving arm at 1.6x the noise floor after ``inertia``)."""
+        move keeps its acceleration: the links still feel it
+        (``docs/design/physics-effect-models.md``)."""
 
         def make() -> tuple[np.ndarray, np.ndarray]:
             arm = self.moving.any(axis=1, keepdims=True)
@@ -332,8 +339,8 @@ def signals(rec: Recording, sensor: bool = True) -> Signals:
     shared by the views with and without the sensor).
 
     Kept on the recording itself (``rec._signals``): the two refer to each other and are freed
-    together when the recording is no longer used. (A module-level ``WeakKeyDictionary`` kept
-    every recording alive: its values hold their key.)
+    together once nothing uses the recording (a module-level ``WeakKeyDictionary`` would keep
+    every recording alive: its values hold their key).
     """
     s = rec.__dict__.get("_signals")
     if s is None:
@@ -348,7 +355,7 @@ def release(rec: Recording) -> None:
     """Drop the Signals cached on ``rec`` now, and everything they computed (a piece of a long
     log, done with). The recording and its Signals refer to each other, and so do the two
     sensor views through their shared cache: only Python's cycle collector would free them, and
-    it may not run before many pieces (about 40 MB each) have piled up. The robot's cached
+    it may not run before many pieces have piled up. The robot's cached
     results go too (the pieces of a log share one robot; the next piece's poses are others)."""
     s = rec.__dict__.pop("_signals", None)
     if s is not None:
