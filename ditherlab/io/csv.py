@@ -10,7 +10,6 @@ block by block (:func:`write_frames`): :data:`FORMAT`.
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ from ditherlab.core.names import WRENCH_COLUMNS
 from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
     META_OPTIONS,
+    NUMERIC,
     check_options,
     checked_times,
     dumps_meta,
@@ -33,8 +33,6 @@ from ditherlab.io.common import (
 from ditherlab.io.format import CHUNK_ROWS, Format
 
 OPTIONS = (*META_OPTIONS, "meta")
-#: the recording columns that hold numbers (besides the wrench)
-NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
 
 
 def sidecar_path(path: Path) -> Path:

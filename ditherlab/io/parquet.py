@@ -20,12 +20,12 @@ from ditherlab.core.names import WRENCH_COLUMNS
 from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
     META_OPTIONS,
+    NUMERIC,
     check_options,
     dumps_meta,
     loads_meta,
     meta_from_options,
 )
-from ditherlab.io.csv import NUMERIC
 from ditherlab.io.format import Format
 
 META_KEY = b"ditherlab"

@@ -1,7 +1,7 @@
 """The recording formats by name, suffix and content: one registry (:mod:`ditherlab.io.format`).
 
 ``ditherlab/io/__init__.py`` registers the built-in formats (Python runs it before any module of
-``ditherlab.io``): Parquet, CSV, ditherlab MCAP and ROS 2 bags, asked in that order for a path,
+``ditherlab.io``): CSV, Parquet, ditherlab MCAP and ROS 2 bags, asked in that order for a path,
 and foreign logs read through a mapping file (chosen by the reader option ``mapping``). A
 format whose module imports a heavy library (pyarrow's Parquet, mcap, rosbags: 0.1-0.3 s of CPU
 together) is registered as a function that imports it, called when a path or a name first
@@ -225,7 +225,9 @@ def output_format(path: Path, format: str | None = None) -> Format | None:
         f = format_named(format)
         return f if f is not None and f.write is not None else None
     suffix = Path(path).suffix.lower()
-    return next((f for f in _by_path() if suffix in f.output_suffixes), None)
+    return next(
+        (f for f in _by_path() if suffix in f.output_suffixes and f.write is not None), None
+    )
 
 
 def write(rec: Recording, path: str | Path, *, format: str | None = None, **options: Any) -> Path:

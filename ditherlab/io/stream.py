@@ -98,6 +98,7 @@ class Source:
     name : the path, for messages ; meta : the metadata (with reader options applied)
     n_rows : samples in the recording ; columns : column names in table order
     bounded : True when the format is read in batches (memory does not grow with length)
+    kind : the name of the file's format (:class:`ditherlab.io.format.Format`)
     """
 
     def __init__(self, path: str | Path, **options: Any):
@@ -163,9 +164,9 @@ class Source:
         return self._timebase
 
     def _dither_period(self, t: np.ndarray) -> float | None:
-        """:func:`ditherlab.physics.dither.dither_period` of the whole recording, reading only what it
-        needs: the dither flags, the first :data:`PERIOD_SAMPLES` dithered rows of ``tau_ffw``
-        or the longest dithered run's first rows of ``tau``."""
+        """:func:`ditherlab.physics.dither.dither_period` of the whole recording, reading only
+        what it needs: the dither flags, the first :data:`PERIOD_SAMPLES` dithered rows of
+        ``tau_ffw`` or the longest dithered run's first rows of ``tau``."""
         has_flag, has_ffw = "dither" in self.columns, "tau_ffw_1" in self.columns
         if not (has_flag or has_ffw):
             return None
@@ -204,7 +205,8 @@ class Source:
             return None  # each piece then fails (or finds it) as the whole recording would
 
     def _varies(self, cols: list[str]) -> bool:
-        """Whether any of the columns spans more than 1e-6 (:func:`ditherlab.physics.dither.dither_on`)."""
+        """Whether any of the columns spans more than 1e-6
+        (:func:`ditherlab.physics.dither.dither_on`)."""
         lo = hi = None
         for f in self.frames(CHUNK_ROWS, cols):
             x = f.to_numpy(dtype=float)
