@@ -783,3 +783,42 @@ def test_what_a_path_holds_is_named_when_no_format_takes_it(tmp_path):
         r"ROS 2 bag$",
     ):
         dio.detect_format(d)
+
+
+def test_the_builtin_formats_say_what_they_can():
+    """One Format per file type; what each can do is an attribute of it: read in blocks of rows
+    (``open``), written (``write``), written block by block (``write_stream``)."""
+    from ditherlab.io.registry import formats
+
+    can = {
+        f.name: (f.open is not None, f.write is not None, f.write_stream is not None)
+        for f in formats()
+    }
+    assert can == {
+        "mapping": (False, False, False),
+        "csv": (True, True, True),
+        "parquet": (True, True, True),
+        "mcap": (True, True, True),
+        "rosbag": (True, True, False),
+    }
+
+
+def test_reading_csv_or_parquet_does_not_import_mcap_or_rosbags():
+    """The registry imports a format's module when a path first reaches it: a process that
+    reads and writes Parquet and CSV never imports the mcap or rosbags libraries."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, tempfile, pathlib, ditherlab.io as dio\n"
+        f"rec = dio.read({str(REPO / 'recordings' / 'ur10e-static.parquet')!r})\n"
+        "d = pathlib.Path(tempfile.mkdtemp())\n"
+        "dio.read(dio.write(rec, d / 'a.csv'))\n"
+        "dio.read(dio.write(rec, d / 'a.parquet'))\n"
+        "print(sorted(m for m in ('mcap', 'rosbags', 'ditherlab.io.mcap', 'ditherlab.io.rosbag')"
+        " if m in sys.modules))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
