@@ -822,3 +822,12 @@ def test_reading_csv_or_parquet_does_not_import_mcap_or_rosbags():
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
     )
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_mapping_none_chooses_no_format(tmp_path, sample):
+    """``mapping=None`` (an option left unset) reads the file by its own format."""
+    from ditherlab.io.stream import open_source
+
+    p = dio.write(sample, tmp_path / "a.parquet")
+    assert dio.read(p, mapping=None).equals(sample)
+    assert open_source(p, mapping=None).read().equals(sample)

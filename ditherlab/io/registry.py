@@ -191,6 +191,7 @@ def read(path: str | Path, **options: Any) -> Recording:
     (:func:`ditherlab.io.common.check_units`)
     """
     p = Path(path)
+    options = _given(options)
     rec = input_format(p, options).read(p, **options)
     check_units(rec)
     return rec
@@ -200,10 +201,18 @@ def open_table(path: str | Path, **options: Any) -> tuple[Format, Table]:
     """The format of ``path`` and the file opened in blocks of rows (read whole, its units
     checked, for a format without ``open``)."""
     p = Path(path)
+    options = _given(options)
     fmt = input_format(p, options)
     if fmt.open is None:
         return fmt, whole(fmt.read(p, **options))
     return fmt, fmt.open(p, **options)
+
+
+def _given(options: dict[str, Any]) -> dict[str, Any]:
+    """The reader options without a format's choosing option left at None (``mapping=None``
+    chooses no format, and no reader takes it)."""
+    unset = {f.option for f in _BY_OPTION if options.get(f.option or "", 0) is None}
+    return {k: v for k, v in options.items() if k not in unset}
 
 
 def extra_inputs(options: Mapping[str, Any]) -> list[Path]:
