@@ -28,9 +28,10 @@ unknown robot or a URDF that does not parse.
 This module registers the built-in formats. Parquet, ditherlab MCAP and ROS 2 bags are imported
 when a path first needs them: importing all three up front (pyarrow's Parquet, mcap, rosbags)
 costs every process that reads or writes one format about 0.1-0.3 s of CPU (``python -c "import
-ditherlab.analysis.estimation"``: 1.8-1.9 s CPU, with mcap and rosbag too 2.1-2.2 s; ``-X
-importtime``: rosbag 50-65 ms, mcap 30-40 ms, parquet 14-21 ms on an idle machine). CSV and
-mapped logs are light and imported here.
+ditherlab.analysis.estimation"``: 1.8-1.9 s of CPU, with ditherlab.io.mcap and ditherlab.io.rosbag
+too 2.1-2.2 s, the least of 6 runs each; ``-X importtime`` on an idle machine: rosbag 50-65 ms,
+mcap 30-40 ms, parquet 14-21 ms). CSV and mapped logs are light and imported here
+(tests/test_io.py checks that reading CSV and Parquet imports neither mcap nor rosbags).
 """
 
 from __future__ import annotations
