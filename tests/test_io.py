@@ -672,3 +672,164 @@ def test_mcap_layout_is_plain_json_with_jsonschema(tmp_path, sample):
         (meta,) = list(reader.iter_metadata())
         assert meta.name == "ditherlab"
         assert json.loads(meta.metadata["recording"]) == sample.meta
+
+
+# ------------------------------------------------------------------ the format registry
+def _npz_read(path: Path, **options) -> Recording:
+    """A toy format: one array per column in a NumPy ``.npz`` file, the metadata as JSON."""
+    import json
+
+    from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options
+
+    check_options(options, META_OPTIONS, "npz", str(path))
+    with np.load(path) as z:
+        meta = json.loads(str(z["__meta__"]))
+        data = pd.DataFrame({k: z[k] for k in z.files if k != "__meta__"})
+    return Recording(data, meta_from_options(meta, options, where=str(path)), name=str(path))
+
+
+class _NpzTable:
+    """The toy format read in blocks of rows (a :class:`ditherlab.io.format.Table`)."""
+
+    t = None
+    rec = None
+
+    def __init__(self, path: Path, **options):
+        whole = _npz_read(path, **options)  # small: the toy keeps it, a real one would not
+        self.name, self.meta, self._data = str(path), whole.meta, whole.data
+        self.columns, self.n_rows = list(whole.data.columns), len(whole.data)
+
+    def frames(self, rows: int, columns: list[str] | None = None):
+        data = self._data if columns is None else self._data[columns]
+        for a in range(0, self.n_rows, rows):
+            yield data.iloc[a : a + rows].reset_index(drop=True)
+
+
+def test_a_format_registered_at_run_time(tmp_path, sample):
+    """A format added at run time (a toy .npz reader, read in blocks) is found by read,
+    detect_format, open_source and convert, and refused by write (it has no writer); no other
+    file knows it."""
+    import json
+
+    from ditherlab.io.format import Format
+    from ditherlab.io.stream import open_source
+
+    rec = sample.slice(None, sample.t[0] + 30.0)
+    p = tmp_path / "rec.npz"
+    np.savez(
+        p, __meta__=json.dumps(rec.meta), **{c: rec.data[c].to_numpy() for c in rec.data.columns}
+    )
+    npz = Format(name="npz", title="a NumPy archive", read=_npz_read, suffixes=(".npz",))
+    dio.register(npz)
+    try:
+        assert dio.detect_format(p) == "npz" and dio.read(p).equals(rec)
+        src = open_source(p)
+        assert src.kind == "npz" and not src.bounded and src.read().equals(rec)
+        out = dio.convert(p, tmp_path / "rec.csv", rows=1000)
+        assert dio.read(out).equals(rec)
+        with pytest.raises(ConfigError, match=r"rec\.npz: cannot tell the output format"):
+            dio.write(rec, tmp_path / "rec.npz")
+        dio.unregister("npz")
+        dio.register(
+            Format(
+                name="npz",
+                title="a NumPy archive",
+                read=_npz_read,
+                suffixes=(".npz",),
+                open=_NpzTable,
+            )
+        )
+        src = open_source(p)
+        assert src.bounded and src.n_rows == len(rec) and src.columns == list(rec.data.columns)
+        owned = [piece.rec.data.iloc[piece.keep] for piece in src.pieces(1000)]
+        pd.testing.assert_frame_equal(pd.concat(owned, ignore_index=True), rec.data)
+        out = dio.convert(p, tmp_path / "rec.mcap", rows=1000)
+        assert dio.read(out).equals(rec)
+    finally:
+        dio.unregister("npz")
+    with pytest.raises(FormatError, match=r"rec\.npz: unknown file format"):
+        dio.read(p)
+
+
+def test_read_only_and_unknown_output_formats_are_refused(tmp_path, sample):
+    """write names what it refuses: a read-only format, an unknown one, an unknown suffix."""
+    with pytest.raises(ConfigError, match=r"read-only output format 'mapping' \(expected one of"):
+        dio.write(sample, tmp_path / "x.csv", format="mapping")
+    with pytest.raises(ConfigError, match=r"unknown output format 'xls' \(expected one of csv, "):
+        dio.write(sample, tmp_path / "x.csv", format="xls")
+    with pytest.raises(ConfigError, match=r"the suffix '\.db3' \(expected \.csv, \.parquet, "):
+        dio.write(sample, tmp_path / "x.db3")
+
+
+def test_what_a_path_holds_is_named_when_no_format_takes_it(tmp_path):
+    """An MCAP file of another profile, a folder that is not a bag: one line each, naming what
+    the path holds and what was expected."""
+    from mcap.writer import Writer as McapWriter
+
+    p = tmp_path / "other.mcap"
+    with open(p, "wb") as f:
+        w = McapWriter(f)
+        w.start(profile="other", library="test")
+        w.finish()
+    with pytest.raises(
+        FormatError,
+        match=r"^\S+other\.mcap: MCAP profile 'other' with schema encodings none; expected a "
+        r"ditherlab MCAP file \(profile 'ditherlab'\) or a ROS 2 bag$",
+    ):
+        dio.read(p)
+    d = tmp_path / "empty"
+    d.mkdir()
+    with pytest.raises(
+        FormatError,
+        match=r"^\S+empty: a folder without metadata\.yaml, \.mcap or \.db3 inside; expected a "
+        r"ROS 2 bag$",
+    ):
+        dio.detect_format(d)
+
+
+def test_the_builtin_formats_say_what_they_can():
+    """One Format per file type; what each can do is an attribute of it: read in blocks of rows
+    (``open``), written (``write``), written block by block (``write_stream``)."""
+    from ditherlab.io.registry import formats
+
+    can = {
+        f.name: (f.open is not None, f.write is not None, f.write_stream is not None)
+        for f in formats()
+    }
+    assert can == {
+        "mapping": (False, False, False),
+        "csv": (True, True, True),
+        "parquet": (True, True, True),
+        "mcap": (True, True, True),
+        "rosbag": (True, True, False),
+    }
+
+
+def test_reading_csv_or_parquet_does_not_import_mcap_or_rosbags():
+    """The registry imports a format's module when a path first reaches it: a process that
+    reads and writes Parquet and CSV never imports the mcap or rosbags libraries."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, tempfile, pathlib, ditherlab.io as dio\n"
+        f"rec = dio.read({str(REPO / 'recordings' / 'ur10e-static.parquet')!r})\n"
+        "d = pathlib.Path(tempfile.mkdtemp())\n"
+        "dio.read(dio.write(rec, d / 'a.csv'))\n"
+        "dio.read(dio.write(rec, d / 'a.parquet'))\n"
+        "print(sorted(m for m in ('mcap', 'rosbags', 'ditherlab.io.mcap', 'ditherlab.io.rosbag')"
+        " if m in sys.modules))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_mapping_none_chooses_no_format(tmp_path, sample):
+    """``mapping=None`` (an option left unset) reads the file by its own format."""
+    from ditherlab.io.stream import open_source
+
+    p = dio.write(sample, tmp_path / "a.parquet")
+    assert dio.read(p, mapping=None).equals(sample)
+    assert open_source(p, mapping=None).read().equals(sample)

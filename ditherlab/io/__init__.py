@@ -1,26 +1,37 @@
 """Reading and writing recordings: ``read(path, **options) -> Recording`` and
-``write(rec, path) -> Path``, one module per format.
+``write(rec, path) -> Path``, one module per format, found through one registry.
 
-Dispatch (suffix first, then the file's content):
+The built-in formats (:mod:`ditherlab.io.format` says what a format is and how to add one):
 
 ===============================  =================================================================
-``.parquet``                     :mod:`ditherlab.io.parquet` (metadata under key ``ditherlab``)
+``.parquet``, ``.pq``            :mod:`ditherlab.io.parquet` (metadata under key ``ditherlab``)
 ``.csv``                         :mod:`ditherlab.io.csv` (metadata in the sidecar ``<stem>.json``)
 ``.mcap``                        ditherlab's own MCAP (:mod:`ditherlab.io.mcap`, profile
                                  ``ditherlab``) or a ROS 2 bag in MCAP storage
                                  (:mod:`ditherlab.io.rosbag`, profile ``ros2`` / ROS schemas)
 ``.db3``, a bag folder           a ROS 2 bag (:mod:`ditherlab.io.rosbag`)
 any file with ``mapping=M``      a foreign log described by the TOML mapping file ``M``
-                                 (:mod:`ditherlab.io.mapping`)
+                                 (:mod:`ditherlab.io.mapping`; read only)
 ===============================  =================================================================
 
-Every writer is atomic (a temporary file beside the target, renamed on success). ``write`` to a
-path without a suffix (or ``format="rosbag"``) writes a ROS 2 bag folder (``storage="mcap"`` or
-``"sqlite3"``).
+A path is recognised by its suffix first, then by the file's content
+(:func:`ditherlab.io.registry.input_format`); :func:`read`, :func:`write`, :func:`detect_format`,
+:func:`open_source` (:mod:`ditherlab.io.stream`: the file read in pieces), :func:`write_stream`
+and :func:`convert` dispatch through the registry. Every writer is atomic (a temporary file
+beside the target, renamed on success). ``write`` to a path without a suffix (or
+``format="rosbag"``) writes a ROS 2 bag folder (``storage="mcap"`` or ``"sqlite3"``).
 
 Every ``read`` checks the units against the robot's joint limits (a DitherlabWarning when
 ``|q|`` lies far beyond them, as if logged in degrees) and so also raises RobotError for an
 unknown robot or a URDF that does not parse.
+
+This module registers the built-in formats. Parquet, ditherlab MCAP and ROS 2 bags are imported
+when a path first needs them: importing all three up front (pyarrow's Parquet, mcap, rosbags)
+costs every process that reads or writes one format about 0.1-0.3 s of CPU (``python -c "import
+ditherlab.analysis.estimation"``: 1.8-1.9 s of CPU, with ditherlab.io.mcap and ditherlab.io.rosbag
+too 2.1-2.2 s, the least of 6 runs each; ``-X importtime`` on an idle machine: rosbag 50-65 ms,
+mcap 30-40 ms, parquet 14-21 ms). CSV and mapped logs are light and imported here
+(tests/test_io.py checks that reading CSV and Parquet imports neither mcap nor rosbags).
 """
 
 from __future__ import annotations
@@ -29,128 +40,55 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ditherlab.core.errors import ConfigError, FormatError
 from ditherlab.core.files import check_output
-from ditherlab.data.recording import Recording
 from ditherlab.io import csv, mapping
-from ditherlab.io.common import check_units
+from ditherlab.io.format import Format
+from ditherlab.io.registry import (
+    detect_format,
+    extra_inputs,
+    read,
+    register,
+    unregister,
+    write,
+)
+from ditherlab.io.stream import open_source, write_stream
 
-__all__ = ["read", "write", "convert", "check_recording_output", "detect_format", "FORMATS"]
-
-#: Formats ``write`` can produce, by name.
-FORMATS = ("parquet", "csv", "mcap", "rosbag")
-
-_MAGIC = {b"PAR1": "parquet", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "rosbag"}
-
-
-def detect_format(path: str | Path) -> str:
-    """The format of an existing file or folder: ``parquet``, ``csv``, ``mcap`` or ``rosbag``.
-
-    ``.mcap`` files are told apart by their header profile and schema encodings (ROS 2 bags
-    have profile ``ros2`` and ``ros2msg``/``ros2idl`` schemas). Raises FormatError when the path
-    does not exist or its format is unknown.
-    """
-    p = Path(path)
-    if not p.exists():
-        raise FormatError(f"{p}: no such file or folder")
-    if p.is_dir():
-        if (p / "metadata.yaml").is_file() or any(p.glob("*.mcap")) or any(p.glob("*.db3")):
-            return "rosbag"
-        raise FormatError(
-            f"{p}: a folder that is not a ROS 2 bag (no metadata.yaml, .mcap or .db3 inside)"
-        )
-    suffix = p.suffix.lower()
-    kind = {
-        ".parquet": "parquet",
-        ".pq": "parquet",
-        ".csv": "csv",
-        ".db3": "rosbag",
-        ".mcap": "mcap",
-    }.get(suffix)
-    if kind is None:
-        with open(p, "rb") as f:
-            head = f.read(16)
-        kind = next((k for m, k in _MAGIC.items() if head.startswith(m)), None)
-        if kind is None:
-            raise FormatError(
-                f"{p}: unknown file format (suffix {suffix or 'none'!r}; expected .parquet, "
-                ".csv, .mcap, .db3 or a ROS 2 bag folder, or a mapping file for a foreign log)"
-            )
-    if kind == "mcap":
-        mcap = _module("mcap")
-        profile, encodings = mcap.header_profile(p)
-        if profile == mcap.PROFILE:
-            return "mcap"
-        if profile == "ros2" or encodings & {"ros2msg", "ros2idl"}:
-            return "rosbag"
-        raise FormatError(
-            f"{p}: MCAP profile {profile!r} with schema encodings "
-            f"{sorted(encodings) or 'none'} is neither a ditherlab MCAP (profile 'ditherlab') "
-            "nor a ROS 2 bag (profile 'ros2')"
-        )
-    return kind
+__all__ = [
+    "Format",
+    "check_recording_output",
+    "convert",
+    "detect_format",
+    "open_source",
+    "read",
+    "register",
+    "unregister",
+    "write",
+    "write_stream",
+]
 
 
-def read(path: str | Path, **options: Any) -> Recording:
-    """Read a recording from any supported file.
+def _parquet() -> Format:
+    from ditherlab.io import parquet
 
-    Parameters
-    ----------
-    path : file or ROS 2 bag folder
-    **options : format options. Every format: ``robot`` (built-in name or URDF path),
-        ``tool_frame``, ``tool_offset`` [m], ``payload``, ``source``, ``notes`` (fill in or
-        override the metadata). ``mapping`` (a TOML file) reads a foreign log. ROS 2 bags:
-        ``joint_topic``, ``wrench_topic``, ``wrench_tolerance`` [s]. Unknown options raise
-        ConfigError.
-
-    Returns
-    -------
-    Recording (its ``name`` is the path)
-    """
-    p = Path(path)
-    mapping_file = options.pop("mapping", None)
-    if mapping_file is not None:
-        if not p.exists():
-            raise FormatError(f"{p}: no such file")
-        rec = mapping.read(p, mapping_file, **options)
-    else:
-        kind = detect_format(p)
-        rec = _module(kind).read(p, **options)
-    check_units(rec)
-    return rec
+    return parquet.FORMAT
 
 
-def write(rec: Recording, path: str | Path, *, format: str | None = None, **options: Any) -> Path:
-    """Write ``rec`` atomically; the format follows the suffix (or ``format=``).
+def _mcap() -> Format:
+    from ditherlab.io import mcap
 
-    ``.parquet``, ``.csv`` (+ sidecar ``.json``), ``.mcap`` (ditherlab MCAP); a path without a
-    suffix or ``format="rosbag"`` writes a ROS 2 bag folder (option ``storage="mcap"`` or
-    ``"sqlite3"``). Returns the path written.
-    """
-    p = Path(path)
-    if format is None:
-        format = {
-            ".parquet": "parquet",
-            ".pq": "parquet",
-            ".csv": "csv",
-            ".mcap": "mcap",
-            "": "rosbag",
-        }.get(p.suffix.lower())
-        if format is None:
-            raise ConfigError(
-                f"{p}: cannot tell the output format from the suffix {p.suffix!r} (expected "
-                ".parquet, .csv, .mcap, or no suffix for a ROS 2 bag folder)"
-            )
-    if format not in FORMATS:
-        raise ConfigError(
-            f"{p}: unknown output format {format!r} (expected one of {', '.join(FORMATS)})"
-        )
-    if options and format != "rosbag":
-        raise ConfigError(f"{p}: unknown option {next(iter(options))!r} for {format} output")
-    try:
-        return _module(format).write(rec, p, **options)
-    except OSError as exc:  # a folder in the way, no permission, disk full: nothing is left
-        raise FormatError(f"{p}: cannot write the {format} file ({exc.strerror or exc})") from None
+    return mcap.FORMAT
+
+
+def _rosbag() -> Format:
+    from ditherlab.io import rosbag
+
+    return rosbag.FORMAT
+
+
+# asked in this order for a path: CSV and Parquet by suffix; a .mcap file is ditherlab's own
+# MCAP or else a ROS 2 bag (each checks the header's profile); mapped logs by their option
+for _fmt in (csv.FORMAT, _parquet, _mcap, _rosbag, mapping.FORMAT):
+    register(_fmt)
 
 
 def check_recording_output(
@@ -182,30 +120,6 @@ def convert(
     :data:`ditherlab.io.stream.CHUNK_ROWS`). Returns the path written.
     """
     src, dst = Path(src), Path(dst)
-    inputs = [src]
-    if options.get("mapping") is not None:
-        inputs.append(mapping.mapping_path(options["mapping"]))
+    inputs = [src, *extra_inputs(options)]
     check_recording_output(dst, inputs, force=force)
-    from ditherlab.io.stream import open_source, write_stream  # it builds on this module
-
     return write_stream(open_source(src, **options), dst, **({"rows": rows} if rows else {}))
-
-
-def _module(kind: str) -> Any:
-    """The module that reads and writes format ``kind``.
-
-    parquet, mcap and rosbag are imported here, on first use: importing all three up front
-    (pyarrow, mcap, rosbags) costs every process that reads or writes one format about 0.1-0.2 s
-    of CPU (``python -c "import ditherlab.io, ditherlab.io.parquet"``: median 0.79-0.82 s CPU,
-    with mcap and rosbag too 0.91-1.01 s, 15 runs each; ``-X importtime``: rosbag 50-65 ms, mcap
-    30-40 ms, parquet 14-21 ms). csv and mapping are light and imported at the top.
-    """
-    if kind == "parquet":
-        from ditherlab.io import parquet as m
-    elif kind == "csv":
-        m = csv
-    elif kind == "mcap":
-        from ditherlab.io import mcap as m
-    else:
-        from ditherlab.io import rosbag as m
-    return m

@@ -1,14 +1,19 @@
-"""Helpers shared by the format modules: metadata from options, robot specs, unit checks."""
+"""Helpers shared by the format modules: metadata from options, robot specs, unit and time
+checks."""
 
 from __future__ import annotations
 
 import copy
 import json
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ditherlab.core.errors import ConfigError, FormatError
+import numpy as np
+import pandas as pd
+
+from ditherlab.core.errors import ConfigError, FormatError, RecordingError
 from ditherlab.core.schema import MapOf, Table, Text, check
 from ditherlab.data.recording import (
     PAYLOAD_NODE,
@@ -17,8 +22,11 @@ from ditherlab.data.recording import (
     TOOL_OFFSET_NODE,
     Recording,
 )
+from ditherlab.data.recording import _check_increasing as check_increasing
 from ditherlab.robot import RobotModel, resolve_spec
 
+#: the recording columns that hold numbers (besides the wrench)
+NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
 #: Options every reader accepts: they fill in or override the recording's metadata.
 META_OPTIONS = ("robot", "tool_frame", "tool_offset", "payload", "source", "notes")
 #: Their values (``robot`` is checked where it is resolved); other options are the readers'.
@@ -150,3 +158,22 @@ def loads_meta(text: str | bytes, where: str) -> dict[str, Any]:
         )
     check(meta, STORED_META_SCHEMA, where, FormatError, label="metadata key ")
     return meta
+
+
+def check_times(t: np.ndarray, name: str) -> None:
+    """RecordingError, in the Recording's words, for a time stamp that is not a finite number
+    or ``t`` (N,) [s] that does not strictly increase."""
+    bad = ~np.isfinite(t)
+    if bad.any():
+        kind = "NaN" if np.isnan(t[bad]).all() else "NaN or infinite"
+        first = int(np.flatnonzero(bad)[0]) + 1
+        raise RecordingError(f"{name}: t has {int(bad.sum())} {kind} values in rows {first}..")
+    check_increasing(t, f"{name}: ")
+
+
+def checked_times(t: np.ndarray, name: str) -> np.ndarray:
+    """A ``t`` column as read, (N,), as float [s] (a cell that is not a number becomes NaN),
+    checked by :func:`check_times`."""
+    out = pd.to_numeric(pd.Series(t), errors="coerce").to_numpy(float)
+    check_times(out, name)
+    return out

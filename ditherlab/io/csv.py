@@ -3,13 +3,14 @@ sidecar JSON file beside it (``run.csv`` → ``run.json``) or from reader option
 
 Floats are written with the shortest representation that reads back to the same float64
 (Python's ``repr``), so the round trip of float64 columns is exact. ``dither`` is written as
-``True``/``False``.
+``True``/``False``. Read whole, in blocks of lines (:class:`CsvTable`) and written whole or
+block by block (:func:`write_frames`): :data:`FORMAT`.
 """
 
 from __future__ import annotations
 
 import json
-import re
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,15 +23,16 @@ from ditherlab.core.names import WRENCH_COLUMNS
 from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
     META_OPTIONS,
+    NUMERIC,
     check_options,
+    checked_times,
     dumps_meta,
     loads_meta,
     meta_from_options,
 )
+from ditherlab.io.format import CHUNK_ROWS, Format
 
 OPTIONS = (*META_OPTIONS, "meta")
-#: the recording columns that hold numbers (besides the wrench)
-NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
 
 
 def sidecar_path(path: Path) -> Path:
@@ -136,6 +138,56 @@ def check_numeric(
             )
 
 
+class CsvTable:
+    """A ditherlab CSV file read in blocks of lines (:class:`ditherlab.io.format.Table`).
+
+    Opening it reads the ``t`` column with every column parsed (a line with more fields than
+    the header, a cell that is not a number is an error here: pandas reads one column of a
+    ragged file, slowly, without a word), which counts the rows; RecordingError, as the
+    Recording's, when ``t`` is not finite or not strictly increasing.
+    """
+
+    rec = None
+
+    def __init__(self, path: Path, **options: Any):
+        self.path = Path(path)
+        self.name = str(self.path)
+        check_options(options, OPTIONS, "CSV", self.name)
+        self.meta = read_meta(self.path, options)
+        self.columns = header(self.path)
+        self.t: np.ndarray | None = None
+        if "t" not in self.columns:  # counted here; the Recording names the missing column
+            self.n_rows = self._count()
+            return
+        parts = [f["t"].to_numpy() for f in self.frames(CHUNK_ROWS)]
+        self.t = checked_times(np.concatenate(parts) if parts else np.zeros(0), self.name)
+        self.n_rows = len(self.t)
+
+    def _count(self) -> int:
+        """The data lines of the file."""
+        try:
+            blocks = pd.read_csv(self.path, skipinitialspace=True, chunksize=CHUNK_ROWS)
+            return sum(len(b) for b in blocks)
+        except (ValueError, pd.errors.EmptyDataError) as exc:  # UnicodeDecodeError too
+            raise FormatError(f"{self.name}: not a readable CSV file ({one_line(exc)})") from None
+
+    def frames(self, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
+        """The table in consecutive blocks of ``rows`` lines, optionally only some ``columns``,
+        each checked as :func:`read` checks the whole (a cell's row and line counted from the
+        file's start); FormatError naming the file."""
+        start = 0
+        try:
+            reader = pd.read_csv(self.path, skipinitialspace=True, chunksize=rows, usecols=columns)
+            for data in reader:
+                check_fields(data, self.path)
+                check_numeric(data, self.path, header_lines=1, row_offset=start)
+                parse_dither(data)
+                start += len(data)
+                yield data
+        except ValueError as exc:  # pandas' ParserError and UnicodeDecodeError among them
+            raise FormatError(f"{self.name}: not a readable CSV file ({one_line(exc)})") from None
+
+
 def write(rec: Recording, path: Path) -> Path:
     """Write ``rec`` atomically to ``path`` and its metadata to the sidecar ``<stem>.json``."""
     path = Path(path)
@@ -147,6 +199,25 @@ def write(rec: Recording, path: Path) -> Path:
     return path
 
 
+def write_frames(
+    frames: Iterable[pd.DataFrame], meta: dict[str, Any], path: Path, name: str | None = None
+) -> Path:
+    """Write a recording given as consecutive blocks of its table, atomically, with its sidecar;
+    memory holds one block. The bytes are :func:`write`'s of the whole table (the header line
+    comes with the first block). ``name`` (the recording's) is not stored."""
+    path = Path(path)
+    side = sidecar_path(path)
+    with atomic_path(side) as tmp_side, atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="") as f:
+            for k, data in enumerate(frames):
+                text = data.to_csv(
+                    index=False, header=k == 0, lineterminator="\n", float_format=repr_float
+                )
+                f.write(text)
+        tmp_side.write_text(sidecar_text(meta), encoding="utf-8")
+    return path
+
+
 def sidecar_text(meta: dict[str, Any]) -> str:
     """The sidecar JSON of a recording's metadata (indented, sorted keys)."""
     return json.dumps(json.loads(dumps_meta(meta)), indent=1) + "\n"
@@ -155,3 +226,15 @@ def sidecar_text(meta: dict[str, Any]) -> str:
 def repr_float(x: float) -> str:
     """Shortest text that reads back to the same float64."""
     return repr(float(x))
+
+
+FORMAT = Format(
+    name="csv",
+    title="a ditherlab CSV file",
+    read=read,
+    suffixes=(".csv",),
+    open=CsvTable,
+    write=write,
+    output_suffixes=(".csv",),
+    write_stream=write_frames,
+)

@@ -65,6 +65,7 @@ from ditherlab.data.recording import (
     Recording,
 )
 from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options, robot_spec
+from ditherlab.io.format import Format
 
 MAPPINGS_DIR = Path(__file__).parent / "mappings"
 FAMILY_UNITS: dict[str, dict[str, float]] = {
@@ -224,20 +225,32 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
     """Read the foreign log ``path`` as described by ``mapping`` (file or built-in name).
 
     Options ``robot``, ``tool_offset``, ... override the mapping's robot and metadata.
-    Raises ConfigError for a bad mapping and FormatError for a cell that is not a number.
+    Raises FormatError when the log does not exist or a cell is not a number, ConfigError for
+    a bad mapping.
     """
     path = Path(path)
+    if not path.exists():
+        raise FormatError(f"{path}: no such file")
     check_options(options, META_OPTIONS, "mapped", str(path))
     spec, mp = load_mapping(mapping)
+    header = bool(spec.get("input", {}).get("header", True))
+    cols = _table(_Columns(_parse(path, spec, mp), path, mp, header), spec, mp)
+    meta = meta_from_options(_meta(spec, mp), options, where=str(path))
+    meta.setdefault("mapping", mp.name)
+    return Recording(pd.DataFrame(cols), meta, name=str(path))
+
+
+def _parse(path: Path, spec: dict[str, Any], mp: Path) -> pd.DataFrame:
+    """The log's cells as text, parsed as the mapping's ``[input]`` says; FormatError when the
+    file cannot be parsed so."""
     inp = spec.get("input", {})
-    header = bool(inp.get("header", True))
     delim = inp.get("delimiter", ",")
     skip = int(inp.get("skip_rows", 0))
     _check_widths(path, mp, delim, skip, inp.get("comment"), inp.get("encoding", "utf-8"))
     try:
-        raw = pd.read_csv(
+        return pd.read_csv(
             path,
-            header=0 if header else None,
+            header=0 if inp.get("header", True) else None,
             sep=r"\s+" if delim == "whitespace" else delim,
             comment=inp.get("comment"),
             skiprows=skip,
@@ -250,8 +263,11 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
         raise FormatError(
             f"{path}: cannot be parsed as described by {mp} ({one_line(exc)})"
         ) from None
-    reader = _Columns(raw, path, mp, header)
 
+
+def _table(reader: _Columns, spec: dict[str, Any], mp: Path) -> dict[str, np.ndarray]:
+    """The recording's columns from the log's: ``t`` [s], the joint families (SI units), the
+    wrench [N, N·m], the dither flag and the extra columns, as the mapping says."""
     cols: dict[str, np.ndarray] = {}
     tspec = spec["time"]
     tunit = tspec.get("unit", "s")  # units, kinds and keys: checked by MAPPING_SCHEMA
@@ -273,7 +289,12 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
         cols[name] = v * _number(sub.get("scale", 1.0), mp, f"extra.{name}.scale") + _number(
             sub.get("offset", 0.0), mp, f"extra.{name}.offset"
         )
+    return cols
 
+
+def _meta(spec: dict[str, Any], mp: Path) -> dict[str, Any]:
+    """The recording's metadata from the mapping: its ``[meta]`` and ``[robot]`` (a URDF path
+    relative to the mapping file, its text embedded)."""
     meta = {"schema": SCHEMA, **spec.get("meta", {})}
     rob = spec["robot"]
     if "urdf" in rob:  # a path relative to the mapping file; its text goes into the metadata
@@ -290,9 +311,7 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
     for key in ("tool_offset", "payload"):
         if key in rob:
             meta[key] = rob[key]
-    meta = meta_from_options(meta, options, where=str(path))
-    meta.setdefault("mapping", mp.name)
-    return Recording(pd.DataFrame(cols), meta, name=str(path))
+    return meta
 
 
 def _number(v: Any, mp: Path, key: str) -> float:
@@ -392,3 +411,24 @@ def _expected_names(ref: str, names: list[str], show: int = 12) -> str:
     if close:
         return f"expected one of its {len(names)} names; closest: {', '.join(close)}"
     return f"expected one of its {len(names)} names: {', '.join(names[:show])}, ..."
+
+
+def _read_mapped(path: Path, **options: Any) -> Recording:
+    """:func:`read` with the mapping given as the reader option ``mapping``."""
+    mapping = options.pop("mapping")
+    return read(path, mapping, **options)
+
+
+def _mapping_files(mapping: str | Path) -> list[Path]:
+    """The mapping file that the option ``mapping`` names."""
+    return [mapping_path(mapping)]
+
+
+#: vendor logs through a mapping file: chosen by ``mapping=``, read whole, never written
+FORMAT = Format(
+    name="mapping",
+    title="a foreign log read through a mapping file",
+    read=_read_mapped,
+    option="mapping",
+    inputs=_mapping_files,
+)

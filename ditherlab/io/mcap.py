@@ -22,6 +22,10 @@ The file is chunked (zstd), indexed, with a summary, and CRCs of every chunk, th
 and the summary; the reader checks every chunk's CRC (a chunk without one is refused) and the
 summary's, so a damaged byte is an error, not different data. JSON numbers carry Python's
 ``repr`` of each float, so the round trip is exact.
+
+Read whole or in blocks of rows (:func:`layout` opens the file, :meth:`Layout.frames`), written
+whole or block by block (:func:`write_frames`): :data:`FORMAT`. A ``.mcap`` file of another
+profile may be a ROS 2 bag (:mod:`ditherlab.io.rosbag`).
 """
 
 from __future__ import annotations
@@ -59,9 +63,13 @@ from ditherlab.io.common import (
     loads_meta,
     meta_from_options,
 )
+from ditherlab.io.format import Format
 
+#: the first bytes of every MCAP file
+MAGIC = b"\x89MCAP"
 PROFILE = "ditherlab"
-FORMAT = "ditherlab.mcap/1"
+#: the layout's version, in the metadata record's ``format``
+LAYOUT_VERSION = "ditherlab.mcap/1"
 JOINTS, WRENCH, DITHER, EXTRA = (
     "/ditherlab/joints",
     "/ditherlab/wrench",
@@ -291,7 +299,7 @@ def write_frames(
         w.add_metadata(
             "ditherlab",
             {
-                "format": FORMAT,
+                "format": LAYOUT_VERSION,
                 "recording": dumps_meta(meta),
                 "columns": json.dumps(enc.columns),
                 "name": name or "",
@@ -337,23 +345,52 @@ def header_profile(path: Path) -> tuple[str, set[str]]:
     return profile, encodings
 
 
+def profile_text(profile: str, encodings: set[str]) -> str:
+    """What an MCAP file holds, by its :func:`header_profile`, for a message."""
+    return f"MCAP profile {profile!r} with schema encodings {sorted(encodings) or 'none'}"
+
+
+def _check(path: Path) -> str | None:
+    """None for a ditherlab MCAP file (profile ``ditherlab``), else what the file holds;
+    FormatError when it is not a readable MCAP file."""
+    profile, encodings = header_profile(path)
+    return None if profile == PROFILE else profile_text(profile, encodings)
+
+
 @dataclass
 class Layout:
     """What a ditherlab MCAP file holds, from its summary and metadata record (no message read
-    when the summary has statistics).
+    when the summary has statistics): the file opened for reading in blocks of rows
+    (:class:`ditherlab.io.format.Table`).
 
     Attributes
     ----------
     path : the file ; meta : the recording's metadata (reader options applied)
-    columns : ``[name, dtype]`` of the table's columns, in order
+    dtypes : ``[name, dtype]`` of the table's columns, in order
     counts : messages per topic ; n_rows : samples (messages on ``/ditherlab/joints``)
     """
 
     path: Path
     meta: dict[str, Any]
-    columns: list[list[str]]
+    dtypes: list[list[str]]
     counts: dict[str, int]
     n_rows: int
+    t = None
+    rec = None
+
+    @property
+    def name(self) -> str:
+        """The file, for messages."""
+        return str(self.path)
+
+    @property
+    def columns(self) -> list[str]:
+        """The column names, in table order."""
+        return [c for c, _ in self.dtypes]
+
+    def frames(self, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
+        """:func:`frames` of this file."""
+        return frames(self, rows, columns)
 
 
 def layout(path: Path, **options: Any) -> Layout:
@@ -460,9 +497,9 @@ def frames(lay: Layout, rows: int, columns: list[str] | None = None) -> Iterator
     from the summary's.
     """
     path = lay.path
-    dtypes = dict((c, d) for c, d in lay.columns)
+    dtypes = dict((c, d) for c, d in lay.dtypes)
     if columns is None:
-        cols = lay.columns
+        cols = lay.dtypes
         topics = list(lay.counts)  # every channel, so every message is counted
     else:
         missing = [c for c in columns if c not in dtypes]
@@ -657,3 +694,17 @@ def _columns(
 def _topic_family(column: str) -> str | None:
     m = _JOINT_COL.match(column)
     return m.group(1) if m else None
+
+
+FORMAT = Format(
+    name="mcap",
+    title="a ditherlab MCAP file (profile 'ditherlab')",
+    read=read,
+    suffixes=(".mcap",),
+    magic=(MAGIC,),
+    check=_check,
+    open=layout,
+    write=write,
+    output_suffixes=(".mcap",),
+    write_stream=write_frames,
+)

@@ -8,9 +8,9 @@ Reading
   of the robot's. The sample time is ``header.stamp`` (the bag's receive time when the stamp is
   zero). Messages with a repeated stamp are dropped (first one kept) with a warning.
 - ``geometry_msgs/msg/WrenchStamped`` → ``f_x .. m_z``, taken as the wrench at the tool point in
-  base-frame axes (RECORDING.md); no TF transform is applied, ``header.frame_id`` is recorded
-  in the metadata (``wrench_frame``). **Merge rule** onto the joint-state time base: for each
-  joint-state time, the nearest wrench sample when it lies within ``wrench_tolerance``
+  base-frame axes (docs/recording-format.md); no TF transform is applied, ``header.frame_id``
+  is recorded in the metadata (``wrench_frame``). **Merge rule** onto the joint-state time base:
+  for each joint-state time, the nearest wrench sample when it lies within ``wrench_tolerance``
   (default: half the median joint-state period); otherwise linear interpolation between the two
   wrench samples around it; joint-state samples before the first or after the last wrench
   sample (beyond the tolerance) are **dropped with a DitherlabWarning** stating how many and
@@ -20,7 +20,8 @@ Reading
   topic → a recording without F/T columns; ``wrench_topic=""`` ignores the wrench).
 - The robot: ``robot=`` (name or URDF path), else the ditherlab metadata stored by :func:`write`
   in the bag's ``custom_data``, else a ``/robot_description`` (``std_msgs/msg/String``) topic.
-- In blocks (:func:`layout` then :func:`frames`, for :class:`ditherlab.io.stream.Source`): a
+- In blocks (:func:`open_table`: :func:`layout` then :func:`frames`, for
+  :class:`ditherlab.io.stream.Source`): a
   first pass keeps only the joint-state stamps (8 bytes a message), the wrench's first and last
   stamps and the URDF, which fix the rows, the tolerance and the dropped samples; a second pass
   reads the messages again and merges each block of joint states with the wrench samples from
@@ -35,7 +36,8 @@ Writing
 ``storage="mcap"`` or ``"sqlite3"``) with ``/joint_states`` (JointState, names = the robot's
 joint names), ``/wrench`` (WrenchStamped, frame ``base``) when F/T columns exist,
 ``/robot_description`` (the URDF) and the recording metadata as JSON under ``custom_data``
-key ``ditherlab``. Columns other than q, dq, tau and the wrench are not stored.
+key ``ditherlab``. Columns other than q, dq, tau and the wrench are not stored. A path without
+a suffix is written as a bag (:data:`FORMAT`).
 """
 
 from __future__ import annotations
@@ -73,6 +75,8 @@ from ditherlab.io.common import (
     meta_from_options,
     urdf_spec,
 )
+from ditherlab.io.format import Format, WholeTable, whole
+from ditherlab.io.mcap import MAGIC, header_profile, profile_text
 from ditherlab.robot import RobotModel
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -194,7 +198,9 @@ class _Bag:
 
 @dataclass
 class BagLayout:
-    """What a bag holds, from one pass over its messages that keeps only their time stamps.
+    """What a bag holds, from one pass over its messages that keeps only their time stamps: the
+    bag opened for reading in blocks of rows (:class:`ditherlab.io.format.Table`) when
+    ``ordered``.
 
     Attributes
     ----------
@@ -222,6 +228,16 @@ class BagLayout:
     tol: float
     span: tuple[int, int] = (0, 0)
     w_count: int = 0
+    rec = None
+
+    @property
+    def name(self) -> str:
+        """The bag, for messages."""
+        return str(self.path)
+
+    def frames(self, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
+        """:func:`frames` of this bag."""
+        return frames(self, rows, columns)
 
 
 def layout(path: Path, **options: Any) -> BagLayout:
@@ -234,9 +250,40 @@ def layout(path: Path, **options: Any) -> BagLayout:
     return _scan(bag, iter(bag), options)
 
 
-def _scan(bag: _Bag, items: Iterator[tuple[int, int, Any]], options: dict[str, Any]) -> BagLayout:
-    """Pass one: stamps, velocity presence, the wrench's span, the URDF (``items`` from ``bag``
-    or the same messages sorted)."""
+def open_table(path: Path, **options: Any) -> BagLayout | WholeTable:
+    """The bag opened for reading in blocks of rows (:func:`layout`); a bag whose stamps go back
+    in the bag's order is read whole and sorted (:func:`read`: sorting needs every message)."""
+    lay = layout(path, **options)
+    if not lay.ordered:
+        return whole(read(path, **options))
+    return lay
+
+
+@dataclass
+class _Stamps:
+    """What pass one keeps of a bag's messages (:func:`_stamps`).
+
+    Attributes
+    ----------
+    joints : [ns] the joint-state stamps, in the bag's order ; has_dq : every one has velocities
+    ordered : no stamp goes back on either topic
+    w_first, w_last : [ns] the first and last wrench stamps ; w_count : distinct wrench stamps
+    frame : the first wrench message's frame ; urdf : the ``/robot_description`` text, if any
+    """
+
+    joints: array[int]
+    has_dq: bool
+    ordered: bool
+    w_first: int
+    w_last: int
+    w_count: int
+    frame: str
+    urdf: str | None
+
+
+def _stamps(items: Iterator[tuple[int, int, Any]]) -> _Stamps:
+    """Pass one over the messages ``items`` (from a :class:`_Bag`, or the same sorted): the
+    stamps, velocity presence, the wrench's span and frame, the URDF."""
     joints: array[int] = array("q")
     has_dq, ordered = True, True
     w_first = w_last = w_count = 0
@@ -254,42 +301,77 @@ def _scan(bag: _Bag, items: Iterator[tuple[int, int, Any]], options: dict[str, A
             w_last = stamp
         else:
             urdf_text = msg.data
+    return _Stamps(joints, has_dq, ordered, w_first, w_last, w_count, frame, urdf_text)
+
+
+def _scan(bag: _Bag, items: Iterator[tuple[int, int, Any]], options: dict[str, Any]) -> BagLayout:
+    """The :class:`BagLayout` from pass one over ``items`` (from ``bag``, or the same messages
+    sorted): the metadata, the columns, then (when ordered) the rows kept and the wrench merge's
+    tolerance and span, with their warnings."""
+    s = _stamps(items)
     path = bag.path
-    if not joints:
+    if not s.joints:
         raise FormatError(f"{path}: topic {bag.jtopic} [{JOINT_STATE}] has no messages")
+    foreign = "ditherlab" not in bag.custom  # a bag that ditherlab did not write
+    meta = _bag_meta(bag, s.urdf, options)
+    names = _joint_names(meta, path)
+    columns = ["t", *(f"{p}_{j + 1}" for p in ("q", "dq", "tau") for j in range(len(names)))]
+    if not s.has_dq:
+        columns = [c for c in columns if not c.startswith("dq_")]
+    wtopic = bag.wtopic if s.w_count else None
+    lay = BagLayout(
+        path, meta, columns, s.ordered, np.zeros(0), 0, bag.jtopic, wtopic, names, s.has_dq, 0.0
+    )
+    if not s.ordered:
+        return lay  # read whole and sorted (read): its warnings then, not twice
+    stamps = _kept_stamps(lay, s)
+    if wtopic is None:
+        return lay
+    _cover(lay, s, stamps, options)
+    if s.frame and foreign:
+        meta["wrench_frame"] = s.frame
+    return lay
+
+
+def _bag_meta(bag: _Bag, urdf_text: str | None, options: dict[str, Any]) -> dict[str, Any]:
+    """The recording's metadata: the ditherlab metadata the bag stores, else its
+    ``/robot_description``, then the reader options; ``source`` names a bag that ditherlab did
+    not write."""
+    path = bag.path
     stored = loads_meta(bag.custom["ditherlab"], str(path)) if "ditherlab" in bag.custom else None
     if stored is None and urdf_text and options.get("robot") is None:
         robot = urdf_spec(urdf_text, options.get("tool_frame"), where=f"{path}: /robot_description")
         stored = {"robot": robot}
-    foreign = "ditherlab" not in bag.custom  # a bag that ditherlab did not write
     meta = meta_from_options(stored, options, where=str(path))
-    if foreign:
+    if "ditherlab" not in bag.custom:
         meta.setdefault("source", f"ROS 2 bag {path.name}")
-    names = _joint_names(meta, path)
-    columns = ["t", *(f"{p}_{j + 1}" for p in ("q", "dq", "tau") for j in range(len(names)))]
-    if not has_dq:
-        columns = [c for c in columns if not c.startswith("dq_")]
-    wtopic = bag.wtopic if w_count else None
-    lay = BagLayout(
-        path, meta, columns, ordered, np.zeros(0), 0, bag.jtopic, wtopic, names, has_dq, 0.0
-    )
-    if not ordered:
-        return lay  # read whole and sorted (read): its warnings then, not twice
-    stamps = np.frombuffer(joints, dtype=np.int64)
+    return meta
+
+
+def _kept_stamps(lay: BagLayout, s: _Stamps) -> np.ndarray:
+    """The joint-state stamps [ns] without the repeated ones (a warning says how many): sets
+    the rows' times, their count and span, and the wrench's sample count on ``lay``."""
+    stamps = np.frombuffer(s.joints, dtype=np.int64)
     keep = np.ones(len(stamps), dtype=bool)
     keep[1:] = np.diff(stamps) > 0
     if not keep.all():
         warnings.warn(
-            f"{path}: {int((~keep).sum())} messages on {bag.jtopic} repeat the previous "
+            f"{lay.path}: {int((~keep).sum())} messages on {lay.jtopic} repeat the previous "
             "time stamp and were dropped",
             DitherlabWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
     t = stamps[keep] * 1e-9
-    lay.t, lay.n_rows, lay.w_count = t, len(t), w_count
+    lay.t, lay.n_rows, lay.w_count = t, len(t), s.w_count
     lay.span = (int(stamps[0]), int(stamps[-1]))
-    if wtopic is None:
-        return lay
+    return stamps[keep]
+
+
+def _cover(lay: BagLayout, s: _Stamps, stamps: np.ndarray, options: dict[str, Any]) -> None:
+    """The wrench merge on ``lay``: its tolerance [s], the rows inside the wrench's span (the
+    others dropped with a warning; none is a FormatError), the wrench columns. ``stamps`` [ns]:
+    the rows' stamps."""
+    path, t = lay.path, lay.t
     tol = options.get("wrench_tolerance")
     if tol is None:
         tol = 0.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
@@ -297,29 +379,26 @@ def _scan(bag: _Bag, items: Iterator[tuple[int, int, Any]], options: dict[str, A
         raise ConfigError(f"{path}: option wrench_tolerance is {tol}, expected >= 0 s")
     lay.tol = float(tol)
     # coverage depends on the wrench's first and last samples only (merge_onto)
-    ends = np.array([w_first, w_last] if w_count > 1 else [w_first]) * 1e-9
+    ends = np.array([s.w_first, s.w_last] if s.w_count > 1 else [s.w_first]) * 1e-9
     _, covered = merge_onto(t, ends, np.zeros((len(ends), 6)), lay.tol)
     t_w = ends[[0, -1]]
     if not covered.any():
         raise FormatError(
-            f"{path}: the wrench on {wtopic} (t={t_w[0]:.3f}..{t_w[-1]:.3f} s) does "
+            f"{path}: the wrench on {lay.wtopic} (t={t_w[0]:.3f}..{t_w[-1]:.3f} s) does "
             f"not overlap the joint states (t={t[0]:.3f}..{t[-1]:.3f} s)"
         )
     if not covered.all():
         bad = np.flatnonzero(~covered)
         warnings.warn(
             f"{path}: {len(bad)} joint-state samples between t={t[bad[0]]:.3f} s and "
-            f"t={t[bad[-1]]:.3f} s lie outside the wrench on {wtopic} and were dropped",
+            f"t={t[bad[-1]]:.3f} s lie outside the wrench on {lay.wtopic} and were dropped",
             DitherlabWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
     lay.t, lay.n_rows = t[covered], int(covered.sum())
-    kept = stamps[keep][covered]  # one run: coverage is the wrench's span widened by tol
+    kept = stamps[covered]  # one run: coverage is the wrench's span widened by tol
     lay.span = (int(kept[0]), int(kept[-1]))
     lay.columns += list(WRENCH_COLUMNS)
-    if frame and foreign:
-        meta["wrench_frame"] = frame
-    return lay
 
 
 def frames(lay: BagLayout, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
@@ -396,6 +475,79 @@ def _joint_row(
     return pos[order], eff[order], vel[order] if len(vel) == len(msg.name) else vel[:0]
 
 
+class _Merge:
+    """Pass two's state (:func:`_blocks`): the joint states kept and not yet in a block, the
+    wrench samples from the last one before them on, and the merged rows not yet handed out in
+    blocks of ``rows``."""
+
+    def __init__(self, lay: BagLayout, rows: int):
+        self.lay, self.rows = lay, rows
+        self.merge = lay.wtopic is not None
+        self.js: list[int] = []  # [ns] stamps of the joint states waiting
+        self.jrows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (q, tau, dq) of each
+        self.wt: list[float] = []  # [s] wrench times
+        self.wv: list[list[float]] = []  # [N, N·m] wrench samples
+        self.w_seen = 0  # distinct wrench stamps read
+        self.out: list[pd.DataFrame] = []  # merged rows not handed out
+        self.held = 0  # how many
+
+    def wrench(self, stamp: int, msg: Any) -> None:
+        """Keep a wrench sample (``stamp`` [ns], a WrenchStamped)."""
+        self.w_seen += 1
+        f, m = msg.wrench.force, msg.wrench.torque
+        self.wt.append(stamp * 1e-9)
+        self.wv.append([f.x, f.y, f.z, m.x, m.y, m.z])
+
+    def ready(self) -> bool:
+        """A block of ``rows`` joint states can be merged: the wrench has a sample at or after
+        its last row, or no more samples."""
+        js, rows = self.js, self.rows
+        if len(js) < rows or not self.merge:
+            return len(js) >= rows
+        wt = self.wt
+        return bool(wt) and (wt[-1] >= js[rows - 1] * 1e-9 or self.w_seen == self.lay.w_count)
+
+    def block(self, k: int) -> pd.DataFrame:
+        """The first ``k`` joint states waiting as table rows, merged with the wrench (the rows
+        outside its span dropped); the wrench samples before the block's last one go."""
+        lay, n = self.lay, len(self.lay.names)
+        t = np.asarray(self.js[:k], dtype=np.int64) * 1e-9
+        cols: dict[str, np.ndarray] = {"t": t}
+        for f, prefix in ((0, "q"), (2, "dq"), (1, "tau")):
+            if prefix == "dq" and not lay.has_dq:
+                continue
+            arr = np.array([r[f] for r in self.jrows[:k]], dtype=float).reshape(k, n)
+            for j in range(n):
+                cols[f"{prefix}_{j + 1}"] = arr[:, j]
+        data = pd.DataFrame(cols)
+        del self.js[:k], self.jrows[:k]
+        if not self.merge:
+            return data
+        tw = np.asarray(self.wt)
+        a = max(int(np.searchsorted(tw, t[0])) - 1, 0)
+        b = min(int(np.searchsorted(tw, t[-1])), len(tw) - 1)
+        W, covered = merge_onto(t, tw[a : b + 1], np.asarray(self.wv[a : b + 1]), lay.tol)
+        del self.wt[: max(b - 1, 0)], self.wv[: max(b - 1, 0)]
+        data = data.loc[covered].reset_index(drop=True)
+        for c, col in enumerate(WRENCH_COLUMNS):
+            data[col] = W[covered, c]
+        return data
+
+    def hold(self, data: pd.DataFrame) -> None:
+        """Hold merged rows for the blocks that :meth:`emit` hands out."""
+        self.out.append(data)
+        self.held += len(data)
+
+    def emit(self, final: bool) -> Iterator[pd.DataFrame]:
+        """Hand out every whole block of ``rows`` held (and, when ``final``, the rest)."""
+        rows = self.rows
+        while self.held >= rows or (final and self.held):
+            data = pd.concat(self.out, ignore_index=True) if len(self.out) > 1 else self.out[0]
+            yield data.iloc[:rows].reset_index(drop=True)
+            self.out = [data.iloc[rows:].reset_index(drop=True)] if len(data) > rows else []
+            self.held = max(len(data) - rows, 0)
+
+
 def _blocks(
     items: Iterable[tuple[int, int, Any]], lay: BagLayout, rows: int
 ) -> Iterator[pd.DataFrame]:
@@ -405,51 +557,9 @@ def _blocks(
     it to the first one at or after its end (:func:`merge_onto` then gives the values of the
     whole merge). The rows outside the wrench's span (``lay.span``) are dropped as they come;
     a block waits for the wrench sample after its end, or for the wrench's last sample."""
-    n, merge = len(lay.names), lay.wtopic is not None
-    js: list[int] = []
-    jrows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    wt: list[float] = []
-    wv: list[list[float]] = []
-    out: list[pd.DataFrame] = []
-    held = i = w_seen = 0
+    m = _Merge(lay, rows)
+    i = 0
     last_j = last_w = None
-
-    def block(k: int) -> pd.DataFrame:
-        t = np.asarray(js[:k], dtype=np.int64) * 1e-9
-        cols: dict[str, np.ndarray] = {"t": t}
-        for f, prefix in ((0, "q"), (2, "dq"), (1, "tau")):
-            if prefix == "dq" and not lay.has_dq:
-                continue
-            arr = np.array([r[f] for r in jrows[:k]], dtype=float).reshape(k, n)
-            for j in range(n):
-                cols[f"{prefix}_{j + 1}"] = arr[:, j]
-        data = pd.DataFrame(cols)
-        del js[:k], jrows[:k]
-        if not merge:
-            return data
-        tw = np.asarray(wt)
-        a = max(int(np.searchsorted(tw, t[0])) - 1, 0)
-        b = min(int(np.searchsorted(tw, t[-1])), len(tw) - 1)
-        W, covered = merge_onto(t, tw[a : b + 1], np.asarray(wv[a : b + 1]), lay.tol)
-        del wt[: max(b - 1, 0)], wv[: max(b - 1, 0)]
-        data = data.loc[covered].reset_index(drop=True)
-        for c, col in enumerate(WRENCH_COLUMNS):
-            data[col] = W[covered, c]
-        return data
-
-    def ready() -> bool:
-        if len(js) < rows or not merge:
-            return len(js) >= rows
-        return bool(wt) and (wt[-1] >= js[rows - 1] * 1e-9 or w_seen == lay.w_count)
-
-    def emit(final: bool) -> Iterator[pd.DataFrame]:
-        nonlocal out, held
-        while held >= rows or (final and held):
-            data = pd.concat(out, ignore_index=True) if len(out) > 1 else out[0]
-            yield data.iloc[:rows].reset_index(drop=True)
-            out = [data.iloc[rows:].reset_index(drop=True)] if len(data) > rows else []
-            held = max(len(data) - rows, 0)
-
     for kind, stamp, msg in items:
         if kind == _JOINT:
             row = _joint_row(msg, lay.names, i, lay.jtopic, lay.path)
@@ -460,29 +570,22 @@ def _blocks(
                 continue
             last_j = stamp
             if not lay.span[0] <= stamp <= lay.span[1]:
-                continue  # outside the wrench: dropped (not held until its end)
-            js.append(stamp)
-            jrows.append(row)
+                continue  # outside the wrench: dropped as it comes, never held
+            m.js.append(stamp)
+            m.jrows.append(row)
         elif kind == _WRENCH:
             if last_w is not None and stamp <= last_w:
                 continue
             last_w = stamp
-            w_seen += 1
-            f, m = msg.wrench.force, msg.wrench.torque
-            wt.append(stamp * 1e-9)
-            wv.append([f.x, f.y, f.z, m.x, m.y, m.z])
+            m.wrench(stamp, msg)
         else:
             continue
-        while ready():
-            data = block(rows)
-            out.append(data)
-            held += len(data)
-            yield from emit(False)
-    if js:
-        data = block(len(js))
-        out.append(data)
-        held += len(data)
-    yield from emit(True)
+        while m.ready():
+            m.hold(m.block(rows))
+            yield from m.emit(False)
+    if m.js:
+        m.hold(m.block(len(m.js)))
+    yield from m.emit(True)
 
 
 def merge_onto(
@@ -536,63 +639,14 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
     if storage not in plugins:
         raise ConfigError(f"{path}: option storage is {storage!r}, expected 'mcap' or 'sqlite3'")
     robot = rec.robot()
-    names = list(robot.joint_names)
-    ts = get_typestore(TYPESTORE)
-    JointState = ts.types[JOINT_STATE]
-    Wrench = ts.types["geometry_msgs/msg/Wrench"]
-    WrenchStamped = ts.types[WRENCH_STAMPED]
-    Vector3 = ts.types["geometry_msgs/msg/Vector3"]
-    Header = ts.types["std_msgs/msg/Header"]
-    Time = ts.types["builtin_interfaces/msg/Time"]
-    String = ts.types[STRING]
-
     ns = np.round(rec.t * 1e9).astype(np.int64)  # [ns]
-    log = ns - min(0, int(ns[0]))
-    q, tau = np.ascontiguousarray(rec.q), np.ascontiguousarray(rec.tau)
-    dq = np.ascontiguousarray(rec.dq) if rec.has_dq else None
-    wrench = rec.wrench
-
-    def header(stamp: int, frame: str) -> Any:
-        sec, nsec = divmod(int(stamp), 1_000_000_000)
-        return Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=frame)
-
     path.parent.mkdir(parents=True, exist_ok=True)
     tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     try:
         bag = tmpdir / path.name
-        with Writer(bag, version=9, storage_plugin=plugins[storage]) as w:
-            w.set_custom_data("ditherlab", dumps_meta(rec.meta))
-            c_desc = w.add_connection("/robot_description", STRING, typestore=ts)
-            c_js = w.add_connection("/joint_states", JOINT_STATE, typestore=ts)
-            c_w = (
-                w.add_connection("/wrench", WRENCH_STAMPED, typestore=ts)
-                if wrench is not None
-                else None
-            )
-            w.write(c_desc, int(log[0]), ts.serialize_cdr(String(data=robot.urdf), STRING))
-            empty = np.zeros(0)
-            for i in range(len(ns)):
-                msg = JointState(
-                    header=header(ns[i], ""),
-                    name=names,
-                    position=q[i],
-                    velocity=dq[i] if dq is not None else empty,
-                    effort=tau[i],
-                )
-                w.write(c_js, int(log[i]), ts.serialize_cdr(msg, JOINT_STATE))
-                if c_w is not None:
-                    f = wrench[i]
-                    m = WrenchStamped(
-                        header=header(ns[i], "base"),
-                        wrench=Wrench(
-                            force=Vector3(x=f[0], y=f[1], z=f[2]),
-                            torque=Vector3(x=f[3], y=f[4], z=f[5]),
-                        ),
-                    )
-                    w.write(c_w, int(log[i]), ts.serialize_cdr(m, WRENCH_STAMPED))
-        os.chmod(
-            bag, 0o777 & ~current_umask()
-        )  # mkdtemp's parent is 0700; the bag gets the usual mode
+        _write_bag(bag, plugins[storage], rec, robot, ns)
+        # mkdtemp's parent is 0700; the bag gets the usual mode
+        os.chmod(bag, 0o777 & ~current_umask())
         old = tmpdir / ".old"
         if path.exists():
             os.replace(path, old)
@@ -603,3 +657,114 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
         with contextlib.suppress(OSError):
             shutil.rmtree(tmpdir)
     return path
+
+
+def _write_bag(
+    bag: Path, plugin: StoragePlugin, rec: Recording, robot: RobotModel, ns: np.ndarray
+) -> None:
+    """The bag folder ``bag`` (layout in the module docstring): the metadata, the URDF, then each
+    sample's JointState and WrenchStamped, logged at its time ``ns`` (N,) [ns] shifted so that
+    the first is >= 0."""
+    ts = get_typestore(TYPESTORE)
+    String = ts.types[STRING]
+    log = ns - min(0, int(ns[0]))
+    wrench = rec.wrench
+    with Writer(bag, version=9, storage_plugin=plugin) as w:
+        w.set_custom_data("ditherlab", dumps_meta(rec.meta))
+        c_desc = w.add_connection("/robot_description", STRING, typestore=ts)
+        c_js = w.add_connection("/joint_states", JOINT_STATE, typestore=ts)
+        c_w = (
+            w.add_connection("/wrench", WRENCH_STAMPED, typestore=ts)
+            if wrench is not None
+            else None
+        )
+        w.write(c_desc, int(log[0]), ts.serialize_cdr(String(data=robot.urdf), STRING))
+        names = list(robot.joint_names)
+        for i, (joints, wr) in enumerate(_sample_messages(ts, rec, names, ns, wrench)):
+            w.write(c_js, int(log[i]), joints)
+            if c_w is not None:
+                w.write(c_w, int(log[i]), wr)
+
+
+def _sample_messages(
+    ts: Any, rec: Recording, names: list[str], ns: np.ndarray, wrench: np.ndarray | None
+) -> Iterator[tuple[bytes, bytes | None]]:
+    """Each sample's JointState (``names``, q [rad], dq [rad/s] when present, tau [N·m]) and
+    WrenchStamped (``wrench`` (N, 6) [N, N·m], frame ``base``; None without it), serialized
+    with the typestore ``ts``; ``ns`` (N,) [ns] the header stamps."""
+    JointState = ts.types[JOINT_STATE]
+    Wrench = ts.types["geometry_msgs/msg/Wrench"]
+    WrenchStamped = ts.types[WRENCH_STAMPED]
+    Vector3 = ts.types["geometry_msgs/msg/Vector3"]
+    Header = ts.types["std_msgs/msg/Header"]
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    q, tau = np.ascontiguousarray(rec.q), np.ascontiguousarray(rec.tau)
+    dq = np.ascontiguousarray(rec.dq) if rec.has_dq else None
+
+    def header(stamp: int, frame: str) -> Any:
+        sec, nsec = divmod(int(stamp), 1_000_000_000)
+        return Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=frame)
+
+    empty = np.zeros(0)
+    for i in range(len(ns)):
+        msg = JointState(
+            header=header(ns[i], ""),
+            name=names,
+            position=q[i],
+            velocity=dq[i] if dq is not None else empty,
+            effort=tau[i],
+        )
+        wr = None
+        if wrench is not None:
+            f = wrench[i]
+            m = WrenchStamped(
+                header=header(ns[i], "base"),
+                wrench=Wrench(
+                    force=Vector3(x=f[0], y=f[1], z=f[2]),
+                    torque=Vector3(x=f[3], y=f[4], z=f[5]),
+                ),
+            )
+            wr = ts.serialize_cdr(m, WRENCH_STAMPED)
+        yield ts.serialize_cdr(msg, JOINT_STATE), wr
+
+
+# ------------------------------------------------------------------------------ the format
+_SQLITE = b"SQLite format 3\x00"
+
+
+def _check(path: Path) -> str | None:
+    """None when ``path`` (a folder, or a file found by its suffix or first bytes) is a ROS 2
+    bag: a folder with metadata.yaml or a storage file inside, a .db3 or SQLite 3 file, an MCAP
+    file of profile ``ros2`` or with ROS 2 schemas; else what it holds."""
+    if path.is_dir():
+        if (
+            (path / "metadata.yaml").is_file()
+            or any(path.glob("*.mcap"))
+            or any(path.glob("*.db3"))
+        ):
+            return None
+        return "a folder without metadata.yaml, .mcap or .db3 inside"
+    if path.suffix.lower() == ".db3":
+        return None
+    with open(path, "rb") as f:
+        if f.read(len(_SQLITE)) == _SQLITE:
+            return None
+    profile, encodings = header_profile(path)
+    if profile == "ros2" or encodings & {"ros2msg", "ros2idl"}:
+        return None
+    return profile_text(profile, encodings)
+
+
+FORMAT = Format(
+    name="rosbag",
+    title="a ROS 2 bag",
+    read=read,
+    suffixes=(".db3", ".mcap"),
+    magic=(_SQLITE, MAGIC),
+    folder=True,
+    check=_check,
+    open=open_table,
+    write=write,
+    output_suffixes=("",),
+    write_options=("storage",),
+)
