@@ -11,8 +11,9 @@ from synthetic import push_recording
 from ditherlab.analysis.detection import NoPushesError
 from ditherlab.analysis.estimation import replay
 from ditherlab.analysis.identification import identify
+from ditherlab.app.report import make_report
 from ditherlab.data.estimates import Estimates, EstimatesSource
-from ditherlab.output.report_page import make_report, paper_table, summary_text
+from ditherlab.output.report_page import paper_table, summary_text
 
 MAGS = (5.0, 15.0, 30.0, 50.0)
 

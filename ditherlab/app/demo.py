@@ -31,13 +31,14 @@ from ditherlab.analysis.detection import AXES, PAPER
 from ditherlab.analysis.estimation import replay
 from ditherlab.analysis.identification import identify
 from ditherlab.analysis.overview import describe, format_info
-from ditherlab.app.loop import add_effect
+from ditherlab.app.identify import add_effect
+from ditherlab.app.report import make_report
+from ditherlab.app.view import save_view_files
 from ditherlab.core.errors import DitherlabError, ModelError
 from ditherlab.core.names import FORCE_AXES, WRENCH_COLUMNS
 from ditherlab.core.progress import progress_bar
 from ditherlab.data.recording import Recording
-from ditherlab.output.report_page import make_report, summary_text
-from ditherlab.output.rerun.rerun_log import save_view_files
+from ditherlab.output.report_page import summary_text
 from ditherlab.sim import simulate
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
@@ -184,8 +185,8 @@ def run_pipeline(
         # intervals"); a campaign where it cannot be told apart from the bands keeps the model
         try:
             model = add_effect(
-                model,
                 [recs["identification_nodither"], recs["identification_dither"]],
+                model,
                 "dither_extraction",
             )
         except ModelError:

@@ -35,7 +35,7 @@ from ditherlab.data.recording import Recording
 from ditherlab.io import csv, mapping
 from ditherlab.io.common import check_units
 
-__all__ = ["read", "write", "convert", "check_recording_output", "detect_format", "FORMATS"]
+__all__ = ["read", "write", "check_recording_output", "detect_format", "FORMATS"]
 
 #: Formats ``write`` can produce, by name.
 FORMATS = ("parquet", "csv", "mcap", "rosbag")
@@ -162,33 +162,6 @@ def check_recording_output(
     p = Path(dst)
     bag = p.suffix == ""
     return check_output(p, inputs, folder=bag, replace=bag, force=force)
-
-
-def convert(
-    src: str | Path,
-    dst: str | Path,
-    *,
-    rows: int | None = None,
-    force: bool = False,
-    **options: Any,
-) -> Path:
-    """Read ``src`` (with reader ``options``, e.g. ``mapping=``, ``robot=``) and write ``dst``.
-
-    Refuses an output that is, lies inside or contains the input (or a CSV input's sidecar, or
-    the mapping file), an unwritable location, and an existing non-empty bag folder unless
-    ``force`` (:func:`check_recording_output`); the output is written atomically, so a failure
-    leaves no partial file. Parquet, CSV and ditherlab MCAP are read and written ``rows`` at a
-    time (:func:`ditherlab.io.stream.write_stream`; default
-    :data:`ditherlab.io.stream.CHUNK_ROWS`). Returns the path written.
-    """
-    src, dst = Path(src), Path(dst)
-    inputs = [src]
-    if options.get("mapping") is not None:
-        inputs.append(mapping.mapping_path(options["mapping"]))
-    check_recording_output(dst, inputs, force=force)
-    from ditherlab.io.stream import open_source, write_stream  # it builds on this module
-
-    return write_stream(open_source(src, **options), dst, **({"rows": rows} if rows else {}))
 
 
 def _module(kind: str) -> Any:
