@@ -49,7 +49,16 @@ def run(options: ConvertOptions) -> Converted:
     the mapping file), an unwritable place, an existing output without ``force``, and a
     non-empty folder that is not a bag; then read ``src`` and write ``dst``. Parquet, CSV and
     ditherlab MCAP are read and written ``chunk_rows`` at a time
-    (:func:`ditherlab.io.stream.write_stream`); a failure leaves no partial file."""
+    (:func:`ditherlab.io.stream.write_stream`); a failure leaves no partial file.
+
+    Parameters
+    ----------
+    options : :class:`ConvertOptions`
+
+    Returns
+    -------
+    Converted
+    """
     o = options
     dst = guard_recording(o.dst, [o.src], read=o.read, force=o.force)
     src = open_source(o.src, **o.read.kwargs())

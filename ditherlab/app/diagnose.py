@@ -14,7 +14,7 @@ from typing import Any
 
 from ditherlab.analysis.diagnosis import Diagnosis, diagnose
 from ditherlab.app.workflow import Progress, ReadOptions, guard
-from ditherlab.core.files import all_or_nothing, check_not_input
+from ditherlab.core.files import all_or_nothing
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, open_source
 from ditherlab.output.diagnosis_report import write_report
@@ -23,8 +23,6 @@ __all__ = ["HISTORY_MODEL", "DiagnoseOptions", "Diagnosed", "run", "with_history
 
 #: the model with the diagnosis's history row, in the report folder
 HISTORY_MODEL = "model.toml"
-#: the files of the report folder (beside the PNG figures)
-REPORT_FILES = ("report.md", "report.json", HISTORY_MODEL)
 
 
 @dataclass(frozen=True)
@@ -75,22 +73,29 @@ class Diagnosed:
 def run(options: DiagnoseOptions, progress: Progress | None = None) -> Diagnosed:
     """Diagnose the recordings (read in pieces of ``chunk_rows`` rows) against the model; with
     ``out``, write the report and (``history``) the model with its new history row into it,
-    all or nothing."""
+    all or nothing.
+
+    Parameters
+    ----------
+    options : :class:`DiagnoseOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Diagnosed
+    """
     o = options
-    inputs = [*o.recordings, o.model]
     if o.out is None:
         return Diagnosed(_diagnose(o, progress))
-    out = guard(o.out, inputs, read=o.read, folder=True, force=o.force)
-    for name in REPORT_FILES:
-        check_not_input(out / name, [*inputs, *o.read.files()])
+    out = guard(o.out, [*o.recordings, o.model], read=o.read, folder=True, force=o.force)
     with all_or_nothing(out):
         d = _diagnose(o, progress)
-        path = None
+        path: Path | None = None
         if o.history:
             d.model = with_history_row(d.model, d.history_entry())
             path = d.model.save(out / HISTORY_MODEL)
         write_report(d, out)
-    return Diagnosed(d, out, Path(path) if path is not None else None)
+    return Diagnosed(d, out, path)
 
 
 def _diagnose(o: DiagnoseOptions, progress: Progress | None) -> Diagnosis:

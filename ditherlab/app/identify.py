@@ -79,7 +79,17 @@ class Identified:
 def run(options: IdentifyOptions, progress: Progress | None = None) -> Identified:
     """Read the recordings (in pieces of ``chunk_rows`` rows: memory does not grow with the
     logs' length), identify the bands, add the effects (on the whole recordings, read into
-    memory) and save the model (atomically; never over an input)."""
+    memory) and save the model (atomically; never over an input).
+
+    Parameters
+    ----------
+    options : :class:`IdentifyOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Identified
+    """
     o = options
     out = guard(o.out, [*o.recordings, o.model], read=o.read, kind=MODEL_FILE, force=o.force)
     sources = [open_source(p, **o.read.kwargs()) for p in o.recordings]

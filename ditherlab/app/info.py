@@ -47,6 +47,15 @@ class Info:
 
 
 def run(options: InfoOptions) -> Info:
-    """Read the recording in pieces and summarise it; nothing is written."""
+    """Read the recording in pieces and summarise it; nothing is written.
+
+    Parameters
+    ----------
+    options : :class:`InfoOptions`
+
+    Returns
+    -------
+    Info
+    """
     src = open_source(options.file, **options.read.kwargs())
     return Info(describe(src, chunk_rows=options.chunk_rows))

@@ -61,7 +61,17 @@ class Compared:
 
 def run(options: LeadthroughOptions, progress: Progress | None = None) -> Compared:
     """Check the options and the output folder, compare the laws and write the comparison,
-    all or nothing."""
+    all or nothing.
+
+    Parameters
+    ----------
+    options : :class:`LeadthroughOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Compared
+    """
     o = options
     if o.dither not in DITHER_CHOICES:
         raise ConfigError(f"--dither: got {o.dither!r}; expected 'both', 'on' or 'off'")

@@ -66,7 +66,17 @@ class ReplayOptions:
 
 def run(options: ReplayOptions, progress: Progress | None = None) -> Replayed:
     """Read a recording and a model, replay the estimator piece by piece
-    (:func:`replay_stream`) and save the estimates (atomic, never over an input)."""
+    (:func:`replay_stream`) and save the estimates (atomic, never over an input).
+
+    Parameters
+    ----------
+    options : :class:`ReplayOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Replayed
+    """
     o = options
     out = guard(o.out, [o.recording, o.model], read=o.read, kind=ESTIMATES_FILE, force=o.force)
     model = TorqueModel.load(o.model)

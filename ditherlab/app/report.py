@@ -64,7 +64,17 @@ class Reported:
 
 
 def run(options: ReportOptions, progress: Progress | None = None) -> Reported:
-    """Analyse the estimates and write the report folder, all or nothing."""
+    """Analyse the estimates and write the report folder, all or nothing.
+
+    Parameters
+    ----------
+    options : :class:`ReportOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Reported
+    """
     o = options
     files = [x for x in (*o.estimates, *o.recordings) if isinstance(x, str | Path)]
     out = guard(o.out, files, folder=True, force=o.force)

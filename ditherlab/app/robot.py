@@ -93,6 +93,15 @@ def run(options: RobotOptions, progress: Progress | None = None) -> RobotResult:
     """Describe the robot at the pose, or (``sensitivity``) predict its thresholds there or
     write the map over the grid (atomically; both outputs checked before any work).
 
+    Parameters
+    ----------
+    options : :class:`RobotOptions`
+    progress : ``progress(done, total)`` over the map's poses, optional
+
+    Returns
+    -------
+    RobotResult
+
     Raises
     ------
     ConfigError, ModelError, RobotError

@@ -54,7 +54,17 @@ class Simulated:
 
 
 def run(options: SimulateOptions, progress: Progress | None = None) -> Simulated:
-    """Check the output, simulate, write the recording (atomically)."""
+    """Check the output, simulate, write the recording (atomically).
+
+    Parameters
+    ----------
+    options : :class:`SimulateOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Simulated
+    """
     o = options
     out = guard_recording(o.out, [o.config], force=o.force)
     rec = simulate(

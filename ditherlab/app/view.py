@@ -102,7 +102,17 @@ def view_mode(spawn: bool, serve: bool) -> str | None:
 
 def run(options: ViewOptions, progress: Progress | None = None) -> ViewResult:
     """Check every input (:func:`ditherlab.output.rerun.inputs.load_view_request`) and the
-    output, then write or show the view, the recording and its estimates read in pieces."""
+    output, then write or show the view, the recording and its estimates read in pieces.
+
+    Parameters
+    ----------
+    options : :class:`ViewOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    ViewResult
+    """
     o = options
     inputs = [o.recording, o.estimates, o.model, o.diagnosis]
     if o.save is not None:

@@ -8,7 +8,6 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.files import FileKind, check_output
@@ -117,8 +116,3 @@ def as_recordings(
 def as_model(model: TorqueModel | str | Path) -> TorqueModel:
     """A TorqueModel as given, or loaded from its TOML file."""
     return model if isinstance(model, TorqueModel) else TorqueModel.load(model)
-
-
-def maybe(value: Any, wrap: Callable[[Any], Any]) -> Any:
-    """``wrap(value)``, or None for None."""
-    return None if value is None else wrap(value)
