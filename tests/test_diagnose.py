@@ -227,9 +227,11 @@ def files(tmp_path_factory):
 
 
 def test_cli_json_report_and_history(files, cli):
-    """The CLI prints the JSON contract (best first), writes report + figures, and the history
+    """The CLI prints the JSON contract (best first), writes report + figures and the model
+    with its history row (``-o DIR/model.toml``; ``--model`` keeps its bytes), and the history
     gains one row per model version with the torque RMS falling."""
     d, rp, mp, rec = files
+    given = mp.read_bytes()
     res = cli("diagnose", rp, "--model", mp, "--json", "-o", d / "report")
     assert res.code == 0, res.err
     out = json.loads(res.out)
@@ -240,13 +242,15 @@ def test_cli_json_report_and_history(files, cli):
     assert fr == sorted(fr, reverse=True)
     assert (d / "report" / "report.md").is_file()
     assert (d / "report" / f"evidence_{c0['effect']}.png").stat().st_size > 1000
-    m1 = TorqueModel.load(mp)
+    assert mp.read_bytes() == given
+    m1 = TorqueModel.load(d / "report" / "model.toml")
     assert len(m1.history) == 1 and m1.history[0]["version"] == 1
+    assert m1.history[0]["recordings"] == [str(rp)]
     m2 = add_effect([rec], m1, "position_ripple")
     mp2 = m2.save(d / "model2.toml")
     res = cli("diagnose", rp, "--model", mp2, "-o", d / "report2")
     assert res.code == 0, res.err
-    hist = TorqueModel.load(mp2).history
+    hist = TorqueModel.load(d / "report2" / "model.toml").history
     assert [h["version"] for h in hist] == [1, 2]
     assert hist[1]["torque_rms"][1] < 0.7 * hist[0]["torque_rms"][1]
     assert "| 2 | position_ripple |" in (d / "report2" / "report.md").read_text()

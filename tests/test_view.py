@@ -473,7 +473,8 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
     assert "joint 2 at 3x the noise floor; suggested: payload on joints 2, 3" in rows[1][1]
     assert "no suggested effect acts on this joint" in rows[0][1]
     (tmp_path / "bad.json").write_text("{}")
-    r = cli("view", campaign["rec_path"], "--diagnosis", tmp_path / "bad.json", "--save", out, "-q")
+    bad = ("--diagnosis", tmp_path / "bad.json", "--save", out, "--force", "-q")
+    r = cli("view", campaign["rec_path"], *bad)
     assert r.code == 2 and "bad.json: key 'model' is missing" in r.err
     assert r.err.count("\n") == 1
 
