@@ -72,7 +72,7 @@ def _long(quick: bool) -> list[dict]:
     for minutes in (0.5, 2.0) if quick else (2.0, 8.0):
         rec = recording(60 * minutes, seed=1)
         t0 = time.perf_counter()
-        diagnose(m, [rec])
+        diagnose([rec], m)
         dt = time.perf_counter() - t0
         speeds.append(len(rec) / dt)
     out.append(dict(name=f"diagnose, {len(rec)} samples (synthetic, moving, F/T)", value=speeds[1],
@@ -91,7 +91,7 @@ def _long(quick: bool) -> list[dict]:
         for e in EFFECTS.values():
             type(e).pointwise = False
         t0 = time.perf_counter()
-        ref = diagnose(m, [rec])
+        ref = diagnose([rec], m)
         slow = time.perf_counter() - t0
     finally:
         for n, e in EFFECTS.items():
@@ -99,7 +99,7 @@ def _long(quick: bool) -> list[dict]:
     fit._solve = record
     try:
         t0 = time.perf_counter()
-        new = diagnose(m, [rec])
+        new = diagnose([rec], m)
         fast = time.perf_counter() - t0
     finally:
         fit._solve = solve
@@ -132,7 +132,7 @@ def run(quick: bool = False) -> list[dict]:
     rec = recording(8.0 if quick else 20.0)
     m = _model()
     t0 = time.perf_counter()
-    d = diagnose(m, [rec])
+    d = diagnose([rec], m)
     dt = time.perf_counter() - t0
     top = d.suggested[0].effect if d.suggested else "none"
     n_cand = len(d.candidates) + len(d.skipped)

@@ -23,8 +23,9 @@ import numpy as np
 import pandas as pd
 
 from ditherlab.analysis.identification import identify
-from ditherlab.app.fleet import run_fleet
-from ditherlab.app.loop import add_effect
+from ditherlab.app.fleet import FleetOptions
+from ditherlab.app.fleet import run as run_fleet
+from ditherlab.app.identify import add_effect
 from ditherlab.io import write
 from ditherlab.sim import simulate
 
@@ -39,7 +40,7 @@ def make_fleet(folder: Path, n: int, seed: int = 20261124) -> tuple[Path, Path]:
     rng = np.random.default_rng(seed)
     ref = simulate("excitation", seed=int(rng.integers(1 << 30)), dither=False, **OPTS)
     m = identify([ref], n_boot=0)
-    base = add_effect(m, [ref], "inertia", joints=list(range(1, 7)), refit=False)
+    base = add_effect([ref], m, "inertia", joints=list(range(1, 7)), refit=False)
     base_path = folder / "base.toml"
     identify([ref], base=base, n_boot=0).save(base_path)
     rows = []
@@ -78,11 +79,17 @@ def run(quick: bool = False, n: int | None = None) -> list[dict]:
         manifest, base = make_fleet(d, n)
         t0 = time.perf_counter()
         run_fleet(
-            [], d / "serial", manifest=manifest, base=base, scheduler="serial", thresholds=False
+            FleetOptions(
+                out=d / "serial",
+                manifest=manifest,
+                model=base,
+                scheduler="serial",
+                thresholds=False,
+            )
         )
         t_serial = time.perf_counter() - t0
         t0 = time.perf_counter()
-        run_fleet([], d / "cluster", manifest=manifest, base=base, thresholds=False)
+        run_fleet(FleetOptions(out=d / "cluster", manifest=manifest, model=base, thresholds=False))
         t_cluster = time.perf_counter() - t0
         a = pd.read_parquet(d / "serial" / "fleet.parquet")
         b = pd.read_parquet(d / "cluster" / "fleet.parquet")

@@ -1,13 +1,17 @@
-"""The ``ditherlab`` command line: a thin typer layer over the library.
+"""The ``ditherlab`` command line: a thin typer layer over the commands' workflows
+(:mod:`ditherlab.app`, one module per command).
 
-Each command parses its options and calls one library function. User mistakes raise
-:class:`~ditherlab.core.errors.DitherlabError`; :func:`main` turns them into one line on stderr and
-exit status 2, never a traceback. Long work reports progress through a callback that the library
-calls as ``progress(done, total)``; here it drives a progress bar on stderr.
+Each command builds its options (a frozen dataclass of the app module), calls the module's
+``run`` and prints the result's ``text()`` (or ``to_dict()`` as JSON with ``--json``). User
+mistakes raise :class:`~ditherlab.core.errors.DitherlabError`; the command group (:class:`Commands`)
+turns them, and usage errors, into one line on stderr and exit status 2, never a traceback. Long
+work reports progress through a callback that the library calls as ``progress(done, total)``;
+here it drives a progress bar on stderr.
 
-Shared pieces for every command live in :mod:`ditherlab.cli_options` (and the output guard at the
-top of this file); commands follow, one function each. Add a command as a new function below;
-keep it ~10 lines.
+The rules every command follows live in one place each: the outputs in
+:func:`ditherlab.core.files.check_output` (through :func:`ditherlab.app.workflow.guard`), the
+options shared by the commands in :mod:`ditherlab.cli_options`. Library modules are imported
+inside the commands, so ``ditherlab --help`` loads neither pandas nor pinocchio.
 """
 
 from __future__ import annotations
@@ -23,82 +27,80 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import contextlib
 import sys
 import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 import typer._click.exceptions as UsageErrors  # typer vendors click: its exceptions are here
+from typer.core import TyperGroup
 
 from ditherlab.cli_options import (
     Chunk,
     Force,
     JsonFlag,
-    OutPath,
+    MappingOpt,
+    ModelIn,
     Quiet,
     RobotOpt,
     Seed,
     _format_warning,
     echo,
     held_warnings,
+    out_file,
+    out_folder,
 )
 from ditherlab.core.errors import DitherlabError, DitherlabWarning
-from ditherlab.core.progress import progress_bar
 from ditherlab.core.runtime import reuse_freed_memory
 
-app = typer.Typer(
-    name="ditherlab",
-    help="Sensorless force estimation with dithering: identify, replay, report, diagnose, "
-    "simulate, view, info, convert, fleet, sweep.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
+#: the first lines of ``ditherlab --help``: every command, in the order of the work
+HELP = """Sensorless force estimation with dithering (Stolt et al., ABB IRB140).
+
+Recordings: info, convert, simulate. The estimator: identify, replay, report, diagnose, view.
+A robot's predicted thresholds: robot. Many runs: fleet, sweep, leadthrough.
+
+Outputs: an existing output file or non-empty folder needs --force; a file output is named
+with its suffix (model .toml, estimates .parquet, view .rrd), never as a folder (DIR/); no
+command writes over a file it reads."""
 
 
-def guard(
-    out: Path,
-    *inputs: Path | None,
-    mapping: str | None = None,
-    folder: bool = False,
-    force: bool = False,
-) -> None:
-    """The output guard (:func:`ditherlab.core.files.check_output`), before any work: ``out``
-    not equal to, inside or containing an input (or the mapping file), writable, and an
-    existing non-empty folder only with ``--force``."""
-    from ditherlab.core.files import check_output
+class Commands(TyperGroup):
+    """The command group: whatever goes wrong for the user is one line on stderr (``error:
+    ...``) and exit status 2, the same from :func:`main` and from ``typer.testing.CliRunner``."""
 
-    extra = [Path(mapping)] if mapping is not None and Path(mapping).exists() else []
-    check_output(out, [*inputs, *extra], folder=folder, force=force)
-
-
-def main(argv: list[str] | None = None) -> None:
-    """Entry point: run the app; a DitherlabError becomes one line on stderr and exit 2.
-
-    Usage errors (an unknown option, a missing argument, a value out of range) too: one line
-    naming the command and what was wrong, exit status 2 (typer's own is a framed box of five
-    lines). Warnings of numerical libraries never precede that line (:func:`held_warnings`).
-    """
-    warnings.formatwarning = _format_warning
-    warnings.simplefilter("default", DitherlabWarning)
-    reuse_freed_memory()
-    with held_warnings() as release:
-        code = _run(argv)
-        release()
-    if isinstance(code, int) and code:
-        sys.exit(code)
+    def main(  # type: ignore[override]
+        self,
+        args: list[str] | None = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        **extra: Any,
+    ) -> Any:
+        code = _one_line_errors(
+            lambda: super(Commands, self).main(
+                args=args,
+                prog_name=prog_name,
+                complete_var=complete_var,
+                standalone_mode=False,
+                **extra,
+            )
+        )
+        if standalone_mode and isinstance(code, int) and code:
+            sys.exit(code)
+        return code
 
 
-def _run(argv: list[str] | None) -> object:
-    """The app's return value; every error but a bug ends the process here (sys.exit)."""
+def _one_line_errors(call: Callable[[], Any]) -> Any:
+    """``call()``; every error but a bug ends the process here (sys.exit) after one line."""
     try:
-        return app(args=argv, prog_name="ditherlab", standalone_mode=False)
+        return call()
     except DitherlabError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
-    except UsageErrors.NoArgsIsHelpError as exc:  # bare ``ditherlab``: the help, as typer
+    except UsageErrors.NoArgsIsHelpError as exc:  # bare ``ditherlab``: the help
         typer.echo(exc.ctx.get_help() if exc.ctx is not None else str(exc))
         sys.exit(2)
-    except UsageErrors.UsageError as exc:
+    except UsageErrors.UsageError as exc:  # typer's own is the usage and two more lines
         where = exc.ctx.command_path if exc.ctx is not None else "ditherlab"
         msg = " ".join(exc.format_message().split())
         typer.echo(f"error: {where}: {msg} (see '{where} --help')", err=True)
@@ -106,313 +108,154 @@ def _run(argv: list[str] | None) -> object:
     except UsageErrors.ClickException as exc:
         typer.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
         sys.exit(exc.exit_code)
-    except typer.Abort:
+    except UsageErrors.Abort:
         typer.echo("aborted", err=True)
         sys.exit(1)
 
 
-# ================================================================ commands
+app = typer.Typer(
+    name="ditherlab",
+    cls=Commands,
+    help=HELP,
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # plain help: flags as flags, and no rich to import
+)
 
 
-# ---------------------------------------------------------------- info, convert (helper "io")
-MappingOpt = Annotated[
-    str | None,
-    typer.Option("--mapping", help="TOML mapping file (or built-in name) for a foreign log."),
-]
+def main(argv: list[str] | None = None) -> None:
+    """Entry point: run the app; a DitherlabError becomes one line on stderr and exit 2.
+
+    Usage errors (an unknown option, a missing argument, a value out of range) too: one line
+    naming the command and what was wrong, exit status 2. Warnings of numerical libraries never
+    precede that line (:func:`~ditherlab.cli_options.held_warnings`).
+    """
+    warnings.formatwarning = _format_warning
+    warnings.simplefilter("default", DitherlabWarning)
+    reuse_freed_memory()
+    with held_warnings() as release:
+        code = app(args=argv, prog_name="ditherlab", standalone_mode=False)
+        release()
+    if isinstance(code, int) and code:
+        sys.exit(code)
 
 
-def _read_options(mapping: str | None, robot: str | None) -> dict:
-    return {k: v for k, v in (("mapping", mapping), ("robot", robot)) if v is not None}
+def _version(value: bool) -> None:
+    if value:
+        from ditherlab.core.version import __version__
+
+        echo(f"ditherlab {__version__}")
+        raise typer.Exit()
 
 
+@app.callback()
+def _root(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+    ] = False,
+) -> None:
+    pass
+
+
+# ================================================================ what the commands share
+@contextlib.contextmanager
+def _progress(desc: str, quiet: bool) -> Iterator[Callable[[int, int], None]]:
+    """A ``progress(done, total)`` bar on stderr (:func:`ditherlab.core.progress.progress_bar`)."""
+    from ditherlab.core.progress import progress_bar
+
+    with progress_bar(desc, quiet) as progress:
+        yield progress
+
+
+def _show(result: Any, json_out: bool = False) -> None:
+    """Print a command's result: ``to_dict()`` as JSON, or ``text()``."""
+    if json_out:
+        import json
+
+        from ditherlab.core.files import json_default
+
+        echo(json.dumps(result.to_dict(), indent=1, default=json_default))
+    else:
+        echo(result.text())
+
+
+def _read(mapping: str | None, robot: str | None) -> Any:
+    """:class:`ditherlab.app.workflow.ReadOptions` of ``--mapping`` and ``--robot``."""
+    from ditherlab.app.workflow import ReadOptions
+
+    return ReadOptions(mapping, robot)
+
+
+def _chunk(chunk: int | None) -> dict[str, int]:
+    """``chunk_rows`` when ``--chunk`` is given (else the app's default)."""
+    return {"chunk_rows": chunk} if chunk else {}
+
+
+# ================================================================ recordings
 @app.command()
 def info(
-    file: Annotated[Path, typer.Argument(help="Recording (.parquet, .csv, .mcap, ROS 2 bag).")],
+    file: Annotated[
+        Path, typer.Argument(metavar="RECORDING", help="Recording (.parquet, .csv, .mcap, bag).")
+    ],
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
     json_out: JsonFlag = False,
     chunk: Chunk = None,
 ) -> None:
-    """Duration, sample rate and jitter, joints, optional columns, still/dither/moving time."""
-    import json
+    """Summarise a recording.
 
-    from ditherlab.analysis.overview import describe, format_info
-    from ditherlab.io.stream import open_source
+    Duration, sample rate and jitter, joints, optional columns, still/dither/moving time.
+    """
+    from ditherlab.app import info as cmd
 
-    summary = describe(open_source(file, **_read_options(mapping, robot)), chunk_rows=chunk)
-    echo(json.dumps(summary, indent=1) if json_out else format_info(summary))
+    opts = cmd.InfoOptions(file=file, read=_read(mapping, robot), **_chunk(chunk))
+    _show(cmd.run(opts), json_out)
 
 
 @app.command()
 def convert(
-    src: Annotated[Path, typer.Argument(help="Input recording (any readable format).")],
-    dst: Annotated[Path, typer.Argument(help="Output: .parquet, .csv, .mcap, or a bag folder.")],
+    src: Annotated[
+        Path, typer.Argument(metavar="SRC", help="Input recording (any readable format).")
+    ],
+    dst: Annotated[
+        str,
+        typer.Argument(metavar="DST", help="Output: .parquet, .csv, .mcap, or a bag folder."),
+    ],
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
     chunk: Chunk = None,
     force: Force = False,
 ) -> None:
-    """Convert a recording to another format (atomic; never over the input)."""
-    from ditherlab.io import convert as _convert
+    """Convert a recording to another format.
 
-    opts = _read_options(mapping, robot)
-    echo(f"wrote {_convert(src, dst, rows=chunk, force=force, **opts)}")
+    Written atomically; never over the input. A CSV file brings its sidecar .json.
+    """
+    from ditherlab.app import convert as cmd
 
-
-@app.command()
-def view(
-    recording: Annotated[Path, typer.Argument(help="Recording (.parquet, .csv, .mcap, bag).")],
-    estimates: Annotated[
-        Path | None, typer.Option("--estimates", help="Estimates of this recording (replay).")
-    ] = None,
-    model: Annotated[
-        Path | None, typer.Option("--model", help="Torque model (bands, residuals).")
-    ] = None,
-    diagnosis: Annotated[
-        Path | None, typer.Option("--diagnosis", help="report.json of `diagnose -o`.")
-    ] = None,
-    save: Annotated[Path | None, typer.Option("--save", help="Write a Rerun file (.rrd).")] = None,
-    spawn: Annotated[bool, typer.Option("--spawn", help="Open the Rerun viewer.")] = False,
-    serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
-    mapping: MappingOpt = None,
-    robot: RobotOpt = None,
-    chunk: Chunk = None,
-    quiet: Quiet = False,
-) -> None:
-    """Review a recording, its estimates and model in Rerun (3D robot, torques, forces, events)."""
-    from ditherlab.output.rerun.rerun_log import load_view_request, run_view, wait_until_interrupted
-
-    if spawn and serve:
-        raise DitherlabError("view: choose one of --spawn and --serve")
-    mode = "spawn" if spawn else "serve" if serve else None
-    if save is not None:
-        guard(save, recording, estimates, model, diagnosis, mapping=mapping)
-    req = load_view_request(
-        recording,
-        estimates=estimates,
-        model=model,
-        diagnosis=diagnosis,
-        save=save,
-        mode=mode,
-        read_options=_read_options(mapping, robot),
+    opts = cmd.ConvertOptions(
+        src=src, dst=dst, read=_read(mapping, robot), force=force, **_chunk(chunk)
     )
-    with progress_bar("view", quiet) as progress:
-        res = run_view(req, progress=progress, **({"chunk_rows": chunk} if chunk else {}))
-    if res.path is not None:
-        echo(
-            f"wrote {res.path} ({sum(res.summary.rows.values())} rows); open it with: rerun {res.path}"
-        )
-    elif res.url:
-        echo(f"serving the view at {res.url} (Ctrl-C stops)")
-        wait_until_interrupted()
+    _show(cmd.run(opts))
 
 
-# ---------------------------------------------------------------- robot (helper "robot")
-def _opt(flag: str, text: str) -> typer.models.OptionInfo:
-    return typer.Option(flag, help=text)
-
-
-@app.command()
-def robot(
-    spec: Annotated[
-        str, typer.Argument(help="Built-in robot name (irb140, panda, ur10e) or a URDF path.")
-    ],
-    q: Annotated[
-        str | None,
-        typer.Option(
-            "--q", help="Pose: 'zero', 'paper' (IRB140) or n angles in rad, comma-separated."
-        ),
-    ] = None,
-    tool_frame: Annotated[
-        str | None,
-        typer.Option(
-            "--tool-frame",
-            help="Tool frame of a URDF (default: tool0, flange, ... or the last link).",
-        ),
-    ] = None,
-    sensitivity: Annotated[
-        bool, _opt("--sensitivity", "Predicted F50/F90 per push direction.")
-    ] = False,
-    model: Annotated[
-        Path | None, _opt("--model", "Model from identify (else the simulator's).")
-    ] = None,
-    dither: Annotated[
-        bool | None, _opt("--dither/--no-dither", "One condition (else both).")
-    ] = None,
-    map_out: Annotated[
-        Path | None, _opt("--map", "Over --grid: table .csv/.parquet + PNG.")
-    ] = None,
-    grid: Annotated[
-        str | None, _opt("--grid", "Map poses qJ=START:STOP:COUNT[,qK=...] rad.")
-    ] = None,
-    force_range: Annotated[str, _opt("--force-range", "Push magnitudes MIN:MAX [N].")] = "10:60",
-    noise_level: Annotated[
-        str | None,
-        _opt("--noise-level", "Measured noise level X,Y,Z [N] (one condition) for the predicted."),
-    ] = None,
-    report: Annotated[
-        Path | None,
-        _opt("--report", "report.json of ditherlab report: its measured noise level instead."),
-    ] = None,
-    seed: Seed = 0,
-    quiet: Quiet = False,
-    json_out: JsonFlag = False,
-) -> None:
-    """Joints, limits and masses of a robot; tool point, gravity and lever arms at a pose;
-    with --sensitivity the predicted detection thresholds per push direction (--map: over a
-    grid of poses)."""
-    import json
-
-    from ditherlab.robot import RobotModel, format_description, resolve_spec
-
-    extra = (map_out, grid, model, noise_level, report)
-    if not sensitivity and (any(x is not None for x in extra) or dither is not None):
-        from ditherlab.core.errors import ConfigError
-
-        raise ConfigError(
-            "robot: --map, --grid, --model, --dither, --noise-level and --report need --sensitivity"
-        )
-    resolved = resolve_spec(spec, tool_frame=tool_frame)
-    if sensitivity:
-        from ditherlab.analysis.sensitivity_map import run_sensitivity
-        from ditherlab.core.files import plain
-
-        if map_out is not None:
-            guard(map_out, model)
-            guard(map_out.with_suffix(".png"), model, map_out)
-        with progress_bar("map", quiet or map_out is None) as prog:
-            args = (resolved, q, model, dither, map_out, grid, force_range, seed)
-            res = run_sensitivity(*args, progress=prog, noise_level=noise_level, report=report)
-        echo(json.dumps(plain(res["json"]), indent=1) if json_out else res["text"])
-        return
-    rm = RobotModel.from_spec(resolved)
-    summary = rm.describe(rm.parse_pose(q))
-    echo(json.dumps(summary, indent=1) if json_out else format_description(summary))
-
-
-# ---------------------------------------------------------------- diagnose (helper "diagnose")
-@app.command()
-def diagnose(
-    recordings: Annotated[
-        list[Path], typer.Argument(help="Recordings (with an F/T sensor for the force error).")
-    ],
-    model: Annotated[
-        Path, typer.Option("--model", help="Torque model (TOML); its history gains a row.")
-    ],
-    out: Annotated[
-        Path | None,
-        typer.Option("-o", "--out", help="Report folder (report.md, report.json, PNG figures)."),
-    ] = None,
-    mapping: MappingOpt = None,
-    robot: RobotOpt = None,
-    no_history: Annotated[
-        bool, typer.Option("--no-history", help="Do not append to the model's history.")
-    ] = False,
-    regime: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--regime", help="Score only this regime (still, dither, moving); repeatable."
-        ),
-    ] = None,
-    json_out: JsonFlag = False,
-    chunk: Chunk = None,
-    force: Force = False,
-    quiet: Quiet = False,
-) -> None:
-    """Where the model fails (residual vs noise floor, force error, worst windows) and which effect is missing."""
-    import json
-
-    from ditherlab.app.loop import diagnose_files
-    from ditherlab.core.files import all_or_nothing, json_default
-
-    if out is not None:
-        guard(out, *recordings, model, mapping=mapping, folder=True, force=force)
-    if not no_history and model.is_file():
-        guard(model)  # its history gains a row: the model file is an output too
-    undo = all_or_nothing(out) if out is not None else contextlib.nullcontext()
-    with progress_bar("diagnose", quiet or json_out) as progress, undo:
-        d = diagnose_files(
-            recordings,
-            model,
-            out_dir=out,
-            read_options=_read_options(mapping, robot),
-            history=not no_history,
-            regimes=regime,
-            progress=progress,
-            **({"chunk_rows": chunk} if chunk else {}),
-        )
-    echo(json.dumps(d.to_dict(), indent=1, default=json_default) if json_out else d.summary())
-
-
-# ---------------------------------------------------------------- identify, replay, report (helper "replay")
-@app.command()
-def identify(
-    recordings: Annotated[
-        list[Path], typer.Argument(help="Push recordings with an F/T sensor (f_x..m_z).")
-    ],
-    out: OutPath,
-    model: Annotated[
-        Path | None,
-        typer.Option(
-            "--model", help="Base model: its prior and effects are kept, its bands re-fitted."
-        ),
-    ] = None,
-    add: Annotated[
-        list[str] | None,
-        typer.Option("--add", help="Fit one more effect (diagnose's library), repeatable."),
-    ] = None,
-    assume_no_force: Annotated[
-        bool,
-        typer.Option(
-            "--assume-no-force",
-            help="No F/T sensor: you state that no external force acts; bands from rest periods.",
-        ),
-    ] = False,
-    bootstrap: Annotated[
-        int, typer.Option("--bootstrap", help="Bootstrap replicates for the standard errors.")
-    ] = 30,
-    seed: Seed = 0,
-    mapping: MappingOpt = None,
-    robot: RobotOpt = None,
-    chunk: Chunk = None,
-    quiet: Quiet = False,
-) -> None:
-    """Fit bands, noise (R_e) and sliding friction per joint and regime by maximum likelihood."""
-    from ditherlab.analysis.identification import summary
-    from ditherlab.app.loop import identify_files
-
-    guard(out, *recordings, model, mapping=mapping)
-    with progress_bar("identify", quiet) as progress:
-        m = identify_files(
-            recordings,
-            out,
-            base=model,
-            add=add or [],
-            assume_no_force=assume_no_force,
-            n_boot=bootstrap,
-            seed=seed,
-            read_options=_read_options(mapping, robot),
-            progress=progress,
-            **({"chunk_rows": chunk} if chunk else {}),
-        )
-    echo(summary(m))
-    echo(f"wrote {out}")
-
-
-# ---------------------------------------------------------------- simulate (helper "sim")
 @app.command()
 def simulate(
     scenario: Annotated[
         str,
         typer.Argument(
-            help="push-campaign, lead-through or excitation (for identify and diagnose)."
+            metavar="SCENARIO",
+            help="push-campaign, lead-through or excitation (for identify and diagnose).",
         ),
     ],
-    out: OutPath,
+    out: Annotated[str, out_file("Recording: .parquet, .csv, .mcap, or a bag folder")],
     seed: Seed = 0,
     config: Annotated[
         Path | None,
-        typer.Option("--config", help="TOML overriding the built-in IRB140 parameters."),
+        typer.Option(
+            "--config", metavar="FILE", help="TOML overriding the built-in IRB140 parameters."
+        ),
     ] = None,
     dither: Annotated[
         bool, typer.Option("--dither/--no-dither", help="Dither while standing still.")
@@ -420,7 +263,9 @@ def simulate(
     hidden: Annotated[
         list[str] | None,
         typer.Option(
-            "--hidden", help="Inject an effect the base model lacks: NAME[:SIZE], repeatable."
+            "--hidden",
+            metavar="NAME[:SIZE]",
+            help="Inject an effect the base model lacks, repeatable.",
         ),
     ] = None,
     pushes_per_direction: Annotated[
@@ -437,32 +282,84 @@ def simulate(
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
-    """Simulate the built-in IRB140 (gear springs, stick-slip friction, servo, dither) to a recording."""
-    from ditherlab.io import check_recording_output, write
-    from ditherlab.sim import simulate as run_sim
+    """Simulate the built-in IRB140 to a recording.
 
-    check_recording_output(out, [config], force=force)
-    with progress_bar(f"simulate {scenario}", quiet) as progress:
-        rec = run_sim(
-            scenario,
-            seed=seed,
-            dither=dither,
-            config=config,
-            hidden=hidden or [],
-            progress=progress,
-            pushes_per_direction=pushes_per_direction,
-            log_temperature=None if log_temperature else False,
-        )
-    echo(f"wrote {write(rec, out)} ({rec.duration:.1f} s simulated)")
+    Gear springs, stick-slip friction, servo and dither, through a scenario.
+    """
+    from ditherlab.app import simulate as cmd
+
+    opts = cmd.SimulateOptions(
+        scenario=scenario, out=out, seed=seed, dither=dither, config=config,
+        hidden=tuple(hidden or ()), pushes_per_direction=pushes_per_direction,
+        log_temperature=log_temperature, force=force,
+    )  # fmt: skip
+    with _progress(f"simulate {scenario}", quiet) as progress:
+        _show(cmd.run(opts, progress))
+
+
+# ================================================================ the estimator
+@app.command()
+def identify(
+    recordings: Annotated[
+        list[Path],
+        typer.Argument(metavar="RECORDING", help="Push recordings with an F/T sensor (f_x..m_z)."),
+    ],
+    out: Annotated[str, out_file("Torque model file, .toml")],
+    model: Annotated[
+        Path | None,
+        typer.Option(
+            "--model",
+            metavar="FILE",
+            help="Base model: its prior and effects are kept, its bands re-fitted.",
+        ),
+    ] = None,
+    add: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--add", metavar="EFFECT", help="Fit one more effect (diagnose's library), repeatable."
+        ),
+    ] = None,
+    assume_no_force: Annotated[
+        bool,
+        typer.Option(
+            "--assume-no-force",
+            help="No F/T sensor: you state that no external force acts; bands from rest periods.",
+        ),
+    ] = False,
+    bootstrap: Annotated[
+        int, typer.Option("--bootstrap", help="Bootstrap replicates for the standard errors.")
+    ] = 30,
+    seed: Seed = 0,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    chunk: Chunk = None,
+    force: Force = False,
+    quiet: Quiet = False,
+) -> None:
+    """Identify a torque model from recordings.
+
+    Bands, noise (R_e) and sliding friction per joint and regime by maximum likelihood; then
+    the effects of --add.
+    """
+    from ditherlab.app import identify as cmd
+
+    opts = cmd.IdentifyOptions(
+        recordings=tuple(recordings), out=out, model=model, add=tuple(add or ()),
+        assume_no_force=assume_no_force, n_boot=bootstrap, seed=seed,
+        read=_read(mapping, robot), force=force, **_chunk(chunk),
+    )  # fmt: skip
+    with _progress("identify", quiet) as progress:
+        _show(cmd.run(opts, progress))
 
 
 @app.command()
 def replay(
-    recording: Annotated[Path, typer.Argument(help="Recording to replay the estimator over.")],
-    model: Annotated[
-        Path, typer.Option("--model", help="Torque model (TOML) from `ditherlab identify`.")
+    recording: Annotated[
+        Path,
+        typer.Argument(metavar="RECORDING", help="Recording to replay the estimator over."),
     ],
-    out: OutPath,
+    model: ModelIn,
+    out: Annotated[str, out_file("Estimates file, .parquet")],
     level: Annotated[float, typer.Option("--level", help="Interval confidence level.")] = 0.95,
     interval: Annotated[
         str, typer.Option("--interval", help="Interval method: profile or set_membership.")
@@ -477,51 +374,48 @@ def replay(
         str | None,
         typer.Option(
             "--variants",
-            help="Comma list of nodither_band, nodither_noband, dither_band, dither_noband (default: all the recording allows).",
+            help="Comma list of nodither_band, nodither_noband, dither_band, dither_noband "
+            "(default: all the recording allows).",
         ),
     ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
     chunk: Chunk = None,
+    force: Force = False,
     quiet: Quiet = False,
 ) -> None:
-    """Replay the estimator (no dither / dither x with / without the uniform term) -> estimates Parquet."""
-    from ditherlab.analysis.estimation import describe, replay_file
+    """Replay the estimator over a recording.
 
-    guard(out, recording, model, mapping=mapping)
-    with progress_bar("replay", quiet) as progress:
-        est = replay_file(
-            recording,
-            model,
-            out,
-            read_options=_read_options(mapping, robot),
-            **({"chunk_rows": chunk} if chunk else {}),
-            level=level,
-            interval=interval,
-            components=components,
-            progress=progress,
-            variants=variants.split(",") if variants else None,
-        )
-    echo(describe(est))
-    echo(f"wrote {out}")
+    Eq. (3) per sample with its intervals, without and with dither, with and without the
+    uniform term; written as an estimates Parquet file.
+    """
+    from ditherlab.app import replay as cmd
+
+    opts = cmd.ReplayOptions(
+        recording=recording, model=model, out=out, level=level, interval=interval,
+        components=components, variants=tuple(variants.split(",")) if variants else None,
+        read=_read(mapping, robot), force=force, **_chunk(chunk),
+    )  # fmt: skip
+    with _progress("replay", quiet) as progress:
+        _show(cmd.run(opts, progress))
 
 
 @app.command()
 def report(
     estimates: Annotated[
         list[Path],
-        typer.Argument(help="Estimates files from `ditherlab replay` (with the F/T columns)."),
+        typer.Argument(
+            metavar="ESTIMATES", help="Estimates files from `ditherlab replay` (with F/T columns)."
+        ),
     ],
     out: Annotated[
-        Path,
-        typer.Option(
-            "-o", "--out", help="Report folder (report.md, report.html, report.json, PNG figures)."
-        ),
+        str, out_folder("Report folder (report.md, report.html, report.json, PNG figures).")
     ],
     recording: Annotated[
         list[Path] | None,
         typer.Option(
             "--recording",
+            metavar="FILE",
             help="The recordings behind the estimates (adds Figs. 2, 4, 5), repeatable.",
         ),
     ] = None,
@@ -534,46 +428,217 @@ def report(
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
-    """Detection thresholds per direction beside the paper's §VI-C numbers, curves, coverage, figures."""
-    import json
+    """Report the detection thresholds of estimates.
 
-    from ditherlab.core.files import all_or_nothing, json_default
-    from ditherlab.output.report_page import make_report, summary_text
+    F50 / F90 per push direction beside the paper's §VI-C numbers, detection curves, interval
+    coverage and figures.
+    """
+    from ditherlab.app import report as cmd
 
-    guard(out, *estimates, *(recording or []), folder=True, force=force)
-    with progress_bar("report", quiet or json_out) as progress, all_or_nothing(out):
-        a = make_report(
-            estimates,
-            out,
-            recordings=recording or [],
-            n_boot=bootstrap,
-            seed=seed,
-            progress=progress,
-            **({"chunk_rows": chunk} if chunk else {}),
-        )
-    echo(
-        json.dumps(a, indent=1, default=json_default)
-        if json_out
-        else summary_text(a) + f"\nwrote {out}/report.md"
-    )
+    opts = cmd.ReportOptions(
+        estimates=tuple(estimates), out=out, recordings=tuple(recording or ()),
+        n_boot=bootstrap, seed=seed, force=force, **_chunk(chunk),
+    )  # fmt: skip
+    with _progress("report", quiet or json_out) as progress:
+        _show(cmd.run(opts, progress), json_out)
 
 
-# ---------------------------------------------------------------- fleet (helper "fleet")
+@app.command()
+def diagnose(
+    recordings: Annotated[
+        list[Path],
+        typer.Argument(
+            metavar="RECORDING", help="Recordings (with an F/T sensor for the force error)."
+        ),
+    ],
+    model: Annotated[
+        Path, typer.Option("--model", metavar="FILE", help="Torque model (TOML); read only.")
+    ],
+    out: Annotated[
+        str | None,
+        out_folder(
+            "Report folder: report.md, report.json, PNG figures, and model.toml (the model "
+            "with this diagnosis's history row)."
+        ),
+    ] = None,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    no_history: Annotated[
+        bool,
+        typer.Option(
+            "--no-history", help="Do not write the model with the history row into -o DIR."
+        ),
+    ] = False,
+    regime: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--regime", help="Score only this regime (still, dither, moving); repeatable."
+        ),
+    ] = None,
+    json_out: JsonFlag = False,
+    chunk: Chunk = None,
+    force: Force = False,
+    quiet: Quiet = False,
+) -> None:
+    """Diagnose a model on recordings.
+
+    Where the model fails (residual against the noise floor, force error, worst windows) and
+    which effect is missing. The --model file is read only: with -o DIR the model with this
+    diagnosis's history row is written to DIR/model.toml.
+    """
+    from ditherlab.app import diagnose as cmd
+
+    opts = cmd.DiagnoseOptions(
+        recordings=tuple(recordings), model=model, out=out, history=not no_history,
+        regimes=tuple(regime) if regime else None, read=_read(mapping, robot), force=force,
+        **_chunk(chunk),
+    )  # fmt: skip
+    with _progress("diagnose", quiet or json_out) as progress:
+        _show(cmd.run(opts, progress), json_out)
+
+
+@app.command()
+def view(
+    recording: Annotated[
+        Path, typer.Argument(metavar="RECORDING", help="Recording (.parquet, .csv, .mcap, bag).")
+    ],
+    estimates: Annotated[
+        Path | None,
+        typer.Option("--estimates", metavar="FILE", help="Estimates of this recording (replay)."),
+    ] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option("--model", metavar="FILE", help="Torque model (bands, residuals)."),
+    ] = None,
+    diagnosis: Annotated[
+        Path | None,
+        typer.Option("--diagnosis", metavar="FILE", help="report.json of `diagnose -o`."),
+    ] = None,
+    save: Annotated[
+        str | None, typer.Option("--save", metavar="FILE", help="Write a Rerun file (.rrd).")
+    ] = None,
+    spawn: Annotated[bool, typer.Option("--spawn", help="Open the Rerun viewer.")] = False,
+    serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    chunk: Chunk = None,
+    force: Force = False,
+    quiet: Quiet = False,
+) -> None:
+    """Review a recording in Rerun.
+
+    Its estimates, model and diagnosis beside it: the 3D robot, torques, forces, events.
+    """
+    from ditherlab.app import view as cmd
+
+    opts = cmd.ViewOptions(
+        recording=recording, estimates=estimates, model=model, diagnosis=diagnosis, save=save,
+        mode=cmd.view_mode(spawn, serve), read=_read(mapping, robot), force=force,
+        **_chunk(chunk),
+    )  # fmt: skip
+    with _progress("view", quiet) as progress:
+        res = cmd.run(opts, progress)
+    _show(res)
+    if res.url:
+        cmd.wait_until_interrupted()
+
+
+# ================================================================ a robot
+@app.command()
+def robot(
+    spec: Annotated[
+        str,
+        typer.Argument(
+            metavar="ROBOT", help="Built-in robot name (irb140, panda, ur10e) or a URDF path."
+        ),
+    ],
+    q: Annotated[
+        str | None,
+        typer.Option(
+            "--q", help="Pose: 'zero', 'paper' (IRB140) or n angles in rad, comma-separated."
+        ),
+    ] = None,
+    tool_frame: Annotated[
+        str | None,
+        typer.Option(
+            "--tool-frame",
+            help="Tool frame of a URDF (default: tool0, flange, ... or the last link).",
+        ),
+    ] = None,
+    sensitivity: Annotated[
+        bool, typer.Option("--sensitivity", help="Predicted F50/F90 per push direction.")
+    ] = False,
+    model: Annotated[
+        Path | None,
+        typer.Option("--model", metavar="FILE", help="Model from identify (else the simulator's)."),
+    ] = None,
+    dither: Annotated[
+        bool | None, typer.Option("--dither/--no-dither", help="One condition (else both).")
+    ] = None,
+    map_out: Annotated[
+        str | None,
+        typer.Option("--map", metavar="FILE", help="Over --grid: table .csv/.parquet + PNG."),
+    ] = None,
+    grid: Annotated[
+        str | None, typer.Option("--grid", help="Map poses qJ=START:STOP:COUNT[,qK=...] rad.")
+    ] = None,
+    force_range: Annotated[
+        str, typer.Option("--force-range", help="Push magnitudes MIN:MAX [N].")
+    ] = "10:60",
+    noise_level: Annotated[
+        str | None,
+        typer.Option(
+            "--noise-level",
+            help="Measured noise level X,Y,Z [N] (one condition) for the predicted.",
+        ),
+    ] = None,
+    report: Annotated[
+        Path | None,
+        typer.Option(
+            "--report",
+            metavar="FILE",
+            help="report.json of ditherlab report: its measured noise level instead.",
+        ),
+    ] = None,
+    seed: Seed = 0,
+    force: Force = False,
+    quiet: Quiet = False,
+    json_out: JsonFlag = False,
+) -> None:
+    """Describe a robot at a pose, or predict its thresholds.
+
+    Joints, limits and masses; tool point, gravity and lever arms at a pose; with --sensitivity
+    the predicted detection thresholds per push direction (--map: over a grid of poses).
+    """
+    from ditherlab.app import robot as cmd
+
+    opts = cmd.RobotOptions(
+        spec=spec, q=q, tool_frame=tool_frame, sensitivity=sensitivity, model=model,
+        dither=dither, map_out=map_out, grid=grid, force_range=force_range,
+        noise_level=noise_level, report=report, seed=seed, force=force,
+    )  # fmt: skip
+    with _progress("map", quiet or map_out is None) as progress:
+        _show(cmd.run(opts, progress), json_out)
+
+
+# ================================================================ many runs
 @app.command()
 def fleet(
     recordings: Annotated[
         list[str] | None,
-        typer.Argument(help="Recordings, folders or quoted glob patterns ('logs/**/*.parquet')."),
+        typer.Argument(
+            metavar="RECORDING",
+            help="Recordings, folders or quoted glob patterns ('logs/**/*.parquet').",
+        ),
     ] = None,
     out: Annotated[
-        Path,
-        typer.Option(
-            "-o", "--out", help="Output folder: fleet.parquet, fleet.md, fleet.json, models/."
-        ),
-    ] = Path("fleet-out"),
+        str, out_folder("Output folder: fleet.parquet, fleet.md, fleet.json, models/.")
+    ] = "fleet-out",
     manifest: Annotated[
         Path | None,
-        typer.Option("--manifest", help="CSV with columns file, robot, date, notes."),
+        typer.Option(
+            "--manifest", metavar="FILE", help="CSV with columns file, robot, date, notes."
+        ),
     ] = None,
     scheduler: Annotated[
         str | None,
@@ -588,7 +653,11 @@ def fleet(
     ] = None,
     model: Annotated[
         Path | None,
-        typer.Option("--model", help="Base model every recording starts from (its effects kept)."),
+        typer.Option(
+            "--model",
+            metavar="FILE",
+            help="Base model every recording starts from (its effects kept).",
+        ),
     ] = None,
     assume_no_force: Annotated[
         bool,
@@ -610,60 +679,35 @@ def fleet(
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
-    """Identify and diagnose many recordings as Dask tasks -> one table and a fleet report."""
-    from ditherlab.app.fleet import run_fleet
+    """Identify and diagnose many recordings.
 
-    s = run_fleet(
-        recordings or [],
-        out,
-        manifest=manifest,
-        scheduler=scheduler,
-        workers=workers,
-        base=model,
-        assume_no_force=assume_no_force,
-        n_boot=bootstrap,
-        thresholds=thresholds,
-        seed=seed,
-        read_options=_read_options(mapping, robot),
-        force=force,
-        progress=not quiet,
-    )
-    echo(f"{s['recordings']} recordings of {len(s['robots'])} robots, {len(s['failures'])} failed")
-    for f in s["failures"]:
-        msg = f["error"] if f["error"].startswith(f["file"]) else f"{f['file']}: {f['error']}"
-        echo(f"  failed: {msg}")
-    for e, robots in s["effects"].items():
-        echo(f"  {e}: {', '.join(robots)}")
-    grow = [d for d in s["drift"] if d["growing"]]
-    for d in grow:
-        echo(
-            f"  growing: {d['robot']} joint {d['joint']} {d['regime']} {d['quantity']} "
-            f"{d['slope_per_30d']:+.3g} N·m per 30 days"
-        )
-    for o in s["outliers"]:
-        echo(
-            f"  outlier: {o['robot']} joint {o['joint']} {o['regime']} {o['quantity']} "
-            f"{o['value']:.3g} (fleet median {o['fleet_median']:.3g}, z {o['z']:+.1f})"
-        )
-    echo(f"wrote {s['table']}, {out / 'fleet.md'}")
+    Each recording as a Dask task; one table and a fleet report (effects, drift, outliers).
+    """
+    from ditherlab.app import fleet as cmd
+
+    opts = cmd.FleetOptions(
+        recordings=tuple(recordings or ()), out=out, manifest=manifest, scheduler=scheduler,
+        workers=workers, model=model, assume_no_force=assume_no_force, n_boot=bootstrap,
+        thresholds=thresholds, seed=seed, read=_read(mapping, robot), force=force,
+    )  # fmt: skip
+    _show(cmd.run(opts, progress=not quiet))
 
 
-# ---------------------------------------------------------------- sweep (helper "fleet.sweep")
 @app.command()
 def sweep(
     grid: Annotated[
         list[str] | None,
         typer.Option(
             "--grid",
-            help="KEY=V1,V2,...: a key of the simulator's parameters (irb140.toml) and its "
-            "values, repeatable (per-joint lists: one value, or v1:v2:...:v6).",
+            metavar="KEY=V1,V2,...",
+            help="A key of the simulator's parameters (irb140.toml) and its values, repeatable "
+            "(per-joint lists: one value, or v1:v2:...:v6).",
         ),
     ] = None,
-    out: Annotated[
-        Path, typer.Option("-o", "--out", help="Output folder: sweep.parquet, .md, .json, PNG.")
-    ] = Path("sweep-out"),
+    out: Annotated[str, out_folder("Output folder: sweep.parquet, .md, .json, PNG.")] = "sweep-out",
     config: Annotated[
-        Path | None, typer.Option("--config", help="Simulator TOML every point starts from.")
+        Path | None,
+        typer.Option("--config", metavar="FILE", help="Simulator TOML every point starts from."),
     ] = None,
     pushes: Annotated[
         int, typer.Option("--pushes-per-direction", help="Pushes per axis and sign per campaign.")
@@ -688,53 +732,40 @@ def sweep(
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
-    """Simulated paired campaigns over a grid of simulator parameters (dither design) as Dask tasks."""
-    from ditherlab.app.sweep import run_sweep, summary_text
+    """Sweep the dither design over simulator parameters.
 
-    s = run_sweep(
-        grid or [],
-        out,
-        config=config,
-        pushes_per_direction=pushes,
-        seed=seed,
-        repeats=repeats,
-        curve_boot=bootstrap,
-        vibration_limit=vibration_limit,
-        scheduler=scheduler,
-        workers=workers,
-        force=force,
-        progress=not quiet,
-    )
-    echo(summary_text(s))
-    echo(f"wrote {s['table']}, {out / 'sweep.md'}, {out / 'sweep.json'}, figures")
+    Simulated paired campaigns at every point of a grid, as Dask tasks.
+    """
+    from ditherlab.app import sweep as cmd
+
+    opts = cmd.SweepOptions(
+        grid=tuple(grid or ()), out=out, config=config, pushes_per_direction=pushes, seed=seed,
+        repeats=repeats, curve_boot=bootstrap, vibration_limit=vibration_limit,
+        scheduler=scheduler, workers=workers, force=force,
+    )  # fmt: skip
+    _show(cmd.run(opts, progress=not quiet))
 
 
-# ---------------------------------------------------------------- leadthrough (helper "leadthrough")
 @app.command()
 def leadthrough(
-    out: Annotated[Path, typer.Option("-o", "--out", help="Output folder: .md, .json, .png.")],
+    out: Annotated[str, out_folder("Output folder: .md, .json, .png.")],
     seed: Annotated[int, typer.Option("--seed", min=0, help="First simulator seed.")] = 0,
     repeats: Annotated[int, typer.Option("--repeats", min=1, help="Seeds seed, seed+1, ...")] = 3,
     dither: Annotated[str, typer.Option("--dither", help="'both', 'on' or 'off'.")] = "both",
-    config: Annotated[Path | None, typer.Option("--config", help="Simulator TOML.")] = None,
+    config: Annotated[
+        Path | None, typer.Option("--config", metavar="FILE", help="Simulator TOML.")
+    ] = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
-    """Lead-through with the 10 N dead zone vs the confidence interval (paper §V), same pushes."""
-    from ditherlab.analysis.lead_metrics import compare_laws, means_table
-    from ditherlab.core.errors import ConfigError
-    from ditherlab.core.files import all_or_nothing
-    from ditherlab.output.lead_figures import write_comparison
-    from ditherlab.sim.params import load_params
+    """Compare the lead-through's two laws.
 
-    choices = {"both": (True, False), "on": (True,), "off": (False,)}
-    if dither not in choices:
-        raise ConfigError(f"--dither: got {dither!r}; expected 'both', 'on' or 'off'")
-    guard(out, config, folder=True, force=force)
-    if config is not None:
-        load_params(config)  # a bad config is one line before any work
-    seeds = list(range(seed, seed + repeats))
-    with progress_bar("leadthrough", quiet) as progress, all_or_nothing(out):
-        result = compare_laws(seeds, choices[dither], config=config, progress=progress)
-        files = write_comparison(result, out)
-    echo(means_table(result) + f"\nwrote {', '.join(str(f) for f in files)}")
+    The 10 N dead zone against the confidence interval (paper §V), on the same pushes.
+    """
+    from ditherlab.app import leadthrough as cmd
+
+    opts = cmd.LeadthroughOptions(
+        out=out, seed=seed, repeats=repeats, dither=dither, config=config, force=force
+    )
+    with _progress("leadthrough", quiet) as progress:
+        _show(cmd.run(opts, progress))

@@ -1,5 +1,9 @@
-"""What every ``ditherlab`` command shares (:mod:`ditherlab.cli`): the option aliases, the
-progress bar, stdout, and the warnings held while a command runs."""
+"""What every ``ditherlab`` command shares (:mod:`ditherlab.cli`): the option aliases, stdout,
+and the warnings held while a command runs.
+
+Outputs are taken as text (``-o DIR/`` says a folder: :func:`ditherlab.core.files.check_output`
+refuses it where a file is written); boolean options are flags.
+"""
 
 from __future__ import annotations
 
@@ -13,30 +17,57 @@ import typer
 
 from ditherlab.core.errors import DitherlabWarning
 
-OutPath = Annotated[Path, typer.Option("-o", "--out", help="Output file (written atomically).")]
 Seed = Annotated[
     int, typer.Option("--seed", help="Random seed; the same seed gives the same output.")
+]
+MappingOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--mapping",
+        metavar="FILE|NAME",
+        help="TOML mapping file (or built-in name, e.g. ur10e) for a foreign log.",
+    ),
 ]
 RobotOpt = Annotated[
     str | None,
     typer.Option(
-        "--robot", help="Robot for files without metadata: a built-in name or a URDF path."
+        "--robot",
+        metavar="NAME|URDF",
+        help="Robot for files without metadata: a built-in name (irb140) or a URDF path.",
     ),
+]
+ModelIn = Annotated[
+    Path,
+    typer.Option("--model", metavar="FILE", help="Torque model (TOML) from `ditherlab identify`."),
 ]
 JsonFlag = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON on stdout.")]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")]
 Force = Annotated[
-    bool, typer.Option("--force", help="Write into (or replace) an existing non-empty folder.")
+    bool,
+    typer.Option(
+        "--force", help="Replace an existing output file, or write into a non-empty folder."
+    ),
 ]
 Chunk = Annotated[
     int | None,
     typer.Option(
         "--chunk",
         min=1,
+        metavar="ROWS",
         help="Rows read and processed at a time (default 65536, about 4.4 min at 250 Hz; "
         "memory grows with it, not with the log's length).",
     ),
 ]
+
+
+def out_file(what: str) -> typer.models.OptionInfo:
+    """``-o/--out FILE``: a file output (text: a trailing ``/`` is refused as a folder)."""
+    return typer.Option("-o", "--out", metavar="FILE", help=f"{what} (written atomically).")
+
+
+def out_folder(what: str) -> typer.models.OptionInfo:
+    """``-o/--out DIR``: a folder output."""
+    return typer.Option("-o", "--out", metavar="DIR", help=what)
 
 
 def echo(msg: str = "") -> None:
@@ -53,7 +84,7 @@ def held_warnings() -> Iterator[Callable[[], None]]:
     """Hold the warnings of numerical libraries (numpy's RuntimeWarning on an overflow, ...)
     while a command runs; yields ``release()``, which prints them (after a success). Left
     unreleased (an error), they are dropped: the error line is the only line. DitherlabWarnings
-    (a note to the user, e.g. angles in degrees) are printed at once, as before."""
+    (a note to the user, e.g. angles in degrees) are printed at once."""
     held: list[tuple] = []
     shown = warnings.showwarning
 

@@ -171,16 +171,20 @@ def test_convert_failing_write_leaves_no_temp_file(cli, sample_copy, tmp_path):
     blocker.mkdir()
     (blocker / "keep").write_text("x")
     res = cli("convert", sample_copy, blocker)
-    assert_user_error(res, r"out\.parquet: is a folder; expected a file name$")
+    assert_user_error(
+        res, r"out\.parquet: is a folder; expected a file name such as .*/recording\.parquet$"
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.parquet", "out.parquet"]
     assert (blocker / "keep").read_text() == "x"
 
 
 def test_convert_replaces_an_existing_output(cli, sample_copy, tmp_path):
-    """An existing output (not an input) is replaced whole."""
+    """An existing output (not an input) is refused without --force, replaced whole with it."""
     dst = tmp_path / "out.mcap"
     dst.write_bytes(b"old")
-    assert cli("convert", sample_copy, dst).code == 0
+    assert_user_error(cli("convert", sample_copy, dst), r"out\.mcap: exists; use --force")
+    assert dst.read_bytes() == b"old"
+    assert cli("convert", sample_copy, dst, "--force").code == 0
     assert dio.read(dst).equals(dio.read(sample_copy))
 
 
@@ -207,7 +211,7 @@ def test_info_bad_urdf_and_nan_are_one_line(cli, tmp_path):
     "args, message",
     [
         (["replay", "--bogus"], "error: ditherlab replay: No such option: --bogus"),
-        (["replay"], "error: ditherlab replay: Missing argument 'recording'."),
+        (["replay"], "error: ditherlab replay: Missing argument 'RECORDING'."),
         (["frobnicate"], "error: ditherlab: No such command 'frobnicate'."),
         (
             ["diagnose", "x.parquet", "--chunk", "0"],

@@ -194,7 +194,8 @@ def test_never_moving_and_no_pushes(cli, base, tmp_path):
         data[c] = 0.0
     p = _write(rec, data, tmp_path / "nopush.parquet")
     for src in (path, p):
-        assert_ok(run(cli, "identify", src, "-o", tmp_path / "m.toml", "-q", "--bootstrap", "2"))
+        assert_ok(run(cli, "identify", src, "-o", tmp_path / f"m_{src.stem}.toml", "-q",
+                      "--bootstrap", "2"))  # fmt: skip
         assert_ok(run(cli, "diagnose", src, "--model", model, "-q", "--no-history"))
     est = tmp_path / "est.parquet"
     assert_ok(run(cli, "replay", p, "--model", model, "-o", est, "-q"))

@@ -20,7 +20,7 @@ import pytest
 
 from ditherlab.analysis.diagnosis import diagnose, residual_summary
 from ditherlab.analysis.identification import identify
-from ditherlab.app.loop import add_effect
+from ditherlab.app.identify import add_effect
 from ditherlab.physics.residual import scored
 from ditherlab.sim import simulate
 
@@ -46,7 +46,7 @@ def _refit(base, rec):
 def _add(m, rec, name, joints=None):
     """``add_effect`` and the bands re-identified with it in place (no bootstrap replicates:
     the standard errors are not under test)."""
-    m2 = add_effect(m, [rec], name, joints=joints, refit=False)
+    m2 = add_effect([rec], m, name, joints=joints, refit=False)
     out = identify([rec], base=m2, n_boot=0)
     out.effects = list(m2.effects)
     return out
@@ -61,7 +61,7 @@ def clean():
     """The clean recording, its model (identify + inertia) and the model's diagnosis."""
     rec = _sim()
     m = _baseline(rec)
-    return rec, m, diagnose(m, [rec])
+    return rec, m, diagnose([rec], m)
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +73,7 @@ def loops(clean):
     for name in HIDDEN:
         rec = _sim([name])
         m = _refit(base, rec)
-        d = diagnose(m, [rec])
+        d = diagnose([rec], m)
         after = m2 = None
         if d.suggested:
             c = d.suggested[0]
@@ -217,7 +217,7 @@ def test_no_candidate_on_clean_recordings(clean, seed):
     rec, base, d = clean
     if seed != SEED:
         rec = _sim(seed=seed)
-        d = diagnose(_refit(base, rec), [rec])
+        d = diagnose([rec], _refit(base, rec))
     assert not d.suggested, d.summary()
     r, floor = np.array(d.residual["torque_rms"]), np.array(d.residual["noise_floor"])
     assert np.all(r <= 1.15 * floor), (r, floor)
@@ -229,10 +229,10 @@ def test_two_effects_larger_first_then_smaller(clean):
     _, base, _ = clean
     rec = _sim(["payload", "position_ripple:0.5"])
     m = _refit(base, rec)
-    d = diagnose(m, [rec])
+    d = diagnose([rec], m)
     assert d.suggested[0].effect == "payload", d.summary()
     m2 = _add(m, rec, "payload")
-    d2 = diagnose(m2, [rec])
+    d2 = diagnose([rec], m2)
     assert d2.suggested and d2.suggested[0].effect == "position_ripple", d2.summary()
 
 

@@ -13,7 +13,7 @@ from test_effects import make_recording
 
 from ditherlab.analysis.diagnosis import diagnose
 from ditherlab.analysis.identification import identify
-from ditherlab.app.loop import add_effect
+from ditherlab.app.identify import add_effect
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.effects import EFFECTS, Design, Effect, effects_torque, fmt, model_text
 
@@ -52,10 +52,10 @@ def test_a_new_effect_is_found_fitted_applied_and_printed(gravity_gain, tmp_path
     tau[:, 1:3] += PLANTED * g[:, 1:3]
     rec = rec.with_columns(**{f"tau_{j + 1}": tau[:, j] for j in range(rec.n)})
     m = identify([rec], n_boot=3)
-    d = diagnose(m, [rec])
+    d = diagnose([rec], m)
     assert d.suggested and d.suggested[0].effect == "test_gravity_gain", d.summary()
     assert d.suggested[0].joints == [2, 3]
-    m2 = add_effect(m, [rec], "test_gravity_gain")
+    m2 = add_effect([rec], m, "test_gravity_gain")
     spec = m2.effects[-1]
     np.testing.assert_allclose(spec.params["gain"], [PLANTED, PLANTED], rtol=0.1)
     shift = effects_torque(m2, rec)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from ditherlab.app.loop import add_effect
+from ditherlab.app.identify import add_effect
 from ditherlab.core.errors import ModelError
 from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.data.torque_model import Band, EffectSpec, TorqueModel
@@ -272,7 +272,7 @@ def test_add_effect_round_trip_and_text(recs, tmp_path):
     prints as one equation per joint naming the effect."""
     rec = recs["load_friction"]
     m = base_model()
-    m2 = add_effect(m, [rec], "load_friction", joints=[2, 3], refit=False)
+    m2 = add_effect([rec], m, "load_friction", joints=[2, 3], refit=False)
     assert m2.version == m.version + 1 and m2.effects[-1].joints == [2, 3]
     path = m2.save(tmp_path / "m.toml")
     m3 = TorqueModel.load(path)
@@ -292,7 +292,7 @@ def test_missing_columns_are_named(recs):
     rec = make_recording((), seed=1, duration=2.0, wrench=False)
     m = base_model()
     with pytest.raises(ModelError, match="effect 'ft_bias' needs the F/T sensor column f_x"):
-        add_effect(m, [rec], "ft_bias")
+        add_effect([rec], m, "ft_bias")
     m.effects = [EffectSpec("temperature_friction", [1], {"coef": [-0.1], "x_ref": [30.0]})]
     with pytest.raises(ModelError, match="driven by column temp_1, which the recording lacks"):
         effects_torque(m, rec)
@@ -371,7 +371,7 @@ def test_effects_torque_without_sensor_is_the_recording_without_ft(recs):
     effects of the same recording with its F/T columns removed, and differs from the sensor's
     version where the load includes ``J^T F``."""
     rec = recs["load_friction"]
-    m = add_effect(base_model(), [rec], "load_friction", joints=[2, 3], refit=False)
+    m = add_effect([rec], base_model(), "load_friction", joints=[2, 3], refit=False)
     bare = Recording.from_arrays(
         RecordingArrays(rec.t, rec.q, rec.tau, dq=rec.dq),
         {"robot": "irb140", "source": "synthetic"},

@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from ditherlab.analysis.diagnosis import diagnose, residual_summary
 from ditherlab.analysis.identification import identify
-from ditherlab.app.loop import add_effect
+from ditherlab.app.identify import add_effect
 from ditherlab.physics.effects import EFFECTS, signals
 from ditherlab.physics.residual import scored
 from ditherlab.sim import simulate
@@ -34,7 +34,7 @@ def _sim(hidden=(), seed=SEED):
 
 
 def _add(m, rec, name, joints=None):
-    m2 = add_effect(m, [rec], name, joints=joints, refit=False)
+    m2 = add_effect([rec], m, name, joints=joints, refit=False)
     out = identify([rec], base=m2, n_boot=0)
     out.effects = list(m2.effects)
     return out
@@ -53,7 +53,7 @@ def loops(base):
     for name in NEW:
         rec = _sim([name])
         m = identify([rec], base=m0, n_boot=0)
-        d = diagnose(m, [rec])
+        d = diagnose([rec], m)
         top = d.suggested[0] if d.suggested else None
         m2 = _add(m, rec, top.effect, top.joints) if top else None
         after = np.array(residual_summary(m2, [scored(m2, rec)])["torque_rms"]) if m2 else None
@@ -134,7 +134,7 @@ def test_not_suggested_on_clean_recordings(base, seed):
     """Clean recordings (two seeds): neither ft_frame nor dynamics is suggested."""
     rec0, m0 = base
     rec = rec0 if seed == SEED else _sim(seed=seed)
-    d = diagnose(identify([rec], base=m0, n_boot=0), [rec])
+    d = diagnose([rec], identify([rec], base=m0, n_boot=0))
     assert not {c.effect for c in d.suggested} & set(NEW), d.summary()
 
 

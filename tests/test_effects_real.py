@@ -34,7 +34,7 @@ def loops(base):
     for name in HIDDEN:
         rec = _sim([name])
         m = _refit(base, rec)
-        d = diagnose(m, [rec])
+        d = diagnose([rec], m)
         m2 = after = None
         if d.suggested:
             c = d.suggested[0]
@@ -61,7 +61,7 @@ def test_ranked_first_and_residual_to_the_floor(loops, name):
     assert j + 1 in HIDDEN[name]
     assert after[j] <= 0.7 * r0[j], (r0, after)
     assert np.all(after <= 1.25 * floor), (after, floor)
-    assert not diagnose(m2, [rec]).suggested
+    assert not diagnose([rec], m2).suggested
 
 
 def test_drive_gain_is_the_plants(loops):
@@ -90,7 +90,7 @@ def test_joint_offset_is_the_plants(loops):
 def test_not_suggested_on_clean_recordings(base, seed):
     """Clean recordings (no hidden effect) get neither effect suggested."""
     rec = _sim(seed=seed)
-    d = diagnose(_refit(base, rec), [rec])
+    d = diagnose([rec], _refit(base, rec))
     assert not NEW & {c.effect for c in d.suggested}, d.summary()
 
 

@@ -247,7 +247,10 @@ def test_csv_without_metadata_needs_a_robot(tmp_path, sample):
     """A CSV without sidecar and without robot= says what to pass; robot= makes it readable."""
     p = tmp_path / "a.csv"
     sample.data.loc[:19, ["t", *SMALL]].to_csv(p, index=False)
-    with pytest.raises(FormatError, match=r"no robot given .* pass robot='irb140' or the path"):
+    with pytest.raises(
+        FormatError,
+        match=r"no robot given .* expected --robot with a built-in name \(irb140\) or the path",
+    ):
         dio.read(p)
     rec = dio.read(p, robot=str(UR_URDF))
     assert rec.meta["robot"]["tool_frame"] == "tool0"

@@ -193,7 +193,8 @@ def test_a_folder_where_a_file_goes_and_the_reverse(cli, guarded, tmp_path):
     d = tmp_path / "d"
     d.mkdir()
     assert_refused(
-        cli("identify", guarded["rec"], "-o", d, "-q"), f"{d}: is a folder; expected a file name"
+        cli("identify", guarded["rec"], "-o", d, "-q"),
+        f"{d}: is a folder; expected a file name such as {d / 'model.toml'}",
     )
     f = tmp_path / "f.json"
     f.write_text("{}")
@@ -254,7 +255,7 @@ def test_numerical_warnings_never_precede_an_error(cli, monkeypatch):
     the warning is printed (once, as one line)."""
     import numpy as np
 
-    import ditherlab.analysis.overview as info
+    import ditherlab.app.info as info
     from ditherlab.core.errors import RecordingError
 
     real = info.describe

@@ -11,8 +11,9 @@ from synthetic import push_recording
 from ditherlab.analysis.detection import NoPushesError
 from ditherlab.analysis.estimation import replay
 from ditherlab.analysis.identification import identify
+from ditherlab.app.report import make_report
 from ditherlab.data.estimates import Estimates, EstimatesSource
-from ditherlab.output.report_page import make_report, paper_table, summary_text
+from ditherlab.output.report_page import paper_table, summary_text
 
 MAGS = (5.0, 15.0, 30.0, 50.0)
 
@@ -77,7 +78,7 @@ def test_report_reads_the_extraction_replay_wrote(tmp_path, pair, monkeypatch):
         a = make_report(paths, tmp_path / "rep", recordings=given, n_boot=5, chunk_rows=1000)
         assert "fig4_extraction.png" in a["files"] and "fig5_dither_control.png" in a["files"]
     est = EstimatesSource(paths[1])
-    log = report._Log(recs[1], 1000)
+    log = report.RecordingLog(recs[1], 1000)
     n = len(recs[1])
     upper, lower, signal, period = report._extraction(log, log.estimates_of([est]), 0, n)
     full = Estimates.load(paths[1])
@@ -87,7 +88,7 @@ def test_report_reads_the_extraction_replay_wrote(tmp_path, pair, monkeypatch):
     # both recordings share time stamps and metadata: their own copied columns tell them apart
     both = [EstimatesSource(p) for p in paths]
     for given in (recs, rec_paths):
-        logs = [report._Log(r, 1000) for r in given]
+        logs = [report.RecordingLog(r, 1000) for r in given]
         assert [g.estimates_of(both).name for g in logs] == [str(p) for p in paths]
         assert logs[0].estimates_of([est]) is None
 

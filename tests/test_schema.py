@@ -77,8 +77,9 @@ def write_model(path: Path, d: dict[str, Any]) -> Path:
 
 
 def replay(files, model: Path, rec: Path | None = None, *extra: str):
-    out = files["dir"] / "e.parquet"
-    return run_cli("replay", rec or files["csv"], "--model", model, "-o", out, "-q", *extra)
+    out = files["dir"] / "e.parquet"  # every replay's scratch output: replaced
+    args = ("-o", out, "--force", "-q", *extra)
+    return run_cli("replay", rec or files["csv"], "--model", model, *args)
 
 
 def test_the_valid_files_replay(files):

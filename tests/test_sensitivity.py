@@ -381,7 +381,8 @@ def test_cli_map_writes_table_and_png(tmp_path):
         (["--grid", "q2=0:1:2"], "--grid needs --map FILE (the table to write)"),
         (
             ["--grid", "q2=0:1:2", "--map", "{tmp}/m.txt"],
-            "--map {tmp}/m.txt: expected a .csv or .parquet table path",
+            "{tmp}/m.txt: expected a file name ending in .csv or .parquet (a sensitivity map "
+            "table), not .txt",
         ),
         (
             ["--q", "0,0,0,0,3,0"],

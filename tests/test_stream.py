@@ -312,7 +312,7 @@ def test_cli_report_in_pieces_equals_the_whole(campaign, still_campaign, replaye
     whole (and, for one cut, the in-memory path's)."""
     import json
 
-    from ditherlab.output.report_page import make_report
+    from ditherlab.app.report import make_report
 
     d, path, _ = campaign
     rec = read(path)

@@ -10,6 +10,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from ditherlab.app.view import save_view_files
 from ditherlab.core.errors import DitherlabError, FormatError, RecordingError
 from ditherlab.core.files import plain
 from ditherlab.core.names import FORCE_AXES, WRENCH_COLUMNS
@@ -488,7 +489,8 @@ def test_diagnosis_report_at_worst_windows(campaign, tmp_path, cli):
     assert "joint 2 at 3x the noise floor; suggested: payload on joints 2, 3" in rows[1][1]
     assert "no suggested effect acts on this joint" in rows[0][1]
     (tmp_path / "bad.json").write_text("{}")
-    r = cli("view", campaign["rec_path"], "--diagnosis", tmp_path / "bad.json", "--save", out, "-q")
+    bad = ("--diagnosis", tmp_path / "bad.json", "--save", out, "--force", "-q")
+    r = cli("view", campaign["rec_path"], *bad)
     assert r.code == 2 and "bad.json: key 'model' is missing" in r.err
     assert r.err.count("\n") == 1
 
@@ -639,7 +641,7 @@ def test_blueprint_points_at_logged_entities(simulated_view):
 
 def test_save_view_files_for_the_demo(simulated):
     """The demo's one call writes the .rrd from file paths and refuses to write over an input."""
-    out = rl.save_view_files(
+    out = save_view_files(
         simulated["rec_path"],
         simulated["dir"] / "demo.rrd",
         estimates=simulated["est_path"],
@@ -649,7 +651,7 @@ def test_save_view_files_for_the_demo(simulated):
     odd = simulated["dir"] / "model-named.rrd"  # a model file may have any name
     odd.write_bytes(simulated["model_path"].read_bytes())
     with pytest.raises(DitherlabError, match="refusing to write over the input"):
-        rl.save_view_files(simulated["rec_path"], odd, model=odd)
+        save_view_files(simulated["rec_path"], odd, model=odd)
     assert odd.read_bytes() == simulated["model_path"].read_bytes()
 
 
@@ -796,7 +798,7 @@ def test_real_diagnosis_object(simulated, tmp_path):
         model.regimes["moving"] = model.regimes["still"]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        d = diagnose(model, [rec], effects=["viscous", "payload"])
+        d = diagnose([rec], model, effects=["viscous", "payload"])
     out = tmp_path / "diag.rrd"
     rl.save_view(rec, out, model=model, diagnosis=d)
     c = rl.rrd_contents(out)

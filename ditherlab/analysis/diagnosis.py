@@ -31,7 +31,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -75,7 +74,6 @@ from ditherlab.physics.residual import (
 __all__ = [
     "Candidate",
     "Diagnosis",
-    "append_history",
     "candidates",
     "diagnose",
     "force_error",
@@ -256,8 +254,8 @@ HALO_S = 12.0
 
 
 def diagnose(
-    model: TorqueModel,
     recs: Sequence[Recording | Source],
+    model: TorqueModel,
     *,
     folds: int = 5,
     guard: float = 0.25,
@@ -281,10 +279,10 @@ def diagnose(
 
     Parameters
     ----------
-    model : TorqueModel
     recs : recordings of the model's robot, in memory or :class:`~ditherlab.io.stream.Source`
         s (F/T columns make the force error and the ``attenuation_lag`` / ``ft_bias``
         candidates possible)
+    model : TorqueModel
     folds, guard, min_fraction : see :func:`candidates`
     effects : candidate names to try (default: all not in the model)
     regimes : score only these regimes (e.g. ``("still", "dither")`` for the force estimate at
@@ -586,24 +584,3 @@ def verdict(
         "checks": checks,
         "text": text,
     }
-
-
-# ============================================================== history and report
-def append_history(model_path: str | Path, entry: dict[str, Any]) -> TorqueModel:
-    """Append a diagnosis row to the model file's history, atomically.
-
-    Re-running diagnosis of the same model version on the same recordings replaces that row.
-    """
-    m = TorqueModel.load(model_path)
-    hist = list(m.history)
-    if (
-        hist
-        and hist[-1].get("version") == entry["version"]
-        and hist[-1].get("recordings") == entry["recordings"]
-    ):
-        hist[-1] = entry
-    else:
-        hist.append(entry)
-    m.history = [{k: v for k, v in h.items() if v is not None} for h in hist]
-    m.save(model_path)
-    return m

@@ -27,19 +27,17 @@ the sensor columns and ``dither`` copied, per variant ``V/f_x .. V/m_z``, ``V/<c
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from ditherlab.core.errors import ConfigError
-from ditherlab.core.files import check_not_input, plain
+from ditherlab.core.files import plain
 from ditherlab.core.names import DITHER, MOVING
 from ditherlab.core.timeseries import causal_mean, time_spans
-from ditherlab.data.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates, EstimatesWriter
+from ditherlab.data.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates
 from ditherlab.data.recording import Recording, regimes
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.estimator import intervals, problem, solve
@@ -47,10 +45,9 @@ from ditherlab.estimator.intervals.gaussian import (
     gaussian_problem_estimate,
     gaussian_profile_intervals,
 )
-from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.physics.dither import Extraction, dithered_band, extract_dither
 from ditherlab.physics.dither import band_as_noise as band_variance_as_noise
-from ditherlab.physics.effects import effects_torque, force_gain, release
+from ditherlab.physics.effects import effects_torque, force_gain
 from ditherlab.physics.effects.extraction import extraction_gain
 
 INTERVAL_METHODS = ("profile", "set_membership")
@@ -179,7 +176,7 @@ def replay_columns(
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """What :func:`replay` computes, as the estimates file's columns (each (N,), in file order)
     and its metadata before :func:`~ditherlab.core.files.plain` (``recording`` is ``rec.meta``
-    itself): :func:`replay_stream` writes the columns straight to Parquet without a DataFrame
+    itself): :func:`ditherlab.app.replay.replay_stream` writes the columns straight to Parquet without a DataFrame
     and converts the metadata of its first piece only. Parameters and errors as
     :func:`replay`."""
     model.check_robot(rec)
@@ -422,170 +419,14 @@ def extraction_lead(
 __all__ = [
     "COMPONENTS",
     "Estimates",
-    "Replayed",
-    "Tally",
     "VARIANTS",
     "available_variants",
     "band_as_noise",
-    "describe",
     "extraction_jacobian",
     "extraction_lead",
     "model_effects",
     "parse_components",
     "replay",
-    "replay_file",
-    "replay_stream",
+    "replay_columns",
     "variant_inputs",
 ]
-
-
-def replay_file(
-    path: str | Path,
-    model_path: str | Path,
-    out: str | Path,
-    *,
-    read_options: dict | None = None,
-    chunk_rows: int = CHUNK_ROWS,
-    progress: Callable[[int, int], None] | None = None,
-    **options: Any,
-) -> Replayed:
-    """Read a recording and a model, :func:`replay` it piece by piece (:func:`replay_stream`),
-    and save the estimates (atomic, never over an input). ``options`` are those of
-    :func:`replay`."""
-    check_not_input(out, [path, model_path])
-    model = TorqueModel.load(model_path)
-    src = open_source(path, **(read_options or {}))
-    return replay_stream(src, model, out, chunk_rows=chunk_rows, progress=progress, **options)
-
-
-def replay_stream(
-    src: Source,
-    model: TorqueModel,
-    out: str | Path,
-    *,
-    chunk_rows: int = CHUNK_ROWS,
-    progress: Callable[[int, int], None] | None = None,
-    **options: Any,
-) -> Replayed:
-    """:func:`replay` over a recording read in pieces (:class:`ditherlab.io.stream.Source`),
-    writing the estimates file as it goes: memory holds one piece, whatever the length.
-
-    Every piece is replayed with its 2 s of context on either side and keeps the rows it owns;
-    the file equals ``replay(src.read(), model, **options).save(out)`` (tested on logs cut inside
-    a dither period, a push and a stick). ``moving_spans`` are joined across pieces.
-
-    Parameters
-    ----------
-    src : the recording ; model : as for :func:`replay` ; out : the estimates file to write
-    chunk_rows : rows per piece (:data:`ditherlab.io.stream.CHUNK_ROWS`)
-    progress : ``progress(done, total)`` over the pieces
-    **options : those of :func:`replay` (not ``progress``)
-
-    Returns
-    -------
-    Replayed: the file, its metadata and the force error / coverage tally
-    """
-    spans: list[list[float]] = []
-    meta: dict[str, Any] | None = None
-    last = None
-    tally = Tally()
-    with EstimatesWriter(out) as writer:
-        for piece in src.pieces(chunk_rows):
-            cols, pmeta = replay_columns(piece.rec, model, **options)
-            rows = {k: v[piece.keep] for k, v in cols.items()}
-            writer.write(rows)
-            tally.add_columns(rows, pmeta["variants"])
-            t = rows["t"]
-            for a, b in pmeta["moving_spans"]:
-                a, b = max(a, t[0]), min(b, t[-1])
-                if a > b:
-                    continue
-                if spans and a == t[0] and spans[-1][1] == last:
-                    spans[-1][1] = b  # a motion across the cut continues
-                else:
-                    spans.append([a, b])
-            last = float(t[-1])
-            if meta is None:  # the recording's own is the source's, converted once below
-                meta = plain({**pmeta, "recording": None})
-            if piece.count > 1:  # a piece of a long log: its robot quantities go now
-                release(piece.rec)
-            if progress:
-                progress(piece.index + 1, piece.count)
-        assert meta is not None
-        meta = {**meta, "recording": plain(src.meta), "recording_name": src.name}
-        meta["moving_spans"] = spans
-        writer.meta = meta
-    return Replayed(Path(out), meta, tally)
-
-
-@dataclass
-class Replayed:
-    """What :func:`replay_stream` wrote: the estimates file, its metadata, and the running
-    force error / coverage over all its rows (:class:`Tally`)."""
-
-    path: Path
-    meta: dict[str, Any]
-    tally: Tally
-
-    @property
-    def variants(self) -> list[str]:
-        return list(self.meta["variants"])
-
-
-class Tally:
-    """Running force error and interval coverage against the F/T sensor, per variant, over
-    pieces of estimates (what :func:`describe` prints)."""
-
-    def __init__(self) -> None:
-        self.n = 0
-        self.variants: list[str] = []
-        self.sse: dict[str, np.ndarray] = {}
-        self.covered: dict[str, int] = {}
-
-    def add(self, est: Estimates) -> None:
-        """Count the rows of ``est`` (a whole file or one piece of it)."""
-        self.add_columns(est.data, est.variants)
-
-    def add_columns(self, cols: Mapping[str, Any], variants: Sequence[str]) -> None:
-        """Count rows given as the estimates file's columns (a DataFrame or a dict of (N,)
-        arrays) of the estimator ``variants``."""
-        self.variants = list(variants)
-        self.n += len(cols["t"])
-        if "f_x" not in cols:
-            return
-
-        def stack(names: list[str]) -> np.ndarray:
-            return np.stack([np.asarray(cols[c], dtype=float) for c in names], axis=1)
-
-        F = stack(list(COMPONENTS[:3]))
-        for v in variants:
-            Fh = stack([f"{v}/{c}" for c in COMPONENTS[:3]])
-            lo = stack([f"{v}/{c}_lo" for c in COMPONENTS[:3]])
-            hi = stack([f"{v}/{c}_hi" for c in COMPONENTS[:3]])
-            self.sse[v] = self.sse.get(v, 0.0) + ((Fh - F) ** 2).sum(axis=0)
-            self.covered[v] = self.covered.get(v, 0) + int(((lo <= F) & (F <= hi)).sum())
-
-
-def describe(est: Estimates | Replayed) -> str:
-    """A few lines: samples, variants, interval method, and per variant the force RMS error and
-    interval coverage against the F/T sensor when it is there (over the whole file for what
-    :func:`replay_stream` wrote)."""
-    if isinstance(est, Replayed):
-        tally = est.tally
-    else:
-        tally = Tally()
-        tally.add(est)
-    lines = [
-        f"{tally.n} samples, variants: {', '.join(est.variants)}; intervals "
-        f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
-    ]
-    for v in est.variants:
-        if v not in tally.sse:
-            continue
-        rms = np.sqrt(tally.sse[v] / max(tally.n, 1))
-        cov = tally.covered[v] / max(3 * tally.n, 1)
-        lines.append(
-            f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
-            f" interval coverage {cov:.1%}"
-        )
-    return "\n".join(lines)

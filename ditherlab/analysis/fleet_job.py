@@ -106,7 +106,7 @@ def analyse_recording(path: str, info: dict[str, Any], options: dict[str, Any]) 
         n_boot=int(options.get("n_boot", 0)),
         seed=int(options.get("seed", 0)),
     )
-    d = diagnose(model, [rec])
+    d = diagnose([rec], model)
     suggested = [
         {"effect": c.effect, "joints": list(c.joints), "explained_fraction": c.explained_fraction}
         for c in d.suggested

@@ -1,6 +1,7 @@
 """Lead-through quality from a recording of the simulator's lead-through (paper §V), and the
-comparison of its two admittance laws (``lead_through.law``: the 10 N dead zone, or the
-confidence interval) on the same operator pushes.
+means that compare its two admittance laws (``lead_through.law``: the 10 N dead zone, or the
+confidence interval) over runs on the same operator pushes (:func:`law_means`; the runs are
+simulated by :func:`ditherlab.app.leadthrough.compare_laws`).
 
 Everything is measured on the tool point, from the logged joint angles through the robot's
 forward kinematics, against the operator's true push (rebuilt exactly from the plan in
@@ -36,16 +37,14 @@ coverage      with the interval law's ``flo_x..z, fhi_x..z``: the share of sampl
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from ditherlab.core.errors import ConfigError
 from ditherlab.data.recording import Recording
-from ditherlab.sim import simulate
 from ditherlab.sim.guidance import EDGE_S, interval_command, operator_push
-from ditherlab.sim.params import LEAD_THROUGH_LAWS
 
 #: Start of the measured span: the first second settles and ramps the dither on [s].
 SETTLE_S = 1.5
@@ -232,58 +231,12 @@ COMPARED = (
 )
 
 
-def compare_laws(
-    seeds: Sequence[int],
-    dithers: Iterable[bool] = (True, False),
-    *,
-    config: Any = None,
-    laws: Sequence[str] = LEAD_THROUGH_LAWS,
-    progress: Callable[[int, int], None] | None = None,
-) -> dict[str, Any]:
-    """Simulate the lead-through with each law on the same operator pushes (same seeds) and
-    measure each run with :func:`lead_metrics`.
-
-    Parameters
-    ----------
-    seeds : simulator seeds (each seed fixes the push magnitudes and the noise)
-    dithers : with and/or without dither
-    config : simulator config (TOML path or dict) every run starts from; its
-        ``lead_through.law`` is overridden per run
-    laws : the laws compared
-    progress : ``progress(done, total)`` over the runs
-
-    Returns
-    -------
-    dict
-        ``runs``: every run's :func:`lead_metrics` (without the per-push lists' arrays);
-        ``means``: per ``(law, dither)`` the mean of each :data:`COMPARED` metric over the
-        seeds (and of the coverage lists); ``seeds``, ``laws``, ``dithers``.
-    """
-    dithers = list(dithers)
-    for law in laws:
-        if law not in LEAD_THROUGH_LAWS:
-            raise ConfigError(
-                f"law {law!r} is unknown; expected one of {', '.join(LEAD_THROUGH_LAWS)}"
-            )
-    total = len(seeds) * len(dithers) * len(laws)
-    runs: list[dict[str, Any]] = []
-    paths: dict[str, Any] = {}
-    for dither in dithers:
-        for seed in seeds:
-            for law in laws:
-                rec = simulate(
-                    "lead-through",
-                    seed=int(seed),
-                    dither=dither,
-                    config=config,
-                    law=law,
-                )
-                m = lead_metrics(rec)
-                runs.append(m)
-                if seed == seeds[0]:
-                    paths[f"{law}|{dither}"] = _path_trace(rec)
-                if progress is not None:
-                    progress(len(runs), total)
+def law_means(
+    runs: Sequence[Mapping[str, Any]], dithers: Sequence[bool], laws: Sequence[str]
+) -> list[dict[str, Any]]:
+    """Per ``(law, dither)``: the mean of each :data:`COMPARED` metric over the runs'
+    :func:`lead_metrics` summaries (and of the coverage lists), the runs and the missed pushes
+    counted."""
     means = []
     for dither in dithers:
         for law in laws:
@@ -298,17 +251,10 @@ def compare_laws(
                 if sel and key in sel[0]:
                     row[key] = [float(c) for c in np.mean([s[key] for s in sel], 0)]
             means.append(row)
-    return {
-        "seeds": [int(s) for s in seeds],
-        "laws": list(laws),
-        "dithers": dithers,
-        "runs": runs,
-        "means": means,
-        "paths": paths,
-    }
+    return means
 
 
-def _path_trace(rec: Recording, every: int = 5) -> dict[str, list[float]]:
+def path_trace(rec: Recording, every: int = 5) -> dict[str, list[float]]:
     """Down-sampled tool displacement and true push of one run, for the figure: ``t`` [s],
     ``x`` (N, 3) [mm] from the start, ``intended`` (N, 3) [mm] (the admittance driven by the true
     push), ``push`` (N, 3) [N], ``fhat`` (N, 3) [N]."""

@@ -1,8 +1,8 @@
-"""``ditherlab robot --sensitivity`` over a grid of poses (``--map``) and the command itself:
-the grid's parsing, one row per pose, the text summary, the PNG heat map, a measured noise
-level (``--noise-level``, ``--report``: :func:`parse_noise_level`, :func:`report_noise_level`),
-the prediction as text (:func:`format_prediction`) and :func:`run_sensitivity` (what the CLI
-calls). The prediction is :mod:`ditherlab.analysis.sensitivity`.
+"""``ditherlab robot --sensitivity`` over a grid of poses (``--map``): the grid's parsing, one
+row per pose, the text summary, the PNG heat map, a measured noise level (``--noise-level``,
+``--report``: :func:`parse_noise_level`, :func:`report_noise_level`) and the prediction as text
+(:func:`format_prediction`). The prediction is :mod:`ditherlab.analysis.sensitivity`; the
+command's workflow :mod:`ditherlab.app.robot`.
 """
 
 from __future__ import annotations
@@ -14,19 +14,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from ditherlab.analysis.sensitivity import (
     AXES,
     DIRECTIONS,
     MAP_OPTIONS,
     Bands,
-    condition_bands,
     predict,
 )
-from ditherlab.core.errors import ConfigError, ModelError, RobotError
-from ditherlab.core.files import atomic_path
-from ditherlab.data.torque_model import TorqueModel
+from ditherlab.core.errors import ConfigError, RobotError
 from ditherlab.robot.model import RobotModel
 from ditherlab.robot.poses import outside_limits
 
@@ -43,7 +39,6 @@ __all__ = [
     "prediction_row",
     "read_report_noise_level",
     "report_noise_level",
-    "run_sensitivity",
     "sensitivity_map",
 ]
 
@@ -396,145 +391,3 @@ def plot_map(
     )
     fig.savefig(path, dpi=80)
     plt.close(fig)
-
-
-def run_sensitivity(
-    spec: str | dict,
-    q: str | None,
-    model_path: str | Path | None,
-    dither: bool | None,
-    map_out: str | Path | None,
-    grid: str | None,
-    force_range: str,
-    seed: int = 0,
-    progress: Callable[[int, int], None] | None = None,
-    noise_level: str | None = None,
-    report: str | Path | None = None,
-) -> dict[str, Any]:
-    """``ditherlab robot SPEC --sensitivity``: the prediction at a pose, or ``--map`` over a
-    grid of poses written as a table and a PNG (atomically; the caller checked both outputs
-    with :func:`ditherlab.core.files.check_output`).
-
-    Parameters
-    ----------
-    spec : a resolved robot spec (:func:`ditherlab.robot.resolve_spec`)
-    q : the pose as text (:meth:`RobotModel.parse_pose`)
-    model_path : a model file from ``identify`` (None: the simulator's defaults)
-    dither : one condition, or None for both
-    map_out : the map's table (``.csv`` or ``.parquet``; the PNG beside it), or None
-    grid : the map's poses (:func:`parse_map_grid`)
-    force_range : ``MIN:MAX`` [N] (:func:`parse_force_range`)
-    seed : the draws' seed
-    progress : ``progress(done, total)`` over the map's poses
-    noise_level : ``X,Y,Z`` [N] a measured noise level per axis for the one condition
-        (``dither`` not None) instead of the predicted (:func:`parse_noise_level`)
-    report : a ``report.json`` of ``ditherlab report``: each condition's noise level read from
-        its matching condition (:func:`read_report_noise_level`) instead of the predicted
-
-    Returns
-    -------
-    ``{"text": printed result, "json": JSON-ready result}``
-
-    Raises
-    ------
-    ConfigError, ModelError, RobotError
-        A bad option (one line naming it), a model of another robot, a pose outside the limits.
-    """
-    tm = None
-    if model_path is not None:
-        tm = TorqueModel.load(model_path)
-        if not tm.same_robot(spec):
-            label = spec if isinstance(spec, str) else spec.get("name", "urdf")
-            mlabel = tm.robot if isinstance(tm.robot, str) else tm.robot.get("name", "urdf")
-            raise ModelError(
-                f"{model_path}: the model is for robot {mlabel}, not {label}; expected a model "
-                "identified on this robot"
-            )
-    rm = RobotModel.from_spec(
-        spec, tool_offset=tm.tool_offset if tm else None, payload=tm.payload if tm else None
-    )
-    pose = rm.parse_pose(q)
-    check_pose(rm, pose)
-    fr = parse_force_range(force_range)
-    conds = [dither] if dither is not None else [False, True]
-    given: dict[bool, tuple[np.ndarray, str]] = {}
-    if noise_level is not None and report is not None:
-        raise ConfigError("--noise-level and --report both give the noise level; expected one")
-    if (noise_level is not None or report is not None) and map_out is not None:
-        opt = "--noise-level" if noise_level is not None else "--report"
-        raise ConfigError(
-            f"{opt} gives the noise level measured at one pose; expected no --map (the map "
-            "predicts each pose's own)"
-        )
-    if noise_level is not None:
-        if dither is None:
-            raise ConfigError(
-                f"--noise-level {noise_level} is one condition's noise level; expected --dither "
-                "or --no-dither with it"
-            )
-        given[dither] = (parse_noise_level(noise_level), "given (--noise-level)")
-    if report is not None:
-        for d in conds:
-            lv = read_report_noise_level(report, d)
-            given[d] = (lv, f"measured (--report {report}, {REPORT_CONDITIONS[d]})")
-    bands = {d: condition_bands(rm.n, tm, dither=d, robot_name=rm.name) for d in conds}
-    if map_out is None:
-        if grid is not None:
-            raise ConfigError("--grid needs --map FILE (the table to write)")
-        preds = [
-            predict(
-                rm,
-                pose,
-                bands[d],
-                force_range=fr,
-                seed=seed,
-                noise_level=given[d][0] if d in given else None,
-                noise_source=given[d][1] if d in given else None,
-            )  # fmt: skip
-            for d in conds
-        ]
-        return {
-            "text": "\n\n".join(format_prediction(p) for p in preds),
-            "json": {"robot": rm.name, "predictions": preds},
-        }
-    map_out = Path(map_out)
-    if grid is None:
-        raise ConfigError("--map needs --grid qJ=START:STOP:COUNT[,qK=...] (the poses)")
-    fmt = map_out.suffix.lower()
-    if fmt not in (".csv", ".parquet"):
-        raise ConfigError(f"--map {map_out}: expected a .csv or .parquet table path")
-    g = parse_map_grid(grid, rm)
-    total = len(conds) * int(np.prod([len(v) for v in g.values()]))
-    frames = []
-    for i, d in enumerate(conds):
-        done = i * total // len(conds)
-
-        def tick(k: int, _n: int, done: int = done) -> None:
-            if progress:
-                progress(done + k, total)
-
-        df = pd.DataFrame(
-            sensitivity_map(rm, pose, g, bands[d], progress=tick, force_range=fr, seed=seed)
-        )
-        df.insert(0, "dither", d)
-        frames.append(df)
-    table = pd.concat(frames, ignore_index=True)
-    png = map_out.with_suffix(".png")
-    with atomic_path(map_out) as tmp:
-        if fmt == ".csv":
-            table.to_csv(tmp, index=False)
-        else:
-            table.to_parquet(tmp, index=False)
-    with atomic_path(png) as tmp:
-        plot_map(table, list(g), tmp, conds, rm.name, bands)
-    src = bands[conds[0]].source
-    text = format_map(table, list(g), conds)
-    text += f"\nwrote {map_out} ({len(table)} rows) and {png}; bands from {src}"
-    summary = {
-        "table": str(map_out),
-        "figure": str(png),
-        "rows": len(table),
-        "conditions": ["dither" if d else "no dither" for d in conds],
-        "source": src,
-    }
-    return {"text": text, "json": summary}

@@ -37,14 +37,16 @@ from ditherlab.analysis.detection import AXES, PAPER
 from ditherlab.analysis.estimation import replay
 from ditherlab.analysis.identification import identify
 from ditherlab.analysis.overview import describe, format_info
-from ditherlab.app.loop import add_effect
+from ditherlab.app.identify import add_effect
+from ditherlab.app.report import make_report
+from ditherlab.app.view import save_view_files
 from ditherlab.core.errors import DitherlabError, ModelError
 from ditherlab.core.names import FORCE_AXES, WRENCH_COLUMNS
 from ditherlab.core.progress import progress_bar
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
-from ditherlab.output.report_page import make_report, summary_text
-from ditherlab.output.rerun.rerun_log import save_view, save_view_files
+from ditherlab.output.report_page import summary_text
+from ditherlab.output.rerun.rerun_log import save_view
 from ditherlab.sim import simulate
 
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
@@ -301,7 +303,7 @@ def run_pipeline(
             # intervals"); a campaign where it cannot be told apart from the bands keeps the
             # model, then with its bootstrap
             try:
-                model = add_effect(model, ids, "dither_extraction", executor=pool)
+                model = add_effect(ids, model, "dither_extraction", executor=pool)
             except ModelError:
                 model = identify(ids, n_boot=n_boot, seed=seed, executor=pool)
         model_path = model.save(out / "model.toml")

@@ -1,6 +1,6 @@
 """Many recordings of many robots at once, on Dask distributed (``ditherlab fleet``).
 
-:func:`run_fleet` resolves the inputs (files, folders, glob patterns, or a manifest CSV with
+:func:`run` resolves the inputs (files, folders, glob patterns, or a manifest CSV with
 ``file, robot, date, notes``), runs :func:`ditherlab.analysis.fleet_job.analyse_recording` on each as one
 Dask task (:func:`ditherlab.core.tasks.run_tasks`: a LocalCluster in this process by default),
 and writes, atomically, into the output folder:
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import glob
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,15 +25,16 @@ import pandas as pd
 
 from ditherlab.analysis.fleet_job import COLUMNS, analyse_recording
 from ditherlab.analysis.fleet_summary import summarise, to_markdown
+from ditherlab.app.workflow import ReadOptions, guard
 from ditherlab.core.errors import ConfigError, DitherlabError
-from ditherlab.core.files import atomic_path, atomic_write_json, atomic_write_text, check_output
+from ditherlab.core.files import atomic_path, atomic_write_json, atomic_write_text
 from ditherlab.core.tasks import TaskResult, run_tasks
 from ditherlab.data.recording import robot_label
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io import csv as csv_io
 from ditherlab.io.stream import Source
 
-__all__ = ["collect_inputs", "read_manifest", "run_fleet"]
+__all__ = ["Fleet", "FleetOptions", "collect_inputs", "read_manifest", "run"]
 
 #: file suffixes taken from a folder (ROS 2 bag folders are taken whole)
 SUFFIXES = (".parquet", ".pq", ".csv", ".mcap", ".db3")
@@ -170,75 +172,137 @@ def _model_name(robot: str, path: Path) -> str:
     return f"{safe}.toml"
 
 
-def run_fleet(
-    inputs: Sequence[str | Path],
-    out_dir: str | Path,
+@dataclass(frozen=True)
+class FleetOptions:
+    """The options of ``ditherlab fleet``.
+
+    Attributes
+    ----------
+    recordings : files, folders (searched recursively) or glob patterns (``'logs/**/*.parquet'``)
+    out : the output folder: ``fleet.parquet``, ``fleet.md``, ``fleet.json``, ``models/``
+        (created; must not be, contain or lie in an input)
+    manifest : a CSV with ``file, robot, date, notes`` (robot ids and dates for drift)
+    scheduler : None (a LocalCluster here, one worker per core), ``"serial"`` (a plain loop) or
+        a Dask scheduler address ``tcp://HOST:PORT``
+    workers : the LocalCluster's workers
+    model : a model file every recording starts from (its effects kept, its bands re-fitted)
+    assume_no_force : no F/T sensor and no external force (as ``ditherlab identify``)
+    n_boot : bootstrap replicates per recording
+    thresholds : replay the estimator on recordings with pushes for F50 / F90 per axis
+    seed : the bootstrap's seed
+    read : how to read a foreign log (``--mapping``, ``--robot``)
+    force : write into an existing non-empty folder
+    """
+
+    recordings: tuple[str, ...] = ()
+    out: str | Path = "fleet-out"
+    manifest: Path | None = None
+    scheduler: str | None = None
+    workers: int | None = None
+    model: Path | None = None
+    assume_no_force: bool = False
+    n_boot: int = 0
+    thresholds: bool = True
+    seed: int = 0
+    read: ReadOptions = ReadOptions()
+    force: bool = False
+
+
+@dataclass
+class Fleet:
+    """The fleet report (``fleet.json``'s content, with ``table``: the Parquet path) and the
+    output folder."""
+
+    summary: dict[str, Any]
+    out: Path
+
+    def text(self) -> str:
+        """Recordings, failures, effects found per robot, growing quantities and outliers, and
+        the files written (what the CLI prints)."""
+        s = self.summary
+        lines = [
+            f"{s['recordings']} recordings of {len(s['robots'])} robots, "
+            f"{len(s['failures'])} failed"
+        ]
+        for f in s["failures"]:
+            msg = f["error"] if f["error"].startswith(f["file"]) else f"{f['file']}: {f['error']}"
+            lines.append(f"  failed: {msg}")
+        for e, robots in s["effects"].items():
+            lines.append(f"  {e}: {', '.join(robots)}")
+        for d in (d for d in s["drift"] if d["growing"]):
+            lines.append(
+                f"  growing: {d['robot']} joint {d['joint']} {d['regime']} {d['quantity']} "
+                f"{d['slope_per_30d']:+.3g} N·m per 30 days"
+            )
+        for o in s["outliers"]:
+            lines.append(
+                f"  outlier: {o['robot']} joint {o['joint']} {o['regime']} {o['quantity']} "
+                f"{o['value']:.3g} (fleet median {o['fleet_median']:.3g}, z {o['z']:+.1f})"
+            )
+        lines.append(f"wrote {s['table']}, {self.out / 'fleet.md'}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fleet report."""
+        return self.summary
+
+
+def run(
+    options: FleetOptions,
     *,
-    manifest: str | Path | None = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    base: str | Path | None = None,
-    assume_no_force: bool = False,
-    n_boot: int = 0,
-    thresholds: bool = True,
-    seed: int = 0,
-    read_options: dict[str, Any] | None = None,
-    force: bool = False,
     progress: bool = False,
     on_result: Callable[[TaskResult], None] | None = None,
-) -> dict[str, Any]:
+) -> Fleet:
     """Analyse every recording as a Dask task and write the fleet table and report.
 
     Parameters
     ----------
-    inputs : files, folders or glob patterns
-    out_dir : output folder (created; must not be, contain or lie in an input; an existing
-        non-empty folder only with ``force``)
-    manifest : CSV with ``file, robot, date, notes`` (robot ids and dates for drift)
-    scheduler : None (LocalCluster here, one worker per core), ``"serial"`` or ``tcp://HOST:PORT``
-    workers : LocalCluster workers
-    base : a model file every recording starts from (its effects kept, its bands re-fitted)
-    assume_no_force, n_boot, seed : as in ``ditherlab identify``
-    thresholds : replay the estimator on recordings with pushes for F50 / F90 per axis
-    read_options : ``mapping`` / ``robot`` for foreign logs
+    options : :class:`FleetOptions`
     progress : Dask's progress bar on stderr
     on_result : called as each recording finishes
 
     Returns
     -------
-    The summary (``fleet.json``'s content) with ``"table"``: the written Parquet path.
+    Fleet
     """
-    items = collect_inputs(inputs, manifest)
-    out = Path(out_dir)
-    extra = [Path(manifest)] if manifest else []
-    if base is not None:
-        extra.append(Path(base))
-    check_output(out, [p for p, _ in items] + extra, folder=True, force=force)
+    o = options
+    items = collect_inputs(o.recordings, o.manifest)
+    extra = [Path(o.manifest)] if o.manifest else []
+    if o.model is not None:
+        extra.append(Path(o.model))
+    out = guard(o.out, [p for p, _ in items] + extra, read=o.read, folder=True, force=o.force)
     base_text = None
-    if base is not None:
-        b = Path(base)
+    if o.model is not None:
+        b = Path(o.model)
         if not b.is_file():
             raise ConfigError(f"{b}: no such model file")
         base_text = b.read_text(encoding="utf-8")
-        _check_robots(items, TorqueModel.load(b), dict(read_options or {}))
-    options = {
-        "read": dict(read_options or {}),
+        _check_robots(items, TorqueModel.load(b), o.read.kwargs())
+    job = {
+        "read": o.read.kwargs(),
         "base": base_text,
-        "base_name": str(base) if base is not None else None,
-        "assume_no_force": assume_no_force,
-        "n_boot": n_boot,
-        "seed": seed,
-        "thresholds": thresholds,
+        "base_name": str(o.model) if o.model is not None else None,
+        "assume_no_force": o.assume_no_force,
+        "n_boot": o.n_boot,
+        "seed": o.seed,
+        "thresholds": o.thresholds,
     }
-    tasks = [(str(p), (str(p), info, options)) for p, info in items]
+    tasks = [(str(p), (str(p), info, job)) for p, info in items]
     results = run_tasks(
         analyse_recording,
         tasks,
-        scheduler=scheduler,
-        workers=workers,
+        scheduler=o.scheduler,
+        workers=o.workers,
         progress=progress,
         on_result=on_result,
     )
+    return Fleet(_write(results, items, out), out)
+
+
+def _write(
+    results: list[TaskResult], items: list[tuple[Path, dict[str, Any]]], out: Path
+) -> dict[str, Any]:
+    """Write each recording's model, the table and the report; returns the report."""
     rows: list[dict[str, Any]] = []
     failures = []
     out.mkdir(parents=True, exist_ok=True)

@@ -17,7 +17,7 @@ the paper's experiment in small, as ``make demo`` does (:mod:`ditherlab.app.demo
    the arm (the link angle; the paper's limit, 1e-4 rad, applies to it) and of the motor angle
    in arm-side units (what the paper measured), each on the joint that vibrates most.
 
-:func:`run_sweep` runs each point on ``repeats`` seeds (``seed, seed + 2, ...``: the design's
+:func:`run` runs each point on ``repeats`` seeds (``seed, seed + 2, ...``: the design's
 effect against the campaigns' own scatter) and writes, atomically, ``sweep.parquet`` (one row
 per point, the mean over its runs, :data:`COLUMNS` after the grid's own columns),
 ``sweep_runs.parquet`` (one row per run, :data:`RUN_COLUMNS`), ``sweep.md`` (the printed
@@ -55,8 +55,9 @@ from ditherlab.analysis.sweep_pose import (
     predicted,
     without_ramp_down,
 )
+from ditherlab.app.workflow import guard
 from ditherlab.core.errors import ConfigError
-from ditherlab.core.files import atomic_path, atomic_write_json, atomic_write_text, check_output
+from ditherlab.core.files import atomic_path, atomic_write_json, atomic_write_text
 from ditherlab.core.names import FORCE_AXES
 from ditherlab.core.tasks import TaskResult, run_tasks
 from ditherlab.data.recording import Recording
@@ -72,7 +73,9 @@ __all__ = [
     "aggregate",
     "parse_grid",
     "run_point",
-    "run_sweep",
+    "SweepOptions",
+    "Swept",
+    "run",
     "vibration",
 ]
 
@@ -663,76 +666,152 @@ def aggregate(runs: pd.DataFrame, grid: Sequence[str], limit: float) -> pd.DataF
     return pd.DataFrame(rows, columns=[*grid, *COLUMNS])
 
 
-def run_sweep(
-    grid_specs: Sequence[str],
-    out_dir: str | Path,
+@dataclass(frozen=True)
+class SweepOptions:
+    """The options of ``ditherlab sweep``.
+
+    Attributes
+    ----------
+    grid : ``KEY=V1,V2,...`` (:func:`parse_grid`): a key of the simulator's parameters
+        (``irb140.toml``) and its values, one per entry
+    out : the output folder (``sweep.parquet``, ``sweep_runs.parquet``, ``sweep.md``,
+        ``sweep.json``, PNG figures)
+    config : a simulator TOML every point starts from (the grid's values override it)
+    pushes_per_direction : pushes per axis and sign in each of the four campaigns (None: the
+        config's); a grid key ``push_campaign.pushes_per_direction`` overrides it
+    seed : the evaluation campaigns' seed (identification: ``seed + 1``), the same at every point
+    repeats : runs per point, on seeds ``seed, seed + 2, ...``; the point's row is their mean
+    curve_boot : bootstrap replicates of each detection curve
+    vibration_limit : [rad, arm side] the acceptable arm vibration (the paper's 1e-4)
+    exclude_dither_ramp : evaluate the dithered campaign without its final ramp-down
+        (:func:`without_ramp_down`)
+    scheduler : None (a LocalCluster here), ``"serial"`` or ``tcp://HOST:PORT``
+    workers : the LocalCluster's workers
+    force : write into an existing non-empty folder
+    """
+
+    grid: tuple[str, ...] = ()
+    out: str | Path = "sweep-out"
+    config: Path | None = None
+    pushes_per_direction: int | None = 6
+    seed: int = 0
+    repeats: int = 1
+    curve_boot: int = 50
+    vibration_limit: float = VIBRATION_LIMIT
+    exclude_dither_ramp: bool = True
+    scheduler: str | None = None
+    workers: int | None = None
+    force: bool = False
+
+
+@dataclass
+class Swept:
+    """The sweep's summary (``sweep.json``'s content, with ``table``: the Parquet path, and
+    ``table_text``: the Markdown table) and the output folder."""
+
+    summary: dict[str, Any]
+    out: Path
+
+    def text(self) -> str:
+        """:func:`summary_text` and the files written (what the CLI prints)."""
+        s = self.summary
+        wrote = f"wrote {s['table']}, {self.out / 'sweep.md'}, {self.out / 'sweep.json'}, figures"
+        return f"{summary_text(s)}\n{wrote}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The summary."""
+        return self.summary
+
+
+def run(
+    options: SweepOptions,
     *,
-    config: str | Path | None = None,
-    pushes_per_direction: int | None = 6,
-    seed: int = 0,
-    repeats: int = 1,
-    curve_boot: int = 50,
-    vibration_limit: float = VIBRATION_LIMIT,
-    exclude_dither_ramp: bool = True,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    force: bool = False,
     progress: bool = False,
     on_result: Callable[[TaskResult], None] | None = None,
-) -> dict[str, Any]:
+) -> Swept:
     """Run a grid of simulated paired campaigns as Dask tasks and write the results.
 
     Parameters
     ----------
-    grid_specs : ``KEY=V1,V2,...`` (:func:`parse_grid`)
-    out_dir : output folder (an existing non-empty folder only with ``force``)
-    config : a simulator TOML every point starts from (the grid's values override it)
-    pushes_per_direction : pushes per axis and sign in each of the four campaigns (None: the
-        config's); a grid key ``push_campaign.pushes_per_direction`` overrides it
-    seed : evaluation campaigns' seed (identification: ``seed + 1``), the same at every point
-    repeats : runs per point, on seeds ``seed, seed + 2, ...`` (each with its identification
-        seed one above); the point's row is their mean
-    curve_boot : bootstrap replicates of each detection curve
-    vibration_limit : [rad, arm side] the paper's 1e-4
-    exclude_dither_ramp : evaluate the dithered campaign without its final ramp-down
-        (:func:`without_ramp_down`)
-    scheduler, workers, progress, on_result : as :func:`ditherlab.core.tasks.run_tasks`
+    options : :class:`SweepOptions`
+    progress : Dask's progress bar on stderr
+    on_result : called as each run finishes (:func:`ditherlab.core.tasks.run_tasks`)
 
     Returns
     -------
-    The summary (``sweep.json``'s content) with ``table`` (the Parquet path) and
-    ``table_text`` (Markdown).
+    Swept
     """
-    grid = parse_grid(grid_specs)
-    if int(seed) < 0:
-        raise ConfigError(f"sweep: --seed {seed} is negative; expected an integer >= 0")
-    if int(repeats) < 1:
-        raise ConfigError(f"sweep: --repeats {repeats}; expected an integer >= 1")
-    if pushes_per_direction is not None and pushes_per_direction < 1:
-        raise ConfigError(
-            f"sweep: --pushes-per-direction {pushes_per_direction}; expected an integer >= 1"
-        )
-    base = _read_config(config)
-    if pushes_per_direction is not None:
-        base = _merge(base, {"push_campaign": {"pushes_per_direction": int(pushes_per_direction)}})
+    o = options
+    grid = parse_grid(o.grid)
+    if int(o.seed) < 0:
+        raise ConfigError(f"sweep: --seed {o.seed} is negative; expected an integer >= 0")
+    if int(o.repeats) < 1:
+        raise ConfigError(f"sweep: --repeats {o.repeats}; expected an integer >= 1")
+    ppd = o.pushes_per_direction
+    if ppd is not None and ppd < 1:
+        raise ConfigError(f"sweep: --pushes-per-direction {ppd}; expected an integer >= 1")
+    base = _read_config(o.config)
+    if ppd is not None:
+        base = _merge(base, {"push_campaign": {"pushes_per_direction": int(ppd)}})
     points = grid_points(grid, base)
-    out = check_output(out_dir, [config], folder=True, force=force)
-    seeds = [int(seed) + 2 * r for r in range(int(repeats))]
+    out = guard(o.out, [o.config], folder=True, force=o.force)
+    seeds = [int(o.seed) + 2 * r for r in range(int(o.repeats))]
+    t0 = time.perf_counter()
+    run_table = _run_points(o, grid, points, seeds, progress, on_result)
+    table = aggregate(run_table, list(grid), o.vibration_limit)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, t in (("sweep.parquet", table), ("sweep_runs.parquet", run_table)):
+        with atomic_path(out / name) as tmp:
+            t.to_parquet(tmp, index=False)
+    text = format_table(table, list(grid), o.vibration_limit)
+    atomic_write_text(out / "sweep.md", text + "\n")
+    figures = [
+        plot_tradeoff(table, list(grid), o.vibration_limit, out / "f50_vs_vibration.png"),
+        plot_points(table, o.vibration_limit, out / "f50_per_point.png"),
+        plot_prediction(table, out / "f50_predicted.png"),
+    ]
+    summary = {
+        "grid": {k: [_label(v) for v in vs] for k, vs in grid.items()},
+        "points": len(points),
+        "seeds": seeds,
+        "pushes_per_direction": ppd,
+        "vibration_limit": o.vibration_limit,
+        **best_points(table, list(grid)),
+        "failures": [
+            {"point": r["point"], "error": r["error"]} for _, r in table.iterrows() if not r["ok"]
+        ],
+        "seconds": time.perf_counter() - t0,
+        "figures": [str(f) for f in figures],
+        "table": str(out / "sweep.parquet"),
+    }
+    atomic_write_json(out / "sweep.json", summary)
+    return Swept({**summary, "table_text": text}, out)
+
+
+def _run_points(
+    o: SweepOptions,
+    grid: dict[str, list[Any]],
+    points: list[Point],
+    seeds: list[int],
+    progress: bool,
+    on_result: Callable[[TaskResult], None] | None,
+) -> pd.DataFrame:
+    """Every point on every seed as one Dask task (:func:`run_point`): one row per run
+    (:data:`RUN_COLUMNS` after the grid's own columns), a failed run with its error."""
     options = {
-        "curve_boot": int(curve_boot),
-        "vibration_limit": vibration_limit,
-        "exclude_dither_ramp": bool(exclude_dither_ramp),
+        "curve_boot": int(o.curve_boot),
+        "vibration_limit": o.vibration_limit,
+        "exclude_dither_ramp": bool(o.exclude_dither_ramp),
     }
     runs = [(p, s) for p in points for s in seeds]
-    t0 = time.perf_counter()
     results = run_tasks(
         run_point,
         [
             (p.label + (f" seed={s}" if len(seeds) > 1 else ""), (p.config, {**options, "seed": s}))
             for p, s in runs
         ],
-        scheduler=scheduler,
-        workers=workers,
+        scheduler=o.scheduler,
+        workers=o.workers,
         progress=progress,
         on_result=on_result,
     )
@@ -747,32 +826,4 @@ def run_sweep(
             row[c] = values.get(c, "" if c.endswith("_bound") else math.nan)
         row["within_limit"] = bool(values.get("within_limit", False))
         rows.append(row)
-    run_table = pd.DataFrame(rows, columns=[*grid, *RUN_COLUMNS])
-    table = aggregate(run_table, list(grid), vibration_limit)
-    out.mkdir(parents=True, exist_ok=True)
-    for name, t in (("sweep.parquet", table), ("sweep_runs.parquet", run_table)):
-        with atomic_path(out / name) as tmp:
-            t.to_parquet(tmp, index=False)
-    text = format_table(table, list(grid), vibration_limit)
-    atomic_write_text(out / "sweep.md", text + "\n")
-    figures = [
-        plot_tradeoff(table, list(grid), vibration_limit, out / "f50_vs_vibration.png"),
-        plot_points(table, vibration_limit, out / "f50_per_point.png"),
-        plot_prediction(table, out / "f50_predicted.png"),
-    ]
-    summary = {
-        "grid": {k: [_label(v) for v in vs] for k, vs in grid.items()},
-        "points": len(points),
-        "seeds": seeds,
-        "pushes_per_direction": pushes_per_direction,
-        "vibration_limit": vibration_limit,
-        **best_points(table, list(grid)),
-        "failures": [
-            {"point": r["point"], "error": r["error"]} for _, r in table.iterrows() if not r["ok"]
-        ],
-        "seconds": time.perf_counter() - t0,
-        "figures": [str(f) for f in figures],
-        "table": str(out / "sweep.parquet"),
-    }
-    atomic_write_json(out / "sweep.json", summary)
-    return {**summary, "table_text": text}
+    return pd.DataFrame(rows, columns=[*grid, *RUN_COLUMNS])

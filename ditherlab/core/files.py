@@ -10,6 +10,7 @@ import json
 import os
 import tempfile
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -84,10 +85,58 @@ def _writable_ancestor(path: Path) -> None:
         raise ConfigError(f"{path}: cannot write in the folder {a} ({why})")
 
 
+@dataclass(frozen=True)
+class FileKind:
+    """What a file output holds and how it is named: the refusals of :func:`check_output` say
+    it (``model.json: expected a file name ending in .toml (a torque model), not .json``).
+
+    Attributes
+    ----------
+    what : what the file holds, with its article (``"a torque model"``)
+    suffixes : the suffixes its writer takes, the usual one first (``(".toml",)``)
+    default : a file name to suggest inside a folder (``"model.toml"``)
+    """
+
+    what: str
+    suffixes: tuple[str, ...]
+    default: str
+
+    def names(self) -> str:
+        """The suffixes as words: ``.csv or .parquet``, ``.parquet, .pq, .csv or .mcap``."""
+        s = list(self.suffixes)
+        return s[0] if len(s) == 1 else f"{', '.join(s[:-1])} or {s[-1]}"
+
+
+def _names_a_folder(out: str | Path) -> bool:
+    """True when ``out`` is written as a folder: text ending in a path separator (``Path``
+    drops it, so only text shows it)."""
+    return isinstance(out, str) and out.endswith(("/", os.sep))
+
+
+def _check_not_folder(out: str | Path, kind: FileKind | None) -> None:
+    """Refuse a file output named as a folder (``DIR/``, an existing folder), saying what file
+    name is expected."""
+    o = Path(out)
+    if _names_a_folder(out) or o.is_dir():
+        said = "is a folder" if o.is_dir() else "ends in a separator, a folder name"
+        hint = f" such as {o / kind.default}" if kind else ""
+        raise ConfigError(f"{out}: {said}; expected a file name{hint}")
+
+
+def _check_suffix(o: Path, kind: FileKind) -> None:
+    """Refuse a file output whose suffix ``kind``'s writer does not take."""
+    if o.suffix.lower() not in kind.suffixes:
+        raise ConfigError(
+            f"{o}: expected a file name ending in {kind.names()} ({kind.what}), "
+            f"not {o.suffix or 'no suffix'}"
+        )
+
+
 def check_output(
     out: str | Path,
     inputs: Iterable[str | Path | None] = (),
     *,
+    kind: FileKind | None = None,
     folder: bool = False,
     replace: bool = False,
     force: bool = False,
@@ -95,32 +144,41 @@ def check_output(
     """The one guard of every output, called before any work: refuse (DitherlabError, one
     sentence naming the path) what would lose data or fail late.
 
-    Refused: ``out`` equal to, inside or containing one of ``inputs``
-    (:func:`check_not_input`); a location that cannot be written (under a regular file, in a
-    folder without write permission, on a read-only file system); an existing path of the wrong
-    kind (a folder where a file is written, a file where a folder is); an existing non-empty
-    output folder unless ``force``.
+    Refused, in this order: a file output named as a folder (``DIR/``, an existing folder);
+    ``out`` equal to, inside or containing one of ``inputs`` (:func:`check_not_input`); a
+    location that cannot be written (under a regular file, in a folder without write permission,
+    on a read-only file system); a file output whose suffix is not one of ``kind``'s; an
+    existing file output (or a CSV output's existing sidecar) unless ``force``; a file where a
+    folder is written; an existing non-empty output folder unless ``force``.
 
     Parameters
     ----------
-    out : the output file or folder
+    out : the output file or folder; as text, a trailing ``/`` names a folder
     inputs : the files and folders the command reads (None entries are skipped)
+    kind : what a file output holds (its suffixes and a default name), for its checks and
+        messages; None: any name
     folder : ``out`` is a folder (a report folder; a ROS 2 bag folder with ``replace``)
     replace : the writer replaces the whole folder (a ROS 2 bag): with ``force`` only an
         existing bag folder may be replaced, never another non-empty folder
-    force : allow an existing non-empty output folder
+    force : allow an existing output file (replaced, atomically) or non-empty output folder
 
     Returns
     -------
     ``Path(out)``
     """
     o = Path(out)
-    if not folder and o.is_dir():
-        raise ConfigError(f"{o}: is a folder; expected a file name")
+    if not folder:
+        _check_not_folder(out, kind)
     check_not_input(o, inputs)
     for p in companions(o):
         _writable_ancestor(p)
     if not folder:
+        if kind is not None:
+            _check_suffix(o, kind)
+        for p in companions(o):
+            if p.exists() and not force:
+                whose = "" if p == o else f" (the sidecar of {o})"
+                raise ConfigError(f"{p}: exists{whose}; use --force to replace it")
         return o
     if o.exists() and not o.is_dir():
         raise ConfigError(f"{o}: exists and is not a folder")

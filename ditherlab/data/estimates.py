@@ -245,7 +245,7 @@ class EstimatesSource:
 
 
 class EstimatesWriter:
-    """An estimates file written piece by piece (:func:`ditherlab.analysis.estimation.replay_stream`): each
+    """An estimates file written piece by piece (:func:`ditherlab.app.replay.replay_stream`): each
     :meth:`write` appends row groups, :meth:`close` stores the metadata in the footer and
     renames the temporary file onto ``path`` (atomic: an exception leaves nothing). The file is
     the one :meth:`Estimates.save` writes for the concatenated rows.

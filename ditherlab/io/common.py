@@ -111,8 +111,8 @@ def meta_from_options(
             out[key] = options[key]
     if "robot" not in out:
         raise FormatError(
-            f"{where}: no robot given (the file has no metadata 'robot'); pass robot='irb140' "
-            "or the path of a URDF file (CLI: --robot)"
+            f"{where}: no robot given (the file has no metadata 'robot'); expected --robot with "
+            "a built-in name (irb140) or the path of a URDF file"
         )
     return out
 

@@ -1,4 +1,4 @@
-"""The lead-through comparison's outputs (:func:`ditherlab.analysis.lead_metrics.compare_laws`): a Markdown
+"""The lead-through comparison's outputs (:func:`ditherlab.app.leadthrough.compare_laws`): a Markdown
 table, the JSON of every run, and a figure of the tool's path over time under each law.
 
 Nothing is recomputed here: the numbers are the analysis's.

@@ -1,11 +1,12 @@
 """The report: the paper's §VI-C table beside ours, detection statistics, figures (Markdown + HTML).
 
-:func:`make_report` analyses estimates files (:func:`ditherlab.analysis.detection.analyse`), then writes
-into one folder ``report.md``, ``report.html``, ``report.json`` (the same numbers) and PNG figures
-(:mod:`ditherlab.output.figures`): the forces of the paper's Fig. 6, the response against applied
-force with the detection curves, and — when the recordings are given — the torques of Fig. 2,
-the extraction of Fig. 4 and the dither control of Fig. 5. Nothing is written when the analysis
-fails (no F/T columns, no pushes).
+:func:`write_pages` writes the report of an analysis of estimates files
+(:func:`ditherlab.analysis.detection.analyse`; the workflow is
+:func:`ditherlab.app.report.make_report`) into one folder: ``report.md``, ``report.html``,
+``report.json`` (the same numbers) and PNG figures (:mod:`ditherlab.output.figures`): the forces
+of the paper's Fig. 6, the response against applied force with the detection curves, and — when
+the recordings are given (:func:`open_logs`) — the torques of Fig. 2, the extraction of Fig. 4
+and the dither control of Fig. 5.
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ditherlab.analysis.detection import AXES, PAPER, analyse, find_pushes_in_blocks
+from ditherlab.analysis.detection import AXES, PAPER, find_pushes_in_blocks
 from ditherlab.core.errors import RecordingError
-from ditherlab.core.files import atomic_write_json, atomic_write_text, check_not_input, plain
+from ditherlab.core.files import atomic_write_json, atomic_write_text, plain
 from ditherlab.core.names import DITHER, STILL
 from ditherlab.data.estimates import COMPONENTS, Estimates, EstimatesSource, check_times_match
 from ditherlab.data.recording import Recording
@@ -220,71 +221,54 @@ def render(blocks: list[tuple], fmt: str) -> str:
     )
 
 
-# ------------------------------------------------------------------------------ main entry
-def make_report(
-    estimates: Sequence[str | Path | Estimates],
-    out_dir: str | Path,
-    *,
-    recordings: Sequence[Any] = (),
-    n_boot: int = 200,
-    seed: int = 0,
-    figures: bool = True,
-    chunk_rows: int = CHUNK_ROWS,
-    progress: Callable[[int, int], None] | None = None,
-) -> dict[str, Any]:
-    """Analyse estimates and write the report folder.
-
-    Estimates files and recording files are read ``chunk_rows`` rows at a time: the analysis
-    (:func:`ditherlab.analysis.detection.analyse`) keeps the pushes, the per-push numbers and counts,
-    the figures only the stretches they show (a window of rows around them), so memory does not
-    grow with the logs' length beyond about 17 bytes per sample; the numbers do not depend on
-    ``chunk_rows``.
-
-    Parameters
-    ----------
-    estimates : estimates files (or loaded :class:`~ditherlab.data.estimates.Estimates`)
-    out_dir : folder to write (created; files written atomically)
-    recordings : the recordings (Recording objects or paths) behind the estimates, optional:
-        with them the torque figures (Figs. 2, 4, 5) are drawn too
-    n_boot, seed : bootstrap of the detection curves
-    figures : draw the PNG figures
-    chunk_rows : rows read at a time from a file (:data:`ditherlab.io.stream.CHUNK_ROWS`)
-    progress : ``progress(done, total)``
-
-    Returns
-    -------
-    The analysis dict (as written to ``report.json``), with ``files`` listing what was written.
-
-    Raises
-    ------
-    NoPushesError
-        No F/T columns or no pushes: nothing is written.
-    """
-    out = Path(out_dir)
-    ests = [
-        EstimatesSource.of(e) if isinstance(e, Estimates) else EstimatesSource(e) for e in estimates
-    ]
-    for e in estimates:
-        if not isinstance(e, Estimates):
-            check_not_input(out / "report.json", [e])
-    # the recordings opened (and their time stamps read) before anything is written; each one
-    # must be behind one of the estimates (as ``view --estimates`` requires)
-    logs = [_Log(r, chunk_rows) for r in recordings] if figures else []
+# ------------------------------------------------------------------------------ the pages
+def open_logs(
+    recordings: Sequence[Any], ests: Sequence[EstimatesSource], chunk_rows: int = CHUNK_ROWS
+) -> list[RecordingLog]:
+    """The recordings behind the estimates (Recording objects or paths), opened to be read
+    ``chunk_rows`` rows at a time (only what the torque figures need is kept), each checked to
+    be behind one of ``ests`` (as ``view --estimates`` requires): RecordingError otherwise."""
+    logs = [RecordingLog(r, chunk_rows) for r in recordings]
     for k, log in enumerate(logs):
         log.check_behind(ests, k)
-    steps = 3 + (4 if figures else 0)
-    done = 0
+    return logs
 
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        if progress:
-            progress(done, steps)
 
-    analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
-    tick()
+def write_pages(
+    ests: Sequence[EstimatesSource],
+    analysis: dict[str, Any],
+    logs: Sequence[RecordingLog],
+    out: Path,
+    *,
+    figures: bool = True,
+    chunk_rows: int = CHUNK_ROWS,
+    tick: Callable[[], None] = lambda: None,
+) -> list[str]:
+    """Write the report of an analysis (:func:`ditherlab.analysis.detection.analyse` of
+    ``ests``) into ``out``: ``report.md``, ``report.html``, ``report.json`` (the analysis, with
+    ``files`` listing what was written) and, with ``figures``, the PNG figures (those of the
+    recordings ``logs`` too: :func:`open_logs`). ``tick()`` is called after the
+    text, after each of the figures' 4 steps and after the pages (6 calls; 2 without
+    figures); returns the files' names."""
     level = ests[0].meta.get("interval", {})
     level_txt = f"{level.get('level', 0.95):.0%} {level.get('method', '')}".strip()
+    blocks = _blocks(ests, analysis, level_txt)
+    tick()
+    written: list[str] = []
+    if figures:
+        out.mkdir(parents=True, exist_ok=True)
+        written += _figures(list(ests), analysis, list(logs), out, blocks, tick, chunk_rows)
+    analysis["files"] = written + ["report.md", "report.html", "report.json"]
+    atomic_write_text(out / "report.md", render(blocks, "md"))
+    atomic_write_text(out / "report.html", render(blocks, "html"))
+    atomic_write_json(out / "report.json", analysis)
+    tick()
+    return analysis["files"]
+
+
+def _blocks(ests: Sequence[EstimatesSource], analysis: dict, level_txt: str) -> list[tuple]:
+    """The report's text blocks before the figures: the paper's table beside ours, the
+    definitions, every condition and direction, the coverage and the pushes found."""
     blocks: list[tuple] = [("h1", "ditherlab report: force detection with and without dither")]
     files = [("estimates", e.name or "<memory>") for e in ests]
     blocks.append(
@@ -311,6 +295,12 @@ def make_report(
     h, r = coverage_table(analysis, level_txt)
     blocks.append(("table", h, r))
     blocks.append(("h2", "Pushes found"))
+    blocks.append(("table", ["file", "dither", "pushes", "x", "y", "z"], _push_rows(analysis)))
+    return blocks
+
+
+def _push_rows(analysis: dict) -> list[list[str]]:
+    """Per recording: its file, dither, pushes found, and per axis their count and range."""
     prow = []
     for rec in analysis["recordings"]:
         ps = rec["pushes"]
@@ -323,24 +313,13 @@ def make_report(
                 for a in AXES
             ]
         )
-    blocks.append(("table", ["file", "dither", "pushes", "x", "y", "z"], prow))
-    tick()
-    written: list[str] = []
-    if figures:
-        out.mkdir(parents=True, exist_ok=True)
-        written += _figures(ests, analysis, logs, out, blocks, tick, chunk_rows)
-    analysis["files"] = written + ["report.md", "report.html", "report.json"]
-    atomic_write_text(out / "report.md", render(blocks, "md"))
-    atomic_write_text(out / "report.html", render(blocks, "html"))
-    atomic_write_json(out / "report.json", analysis)
-    tick()
-    return analysis
+    return prow
 
 
 def _figures(
     ests: list[EstimatesSource],
     analysis: dict,
-    logs: list[_Log],
+    logs: list[RecordingLog],
     out: Path,
     blocks: list[tuple],
     tick: Callable[[], None],
@@ -418,7 +397,7 @@ def _rows_of(src: EstimatesSource, take: np.ndarray, cols: list[str], rows: int)
 
 
 # ------------------------------------------------------------------------------ recordings
-class _Log:
+class RecordingLog:
     """A recording behind the torque figures: a Recording in memory, or a file read a piece
     at a time (:class:`ditherlab.io.stream.Source`) of which only what the figures need is kept:
     its time stamps, dither flag, pushes and the windows the figures show."""
@@ -562,7 +541,7 @@ def _gravity_and_sensor_torque(r: Recording) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _extraction(
-    log: _Log, est: EstimatesSource | None, i0: int, i1: int
+    log: RecordingLog, est: EstimatesSource | None, i0: int, i1: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
     """``upper, lower, signal`` (i1 - i0, n) [N·m] on the rows ``[i0, i1)`` and the period [s]
     of the dither extraction.
@@ -589,7 +568,7 @@ def _extraction(
 
 
 def _torque_figures(
-    ests: list[EstimatesSource], logs: list[_Log], out: Path, blocks: list[tuple]
+    ests: list[EstimatesSource], logs: list[RecordingLog], out: Path, blocks: list[tuple]
 ) -> list[str]:
     """Figs. 2, 4, 5 from the recordings (with the model stored in the estimates)."""
     model = TorqueModel.from_dict(ests[0].meta["model"])
@@ -632,7 +611,7 @@ def _torque_figures(
 
 
 def _dither_figures(
-    dith: _Log,
+    dith: RecordingLog,
     est: EstimatesSource | None,
     model: TorqueModel,
     joint: int,

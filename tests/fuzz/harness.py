@@ -160,12 +160,13 @@ PRELOAD = (
     "ditherlab.io.parquet",
     "ditherlab.io.mcap",
     "ditherlab.io.rosbag",
-    "ditherlab.analysis.overview",
-    "ditherlab.app.loop",
-    "ditherlab.analysis.identification",
-    "ditherlab.analysis.estimation",
-    "ditherlab.output.report_page",
-    "ditherlab.output.rerun.rerun_log",
+    "ditherlab.app.info",
+    "ditherlab.app.convert",
+    "ditherlab.app.identify",
+    "ditherlab.app.replay",
+    "ditherlab.app.report",
+    "ditherlab.app.diagnose",
+    "ditherlab.app.view",
 )
 
 

@@ -58,8 +58,9 @@ def prepare_base(root: Path, simulate: bool = True) -> Base:
     done = root / ".ready"
     if not done.exists():
         import ditherlab.io as dio
-        from ditherlab.analysis.estimation import replay_file
         from ditherlab.analysis.identification import identify
+        from ditherlab.app.replay import ReplayOptions
+        from ditherlab.app.replay import run as replay_run
         from ditherlab.data.recording import Recording
 
         if simulate:
@@ -82,7 +83,9 @@ def prepare_base(root: Path, simulate: bool = True) -> Base:
             identify([hop], n_boot=0).save(root / "hopper.toml")
             ur = dio.read(DATA / "ur10e" / "no_torque.csv", mapping="ur10e")
             identify([ur], n_boot=0, assume_no_force=True).save(root / "ur10e.toml")
-            replay_file(root / "sim.parquet", root / "irb140.toml", root / "est.parquet")
+            replay_run(
+                ReplayOptions(root / "sim.parquet", root / "irb140.toml", root / "est.parquet")
+            )
         else:  # make test runs info, convert and view only: no model, no estimates
             for r in ("irb140", "hopper", "ur10e"):
                 (root / f"{r}.toml").write_text("# no model\n")

@@ -4,8 +4,9 @@ Everything is sent as columns (``send_columns`` + one ``TimeColumn`` named ``tim
 recording's ``t`` in seconds), one chunk per entity and piece of the recording; styling is
 logged once as static data; the layout comes from :func:`ditherlab.output.rerun.blueprint.make_blueprint`.
 
-This module holds the entry points (:func:`log_view`, :func:`save_view`, :func:`show_view`,
-:func:`run_view`, :func:`save_view_files`) and re-exports the public names of the modules that do
+This module holds the entry points (:func:`log_view`, :func:`save_view`, :func:`show_view`, and
+:func:`save_view_pieces`, :func:`show_view_pieces` for a recording read in pieces;
+the ``view`` command's workflow is :mod:`ditherlab.app.view`) and re-exports the public names of the modules that do
 the work, each a job of its own:
 
 - :mod:`ditherlab.output.rerun.inputs`: opening and checking the inputs (:func:`load_view_request`,
@@ -67,9 +68,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -112,7 +111,6 @@ __all__ = [
     "VARIANT_COLORS",
     "WEB_PORT",
     "ViewRequest",
-    "ViewResult",
     "ViewSummary",
     "check_estimates_match",
     "decimate_index",
@@ -129,14 +127,12 @@ __all__ = [
     "rrd_contents",
     "rrd_rows",
     "rrd_scalars",
-    "run_view",
     "save_view",
-    "save_view_files",
     "save_view_pieces",
     "show_view",
+    "show_view_pieces",
     "tau_bar",
     "thin_mask",
-    "wait_until_interrupted",
 ]
 
 WEB_PORT = 9090
@@ -358,7 +354,7 @@ def show_view(
     """Send the view to a viewer: ``mode="spawn"`` starts the native viewer (``rr.spawn``),
     ``mode="serve"`` serves it over gRPC and a web viewer (``rr.serve_grpc`` +
     ``rr.serve_web_viewer``) and returns the web viewer's URL; the servers live as long as this
-    process (see :func:`wait_until_interrupted`).
+    process (see :func:`ditherlab.app.view.wait_until_interrupted`).
     """
     stream = new_stream(rec, estimates, model)
     bp = make_blueprint(rec.n, estimates.variants if estimates else [], has_wrench=rec.has_wrench)
@@ -376,6 +372,40 @@ def show_view(
     return url
 
 
+def show_view_pieces(
+    src: Source,
+    *,
+    head: Recording,
+    mode: str = "spawn",
+    estimates: EstimatesSource | None = None,
+    model: TorqueModel | None = None,
+    diagnosis: DiagnosisLike | None = None,
+    rate_3d: float | None = 25.0,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Callable[[int, int], None] | None = None,
+    series_rate: float | None = None,
+) -> tuple[ViewSummary, str | None]:
+    """:func:`show_view` of a recording read in pieces (:func:`log_view_pieces`); returns what
+    was logged and the web viewer's URL (``mode="serve"``)."""
+    stream = _stream(json.dumps(src.meta, sort_keys=True), src.times(), estimates, model)
+    variants = estimates.variants if estimates else []
+    url = _connect(stream, make_blueprint(head.n, variants, has_wrench=head.has_wrench), mode)
+    summary = log_view_pieces(
+        src,
+        stream,
+        head=head,
+        estimates=estimates,
+        model=model,
+        diagnosis=diagnosis,
+        rate_3d=rate_3d,
+        chunk_rows=chunk_rows,
+        series_rate=series_rate,
+        progress=progress,
+    )
+    stream.flush()
+    return summary, url
+
+
 def _connect(stream: rr.RecordingStream, bp: rrb.Blueprint, mode: str) -> str | None:
     """Start the viewer of ``mode`` for ``stream``; the web viewer's URL for ``"serve"``."""
     if mode == "spawn":
@@ -386,81 +416,3 @@ def _connect(stream: rr.RecordingStream, bp: rrb.Blueprint, mode: str) -> str | 
         rr.serve_web_viewer(web_port=WEB_PORT, connect_to=grpc, open_browser=False)
         return f"http://localhost:{WEB_PORT}/?url={grpc}"
     raise DitherlabError(f"view mode is {mode!r}, expected 'spawn' or 'serve'")
-
-
-def wait_until_interrupted() -> None:
-    """Block until Ctrl-C (keeps the servers of ``show_view(mode="serve")`` alive)."""
-    try:
-        while True:
-            time.sleep(1.0)
-    except KeyboardInterrupt:
-        return
-
-
-@dataclass
-class ViewResult:
-    """What :func:`run_view` did: the file written (or the URL served) and what was logged."""
-
-    summary: ViewSummary
-    path: Path | None = None
-    url: str | None = None
-
-
-def run_view(
-    req: ViewRequest,
-    *,
-    rate_3d: float | None = 25.0,
-    chunk_rows: int = CHUNK_ROWS,
-    progress: Callable[[int, int], None] | None = None,
-    series_rate: float | None = None,
-) -> ViewResult:
-    """Write (``req.save``) or show (``req.mode``) the view of a checked request, the recording
-    and its estimates read in pieces of ``chunk_rows`` rows (:func:`log_view_pieces`)."""
-    kw: dict = {
-        "head": req.head,
-        "estimates": req.estimates,
-        "model": req.model,
-        "diagnosis": req.diagnosis,
-        "rate_3d": rate_3d,
-        "chunk_rows": chunk_rows,
-        "progress": progress,
-        "series_rate": series_rate,
-    }
-    if req.save is not None:
-        summary = save_view_pieces(req.src, req.save, inputs=req.inputs, **kw)
-        return ViewResult(summary, path=req.save)
-    src, est = req.src, req.estimates
-    stream = _stream(json.dumps(src.meta, sort_keys=True), src.times(), est, req.model)
-    variants = est.variants if est else []
-    url = _connect(
-        stream, make_blueprint(req.head.n, variants, has_wrench=req.head.has_wrench), str(req.mode)
-    )
-    summary = log_view_pieces(src, stream, **kw)
-    stream.flush()
-    return ViewResult(summary, url=url)
-
-
-def save_view_files(
-    recording: str | Path,
-    out: str | Path,
-    *,
-    estimates: str | Path | None = None,
-    model: str | Path | None = None,
-    diagnosis: str | Path | None = None,
-    rate_3d: float | None = 25.0,
-    chunk_rows: int = CHUNK_ROWS,
-    progress: Callable[[int, int], None] | None = None,
-    series_rate: float | None = None,
-) -> Path:
-    """Open the files, check them and write the view to ``out`` (``.rrd``) reading the
-    recording in pieces; returns ``out``.
-
-    The one call a script (``make demo``) needs; see :func:`load_view_request` for the checks.
-    """
-    req = load_view_request(
-        recording, estimates=estimates, model=model, diagnosis=diagnosis, save=out
-    )
-    run_view(
-        req, rate_3d=rate_3d, chunk_rows=chunk_rows, progress=progress, series_rate=series_rate
-    )
-    return Path(out)

@@ -1,0 +1,124 @@
+"""``ditherlab diagnose``: read recordings and a model, diagnose, write the report folder and the
+model with its history row.
+
+The model file given is an input and keeps its bytes: the history row (what this diagnosis
+found, and on which recordings) goes into a copy of the model written into the report folder,
+``DIR/model.toml`` (:data:`HISTORY_MODEL`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ditherlab.analysis.diagnosis import Diagnosis, diagnose
+from ditherlab.app.workflow import Progress, ReadOptions, guard
+from ditherlab.core.files import all_or_nothing
+from ditherlab.data.torque_model import TorqueModel
+from ditherlab.io.stream import CHUNK_ROWS, open_source
+from ditherlab.output.diagnosis_report import write_report
+
+__all__ = ["HISTORY_MODEL", "DiagnoseOptions", "Diagnosed", "run", "with_history_row"]
+
+#: the model with the diagnosis's history row, in the report folder
+HISTORY_MODEL = "model.toml"
+
+
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    """The options of ``ditherlab diagnose``.
+
+    Attributes
+    ----------
+    recordings : recordings of the model's robot (with an F/T sensor for the force error)
+    model : the torque model (TOML); read only
+    out : the report folder (``report.md``, ``report.json``, PNG figures and
+        :data:`HISTORY_MODEL`, the model with the history row), or None: nothing is written
+    history : write the model with the diagnosis's history row into ``out``
+    regimes : score only these regimes (``still``, ``dither``, ``moving``); None: all
+    read : how to read a foreign log (``--mapping``, ``--robot``)
+    chunk_rows : rows read and processed at a time
+    force : write into an existing non-empty folder
+    """
+
+    recordings: tuple[Path, ...]
+    model: Path
+    out: str | Path | None = None
+    history: bool = True
+    regimes: tuple[str, ...] | None = None
+    read: ReadOptions = ReadOptions()
+    chunk_rows: int = CHUNK_ROWS
+    force: bool = False
+
+
+@dataclass
+class Diagnosed:
+    """What :func:`run` found and wrote: the diagnosis (its ``model`` carries the history row
+    when one was written), the report folder, and the model file with the row."""
+
+    diagnosis: Diagnosis
+    out: Path | None = None
+    model_path: Path | None = None
+
+    def text(self) -> str:
+        """The plain-words summary (what the CLI prints)."""
+        return self.diagnosis.summary()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``--json`` output: :meth:`ditherlab.analysis.diagnosis.Diagnosis.to_dict`."""
+        return self.diagnosis.to_dict()
+
+
+def run(options: DiagnoseOptions, progress: Progress | None = None) -> Diagnosed:
+    """Diagnose the recordings (read in pieces of ``chunk_rows`` rows) against the model; with
+    ``out``, write the report and (``history``) the model with its new history row into it,
+    all or nothing.
+
+    Parameters
+    ----------
+    options : :class:`DiagnoseOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Diagnosed
+    """
+    o = options
+    if o.out is None:
+        return Diagnosed(_diagnose(o, progress))
+    out = guard(o.out, [*o.recordings, o.model], read=o.read, folder=True, force=o.force)
+    with all_or_nothing(out):
+        d = _diagnose(o, progress)
+        path: Path | None = None
+        if o.history:
+            d.model = with_history_row(d.model, d.history_entry())
+            path = d.model.save(out / HISTORY_MODEL)
+        write_report(d, out)
+    return Diagnosed(d, out, path)
+
+
+def _diagnose(o: DiagnoseOptions, progress: Progress | None) -> Diagnosis:
+    model = TorqueModel.load(o.model)
+    recs = [open_source(p, **o.read.kwargs()) for p in o.recordings]
+    return diagnose(
+        recs, model, regimes=o.regimes or None, progress=progress, chunk_rows=o.chunk_rows
+    )
+
+
+def with_history_row(model: TorqueModel, entry: dict[str, Any]) -> TorqueModel:
+    """A copy of ``model`` with a diagnosis row (:meth:`Diagnosis.history_entry`) appended to its
+    history; a diagnosis of the same model version on the same recordings replaces the last
+    row instead."""
+    m = model.copy()
+    hist = list(m.history)
+    if (
+        hist
+        and hist[-1].get("version") == entry["version"]
+        and hist[-1].get("recordings") == entry["recordings"]
+    ):
+        hist[-1] = entry
+    else:
+        hist.append(entry)
+    m.history = [{k: v for k, v in h.items() if v is not None} for h in hist]
+    return m

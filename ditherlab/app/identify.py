@@ -1,0 +1,267 @@
+"""``ditherlab identify``: read recordings, fit the bands, add effects, save the model.
+
+``identify --add NAME`` and the library call :func:`add_effect`: the joints are chosen by
+diagnosis (:func:`ditherlab.analysis.scoring.select_joints`; an effect of the measurement
+pipeline, :attr:`~ditherlab.physics.effects.Effect.on_every_joint`, goes on every joint where it
+acts), the effect is fitted on the band-aware residual (:mod:`ditherlab.physics.effect_fit`),
+refused when the bands could take it (:func:`ditherlab.physics.effect_fit.identifiability`), and
+the bands re-identified with it in place (:func:`ditherlab.analysis.identification.identify`).
+This module sits above both identification and diagnosis, so neither has to know the other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from pathlib import Path
+
+from ditherlab.analysis.identification import identify, summary
+from ditherlab.analysis.scoring import select_joints
+from ditherlab.app.workflow import Progress, ReadOptions, guard
+from ditherlab.core.errors import ModelError
+from ditherlab.core.files import FileKind
+from ditherlab.data.recording import Recording
+from ditherlab.data.torque_model import TorqueModel
+from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
+from ditherlab.physics.dither import has_dither
+from ditherlab.physics.effect_fit import fit_effect, not_identifiable, pool_weak_joints, pooled_note
+from ditherlab.physics.effects import clean_none, get_effect, make_spec, signals
+from ditherlab.physics.residual import scored
+
+__all__ = ["MODEL_FILE", "IdentifyOptions", "Identified", "add_effect", "identify_model", "run"]
+
+#: the model file that identify writes
+MODEL_FILE = FileKind("a torque model", (".toml",), "model.toml")
+
+
+@dataclass(frozen=True)
+class IdentifyOptions:
+    """The options of ``ditherlab identify``.
+
+    Attributes
+    ----------
+    recordings : push recordings with an F/T sensor (``f_x..m_z``), any readable format
+    out : the model file to write (``.toml``; as text, a trailing ``/`` names a folder: refused)
+    model : a model file to start from: its prior and effects are kept, its bands re-fitted
+    add : effects to fit after the bands, in order (names of :data:`ditherlab.physics.effects.EFFECTS`)
+    assume_no_force : no F/T sensor: the user states that no external force acts
+    n_boot : bootstrap replicates for the standard errors
+    seed : the bootstrap's seed
+    read : how to read a foreign log (``--mapping``, ``--robot``)
+    chunk_rows : rows read and processed at a time
+    force : replace an existing model file
+    """
+
+    recordings: tuple[Path, ...]
+    out: str | Path
+    model: Path | None = None
+    add: tuple[str, ...] = ()
+    assume_no_force: bool = False
+    n_boot: int = 30
+    seed: int = 0
+    read: ReadOptions = ReadOptions()
+    chunk_rows: int = CHUNK_ROWS
+    force: bool = False
+
+
+@dataclass
+class Identified:
+    """What :func:`run` wrote: the model and its file."""
+
+    model: TorqueModel
+    path: Path
+
+    def text(self) -> str:
+        """The bands per regime and joint, and where the model went (what the CLI prints)."""
+        return f"{summary(self.model)}\nwrote {self.path}"
+
+
+def run(options: IdentifyOptions, progress: Progress | None = None) -> Identified:
+    """Read the recordings (in pieces of ``chunk_rows`` rows: memory does not grow with the
+    logs' length), identify the bands, add the effects (on the whole recordings, read into
+    memory) and save the model (atomically; never over an input).
+
+    Parameters
+    ----------
+    options : :class:`IdentifyOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Identified
+    """
+    o = options
+    out = guard(o.out, [*o.recordings, o.model], read=o.read, kind=MODEL_FILE, force=o.force)
+    sources = [open_source(p, **o.read.kwargs()) for p in o.recordings]
+    base = TorqueModel.load(o.model) if o.model is not None else None
+    model = identify_model(
+        sources,
+        model=base,
+        add=o.add,
+        assume_no_force=o.assume_no_force,
+        n_boot=o.n_boot,
+        seed=o.seed,
+        progress=progress,
+        chunk_rows=o.chunk_rows,
+    )
+    model.source = None
+    model.save(out)
+    return Identified(model, out)
+
+
+def identify_model(
+    recordings: Sequence[Recording | Source],
+    *,
+    model: TorqueModel | None = None,
+    add: Sequence[str] = (),
+    assume_no_force: bool = False,
+    n_boot: int = 30,
+    seed: int = 0,
+    progress: Progress | None = None,
+    chunk_rows: int = CHUNK_ROWS,
+) -> TorqueModel:
+    """:func:`~ditherlab.analysis.identification.identify` the bands, then :func:`add_effect`
+    each of ``add`` in order (recordings read in pieces are read whole for these).
+
+    Parameters
+    ----------
+    recordings : in memory or :class:`~ditherlab.io.stream.Source` s read in pieces
+    model : the model to start from (its prior and effects kept), or None
+    add : effect names
+    assume_no_force, n_boot, seed, progress, chunk_rows : as
+        :func:`~ditherlab.analysis.identification.identify`
+
+    Returns
+    -------
+    TorqueModel
+    """
+    new = identify(
+        recordings,
+        base=model,
+        assume_no_force=assume_no_force,
+        n_boot=n_boot,
+        seed=seed,
+        progress=progress,
+        chunk_rows=chunk_rows,
+    )
+    if add:
+        recs = [r.read() if isinstance(r, Source) else r for r in recordings]
+        for name in add:
+            new = add_effect(recs, new, name, assume_no_force=assume_no_force)
+    return new
+
+
+def add_effect(
+    recordings: Sequence[Recording],
+    model: TorqueModel,
+    effect: str,
+    joints: Sequence[int] | None = None,
+    *,
+    refit: bool = True,
+    assume_no_force: bool = False,
+    executor: Executor | None = None,
+) -> TorqueModel:
+    """Fit one more effect on the current residual and return the new model (version + 1).
+
+    Parameters
+    ----------
+    recordings : recordings to fit on (with an F/T sensor for ``attenuation_lag`` and
+        ``ft_bias``)
+    model : the model the effect is added to
+    effect : effect name (see :data:`ditherlab.physics.effects.EFFECTS`)
+    joints : 1-based joints for a per-joint effect; None chooses the joints where diagnosis finds
+        the effect (the best joint when none passes the test), or for an effect with
+        :attr:`~ditherlab.physics.effects.Effect.on_every_joint` every joint where its design acts
+        (:func:`ditherlab.analysis.scoring.acting_joints`)
+    refit : re-fit the bands and noise with :func:`ditherlab.analysis.identification.identify`
+        afterwards (recordings with an F/T sensor, or without one with ``assume_no_force``)
+    assume_no_force : the recordings have no sensor and no external force acts (as stated to
+        identify): the re-fit treats the external force as zero
+    executor : runs the re-fit's band fits (:func:`ditherlab.analysis.identification.identify`'s
+        ``executor``; the same model)
+
+    Returns
+    -------
+    TorqueModel with the effect appended (an existing one of the same name is replaced).
+
+    Raises
+    ------
+    ModelError
+        Unknown effect name, a joint out of range, or a column the effect needs is missing.
+    """
+    e = get_effect(effect)
+    recs = list(recordings)
+    _check_effect_inputs(recs, model, effect, joints)
+    base = model.copy()
+    base.effects = [s for s in base.effects if s.name != effect]
+    sc = [scored(base, r) for r in recs]
+    if e.shared:
+        fits = {-1: fit_effect(e, sc, None)}
+    else:
+        if joints is None:
+            js = select_joints(base, recs, effect, scored_recs=sc)
+        else:
+            js = [int(j) - 1 for j in joints]
+        fits = {j: fit_effect(e, sc, j) for j in js}
+    # joints with too little evidence take values shared over the others (dither_extraction)
+    fits, weak = pool_weak_joints(e, sc, fits) if not e.shared else (fits, {})
+    for j, f in fits.items():
+        why = not_identifiable(e, sc, None if j == -1 else j, f)
+        if why is not None:
+            raise ModelError(why)
+    spec = clean_none(make_spec(e, fits))
+    if weak:  # the model file says which joints took the shared values
+        spec.params["pooled"] = [1.0 if j - 1 in weak else 0.0 for j in spec.joints]
+    new = base.copy()
+    new.effects.append(spec)
+    new.version = model.version + 1
+    if refit:
+        new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor)
+    if weak:
+        new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
+    return new
+
+
+def _check_effect_inputs(
+    recs: list[Recording], model: TorqueModel, effect: str, joints: Sequence[int] | None
+) -> None:
+    """ModelError unless the recordings can carry ``effect`` on ``joints`` of ``model``."""
+    e = get_effect(effect)
+    if not recs:
+        raise ModelError("add_effect needs at least one recording")
+    for r in recs:
+        e.check(signals(r))
+    if e.needs_dither and not any(has_dither(r) for r in recs):
+        names = ", ".join(str(r.name) for r in recs)
+        raise ModelError(
+            f"{names}: effect {effect!r} acts only where the dither is on, and no recording here "
+            "has the dither on (column 'dither'); add it with a dithered recording"
+        )
+    if joints is not None:
+        bad = [j for j in joints if not 1 <= int(j) <= model.n]
+        if bad:
+            raise ModelError(
+                f"effect {effect!r}: joint {bad[0]} is out of range, expected 1..{model.n}"
+            )
+
+
+def _refit(
+    recs: Sequence[Recording],
+    model: TorqueModel,
+    n_boot: int = 20,
+    *,
+    assume_no_force: bool = False,
+    executor: Executor | None = None,
+) -> TorqueModel:
+    """Re-fit bands and noise with the effects in place (identify), keeping version/history.
+    Without a sensor the bands are re-fitted only when the user stated that no force acts."""
+    if not assume_no_force and not all(r.has_wrench for r in recs):
+        return model
+    out = identify(
+        list(recs), base=model, n_boot=n_boot, assume_no_force=assume_no_force, executor=executor
+    )
+    out.effects = list(model.effects)
+    out.version = model.version
+    out.history = list(model.history)
+    return out

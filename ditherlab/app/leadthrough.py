@@ -1,0 +1,144 @@
+"""``ditherlab leadthrough``: the simulator's lead-through with the 10 N dead zone against the
+confidence interval (paper §V) on the same operator pushes, measured
+(:func:`ditherlab.analysis.lead_metrics.lead_metrics`), averaged over seeds
+(:func:`ditherlab.analysis.lead_metrics.law_means`) and written as a Markdown table, the JSON of
+every run and a figure (:func:`ditherlab.output.lead_figures.write_comparison`)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ditherlab.analysis.lead_metrics import law_means, lead_metrics, means_table, path_trace
+from ditherlab.app.workflow import Progress, guard
+from ditherlab.core.errors import ConfigError
+from ditherlab.core.files import all_or_nothing
+from ditherlab.output.lead_figures import write_comparison
+from ditherlab.sim import simulate
+from ditherlab.sim.params import LEAD_THROUGH_LAWS, load_params
+
+__all__ = ["DITHER_CHOICES", "LeadthroughOptions", "Compared", "compare_laws", "run"]
+
+#: ``--dither``: the dither settings compared
+DITHER_CHOICES = {"both": (True, False), "on": (True,), "off": (False,)}
+
+
+@dataclass(frozen=True)
+class LeadthroughOptions:
+    """The options of ``ditherlab leadthrough``.
+
+    Attributes
+    ----------
+    out : the output folder (``.md``, ``.json``, ``.png``)
+    seed : the first simulator seed (each seed fixes the push magnitudes and the noise)
+    repeats : runs per law and dither setting, on seeds ``seed, seed + 1, ...``
+    dither : ``both``, ``on`` or ``off`` (:data:`DITHER_CHOICES`)
+    config : a simulator TOML every run starts from
+    force : write into an existing non-empty folder
+    """
+
+    out: str | Path
+    seed: int = 0
+    repeats: int = 3
+    dither: str = "both"
+    config: Path | None = None
+    force: bool = False
+
+
+@dataclass
+class Compared:
+    """What :func:`run` compared (:func:`compare_laws`'s result) and the files it wrote."""
+
+    result: dict[str, Any]
+    files: list[Path]
+
+    def text(self) -> str:
+        """The means table and the files written (what the CLI prints)."""
+        return means_table(self.result) + f"\nwrote {', '.join(str(f) for f in self.files)}"
+
+
+def run(options: LeadthroughOptions, progress: Progress | None = None) -> Compared:
+    """Check the options and the output folder, compare the laws and write the comparison,
+    all or nothing.
+
+    Parameters
+    ----------
+    options : :class:`LeadthroughOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Compared
+    """
+    o = options
+    if o.dither not in DITHER_CHOICES:
+        raise ConfigError(f"--dither: got {o.dither!r}; expected 'both', 'on' or 'off'")
+    out = guard(o.out, [o.config], folder=True, force=o.force)
+    if o.config is not None:
+        load_params(o.config)  # a bad config is one line before any work
+    seeds = list(range(o.seed, o.seed + o.repeats))
+    with all_or_nothing(out):
+        result = compare_laws(seeds, DITHER_CHOICES[o.dither], config=o.config, progress=progress)
+        files = write_comparison(result, out)
+    return Compared(result, files)
+
+
+def compare_laws(
+    seeds: Sequence[int],
+    dithers: Iterable[bool] = (True, False),
+    *,
+    config: Any = None,
+    laws: Sequence[str] = LEAD_THROUGH_LAWS,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Simulate the lead-through with each law on the same operator pushes (same seeds) and
+    measure each run with :func:`~ditherlab.analysis.lead_metrics.lead_metrics`.
+
+    Parameters
+    ----------
+    seeds : simulator seeds (each seed fixes the push magnitudes and the noise)
+    dithers : with and/or without dither
+    config : simulator config (TOML path or dict) every run starts from; its
+        ``lead_through.law`` is overridden per run
+    laws : the laws compared
+    progress : ``progress(done, total)`` over the runs
+
+    Returns
+    -------
+    dict
+        ``runs``: every run's :func:`~ditherlab.analysis.lead_metrics.lead_metrics` (without the
+        per-push lists' arrays); ``means``: per ``(law, dither)`` the mean of each compared
+        metric over the seeds (:func:`~ditherlab.analysis.lead_metrics.law_means`); ``paths``:
+        the first seed's path per law and dither (:func:`~ditherlab.analysis.lead_metrics.path_trace`);
+        ``seeds``, ``laws``, ``dithers``.
+    """
+    dithers = list(dithers)
+    for law in laws:
+        if law not in LEAD_THROUGH_LAWS:
+            raise ConfigError(
+                f"law {law!r} is unknown; expected one of {', '.join(LEAD_THROUGH_LAWS)}"
+            )
+    total = len(seeds) * len(dithers) * len(laws)
+    runs: list[dict[str, Any]] = []
+    paths: dict[str, Any] = {}
+    for dither in dithers:
+        for seed in seeds:
+            for law in laws:
+                rec = simulate(
+                    "lead-through", seed=int(seed), dither=dither, config=config, law=law
+                )
+                runs.append(lead_metrics(rec))
+                if seed == seeds[0]:
+                    paths[f"{law}|{dither}"] = path_trace(rec)
+                if progress is not None:
+                    progress(len(runs), total)
+    return {
+        "seeds": [int(s) for s in seeds],
+        "laws": list(laws),
+        "dithers": dithers,
+        "runs": runs,
+        "means": law_means(runs, dithers, laws),
+        "paths": paths,
+    }

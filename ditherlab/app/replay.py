@@ -1,0 +1,233 @@
+"""``ditherlab replay``: replay the estimator of eq. (3) over a recording read in pieces, writing
+the estimates file as it goes (:func:`replay_stream`), and tally the force error and interval
+coverage against the F/T sensor on the way (:class:`Tally`, :func:`describe`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ditherlab.analysis.estimation import replay_columns
+from ditherlab.app.workflow import Progress, ReadOptions, guard
+from ditherlab.core.files import FileKind, plain
+from ditherlab.data.estimates import COMPONENTS, Estimates, EstimatesWriter
+from ditherlab.data.torque_model import TorqueModel
+from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
+from ditherlab.physics.effects import release
+
+__all__ = [
+    "ESTIMATES_FILE",
+    "ReplayOptions",
+    "Replayed",
+    "Tally",
+    "describe",
+    "replay_stream",
+    "run",
+]
+
+#: the estimates file that replay writes
+ESTIMATES_FILE = FileKind("estimates", (".parquet",), "estimates.parquet")
+
+
+@dataclass(frozen=True)
+class ReplayOptions:
+    """The options of ``ditherlab replay``.
+
+    Attributes
+    ----------
+    recording : the recording to replay the estimator over
+    model : the torque model (TOML) from ``ditherlab identify``
+    out : the estimates file to write (``.parquet``)
+    level : the intervals' confidence level, in (0, 1)
+    interval : the interval method, ``profile`` or ``set_membership``
+    components : the estimated wrench components: ``all``, ``fxyz``, or a list like ``f_x,f_z``
+    variants : the estimator variants (:data:`ditherlab.data.estimates.VARIANTS`); None: all the
+        recording allows
+    read : how to read a foreign log (``--mapping``, ``--robot``)
+    chunk_rows : rows read and processed at a time
+    force : replace an existing estimates file
+    """
+
+    recording: Path
+    model: Path
+    out: str | Path
+    level: float = 0.95
+    interval: str = "profile"
+    components: str = "all"
+    variants: tuple[str, ...] | None = None
+    read: ReadOptions = ReadOptions()
+    chunk_rows: int = CHUNK_ROWS
+    force: bool = False
+
+
+def run(options: ReplayOptions, progress: Progress | None = None) -> Replayed:
+    """Read a recording and a model, replay the estimator piece by piece
+    (:func:`replay_stream`) and save the estimates (atomic, never over an input).
+
+    Parameters
+    ----------
+    options : :class:`ReplayOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Replayed
+    """
+    o = options
+    out = guard(o.out, [o.recording, o.model], read=o.read, kind=ESTIMATES_FILE, force=o.force)
+    model = TorqueModel.load(o.model)
+    src = open_source(o.recording, **o.read.kwargs())
+    return replay_stream(
+        src,
+        model,
+        out,
+        chunk_rows=o.chunk_rows,
+        progress=progress,
+        level=o.level,
+        interval=o.interval,
+        components=o.components,
+        variants=list(o.variants) if o.variants else None,
+    )
+
+
+def replay_stream(
+    src: Source,
+    model: TorqueModel,
+    out: str | Path,
+    *,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Progress | None = None,
+    **options: Any,
+) -> Replayed:
+    """:func:`~ditherlab.analysis.estimation.replay` over a recording read in pieces
+    (:class:`ditherlab.io.stream.Source`), writing the estimates file as it goes: memory holds
+    one piece, whatever the length.
+
+    Every piece is replayed with its 2 s of context on either side and keeps the rows it owns;
+    the file equals ``replay(src.read(), model, **options).save(out)`` (tested on logs cut inside
+    a dither period, a push and a stick). ``moving_spans`` are joined across pieces.
+
+    Parameters
+    ----------
+    src : the recording ; model : as for :func:`~ditherlab.analysis.estimation.replay`
+    out : the estimates file to write
+    chunk_rows : rows per piece (:data:`ditherlab.io.stream.CHUNK_ROWS`)
+    progress : ``progress(done, total)`` over the pieces
+    **options : those of :func:`~ditherlab.analysis.estimation.replay` (not ``progress``)
+
+    Returns
+    -------
+    Replayed: the file, its metadata and the force error / coverage tally
+    """
+    spans: list[list[float]] = []
+    meta: dict[str, Any] | None = None
+    last = None
+    tally = Tally()
+    with EstimatesWriter(out) as writer:
+        for piece in src.pieces(chunk_rows):
+            cols, pmeta = replay_columns(piece.rec, model, **options)
+            rows = {k: v[piece.keep] for k, v in cols.items()}
+            writer.write(rows)
+            tally.add_columns(rows, pmeta["variants"])
+            t = rows["t"]
+            for a, b in pmeta["moving_spans"]:
+                a, b = max(a, t[0]), min(b, t[-1])
+                if a > b:
+                    continue
+                if spans and a == t[0] and spans[-1][1] == last:
+                    spans[-1][1] = b  # a motion across the cut continues
+                else:
+                    spans.append([a, b])
+            last = float(t[-1])
+            if meta is None:  # the recording's own is the source's, converted once below
+                meta = plain({**pmeta, "recording": None})
+            if piece.count > 1:  # a piece of a long log: its robot quantities go now
+                release(piece.rec)
+            if progress:
+                progress(piece.index + 1, piece.count)
+        assert meta is not None
+        meta = {**meta, "recording": plain(src.meta), "recording_name": src.name}
+        meta["moving_spans"] = spans
+        writer.meta = meta
+    return Replayed(Path(out), meta, tally)
+
+
+@dataclass
+class Replayed:
+    """What :func:`replay_stream` wrote: the estimates file, its metadata, and the running
+    force error / coverage over all its rows (:class:`Tally`)."""
+
+    path: Path
+    meta: dict[str, Any]
+    tally: Tally
+
+    @property
+    def variants(self) -> list[str]:
+        return list(self.meta["variants"])
+
+    def text(self) -> str:
+        """:func:`describe` and where the estimates went (what the CLI prints)."""
+        return f"{describe(self)}\nwrote {self.path}"
+
+
+class Tally:
+    """Running force error and interval coverage against the F/T sensor, per variant, over
+    pieces of estimates (what :func:`describe` prints)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.variants: list[str] = []
+        self.sse: dict[str, np.ndarray] = {}
+        self.covered: dict[str, int] = {}
+
+    def add(self, est: Estimates) -> None:
+        """Count the rows of ``est`` (a whole file or one piece of it)."""
+        self.add_columns(est.data, est.variants)
+
+    def add_columns(self, cols: Mapping[str, Any], variants: Sequence[str]) -> None:
+        """Count rows given as the estimates file's columns (a DataFrame or a dict of (N,)
+        arrays) of the estimator ``variants``."""
+        self.variants = list(variants)
+        self.n += len(cols["t"])
+        if "f_x" not in cols:
+            return
+
+        def stack(names: list[str]) -> np.ndarray:
+            return np.stack([np.asarray(cols[c], dtype=float) for c in names], axis=1)
+
+        F = stack(list(COMPONENTS[:3]))
+        for v in variants:
+            Fh = stack([f"{v}/{c}" for c in COMPONENTS[:3]])
+            lo = stack([f"{v}/{c}_lo" for c in COMPONENTS[:3]])
+            hi = stack([f"{v}/{c}_hi" for c in COMPONENTS[:3]])
+            self.sse[v] = self.sse.get(v, 0.0) + ((Fh - F) ** 2).sum(axis=0)
+            self.covered[v] = self.covered.get(v, 0) + int(((lo <= F) & (F <= hi)).sum())
+
+
+def describe(est: Estimates | Replayed) -> str:
+    """A few lines: samples, variants, interval method, and per variant the force RMS error and
+    interval coverage against the F/T sensor when it is there (over the whole file for what
+    :func:`replay_stream` wrote)."""
+    if isinstance(est, Replayed):
+        tally = est.tally
+    else:
+        tally = Tally()
+        tally.add(est)
+    lines = [
+        f"{tally.n} samples, variants: {', '.join(est.variants)}; intervals "
+        f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
+    ]
+    for v in est.variants:
+        if v not in tally.sse:
+            continue
+        rms = np.sqrt(tally.sse[v] / max(tally.n, 1))
+        cov = tally.covered[v] / max(3 * tally.n, 1)
+        lines.append(
+            f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
+            f" interval coverage {cov:.1%}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,155 @@
+"""``ditherlab report``: analyse estimates files (the paper's §VI-C detection statistics,
+:func:`ditherlab.analysis.detection.analyse`) and write the report folder
+(:func:`ditherlab.output.report_page.write_pages`). Nothing is written when the analysis fails
+(no F/T columns, no pushes)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ditherlab.analysis.detection import analyse
+from ditherlab.app.workflow import Progress, guard
+from ditherlab.core.files import all_or_nothing, check_not_input
+from ditherlab.data.estimates import Estimates, EstimatesSource
+from ditherlab.data.recording import Recording
+from ditherlab.io.stream import CHUNK_ROWS
+from ditherlab.output.report_page import open_logs, summary_text, write_pages
+
+__all__ = ["ReportOptions", "Reported", "make_report", "run"]
+
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """The options of ``ditherlab report``.
+
+    Attributes
+    ----------
+    estimates : estimates files from ``ditherlab replay`` (with the F/T columns), or
+        :class:`~ditherlab.data.estimates.Estimates` in memory
+    out : the report folder (``report.md``, ``report.html``, ``report.json``, PNG figures)
+    recordings : the recordings behind the estimates (files or Recording objects): with them
+        the torque figures (Figs. 2, 4, 5) are drawn too
+    n_boot : bootstrap replicates of the detection curves
+    seed : the bootstrap's seed
+    chunk_rows : rows read at a time from a file
+    force : write into an existing non-empty folder
+    """
+
+    estimates: tuple[str | Path | Estimates, ...]
+    out: str | Path
+    recordings: tuple[str | Path | Recording, ...] = ()
+    n_boot: int = 200
+    seed: int = 0
+    chunk_rows: int = CHUNK_ROWS
+    force: bool = False
+
+
+@dataclass
+class Reported:
+    """What :func:`run` wrote: the analysis (as in ``report.json``) and the report folder."""
+
+    analysis: dict[str, Any]
+    out: Path
+
+    def text(self) -> str:
+        """The paper's table beside ours and where the report went (what the CLI prints)."""
+        return summary_text(self.analysis) + f"\nwrote {self.out}/report.md"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``--json`` output: the analysis."""
+        return self.analysis
+
+
+def run(options: ReportOptions, progress: Progress | None = None) -> Reported:
+    """Analyse the estimates and write the report folder, all or nothing.
+
+    Parameters
+    ----------
+    options : :class:`ReportOptions`
+    progress : ``progress(done, total)``, optional
+
+    Returns
+    -------
+    Reported
+    """
+    o = options
+    files = [x for x in (*o.estimates, *o.recordings) if isinstance(x, str | Path)]
+    out = guard(o.out, files, folder=True, force=o.force)
+    with all_or_nothing(out):
+        analysis = make_report(
+            o.estimates,
+            out,
+            recordings=o.recordings,
+            n_boot=o.n_boot,
+            seed=o.seed,
+            chunk_rows=o.chunk_rows,
+            progress=progress,
+        )
+    return Reported(analysis, out)
+
+
+def make_report(
+    estimates: Sequence[str | Path | Estimates],
+    out_dir: str | Path,
+    *,
+    recordings: Sequence[Recording | str | Path] = (),
+    n_boot: int = 200,
+    seed: int = 0,
+    figures: bool = True,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Analyse estimates and write the report folder.
+
+    Estimates files and recording files are read ``chunk_rows`` rows at a time: the analysis
+    (:func:`ditherlab.analysis.detection.analyse`) keeps the pushes, the per-push numbers and
+    counts, the figures only the stretches they show (a window of rows around them), so memory
+    does not grow with the logs' length beyond about 17 bytes per sample; the numbers do not
+    depend on ``chunk_rows``.
+
+    Parameters
+    ----------
+    estimates : estimates files (or loaded :class:`~ditherlab.data.estimates.Estimates`)
+    out_dir : folder to write (created; files written atomically)
+    recordings : the recordings (Recording objects or paths) behind the estimates, optional:
+        with them the torque figures (Figs. 2, 4, 5) are drawn too
+    n_boot, seed : bootstrap of the detection curves
+    figures : draw the PNG figures
+    chunk_rows : rows read at a time from a file (:data:`ditherlab.io.stream.CHUNK_ROWS`)
+    progress : ``progress(done, total)``
+
+    Returns
+    -------
+    The analysis dict (as written to ``report.json``), with ``files`` listing what was written.
+
+    Raises
+    ------
+    NoPushesError
+        No F/T columns or no pushes: nothing is written.
+    """
+    out = Path(out_dir)
+    ests = [
+        EstimatesSource.of(e) if isinstance(e, Estimates) else EstimatesSource(e) for e in estimates
+    ]
+    for e in estimates:
+        if not isinstance(e, Estimates):
+            check_not_input(out / "report.json", [e])
+    # the recordings opened (and their time stamps read) before anything is written; each one
+    # must be behind one of the estimates (as ``view --estimates`` requires)
+    logs = open_logs(recordings, ests, chunk_rows) if figures else []
+    steps = 3 + (4 if figures else 0)
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress:
+            progress(done, steps)
+
+    analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
+    tick()
+    write_pages(ests, analysis, logs, out, figures=figures, chunk_rows=chunk_rows, tick=tick)
+    return analysis
