@@ -98,8 +98,9 @@ def _square_paths(prob) -> list[dict]:
     """The torque coordinates' kernel alone (``square_block``) with the lockstep passes and one
     sample at a time, alternated, CPU time, best of three each."""
     from ditherlab.estimator.intervals import set_membership as S
-    from ditherlab.estimator.intervals.sm_arrays import Bounds, SMProblem, square_state
-    from ditherlab.estimator.intervals.sm_square import square_block
+
+    from ditherlab.estimator.interval_methods.sm_arrays import Bounds, SMProblem, square_state
+    from ditherlab.estimator.interval_methods.sm_square import square_block
 
     ridge = prob.p_true == 0.0
     kk = S.interval_k(0.95, prob.n, int((~ridge).sum()))
@@ -126,7 +127,7 @@ def _square_paths(prob) -> list[dict]:
 def run(quick: bool = False) -> list[dict]:
     from ditherlab import estimator as E
     from ditherlab.estimator.backends.exact import _solve_exact
-    from ditherlab.estimator.intervals.profile import profile_reference
+    from ditherlab.estimator.interval_methods.profile import profile_reference
 
     N = 20_000 if quick else 100_000
     args, _ = push_data(N)

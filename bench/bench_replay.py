@@ -29,7 +29,7 @@ def _recording(seconds: float):
 def run(quick: bool = False) -> list[dict]:
     from ditherlab.analysis.estimation import replay
     from ditherlab.analysis.identification import identify
-    from ditherlab.estimator.intervals.profile import profile_reference
+    from ditherlab.estimator.interval_methods.profile import profile_reference
     from ditherlab.sim import simulate
 
     seconds = 360.0 if quick else 3600.0

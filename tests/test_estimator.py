@@ -15,10 +15,10 @@ from scipy.stats import norm
 
 from ditherlab import estimator as E
 from ditherlab.core.errors import ConfigError, ModelError
-from ditherlab.estimator import problem as estimator_core
+from ditherlab.estimator import formulation as estimator_core
 from ditherlab.estimator.backends.exact import _solve_exact
-from ditherlab.estimator.intervals.profile import _run_profile, profile_reference
-from ditherlab.estimator.intervals.set_membership import _set_membership
+from ditherlab.estimator.interval_methods.profile import _run_profile, profile_reference
+from ditherlab.estimator.interval_methods.set_membership import _set_membership
 
 PAPER_PRIOR = np.array([20.0, 20.0, 20.0, 0.3, 0.3, 0.3])
 #: Every estimator backend usable here: ``exact`` and the installed qpsolvers references.
@@ -561,7 +561,7 @@ def test_gaussian_estimate_is_the_exact_solve_and_its_intervals(case):
     on repeated geometry (the factor reused), and with m_z's row of J nearly m_y's and weak
     priors (Cholesky pivots of 1e-7 of their diagonal: the QR of the stacked matrix instead,
     the exact backend's own solve, so equal to the last bit)."""
-    from ditherlab.estimator.intervals.gaussian import (
+    from ditherlab.estimator.interval_methods.gaussian import (
         MIN_PIVOT,
         gaussian_problem_estimate,
         gaussian_profile_intervals,
@@ -605,7 +605,7 @@ def test_gaussian_estimate_is_the_exact_solve_and_its_intervals(case):
 
 def test_gaussian_estimate_falls_back_with_a_band():
     """A band with width: the exact backend and the general profile search, bit for bit."""
-    from ditherlab.estimator.intervals.gaussian import gaussian_problem_estimate
+    from ditherlab.estimator.interval_methods.gaussian import gaussian_problem_estimate
 
     args, _ = model_data(29, N=40)
     prob = E.problem(**args)

@@ -290,8 +290,8 @@ def test_fast_interval_kernels_match_their_references_on_replay_data(recs, model
     from ditherlab.analysis.estimation import model_effects, variant_inputs
     from ditherlab.data.recording import regimes
     from ditherlab.estimator import estimate, problem, set_membership_reference
-    from ditherlab.estimator.intervals.profile import _run_profile, profile_reference
-    from ditherlab.estimator.intervals.set_membership import _set_membership
+    from ditherlab.estimator.interval_methods.profile import _run_profile, profile_reference
+    from ditherlab.estimator.interval_methods.set_membership import _set_membership
     from ditherlab.physics.effects import force_gain
 
     dith = recs[1].slice(0, 60.0)

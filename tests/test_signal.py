@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
 
 from ditherlab.core.timeseries import savgol
-from ditherlab.estimator.problem import chi2_1_quantile, normal_quantile
+from ditherlab.estimator.formulation import chi2_1_quantile, normal_quantile
 from ditherlab.physics.effects.sensor import _first_order_lag, rotvec_matrix
 
 

@@ -10,21 +10,21 @@ import pytest
 
 from bench.bench_estimator import push_data
 from ditherlab import estimator as E
-from ditherlab.estimator.intervals.set_membership import (
+from ditherlab.estimator.interval_methods.set_membership import (
     BIG_BOX,
     _halfbox,
     _set_membership,
     interval_k,
     set_membership_reference,
 )
-from ditherlab.estimator.intervals.sm_arrays import (
+from ditherlab.estimator.interval_methods.sm_arrays import (
     Bounds,
     SMProblem,
     block_work,
     square_state,
 )
-from ditherlab.estimator.intervals.sm_lockstep import lockstep_inverse
-from ditherlab.estimator.intervals.sm_square import BLOCK, MAX_CONDITION, square_block
+from ditherlab.estimator.interval_methods.sm_lockstep import lockstep_inverse
+from ditherlab.estimator.interval_methods.sm_square import BLOCK, MAX_CONDITION, square_block
 
 
 def _sub(args: dict, rows) -> dict:

@@ -41,7 +41,7 @@ from ditherlab.data.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates
 from ditherlab.data.recording import Recording, regimes
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.estimator import intervals, problem, solve
-from ditherlab.estimator.intervals.gaussian import (
+from ditherlab.estimator.interval_methods.gaussian import (
     gaussian_problem_estimate,
     gaussian_profile_intervals,
 )

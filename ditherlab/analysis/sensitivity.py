@@ -132,7 +132,7 @@ from ditherlab.analysis.sensitivity_plant import (
 from ditherlab.core.errors import ConfigError, ModelError, RobotError
 from ditherlab.data.torque_model import PAPER_PRIOR_SIGMA, TorqueModel
 from ditherlab.estimator import estimate
-from ditherlab.estimator.problem import normal_quantile
+from ditherlab.estimator.formulation import normal_quantile
 from ditherlab.physics.effects.extraction import extraction_gain
 from ditherlab.robot.model import RobotModel
 from ditherlab.sim.params import load_params

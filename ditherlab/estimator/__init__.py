@@ -48,14 +48,11 @@ Use
     :func:`solve` and :func:`intervals`.
 
 Layout
-    :mod:`.problem` validates and reduces the inputs to a :class:`Problem` and completes a
+    :mod:`.formulation` validates and reduces the inputs to a :class:`Problem` and completes a
     :class:`Solution`; :mod:`.backends` holds ``exact`` (:mod:`.backends.exact`) and the
-    references (:mod:`.backends.qp`); :mod:`.intervals` the confidence intervals. The
-    functions :func:`problem` and :func:`intervals` re-exported here share their names with
-    those modules, so ``ditherlab.estimator.problem`` and ``ditherlab.estimator.intervals``
-    are the functions; reach the modules with ``from ditherlab.estimator.problem import ...``
-    or ``importlib.import_module``. The compiled kernels take their arrays grouped in
-    ``NamedTuple`` s (:class:`~ditherlab.estimator.problem.Samples` and the scratch of each
+    references (:mod:`.backends.qp`); :mod:`.interval_methods` the confidence intervals. The
+    compiled kernels take their arrays grouped in ``NamedTuple`` s
+    (:class:`~ditherlab.estimator.formulation.Samples` and the scratch of each
     kernel): ``docs/design/estimator-kernels.md``.
 """
 
@@ -66,15 +63,7 @@ from collections.abc import Callable, Sequence
 from ditherlab.core.errors import ConfigError
 from ditherlab.estimator.backends import _available, available_backends
 from ditherlab.estimator.backends.qp import QP_OPTIONS, qp_matrices
-from ditherlab.estimator.intervals import INTERVAL_METHODS, intervals
-from ditherlab.estimator.intervals.gaussian import gaussian_profile_intervals
-from ditherlab.estimator.intervals.profile import UNOBSERVABLE
-from ditherlab.estimator.intervals.set_membership import (
-    BIG_BOX,
-    interval_k,
-    set_membership_reference,
-)
-from ditherlab.estimator.problem import (
+from ditherlab.estimator.formulation import (
     CHUNK,
     COMPONENTS,
     RIDGE,
@@ -83,6 +72,14 @@ from ditherlab.estimator.problem import (
     Solution,
     complete,
     problem,
+)
+from ditherlab.estimator.interval_methods import INTERVAL_METHODS, intervals
+from ditherlab.estimator.interval_methods.gaussian import gaussian_profile_intervals
+from ditherlab.estimator.interval_methods.profile import UNOBSERVABLE
+from ditherlab.estimator.interval_methods.set_membership import (
+    BIG_BOX,
+    interval_k,
+    set_membership_reference,
 )
 
 __all__ = [

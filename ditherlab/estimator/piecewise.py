@@ -19,7 +19,7 @@ from numba import njit
 
 
 class Sample(NamedTuple):
-    """Eq. (3) at one sample (a row of :class:`~ditherlab.estimator.problem.Samples`).
+    """Eq. (3) at one sample (a row of :class:`~ditherlab.estimator.formulation.Samples`).
 
     Attributes
     ----------
@@ -42,7 +42,7 @@ class Sample(NamedTuple):
 
 @njit(cache=True, inline="always", _nrt=False)
 def sample_at(S, k):
-    """Sample ``k`` of the run ``S`` (:class:`~ditherlab.estimator.problem.Samples`)."""
+    """Sample ``k`` of the run ``S`` (:class:`~ditherlab.estimator.formulation.Samples`)."""
     return Sample(S.tau_bar[k], S.J[k], S.tau_min[k], S.tau_max[k], S.w[k], S.p[k], S.prior_mean)
 
 

@@ -11,8 +11,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ditherlab.estimator.formulation import Problem, _chunks
 from ditherlab.estimator.piecewise import _cost, _dist, _sides, sample_at
-from ditherlab.estimator.problem import Problem, _chunks
 
 
 class PieceWork(NamedTuple):
@@ -350,7 +350,7 @@ def _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws):
 @njit(cache=True)
 def _solve_exact_kernel(S, max_iter, warm, F_out, it_out):
     """The exact solution ``F_out (N, m)`` [N, N·m] and iterations ``it_out (N,)`` of every
-    sample of the run ``S`` (:class:`~ditherlab.estimator.problem.Samples`); ``warm``: each sample
+    sample of the run ``S`` (:class:`~ditherlab.estimator.formulation.Samples`); ``warm``: each sample
     starts from the previous one's solution (time series are smooth), else from the prior
     mean."""
     N, m, n = S.J.shape
@@ -365,7 +365,7 @@ def _solve_exact(
     prob: Problem, max_iter: int = 100, warm: bool = True, progress=None
 ) -> tuple[np.ndarray, np.ndarray]:
     """The exact backend on a prepared :class:`Problem`: ``F (N, m)`` [N, N·m] and the Newton
-    iterations ``(N,)``, by chunks of :data:`~ditherlab.estimator.problem.CHUNK` when
+    iterations ``(N,)``, by chunks of :data:`~ditherlab.estimator.formulation.CHUNK` when
     ``progress`` is given."""
     F = np.empty((prob.N, prob.m))
     it = np.zeros(prob.N, np.int64)

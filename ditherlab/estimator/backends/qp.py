@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ditherlab.core.errors import ConfigError
-from ditherlab.estimator.problem import Problem
+from ditherlab.estimator.formulation import Problem
 
 
 def qp_matrices(prob: Problem, k: int) -> tuple[np.ndarray, ...]:

@@ -1,5 +1,5 @@
 """The set-membership interval: ``[min F_i, max F_i]`` over the polytope of every ``F`` consistent
-with the bands widened by ``k sigma`` and the prior box (see :mod:`ditherlab.estimator.intervals`):
+with the bands widened by ``k sigma`` and the prior box (see :mod:`ditherlab.estimator.interval_methods`):
 a numba LP fast path and the HiGHS (``scipy.optimize.linprog``) reference.
 
 The general kernel (:func:`_set_membership_kernel`) solves the ``2m`` LPs of a sample in ``F``:
@@ -18,9 +18,9 @@ import numpy as np
 from numba import njit
 
 from ditherlab.core.errors import ConfigError
-from ditherlab.estimator.intervals.sm_arrays import Bounds, SMProblem, square_state
-from ditherlab.estimator.intervals.sm_square import square_block
-from ditherlab.estimator.problem import Problem, _chunks, normal_quantile
+from ditherlab.estimator.formulation import Problem, _chunks, normal_quantile
+from ditherlab.estimator.interval_methods.sm_arrays import Bounds, SMProblem, square_state
+from ditherlab.estimator.interval_methods.sm_square import square_block
 
 #: Half-width [N, N·m] of the artificial box of the set-membership LP for prior-less components.
 BIG_BOX = 1e9

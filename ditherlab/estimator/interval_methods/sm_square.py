@@ -31,13 +31,13 @@ import math
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.intervals.sm_arrays import (
+from ditherlab.estimator.interval_methods.sm_arrays import (
     block_work,
     lp_work,
     prior_box,
     sample_lp,
 )
-from ditherlab.estimator.intervals.sm_lockstep import lockstep_inverse, lockstep_verify
+from ditherlab.estimator.interval_methods.sm_lockstep import lockstep_inverse, lockstep_verify
 
 #: Largest ``||J^T||_1 ||J^-T||_1`` the torque-coordinate path accepts (else: the general kernel).
 MAX_CONDITION = 1e8

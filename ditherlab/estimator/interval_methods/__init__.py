@@ -40,9 +40,9 @@ import numpy as np
 
 from ditherlab.core.errors import ConfigError
 from ditherlab.estimator.backends.exact import _solve_exact
-from ditherlab.estimator.intervals.profile import _profile
-from ditherlab.estimator.intervals.set_membership import _set_membership
-from ditherlab.estimator.problem import Problem
+from ditherlab.estimator.formulation import Problem
+from ditherlab.estimator.interval_methods.profile import _profile
+from ditherlab.estimator.interval_methods.set_membership import _set_membership
 
 INTERVAL_METHODS = ("set_membership", "profile")
 

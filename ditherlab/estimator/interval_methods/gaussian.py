@@ -11,9 +11,9 @@ import numpy as np
 from numba import njit
 
 from ditherlab.estimator.backends.exact import PieceWork, _newton_piece, _solve_exact, piece_work
-from ditherlab.estimator.intervals import intervals
+from ditherlab.estimator.formulation import Problem, chi2_1_quantile, complete
+from ditherlab.estimator.interval_methods import intervals
 from ditherlab.estimator.piecewise import Sample
-from ditherlab.estimator.problem import Problem, chi2_1_quantile, complete
 
 #: A Cholesky pivot below this fraction of its diagonal entry (``H`` near singular in that
 #: direction: the normal equations' relative error grows as 1 / pivot) sends the sample to the
@@ -181,7 +181,7 @@ def _gaussian_loop(S, thr, solve, F_out, half, active, ws):
 @njit(cache=True)
 def _gaussian_kernel(S, thr, solve, F_out, half, active):
     """Zero-width bands (``a = tau_min = tau_max``) of the run ``S``
-    (:class:`~ditherlab.estimator.problem.Samples`): ``half[k, i] = sqrt(thr (H_k^-1)_ii)``,
+    (:class:`~ditherlab.estimator.formulation.Samples`): ``half[k, i] = sqrt(thr (H_k^-1)_ii)``,
     ``H_k = J_k W_k J_k^T + diag(p_k)``, and with ``solve`` the minimiser
     ``F_out[k] = fb + H_k^-1 J_k W_k (tb_k - a_k - J_k^T fb)`` of the quadratic eq. (3) and
     ``active[k, j]`` (the residual is not exactly on the zero-width band).

@@ -1,5 +1,5 @@
 """The profile-likelihood interval: ``{t : min_{F: F_i = t} f(F) - min_F f(F) <= chi2_1(level)}``
-followed exactly along the path of constrained minimisers (see :mod:`ditherlab.estimator.intervals`).
+followed exactly along the path of constrained minimisers (see :mod:`ditherlab.estimator.interval_methods`).
 
 Two kernels follow the same path: :func:`_profile_reference_kernel` refactors the active set at
 every segment (slow, obviously right: :func:`profile_reference`), and :func:`_profile_kernel`
@@ -16,8 +16,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ditherlab.estimator.formulation import Problem, _chunks, chi2_1_quantile
 from ditherlab.estimator.piecewise import _cost, _dist, _givens_row, _sides, sample_at
-from ditherlab.estimator.problem import Problem, _chunks, chi2_1_quantile
 
 #: Intervals whose half-width exceeds this many "information units" are reported as infinite.
 UNOBSERVABLE = 1e5
@@ -273,7 +273,7 @@ def _reference_loop(S, Fh, opts, out, ws):
 @njit(cache=True)
 def _profile_reference_kernel(S, Fh, opts, out):
     """The profile bounds of every sample of the run ``S``
-    (:class:`~ditherlab.estimator.problem.Samples`) around the estimate ``Fh (N, m)`` [N, N·m],
+    (:class:`~ditherlab.estimator.formulation.Samples`) around the estimate ``Fh (N, m)`` [N, N·m],
     refactoring at every segment; ``opts`` a :class:`ProfileOptions`, ``out`` a
     :class:`ProfileOut` (``lo``, ``hi``, ``segments`` written)."""
     N, m, n = S.J.shape
@@ -691,7 +691,7 @@ def _fast_loop(S, Fh, opts, out, ws):
 @njit(cache=True)
 def _profile_kernel(S, Fh, opts, out):
     """The profile bounds along the path of :func:`_profile_reference_kernel`, without a
-    factorisation per segment: ``S`` a :class:`~ditherlab.estimator.problem.Samples`, ``Fh (N,
+    factorisation per segment: ``S`` a :class:`~ditherlab.estimator.formulation.Samples`, ``Fh (N,
     m)`` [N, N·m] the estimate, ``opts`` a :class:`ProfileOptions`, ``out`` a
     :class:`ProfileOut` (all four written).
 
