@@ -46,6 +46,7 @@ import math
 import os
 import platform
 import re
+import resource
 import shlex
 import shutil
 import subprocess
@@ -994,10 +995,36 @@ def bench_modules() -> list[str]:
     )
 
 
+def demo_timing(work: Path, jobs: int) -> dict[str, Any]:
+    """``make demo``'s run (``python -m ditherlab.app.demo``, the install excluded): its wall
+    and CPU time [s] and the size of what it wrote [MB]; or the error."""
+    out = work / "demo-out"
+    log("speed: make demo's run")
+    load = round(os.getloadavg()[0], 2)
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    try:
+        run(["-m", "ditherlab.app.demo", "--out", out, "--jobs", jobs], cwd=work, what="demo")
+    except StepError as exc:
+        return {"error": error_text(exc)}
+    wall = time.perf_counter() - t0
+    cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
+    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    return {
+        "wall_s": round(wall, 1),
+        "cpu_s": round(cpu, 1),
+        "written_mb": round(size / 1e6, 1),
+        "jobs": jobs,
+        "load_before": load,
+    }
+
+
 def section_speed(cfg: argparse.Namespace, work: Path) -> dict[str, Any]:
     modules = bench_modules()
     if not modules:
         raise SectionSkipped("no bench/bench_*.py modules")
+    demo = demo_timing(work, cfg.jobs)
     rows, errors, seconds = [], {}, {}
     for mod in modules:
         log(f"speed: {mod}{' (quick)' if cfg.bench_quick else ''}")
@@ -1014,6 +1041,7 @@ def section_speed(cfg: argparse.Namespace, work: Path) -> dict[str, Any]:
             log(f"speed: {mod} failed: {errors[mod]}")
         seconds[mod] = round(time.perf_counter() - t0, 1)
     return {
+        "demo": demo,
         "quick": cfg.bench_quick,
         "modules": modules,
         "rows": rows,
@@ -1034,7 +1062,20 @@ def fmt_value(v: Any) -> str:
 def render_speed(d: dict[str, Any]) -> list[str]:
     ref = [r for r in d["rows"] if r.get("reference") is not None]
     other = [r for r in d["rows"] if r.get("reference") is None]
-    out = [
+    demo = d.get("demo") or {}
+    if "error" in demo:
+        head = [f"`make demo` (its run, after the install) fails: {demo['error']}", ""]
+    elif demo:
+        head = [
+            f"`make demo` (its run, after the install; `--jobs {demo['jobs']}`): "
+            f"**{demo['wall_s']:.0f} s** wall, {demo['cpu_s']:.0f} s CPU, "
+            f"{demo['written_mb']:.0f} MB written (load average {demo['load_before']} "
+            "when it started).",
+            "",
+        ]
+    else:
+        head = []
+    out = head + [
         "Every bench module of `bench/` (the `make bench` runner, one module at a time"
         + (", `--quick` sizes" if d["quick"] else "")
         + "); each fast path is timed beside its slow, plainly right reference in the same run. "
