@@ -483,7 +483,7 @@ def test_inverse_dynamics_is_mass_matrix_plus_gravity_at_rest():
 
 # ---------------------------------------------------------------------- UR10e against real logs
 def _ur10e_log(shared_data, name: str) -> np.ndarray:
-    """(N, 31): t, q1..6, qd1..6, i_act1..6, i_des1..6, tau_des1..6 (data README)."""
+    """(N, 31): t, q1..6, qd1..6, i_act1..6, i_des1..6, tau_des1..6 (tests/data/README.md)."""
     return np.loadtxt(shared_data / "ur10e" / name, delimiter=",")
 
 
