@@ -647,7 +647,7 @@ def test_recording_robot_carries_tool_offset_and_payload():
 
 
 def test_batch_larger_than_cache_is_returned_uncached():
-    """A moving batch larger than the cache budget is computed, returned and not kept."""
+    """A moving batch larger than the cache budget is computed, returned and not cached."""
     robot = RobotModel.from_spec("irb140")
     robot.cache_bytes = 10_000
     q = random_q(robot, 300, seed=15)
