@@ -60,7 +60,7 @@ def _subset(args: dict, rows) -> dict:
 def _proxsuite_textbook_deviation(args: dict, F_exact: np.ndarray, rows) -> float:
     """Largest |F| error of ProxQP at qpsolvers' default settings on the unscaled QP in (F, tau_f).
 
-    This is the formulation one writes first; the issue measured it off by up to 20 N. The
+    This is the formulation one writes first, and it can be off by up to 20 N. The
     library's reference backend scales the problem and sets eps_abs = 1e-14 instead.
     """
     import qpsolvers

@@ -17,8 +17,8 @@ families:
 Every recording then goes through ``identify --add inertia`` (the simulated arm always has link
 and motor inertia, which the base model lacks), on a dithered log with the F/T sensor also
 ``--add dither_extraction`` (the dither's extraction shows a push late and in part, 0.8-0.9 of
-it: a part of the method, not of a hidden plant; found on 7 of the 14 standing logs when left
-out, session 12), each where the log can identify it (else the other, else ``identify``
+it: a part of the method, not of a hidden plant; left out, diagnose finds it on 7 of the 14
+standing logs), each where the log can identify it (else the other, else ``identify``
 alone), and ``diagnose --json``. A **false discovery** is a recording on which diagnose
 suggests any effect: the plant has none beyond what the model holds.
 
@@ -168,8 +168,9 @@ def one(s: dict[str, Any], work: Path) -> dict[str, Any]:
     extra = ["--assume-no-force"] if s["no_sensor"] else []
     model = d / "model.toml"
     # what the plant always has and the base model lacks: inertia, and on a dithered log with
-    # measured pushes the dither's extraction (a part of the method, README "Calibrated
-    # intervals"); each added where the log can identify it, the largest set first
+    # measured pushes the dither's extraction (a part of the method, docs/method.md "Where the
+    # estimator reads the extraction"); each added where the log can identify it, the largest
+    # set first
     known = ["inertia"] + (["dither_extraction"] if s["dither"] and not s["no_sensor"] else [])
     sets = [known] + [[e] for e in known if len(known) > 1] + [[]]
     for adds in sets:

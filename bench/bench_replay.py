@@ -60,7 +60,7 @@ def run(quick: bool = False) -> list[dict]:
     cpu = time.process_time() - c0
     n = len(rec)
     # the reference in the same run: the same replay with the profile intervals of the reference
-    # kernel (a refactorisation per path segment; the kernel of main before session 9)
+    # kernel (a refactorisation per path segment)
     ivl = sys.modules["ditherlab.estimator.intervals"]
     fast = ivl._profile
     ivl._profile = lambda prob, Fm, level, progress=None: profile_reference(prob, Fm, level)

@@ -4,7 +4,7 @@ The logs: the built-in simulator's dithered push campaign, one hour at 250 Hz (s
 that hour tiled ten times end to end (time stamps shifted; the seams are jumps in ``q`` that
 read as a moment of motion). Each command runs as a user runs it (``python -m ditherlab``, a
 fresh process) and its peak resident memory is read from the kernel (``ru_maxrss`` of the
-child). The target of the scale issue: peak memory independent of the log's length, under
+child). The target: peak memory independent of the log's length, under
 2 GB for ten hours.
 
 ``python -m bench.bench_stream --hours 10 --keep DIR`` keeps the logs; ``--only identify`` runs
@@ -170,7 +170,7 @@ def run(
                     "reference": res["short"][0],
                 }
             )
-            if name.startswith("diagnose"):  # the scale issue's rate target on a long log
+            if name.startswith("diagnose"):  # the rate target on a long log
                 n_long = _rows(many)
                 rows.append(
                     {

@@ -1,7 +1,7 @@
 """Logging a one-hour 250 Hz recording with estimates (four variants) to a Rerun .rrd file.
 
-Measures the wall time of ``save_view`` (target < 30 s) and the file size (bound stated in the
-README section of ``ditherlab view``: 900 MB for one hour with four variants).
+Measures the wall time of ``save_view`` (target < 30 s) and the file size (bound: 900 MB for
+one hour with four variants).
 """
 
 from __future__ import annotations

@@ -63,7 +63,7 @@ def push_recording(
         starts.append(t0)
         P[:, AXES.index(ax)] += sg * push_profile(t, t0, m)
     F = np.zeros((N, 6))
-    F[:, :3] = -P  # the wrench the robot exerts (RECORDING.md)
+    F[:, :3] = -P  # the wrench the robot exerts (docs/recording-format.md)
     robot = RobotModel.from_spec("irb140")
     q = np.tile(Q0, (N, 1))
     g = robot.gravity(Q0)[0]

@@ -1,5 +1,6 @@
-"""Calibrated intervals with dither (issue 12, part 3): the ``dither_extraction`` effect, how
-replay uses it, and diagnose finding it on a dithered push log but not on clean controls."""
+"""Calibrated intervals with dither: the ``dither_extraction`` effect (docs/method.md, "Where the
+estimator reads the extraction"), how replay uses it, and diagnose finding it on a dithered push
+log but not on clean controls."""
 
 from __future__ import annotations
 
@@ -102,7 +103,7 @@ def test_identified_and_diagnosed_on_a_dithered_push_log_only(tmp_path, cli):
     gains = np.atleast_1d(spec[0]["params"]["gain"])
     lags = np.atleast_1d(spec[0]["params"]["lag"])
     assert np.all((gains > 0.5) & (gains < 1.0)), gains
-    # fitted on every joint a push loads (session 13), not only where diagnosis found it: a
+    # fitted on every joint a push loads, not only where diagnosis found it: a
     # joint whose extraction is the one-period mean alone fits no extra lag (joint 3 here, 0)
     assert np.all(lags >= 0) and lags.max() >= 1, lags
     r = cli("identify", paths["no-dither"], "--model", base, "--add", "dither_extraction",

@@ -223,7 +223,7 @@ def test_info_bad_urdf_and_nan_are_one_line(cli, tmp_path):
 )
 def test_usage_errors_are_one_line_exit_2(cli, args, message):
     """A usage error (unknown option or command, missing argument, a value typer refuses) is one
-    line on stderr naming the command, with where to look, and exit status 2 (typer's own was a
+    line on stderr naming the command, with where to look, and exit status 2 (typer's own is a
     usage line, a hint and a framed box: five lines)."""
     r = cli(*args)
     assert r.code == 2, (r.out, r.err)
@@ -238,10 +238,9 @@ def test_bare_command_prints_the_help(cli):
 
 
 def test_logs_of_one_and_two_rows_end_cleanly(cli, tmp_path):
-    """A log of one or two rows, shorter than the 0.1 s motion window: moving_mask broadcast the
-    window into the log (a traceback in replay, identify and diagnose) and a fit on no rows
-    divided by zero. Now replay estimates them, identify and diagnose say in one line that the
-    log is too short, exit 2."""
+    """A log of one or two rows, shorter than the 0.1 s motion window: moving_mask does not
+    broadcast the window into the log, nor does a fit on no rows divide by zero; replay
+    estimates them, identify and diagnose say in one line that the log is too short, exit 2."""
     from ditherlab.analysis.identification import identify
     from ditherlab.sim import simulate
 

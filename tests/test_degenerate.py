@@ -130,9 +130,9 @@ def test_derivative_by_segment_and_sparse_windows():
 
 
 def test_constant_signals(cli, base, tmp_path):
-    """Every column constant: identify fitted a noise of 1e-9 N·m (a model that trusts the
-    torque absolutely) and diagnose warned of a division by zero; both now refuse with the
-    same sentence. info, replay, view and convert work."""
+    """Every column constant: identify and diagnose refuse with the same sentence, rather than
+    fitting a noise of 1e-9 N·m (a model that trusts the torque absolutely) or warning of a
+    division by zero. info, replay, view and convert work."""
     _, rec, _, model = base
     data = rec.data.copy()
     for c in data.columns:
@@ -162,9 +162,10 @@ def test_constant_signals(cli, base, tmp_path):
 
 
 def test_never_still_report_refuses(cli, base, tmp_path):
-    """A single regime, the robot always moving, with pushes: the report printed three numpy
-    warnings ("All-NaN axis", "Mean of empty slice") and judged every push against a NaN noise
-    level; it now refuses with one line. identify, diagnose, replay work."""
+    """A single regime, the robot always moving, with pushes: there is no rest to take a noise
+    level from, so the report refuses with one line (rather than three numpy warnings, "All-NaN
+    axis", "Mean of empty slice", and every push judged against a NaN noise level). identify,
+    diagnose, replay work."""
     _, rec, _, _ = base
     data = rec.data.copy()
     t = data["t"].to_numpy()
@@ -207,8 +208,8 @@ def test_never_moving_and_no_pushes(cli, base, tmp_path):
 
 
 def test_report_refuses_estimates_of_another_recording(cli, base, tmp_path):
-    """`report EST --recording OTHER` built a full report from the estimates of one recording
-    and the figures of another; it now refuses as `view --estimates` does (the same check)."""
+    """`report EST --recording OTHER` would build a report from the estimates of one recording
+    and the figures of another; it refuses as `view --estimates` does (the same check)."""
     _, rec, path, model = base
     est = tmp_path / "est.parquet"
     assert_ok(run(cli, "replay", path, "--model", model, "-o", est, "-q"))

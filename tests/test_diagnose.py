@@ -357,10 +357,9 @@ def test_sim_attenuation_lag_found_with_its_physics(sim_runs):
     r0 = np.array(d.residual["torque_rms"])[js]
     d2 = diagnose([rec], m2, regimes=SIM_REGIMES, effects=[])
     r1 = np.array(d2.residual["torque_rms"])[js]
-    # >= 10 % of the squared residual: on seed 3 joints 3 and 5 gave 29 % before the plant had
-    # Coriolis torques; with them joint 3's held-out gain (81 %) no longer beats twice its best
-    # surrogate (64 %: a shift that lays one push on another of the same axis), so joint 5
-    # alone is suggested and falls by 12.5 %
+    # >= 10 % of the squared residual: on seed 3 joint 3's held-out gain (81 %) does not beat
+    # twice its best surrogate (64 %: a shift that lays one push on another of the same axis),
+    # so joint 5 alone is suggested and falls by 12.5 %
     assert np.all(r1 < r0) and np.sum(r1**2) < 0.9 * np.sum(r0**2), (r0, r1)
 
 

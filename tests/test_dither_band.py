@@ -1,12 +1,13 @@
-"""identify on dithered logs: the dithered band about where the extracted residual rests, and
-``dither_extraction`` on joints with too little evidence (issue 12; README "Pose sensitivity",
-"Calibrated intervals").
+"""identify on dithered logs: the dithered band about where the extracted residual rests
+(docs/method.md, "The shrunk band"), and ``dither_extraction`` on joints with too little
+evidence (docs/design/extraction-underestimates.md).
 
 1. The still band is where the held friction was seen; a campaign whose pushes broke a joint
-   one way only leaves the other edge short. The paper's rule shrank that lopsided band by the
-   dither amplitude on each side, which put the dithered band beside the point where the
-   dither's centre loop holds the extracted residual (seed 61 at pose C: joint 5 at
-   [-0.387, -0.387] N·m with the residual resting at 0.000), so the estimate rested off zero.
+   one way only leaves the other edge short. The paper's rule alone would shrink that lopsided
+   band by the dither amplitude on each side and put the dithered band beside the point where
+   the dither's centre loop holds the extracted residual (seed 61 at pose C: joint 5 at
+   [-0.387, -0.387] N·m with the residual resting at 0.000), and the estimate would rest off
+   zero (3.7 N in x on that campaign); such a band is centred on the rest instead.
 2. A joint whose extraction gain the log barely determines (few pushes) takes the values of the
    joints with good evidence, and the model file, its notes and identify's output say so.
 """
@@ -32,7 +33,8 @@ from ditherlab.physics.effects import get_effect
 from ditherlab.physics.residual import scored
 from ditherlab.sim import simulate
 
-#: pose C of README "Pose sensitivity" [rad], pushes of 1-25 N as in its sweep
+#: pose C [rad] (the pose of docs/dither-design.md's second ``robot --sensitivity`` example), with
+#: pushes of 1-25 N
 POSE_C = [0.3, 0.3, -0.7, 0.4, 1.0, -0.4]
 
 
@@ -50,8 +52,8 @@ def _rest(rec, margin_after: float = 1.5) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def pose_c(tmp_path_factory):
-    """Paired campaigns at pose C (seed 61, 25 pushes per axis and sign, as in README "Pose
-    sensitivity"'s sweep) and the model the CLI identifies from them."""
+    """Paired campaigns at pose C (seed 61, 25 pushes per axis and sign) and the model the CLI
+    identifies from them."""
     d = tmp_path_factory.mktemp("dband")
     cfg = d / "pose_c.toml"
     cfg.write_text(
@@ -76,7 +78,8 @@ def test_dithered_band_holds_the_rest_and_is_the_shrunk_static_band(pose_c):
     It is the paper's rule (still band shrunk by the measured dither amplitude) where that
     holds the rest with a margin of two noise sigmas, else the static friction (the still band's
     larger side about the rest) less the amplitude, centred on the rest, which contains the
-    paper's band. (Before: joint 5 [-0.387, -0.387] N·m, the residual at rest at 0.000.)"""
+    paper's band (joint 5 here, whose band by the paper's rule alone is [-0.387, -0.387] N·m
+    with the residual at rest at 0.000)."""
     (_, dith), model = pose_c
     m = TorqueModel.load(model)
     st, db = m.regimes["still"], m.regimes["dither"]
@@ -104,13 +107,13 @@ def test_dithered_band_holds_the_rest_and_is_the_shrunk_static_band(pose_c):
             assert (db.tau_min[j], db.tau_max[j]) == pytest.approx((c - half, c + half), abs=1e-6)
             if a <= b:
                 assert db.tau_min[j] <= a + 1e-9 and b - 1e-9 <= db.tau_max[j], j
-    assert 5 in rebuilt  # the lopsided joint of README "Pose sensitivity"
+    assert 5 in rebuilt  # the lopsided joint
 
 
 def test_estimate_rests_at_zero_with_dither(pose_c):
     """The dither_band estimate between pushes is zero (every joint inside its band), so the
-    noise level is the report's 1 N floor. (Before: the estimate rested 3.7 N off zero in x on
-    this campaign.)"""
+    noise level is the report's 1 N floor (with the paper's rule alone the estimate rests 3.7 N
+    off zero in x on this campaign)."""
     (_, dith), model = pose_c
     rec = read(dith)
     est = replay(rec, TorqueModel.load(model), variants=["dither_band"], components="fxyz")
@@ -153,10 +156,9 @@ def test_weak_joints_take_the_good_joints_values():
 
 @pytest.mark.slow
 def test_identify_says_which_joints_took_shared_values(tmp_path):
-    """Through the CLI on bench_false_discovery's dithered excitation log 22 (few pushes; before:
-    gain 2.51 on joint 4, at the lag grid's top): joint 4 (gain 1.42 ± 0.02, beyond 0..1)
-    takes the other joints' median gain and lag; the model file marks it (``pooled``), its
-    notes say why, and identify's output names it."""
+    """Through the CLI on bench_false_discovery's dithered excitation log 22 (few pushes): joint 4
+    (gain 1.42 ± 0.02, beyond 0..1) takes the other joints' median gain and lag; the model file
+    marks it (``pooled``), its notes say why, and identify's output names it."""
     from bench.bench_false_discovery import _toml, plan
 
     s = plan(23)[22]

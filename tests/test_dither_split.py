@@ -1,5 +1,5 @@
-"""What sets the dithered x cell of the paper's table (README, "Physics for the paper's table",
-the bullet "with dither, the force beyond which every estimate exceeds 10 N in x and y").
+"""What sets the dithered x cell of the paper's table (with dither, the force beyond which every
+estimate exceeds 10 N in x; docs/design/shared-joint.md).
 
 At the paper's pose joint 2 carries both F_x (lever 0.295 m) and F_z (0.380 m); the only other
 joint that F_z loads is joint 3 (0.380 m), whose dithered band is wide (its dither is 51 % of
@@ -131,7 +131,7 @@ def _first_above_10(axis: str, band: np.ndarray, sigma: np.ndarray, seen=None) -
 
 
 def test_the_x_cells_sit_on_the_bar_from_the_band_centre():
-    """The issue's reading of the paper's second statistic (the force beyond which every
+    """The "every" reading of the paper's second statistic (the force beyond which every
     estimate exceeds 10 N; paper 40 N without dither, 20 N with) leaves no room in x at the
     paper's pose. Take the simulator's own bands (±Fs still, ±(Fs - A) dithered; Fs set so that
     the torque leaves the band at the paper's 32 / 22 / 22 N) and every joint passing its whole

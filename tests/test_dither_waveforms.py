@@ -260,13 +260,12 @@ def test_simulated_dither_has_the_waveform_frequency_and_peak(waveform, omega):
 
 
 def test_default_square_simulation_is_unchanged():
-    """The default (square) push campaign is unchanged: sums and samples of seed 0's dithered
-    campaign (4 pushes per direction) as recorded for the session-12 plant (the friction band
-    behind the gear spring, the operator's pace; first recorded before the waveforms existed;
-    re-recorded in session 17, when the links' inverse mass matrix became a Cholesky in compiled
-    loops, independent of the BLAS kernel: the old values within 1.2e-10 relative), to 1e-12
-    relative: re-record only on a deliberate change of the plant. Stating
-    ``waveform = "square"`` changes nothing, and the recording says which waveform it has."""
+    """The default (square) push campaign is pinned: sums and samples of seed 0's dithered
+    campaign (4 pushes per direction) on this plant (the friction band behind the gear spring,
+    the operator's pace, the links' inverse mass matrix by a Cholesky in compiled loops,
+    independent of the BLAS kernel), to 1e-12 relative: re-record only on a deliberate change of
+    the plant. Stating ``waveform = "square"`` changes nothing, and the recording says which
+    waveform it has."""
     rec = simulate("push-campaign", seed=0, dither=True, pushes_per_direction=4)
     expected = {  # column: (sum, sum of |x|, x[5000], x[12345])
         "tau_2": (-2174065.106836064, 2177102.812517944, -45.81910310280565, -44.76744631861143),

@@ -1,4 +1,4 @@
-"""Adding an effect is one class in one file and its test (README, "Adding an effect").
+"""Adding an effect is one class in one file and its test (CONTRIBUTING.md, "Add an effect").
 
 This test is that recipe, followed: a new effect defined here, nowhere else, is tried by
 diagnosis, ranked first where it was planted, fitted by ``add_effect``, applied by

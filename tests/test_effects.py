@@ -427,7 +427,7 @@ def test_surrogates_explain_little_of_a_real_effect(recs):
 def test_surrogate_rule_in_the_decision(recs):
     """The decision takes the surrogate into account: the same held-out evidence passes with a
     surrogate gain under half of the effect's, and fails at half or more; a time-reversed
-    residual (the structure kept, no longer a function of the logged q) fails the held-out
+    residual (the same structure, but not a function of the logged q) fails the held-out
     criteria on its own (measured: -3 % explained, 0 of 5 folds better)."""
     from ditherlab.analysis.scoring import SURROGATE_RATIO, _score
     from ditherlab.physics.residual import Scored
@@ -454,9 +454,9 @@ def test_surrogate_rule_in_the_decision(recs):
 
 
 def test_signals_cache_frees_its_recording():
-    """The robot quantities cached per recording go with it: a recording no longer used is
-    freed (a module-level WeakKeyDictionary kept every one alive, its values holding their key:
-    about 100 MB per piece of a long log)."""
+    """The robot quantities cached per recording go with it: a recording nothing refers to is
+    freed (a module-level WeakKeyDictionary whose values hold their key would keep every one
+    alive: about 100 MB per piece of a long log)."""
     import gc
     import weakref
 
@@ -472,9 +472,10 @@ def test_signals_cache_frees_its_recording():
 
 
 def test_released_signals_free_their_recording_without_the_cycle_collector():
-    """A released piece goes as soon as it is no longer used: nothing of it waits for Python's
-    cycle collector, which a long log's few, large objects seldom trigger (the whole Signals
-    referred to itself as ``whole``: diagnose's pass 2 grew 3-25 MB a piece until its end)."""
+    """A released piece goes as soon as nothing refers to it: nothing of it waits for Python's
+    cycle collector, which a long log's few, large objects seldom trigger (a whole Signals that
+    referred to itself as ``whole`` would wait for it, and diagnose's pass 2 would grow 3-25 MB a
+    piece until its end)."""
     import gc
     import weakref
 

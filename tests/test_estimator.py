@@ -652,8 +652,8 @@ def test_coverage_on_data_from_the_model(zero_band, method):
 
 def test_coverage_at_the_prior_mean_exceeds_the_level():
     """At the prior's mean (a robot at rest: zero force) a 95 % interval of eq. (3) covers the
-    truth more often than 95 %, by the model's own arithmetic (README "Calibrated intervals",
-    "at rest").
+    truth more often than 95 %, by the model's own arithmetic
+    (docs/design/rest-coverage.md).
 
     Gaussian noise only: ``F_hat = P J W r`` with ``P = (J W J^T + R_F^-1)^-1`` has covariance
     ``V = P - P R_F^-1 P`` at the prior's mean, the interval is ``F_hat +- 1.96 sqrt(P_ii)``, so

@@ -2,9 +2,9 @@
 
 The extraction is a property of the measurement pipeline: it acts on every joint that dithers
 and is pushed, not only where one recording's diagnosis evidence passed. Fitted only there (the
-joints ``select_joints`` picked from the identification log's evidence), the other joints keep
-it in their residual and diagnose on the next clean log suggests ``attenuation_lag`` for them: a
-false discovery (session 12, seeds 977 -> 978). Also: identification's dither residual windows
+joints ``select_joints`` picks from the identification log's evidence), the other joints would
+keep it in their residual and diagnose on the next clean log would suggest ``attenuation_lag``
+for them: a false discovery (seeds 977 -> 978). Also: identification's dither residual windows
 the model torque once (the effect's term is already the one-period mean).
 """
 
@@ -29,7 +29,7 @@ from ditherlab.physics.effects.extraction import extraction_window
 from ditherlab.physics.residual import scored
 from ditherlab.sim import simulate
 
-#: the clean control's seeds (identification, evaluation), as in session 12's check
+#: the clean control's seeds (identification, evaluation)
 ID_SEED, EV_SEED = 977, 978
 PUSHES = 4  # per axis and sign: a 155 s campaign instead of 1 880 s
 
@@ -62,7 +62,7 @@ def control(tmp_path_factory):
 def test_dithered_clean_control_suggests_nothing(control):
     """identify on the dithered clean campaign of seed 977 with ``--add inertia --add
     dither_extraction``, diagnose on seed 978's: nothing is suggested. (With the extraction on
-    977's evidence joints only, joints 2 and 3 here, diagnose suggested attenuation_lag on
+    977's evidence joints only, joints 2 and 3 here, diagnose suggests attenuation_lag on
     joints 1 and 5: 41 % of the residual.)"""
     paths, model = control
     r = run_cli("diagnose", str(paths[EV_SEED]), "--model", str(model), "--json",
@@ -81,9 +81,9 @@ def test_found_where_the_model_lacks_it_and_only_with_dither(tmp_path):
     """Diagnose still suggests dither_extraction on a dithered evaluation campaign when the
     model lacks it (the base model identified on the identification pair, seed 1, as
     ``make demo``), and not on the same campaign without dither, where its design is zero.
-    (On the 4-push control of seed 977 alone it was suggested only through joint 4's dithered
-    band, which the old rule left at [-0.80, -0.04] N·m beside the rest at 0; with the band
-    holding the rest it explains 3.7 % there, below the 5 % rule: the campaign is too short.)"""
+    (On the 4-push control of seed 977 alone it explains 3.7 %, below the 5 % rule: the campaign
+    is too short. With joint 4's dithered band by the paper's rule alone, [-0.80, -0.04] N·m
+    beside the rest at 0, it would be suggested there through that band.)"""
     paths = {}
     for s, d in ((1, "--no-dither"), (1, "--dither"), (0, "--dither"), (0, "--no-dither")):
         p = tmp_path / f"c{s}{d}.parquet"
@@ -143,11 +143,12 @@ def test_identify_reads_each_regime_through_its_own_torque():
     """Identification with the extraction in the model. The dither regime reads the extracted
     signal: with an extraction that shows the push exactly (gain 1, no lag: the one-period mean
     of J^T F) its residual equals the base model's, whose J^T F it passes through the same
-    window; the effect's term is not windowed a second time (before: the dither noise of joint 2
-    moved from 0.13768 to 0.13775 N·m on this campaign). The still and moving regimes read the
-    logged torque, which the extraction's view does not describe: with a realistic extraction
-    (gain 0.8, lag 42 samples) their bands and sliding friction are the base model's (before:
-    joint 3's Coulomb friction fell from 5.8 to 0.6 N·m on seed 979's campaign)."""
+    window; the effect's term is not windowed a second time (windowed twice, the dither noise of
+    joint 2 moves from 0.13768 to 0.13775 N·m on this campaign). The still and moving regimes
+    read the logged torque, which the extraction's view does not describe: with a realistic
+    extraction (gain 0.8, lag 42 samples) their bands and sliding friction are the base model's
+    (read through the extraction's view, joint 3's Coulomb friction falls from 5.8 to 0.6 N·m
+    on seed 979's campaign)."""
     rec = simulate("push-campaign", seed=5, pushes_per_direction=2)
     assert extraction_window(signals(rec)) == 20  # samples: 2π / 80 rad/s at 250 Hz
     base = identify([rec], n_boot=0)

@@ -1,7 +1,7 @@
-"""Regression tests of the fuzz campaign's findings outside the readers (session 10): a mapped
-CSV whose first line is far wider than the rest (minutes of parsing before), pandas' two-line
-message, a one-row log without a stated rate in identify and diagnose (tracebacks), and a report
-that fails after writing figures (its partial folder stayed)."""
+"""The fuzz campaign's hard cases outside the readers: a mapped CSV whose first line is far wider
+than the rest (refused at once, not parsed for minutes), pandas' two-line message (one line), a
+one-row log without a stated rate in identify and diagnose (one line, no traceback), and a
+report that fails after writing figures (no partial folder left)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,8 @@ def ur_csv(tmp_path):
 
 
 def test_mapped_csv_with_a_first_line_far_wider_is_refused_at_once(tmp_path, ur_csv):
-    """A first line of 200 000 extra fields made pandas parse every row that wide (> 60 s)."""
+    """A first line of 200 000 extra fields is refused before pandas would parse every row that
+    wide (> 60 s)."""
     lines = list(ur_csv)
     lines[0] = lines[0].rstrip("\n") + ",0" * 200_000 + "\n"
     f = tmp_path / "wide.csv"

@@ -1,5 +1,5 @@
-"""Regression tests of the readers' findings of the fuzz suite (``tests/fuzz``): each input that
-once broke the promise (a traceback, a hang, a multi-line error, a wrong acceptance) now ends in
+"""The readers' hard cases from the fuzz suite (``tests/fuzz``): each input below, one a reader
+could easily answer with a traceback, a hang, a multi-line error or a wrong acceptance, ends in
 exactly one line ``error: ...`` on stderr and exit status 2, with the input untouched."""
 
 from __future__ import annotations
@@ -51,8 +51,8 @@ def unchanged(path: Path, before: bytes) -> None:
 
 # ------------------------------------------------------------------ Parquet
 def test_corrupt_parquet_page_header_is_one_line(cli, tmp_path, rec):
-    """A damaged page header: pyarrow's message ran over two lines ("Couldn't deserialize
-    thrift: ...\\nDeserializing page header failed.\\n"), printed as such; now its first line."""
+    """A damaged page header: pyarrow's message runs over two lines ("Couldn't deserialize
+    thrift: ...\\nDeserializing page header failed.\\n"); the error is its first line."""
     p = tmp_path / "a.parquet"
     dio.write(rec, p)
     off = pq.ParquetFile(p).metadata.row_group(0).column(1).data_page_offset
@@ -75,8 +75,8 @@ def test_corrupt_parquet_page_header_is_one_line(cli, tmp_path, rec):
 
 
 def test_parquet_number_stored_as_text_is_refused(cli, tmp_path, rec):
-    """q_2 as text ("0.1", ...) was converted to numbers without a word; now refused naming the
-    column and its Parquet type, by the whole-file and the piece readers alike."""
+    """q_2 stored as text ("0.1", ...) is not converted to numbers without a word: it is refused
+    naming the column and its Parquet type, by the whole-file and the piece readers alike."""
     table = pa.Table.from_pandas(rec.data, preserve_index=False)
     i = table.schema.get_field_index("q_2")
     table = table.set_column(i, "q_2", pa.array([repr(v) for v in rec.data["q_2"]]))
@@ -102,9 +102,9 @@ def test_parquet_duplicated_column_is_refused(cli, tmp_path, rec):
 
 
 def test_parquet_duplicated_t_is_refused_before_t_is_read(cli, tmp_path, rec):
-    """Two columns named t: the piece reader took "the" t column as a 2-D array
-    (``ValueError: Data must be 1-dimensional``, a traceback in view, identify, replay); now
-    the Source refuses a repeated name when it opens the file."""
+    """Two columns named t: the Source refuses a repeated name when it opens the file, before a
+    piece reader could take "the" t column as a 2-D array (``ValueError: Data must be
+    1-dimensional``, a traceback in view, identify, replay)."""
     table = pa.Table.from_pandas(rec.data.iloc[:1], preserve_index=False)
     table = table.append_column("t", table.column("t"))
     p = tmp_path / "dup_t.parquet"
@@ -117,8 +117,8 @@ def test_parquet_duplicated_t_is_refused_before_t_is_read(cli, tmp_path, rec):
 
 # ------------------------------------------------------------------ CSV
 def test_csv_duplicated_column_is_refused(cli, tmp_path, rec):
-    """A second q_1 in the header became q_1.1 (pandas), then "required column q_3 is missing";
-    now the duplicate is named, with its two positions."""
+    """A second q_1 in the header, which pandas would rename q_1.1 (and then report "required
+    column q_3 is missing"): the duplicate is named, with its two positions."""
     p = tmp_path / "dup.csv"
     dio.write(rec, p)
     lines = p.read_text().splitlines()
@@ -137,9 +137,9 @@ def test_csv_duplicated_column_is_refused(cli, tmp_path, rec):
 
 
 def test_csv_row_of_200000_extra_fields_fails_fast(cli, tmp_path, rec):
-    """One row with 200 000 extra fields: ``info`` read it column by column (pandas accepts a
-    ragged row when reading some columns, slowly: seconds per pass, several passes) and then
-    failed; now the first pass parses every field and stops at that row."""
+    """One row with 200 000 extra fields: the first pass parses every field and stops at that
+    row, rather than reading it column by column (pandas accepts a ragged row when reading some
+    columns, slowly: seconds per pass, several passes) and failing later."""
     p = tmp_path / "long.csv"
     dio.write(rec, p)
     lines = p.read_text().splitlines()
@@ -159,8 +159,8 @@ def test_csv_row_of_200000_extra_fields_fails_fast(cli, tmp_path, rec):
 
 # ------------------------------------------------------------------ time stamps
 def test_repeated_time_stamps_are_named_not_divided_by(cli, tmp_path, rec):
-    """Two rows with the same t: the piece reader divided by the median step (0) —
-    ZeroDivisionError in identify, replay, diagnose; now the contract's message."""
+    """Two rows with the same t: the contract's message, not a division by the median step (0)
+    — a ZeroDivisionError in identify, replay, diagnose."""
     p = tmp_path / "two.parquet"
     data = rec.data.iloc[:2].copy()
     data.loc[1, "t"] = data.loc[0, "t"]
@@ -200,7 +200,7 @@ def test_mcap_is_written_with_chunk_and_data_crcs(tmp_path, rec):
 
 
 def test_mcap_chunk_crc_is_checked_on_read(cli, tmp_path, rec):
-    """A chunk whose records no longer match its CRC: one line naming both CRCs."""
+    """A chunk whose records do not match its CRC: one line naming both CRCs."""
     p = tmp_path / "a.mcap"
     dio.write(rec, p)
     data = bytearray(p.read_bytes())
@@ -253,8 +253,8 @@ def test_mcap_summary_crc_is_checked(cli, tmp_path, rec):
 
 # ------------------------------------------------------------------ ROS 2 bags
 def test_bag_with_a_damaged_record_length_is_one_line(cli, tmp_path):
-    """rosbag2's own cdr_test_0.mcap with bytes 219..357 removed: rosbags read a record length
-    from the wrong place and asked for that many bytes (a MemoryError traceback)."""
+    """rosbag2's own cdr_test_0.mcap with bytes 219..357 removed: rosbags reads a record length
+    from the wrong place and asks for that many bytes; one line, not a MemoryError traceback."""
     src = (DATA / "rosbag2" / "cdr_test_0.mcap").read_bytes()
     p = tmp_path / "cut.mcap"
     p.write_bytes(src[:219] + src[357:])
@@ -263,7 +263,7 @@ def test_bag_with_a_damaged_record_length_is_one_line(cli, tmp_path):
 
 def test_bag_record_longer_than_the_file_is_one_line(cli, tmp_path, rec):
     """A ROS 2 bag (MCAP storage) whose header record claims 1 000 000 bytes: rosbags' own
-    ReaderError ("Truncated record") was not among the errors caught — a traceback."""
+    ReaderError ("Truncated record") is among the errors caught — one line, not a traceback."""
     dio.write(rec, tmp_path / "bag", storage="mcap")
     p = tmp_path / "bag" / "bag.mcap"
     data = bytearray(p.read_bytes())
@@ -278,9 +278,9 @@ def test_bag_record_longer_than_the_file_is_one_line(cli, tmp_path, rec):
 
 
 def test_csv_whose_header_lost_a_comma_is_one_line(cli, tmp_path, rec):
-    """``t,q_1`` became ``tq_1``: the rows have one field more than the header, and pandas,
-    asked for the first column only to count the rows, failed inside (a ValueError traceback
-    "zip() argument 2 is shorter than argument 1"); now the missing t is named."""
+    """``t,q_1`` written as ``tq_1``: the rows have one field more than the header, and pandas,
+    asked for the first column only to count the rows, fails inside (a ValueError traceback
+    "zip() argument 2 is shorter than argument 1"); the missing t is named instead."""
     p = tmp_path / "a.csv"
     dio.write(rec, p)
     text = p.read_text()
@@ -289,9 +289,9 @@ def test_csv_whose_header_lost_a_comma_is_one_line(cli, tmp_path, rec):
 
 
 def test_csv_first_line_wider_than_the_header_is_refused(cli, tmp_path, rec):
-    """The first data line has more fields than the header: pandas took the leading fields of
-    every line as an index and shifted the values under the wrong names, silently (t got q_1's
-    values); report accepted such a file. Now refused by the whole-file and the piece reader."""
+    """The first data line has more fields than the header: pandas would take the leading
+    fields of every line as an index and shift the values under the wrong names, silently (t
+    getting q_1's values). Refused by the whole-file and the piece reader."""
     p = tmp_path / "wide.csv"
     dio.write(rec, p)
     lines = p.read_text().splitlines()
@@ -308,8 +308,8 @@ def test_csv_first_line_wider_than_the_header_is_refused(cli, tmp_path, rec):
 
 
 def test_missing_joint_column_is_refused_by_a_reader_of_columns(cli, tmp_path, rec):
-    """q_5 missing: report (which reads t, the wrench and the dither flag through a Source,
-    never a Recording) accepted the file; the Source now checks the column names as the
+    """q_5 missing: a reader of columns refuses the file too (report reads t, the wrench and the
+    dither flag through a Source, never a Recording): the Source checks the column names as the
     Recording does when it opens the file."""
     p = tmp_path / "no_q5.parquet"
     dio.write(rec, tmp_path / "full.parquet")
@@ -323,8 +323,8 @@ def test_missing_joint_column_is_refused_by_a_reader_of_columns(cli, tmp_path, r
 
 
 def test_nan_time_stamp_is_refused_by_a_reader_of_columns(cli, tmp_path, rec):
-    """report and view read a recording's columns without building a Recording: a NaN time
-    stamp went through; Source.times() now checks t as the Recording does."""
+    """report and view read a recording's columns without building a Recording: Source.times()
+    checks t as the Recording does, so a NaN time stamp is refused there too."""
     p = tmp_path / "nan.csv"
     dio.write(rec, p)
     lines = p.read_text().splitlines()
@@ -342,8 +342,8 @@ def test_nan_time_stamp_is_refused_by_a_reader_of_columns(cli, tmp_path, rec):
 
 def test_no_numpy_warning_before_the_column_error(cli, tmp_path, rec):
     """A 5-joint log of an IRB140 with torques of 1e308 and a dither column: the search for the
-    dither period (over the whole log, before any piece is checked) printed three numpy
-    warnings ("overflow encountered in reduce", ...) above the error line."""
+    dither period (over the whole log, before any piece is checked) prints no numpy warning
+    ("overflow encountered in reduce", ...) above the error line."""
     data = rec.data.drop(columns=["q_6", "tau_6"]).copy()
     data[[f"tau_{j}" for j in range(1, 6)]] = 1e308
     data["dither"] = (np.arange(len(data)) // 20) % 2 == 0
@@ -359,9 +359,9 @@ def test_no_numpy_warning_before_the_column_error(cli, tmp_path, rec):
 
 # ------------------------------------------------------------------ estimates (Parquet)
 def test_damaged_estimates_file_is_one_line_and_checked(tmp_path):
-    """``report`` on an estimates file with a damaged page header printed pyarrow's two-line
-    message; and estimates were written without page checksums, so a damaged value read as
-    another number. Now one line, and the pages carry checksums that are verified."""
+    """``report`` on an estimates file with a damaged page header: one line, not pyarrow's
+    two-line message; and the estimates' pages carry checksums that are verified, so a damaged
+    value is not read as another number."""
     from synthetic import push_recording
 
     from ditherlab.analysis.estimation import replay

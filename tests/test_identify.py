@@ -313,9 +313,9 @@ def test_replicate_sigma_by_weights_equals_the_built_replicate(lag):
 
 
 def test_cli_identify_prints_no_numpy_warnings(tmp_path, cli):
-    """A push campaign and an excitation (seeds 58 and 57): the band fits' line searches and two
-    bootstrap replicates that diverge printed 35 lines of numpy overflow warnings; stderr is now
-    empty and the model the same."""
+    """A push campaign and an excitation (seeds 58 and 57), on which the band fits' line searches
+    and two bootstrap replicates diverge: none of their numpy overflow warnings (35 lines)
+    reaches stderr, which stays empty, and the model is the same."""
     p, ex, m = tmp_path / "p.parquet", tmp_path / "ex.parquet", tmp_path / "m.toml"
     r = cli("simulate", "push-campaign", "--seed", "58", "--pushes-per-direction", "3", "-o", p)
     assert r.code == 0, r.err
@@ -330,8 +330,8 @@ def test_cli_identify_prints_no_numpy_warnings(tmp_path, cli):
     assert r.err == ""
     assert [str(w.message) for w in seen if issubclass(w.category, RuntimeWarning)] == []
     moving = TorqueModel.load(m).regimes["moving"]
-    # joint 5's moving band: no standard error where its replicates diverged (the simulator
-    # before session 11, half the friction on the motor side), else a finite positive one
+    # joint 5's moving band: no standard error where its replicates diverge (as with half the
+    # friction on the motor side), else a finite positive one
     se = moving.stderr["tau_min"][4]
     assert (se == -1.0 or 0 < se < np.inf) and moving.stderr["sigma"][4] > 0
 

@@ -304,12 +304,12 @@ def test_cli_bad_input_is_one_line(tmp_path, cli):
 
 
 def test_dead_zone_without_dither_misses_the_y_push_on_this_plant():
-    """README, "Lead-through": on the session-12 plant (the band behind the gear spring) joint 1
+    """On this plant (the band behind the gear spring, docs/design/simulator-friction.md) joint 1
     alone carries the operator's y push at this pose; its logged torque stays flat while the
     link's friction holds, so the estimate peaks about 1 N beyond the 10 N dead zone and the
     tool never reaches 5 mm/s along y (missed), while the z push (joints 2 and 3, long levers)
-    is followed. With session 10's share (half the band on the motor side) the same seed's y
-    push is followed (seed 2: session 10 missed only seed 1's)."""
+    is followed. With half the band on the motor side the same seed's y push is followed (of
+    seeds 1 and 2, only seed 1's is missed there)."""
     rec = simulate("lead-through", seed=2, dither=False)
     m = lead_metrics(rec)
     z, y = m["pushes"][0], m["pushes"][1]

@@ -62,8 +62,8 @@ def guarded(files):
 
 
 def test_output_equal_to_an_input_every_command(cli, guarded):
-    """`-o` naming an input, for every writing command: one line, exit 2 (report and diagnose
-    gave a FileExistsError traceback)."""
+    """`-o` naming an input, for every writing command: one line, exit 2 (not a FileExistsError
+    traceback)."""
     f = guarded
     rec, model, est = f["rec"], f["model"], f["est"]
     cases = [
@@ -156,8 +156,8 @@ UNDER_A_FILE_IDS = [f"{a[0]}-{k}" for k, (a, _) in enumerate(UNDER_A_FILE)]
 
 @pytest.mark.parametrize("args, shown", UNDER_A_FILE, ids=UNDER_A_FILE_IDS)
 def test_output_under_a_regular_file(cli, guarded, tmp_path, args, shown):
-    """A path under a regular file (replay, identify, view, diagnose, report gave a
-    FileExistsError or NotADirectoryError traceback): one line naming the file in the way."""
+    """A path under a regular file (replay, identify, view, diagnose, report): one line naming
+    the file in the way, not a FileExistsError or NotADirectoryError traceback."""
     blocker = tmp_path / "plain"
     blocker.write_text("a file")
     out = blocker / "sub" / "x"

@@ -483,7 +483,7 @@ def test_inverse_dynamics_is_mass_matrix_plus_gravity_at_rest():
 
 # ---------------------------------------------------------------------- UR10e against real logs
 def _ur10e_log(shared_data, name: str) -> np.ndarray:
-    """(N, 31): t, q1..6, qd1..6, i_act1..6, i_des1..6, tau_des1..6 (data README)."""
+    """(N, 31): t, q1..6, qd1..6, i_act1..6, i_des1..6, tau_des1..6 (tests/data/README.md)."""
     return np.loadtxt(shared_data / "ur10e" / name, delimiter=",")
 
 
@@ -647,7 +647,7 @@ def test_recording_robot_carries_tool_offset_and_payload():
 
 
 def test_batch_larger_than_cache_is_returned_uncached():
-    """A moving batch larger than the cache budget is computed, returned and not kept."""
+    """A moving batch larger than the cache budget is computed, returned and not cached."""
     robot = RobotModel.from_spec("irb140")
     robot.cache_bytes = 10_000
     q = random_q(robot, 300, seed=15)

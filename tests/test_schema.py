@@ -1,4 +1,4 @@
-"""Schema validation at every boundary (issue 13), through the CLI: a model file, a recording's
+"""Schema validation at every boundary, through the CLI: a model file, a recording's
 metadata (CSV sidecar, Parquet, MCAP), a mapping file, ``simulate --config`` and a URDF with a
 wrong type or an out-of-range value end in exactly one line on stderr naming the file, the key,
 the value and what was expected, exit status 2, no traceback and no warning before it."""
@@ -165,7 +165,8 @@ MODEL_CASES = [
 
 @pytest.mark.parametrize(("key", "value", "message"), MODEL_CASES, ids=[c[0] for c in MODEL_CASES])
 def test_model_file_wrong_type_or_range_is_one_line(files, key, value, message):
-    """Each of the issue's model files (and a few more): one line naming file, key, value."""
+    """Each model file with a wrong type or an out-of-range value: one line naming file, key,
+    value."""
     d = model_dict(files)
     _set(d, key, value)
     p = write_model(files["dir"] / "bad.toml", d)

@@ -68,7 +68,7 @@ def test_one_joint_alone_gives_the_hand_derived_thresholds(q2):
         assert r["f90"] == pytest.approx(0.9 * W / lever + m0, rel=0.01)
         assert r["joints"][0] == 1
     if q2 == 0.0:
-        assert lever == pytest.approx(0.450, abs=1e-3)  # the README's lever arm at the pose
+        assert lever == pytest.approx(0.450, abs=1e-3)  # docs/design/shared-joint.md
 
 
 def test_campaign_states_one_joint_hand_derived():
@@ -157,9 +157,8 @@ def test_dithered_transmission_against_the_simulator():
     links the dither frees every period) follow within 0.3 N·m RMS, joint 3 (0.5 Fs of dither
     leaves its link's friction holding) shows no more than the extraction's ripple at rest
     (the square wave's period is not a whole number of samples) below 1.5 N·m (the table frees
-    it from about 1.7 N·m, the whole plant from 2-3 N·m); session 10's model (every
-    joint shows 0.87 of the push torque) is off by several times more — the measurement behind
-    the README's dithered table (seed 44: gains 0.6-0.9, joint 3 holding)."""
+    it from about 1.7 N·m, the whole plant from 2-3 N·m); a uniform model (every joint shows
+    0.87 of the push torque) is off by several times more."""
     cfg = {"pose": {"q0": POSE_C.tolist()}, "noise": {"tau_sigma_fraction": 0.0},
            "push_campaign": {"magnitude_min": 1.0, "magnitude_max": 25.0}}  # fmt: skip
     rec = simulate("push-campaign", seed=5, dither=True, pushes_per_direction=3, config=cfg)
@@ -170,7 +169,7 @@ def test_dithered_transmission_against_the_simulator():
     bands = condition_bands(6, dither=True)
     durs, tq, drop, what = transmission_table(ROBOT, POSE_C, bands)
     assert "plant" in what
-    errs, old, held = [], [], []
+    errs, uniform, held = [], [], []
     for pu in rec.meta["sim"]["pushes"]:
         u = np.zeros(3)
         u["xyz".index(pu["axis"])] = pu["sign"]
@@ -189,13 +188,13 @@ def test_dithered_transmission_against_the_simulator():
             pred = float(np.interp(pu["duration"], durs, table))
             if j < 2:
                 errs.append(seen[j] - pred)
-                old.append(seen[j] - 0.87 * T)
+                uniform.append(seen[j] - 0.87 * T)
             elif T < 1.5:
                 held.append((seen[j] - wobble[j], pred, 0.87 * T))
-    errs, old = np.array(errs), np.array(old)
+    errs, uniform = np.array(errs), np.array(uniform)
     assert len(errs) >= 20 and len(held) >= 3
-    rms, rms_old = np.sqrt(np.mean(errs**2)), np.sqrt(np.mean(old**2))
-    assert rms < 0.3 and rms < 0.4 * rms_old, (rms, rms_old)
+    rms, rms_uniform = np.sqrt(np.mean(errs**2)), np.sqrt(np.mean(uniform**2))
+    assert rms < 0.3 and rms < 0.4 * rms_uniform, (rms, rms_uniform)
     held = np.array(held)
     assert held[:, 0].max() < 0.2 and held[:, 1].max() < 0.2 and held[:, 2].max() > 0.8
 
@@ -205,8 +204,8 @@ def test_dithered_prediction_one_joint_hand_derived():
     push meets joint 1 in the band's middle: with the model's dither_extraction law on every
     joint (gain g, lag 0: the push's peak through the one-period mean, pk(D)), a push along y
     responds once g pk(D) P l exceeds W/2 + m0 l. Hence F50 and F90 lie within the push lengths'
-    spread of (W/2 + m0 l) / (g pk l), a step (F90 - F50 < 0.3 N) — where session 10's
-    uniform state spreads the detection over the band, F90 - F50 = 0.4 W / (0.87 l)."""
+    spread of (W/2 + m0 l) / (g pk l), a step (F90 - F50 < 0.3 N) — where a state uniform over
+    the band (``states="mixed"``) spreads the detection over it, F90 - F50 = 0.4 W / (0.87 l)."""
     W, m0, g = 4.0, 1.0, 0.8
     b = one_joint_bands(W)
     b.dithered = True
@@ -224,8 +223,8 @@ def test_dithered_prediction_one_joint_hand_derived():
         r = pred["directions"][d]
         assert edge / pk.max() - 0.2 <= r["f50"] <= r["f90"] <= edge / pk.min() + 0.2
         assert r["f90"] - r["f50"] < 0.3
-    old = predict(ROBOT, q, b, noise_level=[m0] * 3, states="mixed", draws=400, forces=400)
-    assert old["directions"]["+y"]["f90"] - old["directions"]["+y"]["f50"] > 2.0
+    uniform = predict(ROBOT, q, b, noise_level=[m0] * 3, states="mixed", draws=400, forces=400)
+    assert uniform["directions"]["+y"]["f90"] - uniform["directions"]["+y"]["f50"] > 2.0
 
 
 def test_peak_noise_lowers_the_threshold_by_the_noise_maximum():
@@ -449,19 +448,16 @@ def test_map_output_guard(tmp_path):
 def test_prediction_against_a_simulated_campaign_at_another_pose(tmp_path):
     """Paired campaigns (identification seed 41, evaluation seed 40, 40 pushes per direction
     and sign, one seed) at a pose far from the paper's, through ``ditherlab sweep``.
-    40, not 20 (until session 17): with 20 the measured F50 was too loose a figure for a 25 %
-    check. The plant's last-bit change of session 17 (its inverse mass matrix, README "The built-in
-    simulator") moved y from 21.6 to 18.3 N (prediction 23.5 N: +28 %), and seed 42 gave
-    z 12.4 N against seed 40's 24.6 N. With 40: x / y / z 36.0 / 22.8 / 22.0 N measured,
-    36.7 / 24.4 / 23.2 predicted (+2, +7, +5 %); seed 42 +8, -1, +11 %.
-    The friction-state mix was chosen after this pose's first result on session 10's plant
-    (shared states: z +52 %). On the session-12 plant (the band behind the gear spring, 10-60 N
-    pushes at the operator's pace) that uniform-state prediction was 35-41 % low (x 19.6 /
-    33.0 N, y 14.1 / 21.6 N, z 14.1 / 23.1 N predicted / measured); with the states a campaign
-    leaves on this plant (``campaign_states``: the link's friction behind the spring must break
-    before the torque moves) x 36.7 / 33.0, y 24.4 / 21.6, z 23.2 / 23.1 N (+11, +13, +0 %;
-    README, "Pose sensitivity"). Checked: every axis within 25 % without dither, and dither
-    lowering the threshold, predicted (below 0.7) as measured (below 0.6)."""
+    40 pushes, not 20: with 20 the measured F50 is too loose a figure for a 25 % check — a
+    change in the plant's last bit (docs/design/reproducible-plant.md) moves y between 21.6 and
+    18.3 N (prediction 23.5 N: +28 %), and seed 42 gives z 12.4 N against seed 40's 24.6 N.
+    With 40: x / y / z 36.0 / 22.8 / 22.0 N measured, 36.7 / 24.4 / 23.2 predicted (+2, +7,
+    +5 %); seed 42 +8, -1, +11 %. The prediction plays the states a campaign leaves on this
+    plant (``campaign_states``: the link's friction behind the spring must break before the
+    torque moves); states uniform over the band predict 35-41 % low here (20 pushes: x 19.6 /
+    33.0 N, y 14.1 / 21.6 N, z 14.1 / 23.1 N predicted / measured, against the campaign states'
+    +11, +13, +0 %). Checked: every axis within 25 % without dither, and dither lowering the
+    threshold, predicted (below 0.7) as measured (below 0.6)."""
     out = tmp_path / "sw"
     r = run_cli(
         "sweep", "--grid", "pose.q0=-0.4:0.35:-0.6:0.5:1.1:0.4", "--pushes-per-direction", "40",

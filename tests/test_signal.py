@@ -1,4 +1,4 @@
-"""ditherlab's own versions of the scipy functions it no longer imports at start-up, each against
+"""ditherlab's own versions of the scipy functions it keeps out of its start-up, each against
 scipy itself: the Savitzky–Golay filter, the first-order lag, the rotation vector's matrix and
 the normal and chi-square quantiles."""
 

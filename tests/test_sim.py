@@ -276,8 +276,8 @@ def test_bad_options_raise_config_error(kwargs, message):
     ],
 )
 def test_bad_excitation_config_raises_config_error(table, message):
-    """A negative count or a zero duration in the excitation table is refused by name (they
-    used to end in a numpy traceback or a division by zero)."""
+    """A negative count or a zero duration in the excitation table is refused by name (rather
+    than ending in a numpy traceback or a division by zero)."""
     with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
         simulate("excitation", config={"excitation": table})
 

@@ -220,7 +220,7 @@ def test_all_six_dithering_set_points_follow_the_papers_vibration_rule():
     assert np.all(_six_dithering_vibration([0.9] * 6)[0][3:] > 5e-4)
 
 
-# --- session 14 candidates for the no-dither table (README "Physics for the paper's table")
+# --- lost motion of the gear, off by default (docs/design/sim-defaults.md, "Options that are off")
 def _state_after_push(joints: dict, axis: int, magnitude: float, j: int) -> float:
     """The link-side friction torque of joint ``j`` (0-based) as a fraction of its static level,
     4.5 s after a 1 s raised-cosine push of ``magnitude`` N along base ``axis`` (0 x, 1 y) at the
@@ -242,7 +242,7 @@ def _state_after_push(joints: dict, axis: int, magnitude: float, j: int) -> floa
 
 
 def test_lost_motion_recentres_a_joint_without_gravity_after_a_push():
-    """Measured mechanism of the lost-motion candidate: a 35 N push along y slips joint 1 (no
+    """Measured mechanism of the lost-motion option: a 35 N push along y slips joint 1 (no
     gravity at the paper's pose); on the plain spring the servo's return leaves its link friction
     at 0.58 of the static level, with a 2e-4 rad gap the motor returns into the gap and the link
     is unloaded (0); a 50 N push still leaves the sliding level (0.85) on both."""
@@ -253,7 +253,7 @@ def test_lost_motion_recentres_a_joint_without_gravity_after_a_push():
 
 
 def test_lost_motion_rattles_the_motor_beyond_the_vibration_rule():
-    """Why the lost motion is not kept: with a 1e-4 rad gap the motors of the joints without
+    """Why the lost motion is off by default: with a 1e-4 rad gap the motors of the joints without
     gravity load (1, 4-6) rattle in it at 1.45-1.61e-4 arm rad with the default set-points (0.75-
     0.89e-4 without), beyond the paper's ~1e-4, while their arm side moves less than half that."""
     assert load_params()["joints"]["lost_motion"] == [0.0] * 6  # the default: the plain spring

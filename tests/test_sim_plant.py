@@ -69,18 +69,19 @@ def test_kernel_matches_reference():
     assert np.abs(a.amp_ffw).max() > 0  # the loops acted in this short run
 
 
-#: the session-14 candidates of README "Physics for the paper's table", all switched on
-_CANDIDATES = {
+#: the physics that is off by default (docs/design/sim-defaults.md, "Options that are off"), all
+#: switched on
+_OPTIONS_OFF = {
     "joints": {"lost_motion": 4e-4, "lost_motion_stiffness": 0.2},
     "servo": {"standstill_freeze": True, "standstill_leak": 2.0, "standstill_velocity": 0.02},
 }
 
 
-def test_kernel_matches_reference_with_the_candidate_options():
+def test_kernel_matches_reference_with_the_options_off_by_default():
     """Lost motion and the standstill integral go into both steps alike, and they act: the
     torques differ from the run without them."""
-    a, _ = _short_run(False, _CANDIDATES)
-    b, _ = _short_run(True, _CANDIDATES)
+    a, _ = _short_run(False, _OPTIONS_OFF)
+    b, _ = _short_run(True, _OPTIONS_OFF)
     base, _ = _short_run(False)
     assert np.allclose(a.tau, b.tau, atol=1e-6, rtol=0)
     assert np.allclose(a.q_motor, b.q_motor, atol=1e-9, rtol=0)

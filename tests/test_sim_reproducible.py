@@ -2,12 +2,13 @@
 
 The plant is a chaotic stick-slip system: a difference in the last bit of one link's inverse
 mass matrix becomes, over a 945 s push campaign, up to 18 N·m in the logged torque and moves the
-paper's table by single pushes (README "The built-in simulator", session 17). Until session 17
-that inverse came from LAPACK, whose OpenBLAS build picks its kernels by CPU at run time, so the
-same seed gave other recordings on other machines. These tests run the simulator with two of
-OpenBLAS's kernels (``OPENBLAS_CORETYPE``) and with numpy's AVX2/FMA paths off
-(``NPY_DISABLE_CPU_FEATURES``), in fresh processes, and compare every column bit for bit. What
-they cannot reach from one machine: glibc's CPU-dispatched ``libm`` and numpy's AVX-512 paths.
+paper's table by single pushes (docs/design/reproducible-plant.md). LAPACK's OpenBLAS build picks
+its kernels by CPU at run time, so an inverse from LAPACK would give the same seed other
+recordings on other machines; the plant inverts with its own compiled Cholesky instead
+(``ditherlab.core.linalg``). These tests run the simulator with two of OpenBLAS's kernels
+(``OPENBLAS_CORETYPE``) and with numpy's AVX2/FMA paths off (``NPY_DISABLE_CPU_FEATURES``), in
+fresh processes, and compare every column bit for bit. What they cannot reach from one machine:
+glibc's CPU-dispatched ``libm`` and numpy's AVX-512 paths.
 The solvers themselves are tested in ``tests/test_linalg.py``.
 """
 
@@ -45,7 +46,8 @@ def _corename(env: dict[str, str]) -> str | None:
 NPY_OFF = "AVX2 FMA3 AVX F16C"
 
 #: LAPACK's inverse of the IRB140's mass matrix at 50 poses, hashed: it differs between two
-#: kernels where the switch changes LAPACK's rounding (what the old simulator used)
+#: kernels where the switch changes LAPACK's rounding (which a plant inverting with LAPACK
+#: would inherit)
 CANARY = (
     "import hashlib, numpy as np\n"
     "from ditherlab.robot import RobotModel\n"
@@ -76,7 +78,7 @@ def test_the_same_recording_on_every_blas_kernel(tmp_path):
     """A dithered push campaign, an excitation with a turned F/T sensor (whose logged wrench is
     rotated) and a lead-through (closed loop through the estimator) are the same bits with this
     machine's OpenBLAS kernel and a generic one, which round LAPACK's inverse of the mass matrix
-    differently here (the canary; the code before session 17 failed this test); the push
+    differently here (the canary: a plant that inverted with LAPACK would fail this test); the push
     campaign also with numpy's AVX2/FMA paths off."""
     own_env, generic_env = _env(), _env(OPENBLAS_CORETYPE=GENERIC)
     own, generic = _corename(own_env), _corename(generic_env)

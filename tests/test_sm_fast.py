@@ -1,7 +1,8 @@
 """The torque coordinates' set-membership path (``sm_square``): the kernel without numba's
-reference counts, Gauss-Jordan ``J^-T`` and Bland's rule against cycling, the lockstep passes (``sm_lockstep``: a block's ``J^-T`` and each LP's working set checked for
-many samples at once), checked against the per-sample path, the general kernel and linprog,
-including the samples it must refuse or leave to the per-sample code."""
+reference counts, Gauss-Jordan ``J^-T`` and Bland's rule against cycling, the lockstep passes
+(``sm_lockstep``: a block's ``J^-T`` and each LP's working set checked for many samples at
+once), checked against the per-sample path, the general kernel and linprog, including the
+samples it must refuse or leave to the per-sample code."""
 
 from __future__ import annotations
 
@@ -57,16 +58,17 @@ def bench_args():
     return _sub(args, slice(0, 400))
 
 
-def test_the_degenerate_cold_start_no_longer_cycles(bench_args):
+def test_the_degenerate_cold_start_does_not_cycle(bench_args):
     """At the bench's first samples the cold start of max F_4 reaches a working set holding the
-    objective's own box row (every other multiplier zero): the largest-violation rule cycled
-    between six working sets until the iteration limit and the general kernel took the sample
-    (7.7 % of the bench). With Bland's rule after m iterations every sample takes the torque
-    coordinates and the bounds are linprog's."""
+    objective's own box row (every other multiplier zero): the largest-violation rule alone
+    cycles there between six working sets until the iteration limit, which would leave the
+    sample to the general kernel (7.7 % of the bench). With Bland's rule after m iterations
+    every sample takes the torque coordinates and the bounds are linprog's."""
     prob = E.problem(**bench_args)
     lo, hi, st = _square_only(prob)
     assert (st == 5).all(), np.bincount(st + 1)
-    sel = np.arange(0, 40, 3)  # the first 20 samples cycled before
+    # samples 0-39: the first 20 cycle under the largest-violation rule alone
+    sel = np.arange(0, 40, 3)
     rlo, rhi = E.set_membership_reference(E.problem(**_sub(bench_args, sel)))
     np.testing.assert_allclose(lo[sel], rlo, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(hi[sel], rhi, rtol=1e-9, atol=1e-9)
@@ -223,8 +225,9 @@ def _lu_order(M):
 
 
 #: two samples of a replayed hour's ``nodither_noband`` variant (zero-width bands, the paper's
-#: prior) on which the general kernel's cold path (the primal active-set method) stopped on an
-#: optimal face with its point off the face, 2.1e-5 and 2.6e-5 N from linprog (session 12)
+#: prior) on which the general kernel's cold path (the primal active-set method) ends on an
+#: optimal face rather than a vertex; a value read off the face there is 2.1e-5 and 2.6e-5 N
+#: from linprog
 FACE_SAMPLES = [
     dict(
         tau_bar=[9.405096195448658, -0.1668455442751693, 7.858249776538557, -1.8100019243011556, -1.6274205904329253, -1.0867548920159618],
@@ -245,7 +248,8 @@ FACE_SAMPLES = [
 def test_general_kernel_cold_path_on_an_optimal_face_matches_linprog(k):
     """The general kernel (``square=False``), cold on one sample, gives linprog's bounds to 1e-8
     where its primal active-set method ends on an optimal face rather than a vertex: the point
-    is put back on the face's rows before its value is read (before: 2e-5 N off)."""
+    is put back on the face's rows before its value is read (read off the face, it is 2e-5 N
+    off)."""
     s = FACE_SAMPLES[k]
     tau = np.array(s["tau"])[None]
     prob = E.problem(

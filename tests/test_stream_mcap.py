@@ -87,7 +87,7 @@ def test_frames_equal_the_whole_read(mc):
 
 def test_frames_read_one_block_at_a_time(mc, monkeypatch):
     """The first block of 500 rows is handed out once 500 messages on each of the 4 channels
-    have been read: nothing is read ahead (the whole read took every message first)."""
+    have been read: nothing is read ahead (as a whole read, taking every message first, would)."""
     _, _, path, _ = mc
     pulled = [0]
     messages = mcap_io._messages

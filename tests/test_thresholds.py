@@ -144,11 +144,11 @@ def test_logistic_without_transition_reports_a_bound():
 
 
 def test_rest_with_dither_leaves_out_the_ramps():
-    """The dither flag covers its ramps (RECORDING.md: true while the feedforward is on); rest with
-    dither starts when every dithering joint's extracted amplitude has reached 80 % of its median
-    and ends when it last had: the ramp in and out are left out, a dip inside (a joint slipping)
-    is kept, a joint that does not dither (its amplitude the noise's spread) is ignored, and a
-    file without extraction columns keeps every dithered sample."""
+    """The dither flag covers its ramps (docs/recording-format.md: true while the feedforward is
+    on); rest with dither starts when every dithering joint's extracted amplitude has reached
+    80 % of its median and ends when it last had: the ramp in and out are left out, a dip inside
+    (a joint slipping) is kept, a joint that does not dither (its amplitude the noise's spread)
+    is ignored, and a file without extraction columns keeps every dithered sample."""
     from ditherlab.analysis.steady import steady_dither
     from ditherlab.data.estimates import Estimates, EstimatesSource
 

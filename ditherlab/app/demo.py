@@ -299,9 +299,9 @@ def run_pipeline(
             # first fit is run only for a model that keeps it (add_effect refused)
             model = identify(ids, n_boot=0, seed=seed, progress=progress)
             # how the dither's extraction shows a push (late, in part): identified from the
-            # identification campaign's dithered pushes, used by replay (README "Calibrated
-            # intervals"); a campaign where it cannot be told apart from the bands keeps the
-            # model, then with its bootstrap
+            # identification campaign's dithered pushes, used by replay (docs/method.md, "Where
+            # the estimator reads the extraction"); a campaign where it cannot be told apart
+            # from the bands keeps the model, then with its bootstrap
             try:
                 model = add_effect(ids, model, "dither_extraction", executor=pool)
             except ModelError:
@@ -379,7 +379,7 @@ def paper_agreement(
 
     Compares ``nodither_band`` with the paper's no-dither row and ``dither_band`` with its
     dither row, per axis: the smallest force with a response and, for the 10 N statistic,
-    ``reading`` "every" (the issue's: the force beyond which every estimate exceeded 10 N) or
+    ``reading`` "every" (the default: the force beyond which every estimate exceeded 10 N) or
     "needed" (the smallest force whose estimate exceeded 10 N: "no force smaller than 32 N gave
     any response", said of the first statistic, read the same way for the second) [N].
 
@@ -419,7 +419,7 @@ def pipeline_text(res: PipelineResult) -> str:
         (
             "needed",
             "with the 10 N statistic read as the smallest force whose estimate exceeded 10 N "
-            '(README "Two readings")',
+            '(docs/method.md, "The paper\'s detection statistics")',
         ),
     ):
         within, total, misses = paper_agreement(a, reading=reading)

@@ -1,10 +1,10 @@
 """A fuzz suite for ditherlab's promise on bad input.
 
 Every case runs one CLI command (info, convert, identify, replay, diagnose, report, view --save)
-on one input and checks the promise of ``errors.py`` / RECORDING.md: exit 0, or exit 2 with
-exactly one line ``error: ...`` on stderr (progress lines of a non-TTY run aside), no traceback,
-no hang (60 s), the input's bytes unchanged, and no output (nor temporary file) left behind by a
-failure.
+on one input and checks the promise of ``errors.py`` and of ``docs/recording-format.md`` ("Bad
+input"): exit 0, or exit 2 with exactly one line ``error: ...`` on stderr (progress lines of a
+non-TTY run aside), no traceback, no hang (60 s), the input's bytes unchanged, and no output (nor
+temporary file) left behind by a failure.
 
 Inputs (:mod:`tests.fuzz.inputs`): recordings drawn by hypothesis strategies (valid, and invalid
 on purpose: wrong dtypes, NaN/inf, non-monotonic or duplicated ``t``, missing or duplicated
