@@ -15,7 +15,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 #: the history's own words (case-insensitive)
 HISTORY = re.compile(
-    r"\bsessions? \d+|\bissues? #?\d+|\b(?:was|were) tried\b|\bnot kept\b|\bearlier (?:wording|"
+    r"\bsessions?[- ]\d+|\bissues?[- ]#?\d+|\b(?:was|were) tried\b|\bnot kept\b|\bearlier (?:wording|"
     r"version|session)s?\b|\bpreviously\b|\bno longer\b|\buntil (?:session|issue|now)\b|"
     r"(?<![\w-])RECORDING\.md\b|(?<![\w-])DESIGN\.md\b",
     re.IGNORECASE,
@@ -43,6 +43,7 @@ def test_the_pattern_finds_history():
     """The check can fail: each kind of phrase is found, and plain prose is not."""
     for s in (
         "measured in session 15",
+        "the session-12 plant",
         "see issue 12",
         "a ripple model was tried",
         "the candidate was not kept",
