@@ -97,6 +97,19 @@ def test_info_unknown_robot(cli, tmp_path):
     assert cli("info", p, "--robot", "irb140").code == 0
 
 
+def test_a_vendor_log_without_a_header_is_sent_to_a_mapping(cli):
+    """A headerless vendor CSV (the UR10e log): without options the error offers --mapping and
+    names the built-in mappings; with --robot it says the first line is data, not names; with a
+    mapping that expects a header it says the file has none; with the right mapping it reads."""
+    log = REPO / "tests" / "data" / "ur10e" / "no_torque.csv"
+    assert_user_error(cli("info", log), r"no robot given.*--mapping.*ur10e")
+    assert_user_error(cli("info", log, "--robot", "ur10e"), r"first line holds numbers .*--mapping")
+    assert_user_error(
+        cli("info", log, "--mapping", "ur_rtde"), r"holds numbers, not names.*header = false"
+    )
+    assert cli("info", log, "--mapping", "ur10e").code == 0
+
+
 def test_info_warns_about_degrees(cli, tmp_path):
     """Joint angles in degrees raise the unit warning (main prints it as one stderr line)."""
     t = np.arange(100) * 0.004

@@ -110,9 +110,12 @@ def meta_from_options(
         if options.get(key) is not None:
             out[key] = options[key]
     if "robot" not in out:
+        from ditherlab.io.mapping import builtin_mappings  # the mapping module builds on this one
+
         raise FormatError(
             f"{where}: no robot given (the file has no metadata 'robot'); expected --robot with "
-            "a built-in name (irb140) or the path of a URDF file"
+            "a built-in name (irb140) or the path of a URDF file, or --mapping for a vendor log "
+            f"(built in: {', '.join(builtin_mappings())})"
         )
     return out
 
@@ -177,3 +180,12 @@ def checked_times(t: np.ndarray, name: str) -> np.ndarray:
     out = pd.to_numeric(pd.Series(t), errors="coerce").to_numpy(float)
     check_times(out, name)
     return out
+
+
+def looks_numeric(text: str) -> bool:
+    """Whether a header field is a number (a line of data where names were expected)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

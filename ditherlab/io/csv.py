@@ -28,6 +28,7 @@ from ditherlab.io.common import (
     checked_times,
     dumps_meta,
     loads_meta,
+    looks_numeric,
     meta_from_options,
 )
 from ditherlab.io.format import CHUNK_ROWS, Format
@@ -83,6 +84,11 @@ def header(path: Path) -> list[str]:
     except (ValueError, pd.errors.EmptyDataError) as exc:  # ParserError, UnicodeDecodeError too
         raise FormatError(f"{path}: not a readable CSV file ({one_line(exc)})") from None
     names = ["" if pd.isna(v) else str(v) for v in row.iloc[0]] if len(row) else []
+    if names and all(looks_numeric(c) for c in names):
+        raise FormatError(
+            f"{path}: the first line holds numbers ({', '.join(names[:3])}, ...), not column "
+            "names; a CSV without a header line is read through a mapping file (--mapping)"
+        )
     first: dict[str, int] = {}
     for i, c in enumerate(names):
         if c in first:

@@ -47,6 +47,7 @@ import codecs
 import csv
 import difflib
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -64,7 +65,13 @@ from ditherlab.data.recording import (
     TOOL_OFFSET_NODE,
     Recording,
 )
-from ditherlab.io.common import META_OPTIONS, check_options, meta_from_options, robot_spec
+from ditherlab.io.common import (
+    META_OPTIONS,
+    check_options,
+    looks_numeric,
+    meta_from_options,
+    robot_spec,
+)
 from ditherlab.io.format import Format
 
 MAPPINGS_DIR = Path(__file__).parent / "mappings"
@@ -384,9 +391,16 @@ class _Columns:
                     "number)"
                 )
             if ref not in self.raw.columns:
+                names = [str(c) for c in self.raw.columns]
+                hint = (
+                    f"the first line of {self.path} holds numbers, not names: a file without a "
+                    "header line needs a mapping with input.header = false"
+                    if _looks_like_data(names)
+                    else _expected_names(str(ref), names)
+                )
                 raise ConfigError(
                     f"{self.mp}: {key} is {ref!r}, but the header of {self.path} has no such "
-                    f"column ({_expected_names(str(ref), [str(c) for c in self.raw.columns])})"
+                    f"column ({hint})"
                 )
             col = self.raw[ref]
             label = f"column {ref!r}"
@@ -400,6 +414,15 @@ class _Columns:
                 f"data row {i + 1}, expected a number"
             )
         return values
+
+
+def _looks_like_data(names: list[str]) -> bool:
+    """Whether a header's names are numbers: a line of data read as the header (split on any
+    delimiter, since the mapping's may not be the file's; pandas renames repeats ``x.1``)."""
+    tokens = [t for c in names for t in re.split(r"[,;\s]+", c) if t]
+    return bool(tokens) and all(
+        looks_numeric(t) or looks_numeric(re.sub(r"\.\d+$", "", t)) for t in tokens
+    )
 
 
 def _expected_names(ref: str, names: list[str], show: int = 12) -> str:
