@@ -302,7 +302,10 @@ def simulate(
 def identify(
     recordings: Annotated[
         list[Path],
-        typer.Argument(metavar="RECORDING", help="Push recordings with an F/T sensor (f_x..m_z)."),
+        typer.Argument(
+            metavar="RECORDING",
+            help="Recordings with an F/T sensor (f_x..m_z), or any log with --assume-no-force.",
+        ),
     ],
     out: Annotated[str, out_file("Torque model file, .toml")],
     model: Annotated[
@@ -323,7 +326,8 @@ def identify(
         bool,
         typer.Option(
             "--assume-no-force",
-            help="No F/T sensor: you state that no external force acts; bands from rest periods.",
+            help="No F/T sensor: you state that no external force acts; bands from every regime "
+            "the log holds.",
         ),
     ] = False,
     bootstrap: Annotated[
