@@ -8,7 +8,7 @@ JOBS   ?= 2
 # e.g. DEMO_FLAGS='--full-view --keep-data': the view at full rate, the recordings and estimates
 DEMO_FLAGS ?=
 
-.PHONY: setup demo test bench fuzz lint lock clean docs validation
+.PHONY: setup demo test study bench fuzz lint lock clean docs validation
 
 $(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "ditherlab needs Python >= 3.11"'
@@ -23,7 +23,11 @@ demo: $(STAMP)
 	$(PY) -m ditherlab.app.demo --out $(OUT) $(DEMO_FLAGS)
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(JOBS) --dist loadfile
+	$(PY) -m pytest -q -n $(JOBS) --dist loadfile -m "not study"
+
+# The study tier: the properties of make test over every planted effect, seed and cut point.
+study: $(STAMP)
+	$(PY) -m pytest -q -n $(JOBS) --dist loadfile -m study
 
 # The documentation site (mkdocs-material, API from the docstrings, notebooks rendered) into
 # site/: the generated pages first (the effect library, the command line), then a strict build.

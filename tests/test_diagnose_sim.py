@@ -64,23 +64,30 @@ def clean():
     return rec, m, diagnose([rec], m)
 
 
-@pytest.fixture(scope="module")
-def loops(clean):
+class _Loops(dict):
     """Per hidden effect: recording, diagnosis (bands identified on it, the clean model's inertia
-    kept), torque RMS after adding the top candidate, and that model."""
-    _, base, _ = clean
-    out = {}
-    for name in HIDDEN:
+    kept), torque RMS after adding the top candidate, and that model; computed on first use."""
+
+    def __init__(self, base):
+        super().__init__()
+        self.base = base
+
+    def __missing__(self, name):
         rec = _sim([name])
-        m = _refit(base, rec)
+        m = _refit(self.base, rec)
         d = diagnose([rec], m)
         after = m2 = None
         if d.suggested:
             c = d.suggested[0]
             m2 = _add(m, rec, c.effect, c.joints)
             after = _rms(m2, rec)
-        out[name] = (rec, d, after, m2)
-    return out
+        self[name] = out = (rec, d, after, m2)
+        return out
+
+
+@pytest.fixture(scope="module")
+def loops(clean):
+    return _Loops(clean[1])
 
 
 #: hidden effect (with its size) -> joints (1-based) that must be named, or None for the effects
@@ -111,6 +118,10 @@ PASSING = [
     "stribeck",
     "ft_bias",
 ]
+#: checked by ``make test`` (one effect on a joint set, two shared by all joints); the others
+#: run in the study tier (``make study``)
+CORE = ("load_friction", "payload", "ft_bias")
+KEYS = [pytest.param(k, marks=() if k in CORE else pytest.mark.study) for k in PASSING]
 
 
 def _top(loops, key):
@@ -125,7 +136,7 @@ def _fall_and_floor(d, after):
     return r0, np.asarray(after), floor
 
 
-@pytest.mark.parametrize("key", PASSING)
+@pytest.mark.parametrize("key", KEYS)
 def test_hidden_effect_ranked_first_on_right_joints(loops, key):
     """The plant's hidden effect is the first suggested candidate, on the joints where it shows,
     and explains most of the part of the residual above the noise on held-out data."""
@@ -140,7 +151,7 @@ def test_hidden_effect_ranked_first_on_right_joints(loops, key):
     assert top.explained_fraction > (0.3 if key == "stribeck" else 0.4), d.summary()
 
 
-@pytest.mark.parametrize("key", PASSING)
+@pytest.mark.parametrize("key", KEYS)
 def test_error_falls_to_noise_floor_after_adding(loops, key):
     """Adding the top candidate cuts the worst joint's residual RMS by >= 30 % and brings every
     joint within 25 % of its noise floor."""
@@ -169,7 +180,7 @@ def test_load_friction_values_match_the_plant(loops):
     torque, i.e. 0.15 · Fc/Fs = 0.1275 on the Coulomb level: within 0.01 on joints 2 and 3, 0.025
     on the others), and the output-side friction the gear carries on joint 2 at no load is about
     the plant's: the output share ``1 - friction.motor_share`` of the sliding friction Fc = 8.1 N·m
-    (-38 % / +50 %, the bounds once written as 2.5-6.0 N·m for the share 0.5)."""
+    (-38 % / +50 %)."""
     rec, _, _, m2 = loops["load_friction"]
     spec = m2.effects[-1]
     k = np.array(spec.params["k"])
@@ -181,6 +192,7 @@ def test_load_friction_values_match_the_plant(loops):
     assert 0.62 * truth < c2 < 1.5 * truth, (truth, spec.params)
 
 
+@pytest.mark.study
 @pytest.mark.xfail(
     strict=True,
     reason="with the friction band behind the gear spring (motor_share 0.1) the wrists' "
@@ -199,6 +211,7 @@ def test_stribeck_values_match_the_plant(loops):
     np.testing.assert_allclose(p["fs_minus_fc"], truth, rtol=0.25)
 
 
+@pytest.mark.study
 def test_attenuation_lag_values_match_the_plant(loops):
     """The pushes made while the joints slide show the compliant support's physics: 70 % of the
     push reaches the arm through a 0.15 s first-order lag; of a pure delay and a first-order lag

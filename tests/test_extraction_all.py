@@ -59,6 +59,7 @@ def control(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.study
 def test_dithered_clean_control_suggests_nothing(control):
     """identify on the dithered clean campaign of seed 977 with ``--add inertia --add
     dither_extraction``, diagnose on seed 978's: nothing is suggested. (With the extraction on
@@ -77,6 +78,7 @@ def test_dithered_clean_control_suggests_nothing(control):
 
 
 @pytest.mark.slow
+@pytest.mark.study
 def test_found_where_the_model_lacks_it_and_only_with_dither(tmp_path):
     """Diagnose still suggests dither_extraction on a dithered evaluation campaign when the
     model lacks it (the base model identified on the identification pair, seed 1, as

@@ -445,6 +445,7 @@ def test_map_output_guard(tmp_path):
 
 
 # ------------------------------------------------------------------ against the simulator
+@pytest.mark.study
 def test_prediction_against_a_simulated_campaign_at_another_pose(tmp_path):
     """Paired campaigns (identification seed 41, evaluation seed 40, 40 pushes per direction
     and sign, one seed) at a pose far from the paper's, through ``ditherlab sweep``.

@@ -18,6 +18,14 @@ from ditherlab.io import read, write
 from ditherlab.io.stream import open_source
 from ditherlab.physics.dither import extract_dither
 
+#: where the pieces are cut: ``make test`` cuts during a push; at the dither and in a stick
+#: stretch the same checks run in the study tier (``make study``)
+WHERE = [
+    "push",
+    pytest.param("dither", marks=pytest.mark.study),
+    pytest.param("stick", marks=pytest.mark.study),
+]
+
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
@@ -207,7 +215,7 @@ def still_campaign(campaign):
     return rec
 
 
-@pytest.mark.parametrize("where", ["push", "dither", "stick"])
+@pytest.mark.parametrize("where", WHERE)
 def test_cli_identify_in_pieces_equals_the_whole(campaign, still_campaign, cli, where):
     """Two recordings (dithered and not: every regime), cut at an awkward place: the model file
     is byte for byte the one identified whole, and the one the in-memory path gives."""
@@ -305,7 +313,7 @@ def replayed(campaign, still_campaign):
     return out
 
 
-@pytest.mark.parametrize("where", ["push", "dither", "stick"])
+@pytest.mark.parametrize("where", WHERE)
 def test_cli_report_in_pieces_equals_the_whole(campaign, still_campaign, replayed, cli, where):
     """The report of both campaigns with their recordings, the estimates and recordings read in
     pieces cut at an awkward place: report.json and every figure byte for byte the ones read
@@ -422,7 +430,7 @@ def _close(a, b, path="") -> None:
         assert a == b, path
 
 
-@pytest.mark.parametrize("where", ["push", "dither", "stick"])
+@pytest.mark.parametrize("where", WHERE)
 def test_cli_diagnose_in_pieces_equals_the_whole(campaign, long_campaign, cli, where):
     """diagnose read in pieces cut inside a push, a dither period or a stick gives the whole
     recording's diagnosis: residual, force error and coverage, worst windows, every candidate's

@@ -785,6 +785,7 @@ def test_rerun_cli_verifies_the_file(simulated_view, tmp_path):
     assert cut.returncode != 0
 
 
+@pytest.mark.study
 def test_real_diagnosis_object(simulated, tmp_path):
     """A Diagnosis from ditherlab.analysis.diagnosis is logged: one entry per worst window, its joint named."""
     import warnings
