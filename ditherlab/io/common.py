@@ -110,8 +110,6 @@ def meta_from_options(
         if options.get(key) is not None:
             out[key] = options[key]
     if "robot" not in out:
-        from ditherlab.io.mapping import builtin_mappings  # the mapping module builds on this one
-
         raise FormatError(
             f"{where}: no robot given (the file has no metadata 'robot'); expected --robot with "
             "a built-in name (irb140) or the path of a URDF file, or --mapping for a vendor log "
@@ -189,3 +187,12 @@ def looks_numeric(text: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+#: the mapping files shipped with ditherlab (``--mapping NAME``)
+MAPPINGS_DIR = Path(__file__).parent / "mappings"
+
+
+def builtin_mappings() -> list[str]:
+    """Names of the mapping files shipped with ditherlab (``ditherlab/io/mappings/*.toml``)."""
+    return sorted(p.stem for p in MAPPINGS_DIR.glob("*.toml"))

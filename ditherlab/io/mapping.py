@@ -66,7 +66,9 @@ from ditherlab.data.recording import (
     Recording,
 )
 from ditherlab.io.common import (
+    MAPPINGS_DIR,
     META_OPTIONS,
+    builtin_mappings,
     check_options,
     looks_numeric,
     meta_from_options,
@@ -74,7 +76,6 @@ from ditherlab.io.common import (
 )
 from ditherlab.io.format import Format
 
-MAPPINGS_DIR = Path(__file__).parent / "mappings"
 FAMILY_UNITS: dict[str, dict[str, float]] = {
     "q": {"rad": 1.0, "deg": math.pi / 180},
     "dq": {"rad/s": 1.0, "deg/s": math.pi / 180},
@@ -155,11 +156,6 @@ MAPPING_SCHEMA = Table(
     },
     required=("time", "robot", "columns"),
 )
-
-
-def builtin_mappings() -> list[str]:
-    """Names of the mapping files shipped with ditherlab (``ditherlab/io/mappings/*.toml``)."""
-    return sorted(p.stem for p in MAPPINGS_DIR.glob("*.toml"))
 
 
 def mapping_path(mapping: str | Path) -> Path:
