@@ -642,6 +642,67 @@ def predict(
     """
     q = np.asarray(q, float).reshape(robot.n)
     J = robot.jacobian(q[None, :])[0]  # (6, n)
+    o = PredictOptions(
+        components, force_range, max_force, forces, draws, rest_samples, noise_level,
+        noise_source, _states_for(states, bands), push_duration, sample_rate, period, seed,
+    )  # fmt: skip
+    st = _setting(robot, q, J, bands, o)
+    fr = np.linspace(o.force_range[0], o.force_range[1], 41)
+    out: dict[str, Any] = {}
+    curves: dict[str, np.ndarray] = {}
+    for di, (name, ax, sign) in enumerate(DIRECTIONS):
+        u = np.zeros(3)
+        u[ax] = sign
+        lev = J[:3].T @ u  # (n,) [m] joint torque per newton applied along u
+        if st.camp is not None:
+            p = _campaign_detection(st, di, u, lev, ax)
+        elif st.table is not None:
+            p = _plant_detection(st, u, lev, ax)
+        else:
+            p = _uniform_detection(st, name, u, lev, ax)
+        p = np.maximum.accumulate(p)  # the response grows with P; ties of the draws aside
+        curves[name] = np.interp(fr, st.P, p, left=0.0)
+        out[name] = _direction_result(st.P, p, fr, curves[name], lev)
+    return {
+        "q": q.tolist(),
+        "levers": np.abs(J[:3]).tolist(),
+        "noise_level": dict(zip(AXES, st.nl.tolist(), strict=True)),
+        "noise_level_predicted": dict(zip(AXES, st.nl_pred.tolist(), strict=True)),
+        "noise_level_source": "predicted" if noise_level is None else noise_source or "given",
+        "directions": out,
+        "axes": _axes_fit(curves, fr),
+        "source": bands.source,
+        "dithered": bands.dithered,
+        "states": o.states,
+        "transmission": st.table[3] if st.table is not None else None,
+        "force_range": list(force_range),
+        "components": components,
+    }
+
+
+@dataclass(frozen=True)
+class PredictOptions:
+    """The settings of one :func:`predict`: its parameters of the same names, ``states``
+    resolved (never ``"auto"``)."""
+
+    components: str
+    force_range: tuple[float, float]
+    max_force: float
+    forces: int
+    draws: int
+    rest_samples: int
+    noise_level: Sequence[float] | None
+    noise_source: str | None
+    states: str
+    push_duration: float
+    sample_rate: float
+    period: float
+    seed: int
+
+
+def _states_for(states: str, bands: Bands) -> str:
+    """``states`` checked against the bands' condition, ``"auto"`` resolved: ``"plant"`` with
+    dither, ``"campaign"`` without."""
     if states not in STATES:
         raise ConfigError(f"states {states!r} is unknown; expected one of {', '.join(STATES)}")
     if states == "auto":
@@ -656,105 +717,171 @@ def predict(
             "states 'plant' is the plant with dither; expected campaign, mixed, shared or "
             "independent for the undithered bands"
         )
-    camp = campaign_states(J, bands, force_range, seed=seed + 2) if states == "campaign" else None
+    return states
+
+
+@dataclass(frozen=True)
+class _Setting:
+    """What every push direction of one :func:`predict` is evaluated with.
+
+    Attributes
+    ----------
+    J : (6, n) the pose's Jacobian
+    bands : the condition's bands
+    o : the options (``states`` resolved)
+    P : (forces,) [N] the force grid
+    forces : its points
+    nl, nl_pred : (3,) [N] the noise level the thresholds use, and the predicted one
+    z_peak : [-] the noise's median maximum over a push's top (:func:`peak_noise_factor`)
+    camp : :func:`campaign_states` (``states="campaign"``), else None
+    table : :func:`transmission_table` (``states="plant"``), else None
+    centre : (n,) [N·m] the residual the centre loop holds (``states="plant"``), else None
+    shared_u, own_u : (draws, 1), (draws, n) stratified uniform draws of the friction state
+    rho : per direction :func:`shared_fraction` (``states="mixed"``), else None
+    """
+
+    J: np.ndarray
+    bands: Bands
+    o: PredictOptions
+    P: np.ndarray
+    forces: int
+    nl: np.ndarray
+    nl_pred: np.ndarray
+    z_peak: float
+    camp: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    table: tuple[np.ndarray, np.ndarray, np.ndarray, str] | None
+    centre: np.ndarray | None
+    shared_u: np.ndarray
+    own_u: np.ndarray
+    rho: dict[str, float] | None
+
+
+def _setting(
+    robot: RobotModel, q: np.ndarray, J: np.ndarray, bands: Bands, o: PredictOptions
+) -> _Setting:
+    """The friction states (or the push transmission), the noise levels, the force grid and the
+    draws of :func:`predict` at pose ``q`` (n,) [rad] with Jacobian ``J`` (6, n)."""
+    n = robot.n
+    camp = None
+    if o.states == "campaign":
+        camp = campaign_states(J, bands, o.force_range, seed=o.seed + 2)
     # with dither the centre loop holds the extracted signal at the gravity torque: residual 0,
     # wherever the model's band lies (one off 0 offsets the estimate at rest and after)
-    centre = np.zeros(robot.n) if states == "plant" else None
-    table = transmission_table(robot, q, bands) if states == "plant" else None
+    centre = np.zeros(n) if o.states == "plant" else None
+    table = transmission_table(robot, q, bands) if o.states == "plant" else None
     nl_pred = noise_levels(
         J,
         bands,
-        components=components,
-        rest_samples=rest_samples,
-        seed=seed,
+        components=o.components,
+        rest_samples=o.rest_samples,
+        seed=o.seed,
         rest_states=camp[2] if camp is not None else None if centre is None else centre[None],
     )  # fmt: skip
-    nl = nl_pred if noise_level is None else np.asarray(noise_level, float).reshape(3)
-    rng = np.random.default_rng(seed + 1)
-    n = robot.n
-    if table is not None:  # thresholds of a few newtons: a finer grid over a shorter span
-        forces = max(forces, 400)
-        top = min(max_force, 2.0 * force_range[1] + 20.0)
-        P = np.linspace(top / forces, top, forces)
+    nl = nl_pred if o.noise_level is None else np.asarray(o.noise_level, float).reshape(3)
+    rng = np.random.default_rng(o.seed + 1)
+    forces, P = _force_grid(o, table is not None)
+    return _Setting(
+        J, bands, o, P, forces, nl, nl_pred,
+        z_peak=peak_noise_factor(bands, o.push_duration, o.sample_rate, o.period),
+        camp=camp,
+        table=table,
+        centre=centre,
+        shared_u=_strata(rng, o.draws, 1),
+        own_u=_strata(rng, o.draws, n),
+        rho=shared_fraction(J, bands, o.force_range, n) if o.states == "mixed" else None,
+    )  # fmt: skip
+
+
+def _force_grid(o: PredictOptions, plant: bool) -> tuple[int, np.ndarray]:
+    """The force grid's points and forces (forces,) [N] over ``(0, max_force]``; with the
+    plant's transmission (``plant``) thresholds of a few newtons: a finer grid (at least 400
+    points) over a shorter span (at most twice the campaign's largest push plus 20 N)."""
+    if plant:
+        forces = max(o.forces, 400)
+        top = min(o.max_force, 2.0 * o.force_range[1] + 20.0)
+        return forces, np.linspace(top / forces, top, forces)
+    return o.forces, np.linspace(o.max_force / o.forces, o.max_force, o.forces)
+
+
+def _campaign_detection(
+    st: _Setting, di: int, u: np.ndarray, lev: np.ndarray, ax: int
+) -> np.ndarray:
+    """Detection probability (forces,) along direction ``di`` (unit ``u``, levers ``lev`` (n,)
+    [m], axis ``ax``) from the campaign's states before pushes along it: a joint shows the push
+    once it breaks the link's friction, and then carries it whole."""
+    bands, n = st.bands, len(lev)
+    mid, half = 0.5 * (bands.lo + bands.hi), 0.5 * (bands.hi - bands.lo)
+    s = st.camp[2][st.camp[0] == di][: st.o.draws]  # (m, n)
+    brk = bands.link_share * half - np.sign(lev) * (s - mid)  # (m, n) [N·m]
+    slip = st.P[:, None, None] * np.abs(lev) > brk[None]
+    r = np.where(slip, mid - st.P[:, None, None] * lev, s[None])
+    r = (r - np.sign(lev) * st.z_peak * bands.sigma).reshape(-1, n)
+    F = _estimates(r, st.J, bands, st.o.components)
+    return np.mean(-(F @ u).reshape(st.forces, len(s)) > st.nl[ax], axis=1)
+
+
+def _plant_detection(st: _Setting, u: np.ndarray, lev: np.ndarray, ax: int) -> np.ndarray:
+    """Detection probability (forces,) along unit ``u`` (levers ``lev`` (n,) [m], axis ``ax``)
+    with every joint at the centre: the extracted signal drops by what the plant (or the
+    model's dither_extraction) passes of the joint's push torque, per push length."""
+    bands, n = st.bands, len(lev)
+    _, tq, drop, _ = st.table
+    dr = transmitted(st.P[:, None] * np.abs(lev)[None, :], tq, drop)  # (D, forces, n)
+    s = st.centre - np.sign(lev) * st.z_peak * bands.sigma
+    r = (s - np.sign(lev) * dr).reshape(-1, n)
+    F = _estimates(r, st.J, bands, st.o.components)
+    return np.mean(-(F @ u).reshape(len(drop), st.forces) > st.nl[ax], axis=0)
+
+
+def _uniform_detection(
+    st: _Setting, name: str, u: np.ndarray, lev: np.ndarray, ax: int
+) -> np.ndarray:
+    """Detection probability (forces,) along direction ``name`` (unit ``u``, levers ``lev``
+    (n,) [m], axis ``ax``) with the states uniform in the band: the state's distance to the edge
+    the push drives the residual towards is ``u·W``, ``u`` shared by the joints, independent, or
+    (``"mixed"``) the first ``round(rho·draws)`` draws shared and the rest independent."""
+    bands, n, draws = st.bands, len(lev), st.o.draws
+    if st.o.states == "shared":
+        u01 = st.shared_u
+    elif st.o.states == "independent":
+        u01 = st.own_u
     else:
-        P = np.linspace(max_force / forces, max_force, forces)
-    shared_u = _strata(rng, draws, 1)  # (draws, 1)
-    own_u = _strata(rng, draws, n)  # (draws, n)
-    rho = shared_fraction(J, bands, force_range, n) if states == "mixed" else None
-    z_peak = peak_noise_factor(bands, push_duration, sample_rate, period)
+        u01 = np.where(
+            np.arange(draws)[:, None] < round(st.rho[name] * draws), st.shared_u, st.own_u
+        )
     width = bands.hi - bands.lo
-    fr = np.linspace(force_range[0], force_range[1], 41)
-    out: dict[str, Any] = {}
-    curves: dict[str, np.ndarray] = {}
-    mid, half = 0.5 * (bands.lo + bands.hi), 0.5 * width
-    for di, (name, ax, sign) in enumerate(DIRECTIONS):
-        u = np.zeros(3)
-        u[ax] = sign
-        lev = J[:3].T @ u  # (n,) [m] joint torque per newton applied along u
-        if camp is not None:
-            # the campaign's states before pushes along this direction; a joint shows the
-            # push once it breaks the link's friction, and then carries it whole
-            st = camp[2][camp[0] == di][:draws]  # (m, n)
-            brk = bands.link_share * half - np.sign(lev) * (st - mid)  # (m, n) [N·m]
-            slip = P[:, None, None] * np.abs(lev) > brk[None]
-            r = np.where(slip, mid - P[:, None, None] * lev, st[None])
-            r = (r - np.sign(lev) * z_peak * bands.sigma).reshape(-1, n)
-            F = _estimates(r, J, bands, components)
-            p = np.mean(-(F @ u).reshape(forces, len(st)) > nl[ax], axis=1)
-        elif table is not None:
-            # every joint at the centre; the extracted signal drops by what the plant (or the
-            # model's dither_extraction) passes of the joint's push torque, per push length
-            _, tq, drop, _ = table
-            dr = transmitted(P[:, None] * np.abs(lev)[None, :], tq, drop)  # (D, forces, n)
-            s = centre - np.sign(lev) * z_peak * bands.sigma
-            r = (s - np.sign(lev) * dr).reshape(-1, n)
-            F = _estimates(r, J, bands, components)
-            p = np.mean(-(F @ u).reshape(len(drop), forces) > nl[ax], axis=0)
-        # the state's distance to the edge the push drives the residual towards is u·W
-        elif states == "shared":
-            u01 = shared_u
-        elif states == "independent":
-            u01 = own_u
-        else:  # the first round(rho·draws) draws shared, the rest independent
-            u01 = np.where(np.arange(draws)[:, None] < round(rho[name] * draws), shared_u, own_u)
-        if camp is None and table is None:
-            s = np.where(lev > 0, bands.lo + u01 * width, bands.hi - u01 * width)  # (draws, n)
-            # the report takes the largest estimate of the push: the noise's median maximum
-            # over the push's top, on every joint in the direction the push drives its residual
-            s = s - np.sign(lev) * z_peak * bands.sigma
-            r = (s[None, :, :] - bands.gain * P[:, None, None] * lev).reshape(-1, n)
-            F = _estimates(r, J, bands, components)
-            resp = -(F @ u).reshape(forces, draws)
-            p = np.mean(resp > nl[ax], axis=1)
-        p = np.maximum.accumulate(p)  # the response grows with P; ties of the draws aside
-        curves[name] = np.interp(fr, P, p, left=0.0)
-        c50, c90 = _logistic_fit(fr, curves[name])
-        big = np.abs(lev).max()
-        out[name] = {
-            "f50": _crossing(P, p, 0.5),
-            "f90": _crossing(P, p, 0.9),
-            "curve_f50": c50,
-            "curve_f90": c90,
-            "joints": [j + 1 for j in range(n) if big > 0 and abs(lev[j]) >= 0.01 * big],
-        }
+    s = np.where(lev > 0, bands.lo + u01 * width, bands.hi - u01 * width)  # (draws, n)
+    # the report takes the largest estimate of the push: the noise's median maximum over the
+    # push's top, on every joint in the direction the push drives its residual
+    s = s - np.sign(lev) * st.z_peak * bands.sigma
+    r = (s[None, :, :] - bands.gain * st.P[:, None, None] * lev).reshape(-1, n)
+    F = _estimates(r, st.J, bands, st.o.components)
+    resp = -(F @ u).reshape(st.forces, draws)
+    return np.mean(resp > st.nl[ax], axis=1)
+
+
+def _direction_result(
+    P: np.ndarray, p: np.ndarray, fr: np.ndarray, curve: np.ndarray, lev: np.ndarray
+) -> dict[str, Any]:
+    """One direction's thresholds: the crossings of ``p`` (forces,) over the grid ``P`` [N], the
+    report's logistic fit to ``curve`` over the campaign's forces ``fr`` [N], and the joints
+    whose lever (``lev`` (n,) [m]) exceeds 1 % of the largest."""
+    c50, c90 = _logistic_fit(fr, curve)
+    big = np.abs(lev).max()
+    return {
+        "f50": _crossing(P, p, 0.5),
+        "f90": _crossing(P, p, 0.9),
+        "curve_f50": c50,
+        "curve_f90": c90,
+        "joints": [j + 1 for j in range(len(lev)) if big > 0 and abs(lev[j]) >= 0.01 * big],
+    }
+
+
+def _axes_fit(curves: dict[str, np.ndarray], fr: np.ndarray) -> dict[str, dict[str, float]]:
+    """Per axis, F50 and F90 [N] of the report's logistic fit to both signs' curves."""
     axes = {}
-    for ax, a in enumerate(AXES):
+    for a in AXES:
         both = np.concatenate([curves[f"+{a}"], curves[f"-{a}"]])
         f50, f90 = _logistic_fit(np.concatenate([fr, fr]), both)
         axes[a] = {"f50": f50, "f90": f90}
-        del ax
-    return {
-        "q": q.tolist(),
-        "levers": np.abs(J[:3]).tolist(),
-        "noise_level": dict(zip(AXES, nl.tolist(), strict=True)),
-        "noise_level_predicted": dict(zip(AXES, nl_pred.tolist(), strict=True)),
-        "noise_level_source": "predicted" if noise_level is None else noise_source or "given",
-        "directions": out,
-        "axes": axes,
-        "source": bands.source,
-        "dithered": bands.dithered,
-        "states": states,
-        "transmission": table[3] if table is not None else None,
-        "force_range": list(force_range),
-        "components": components,
-    }
+    return axes
