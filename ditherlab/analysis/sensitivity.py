@@ -1,115 +1,16 @@
 """Pose sensitivity: the detection threshold of a push, per direction, predicted at a pose.
 
-``ditherlab robot irb140 --q paper --sensitivity`` predicts, for a push applied at the tool
-along ±x, ±y, ±z of the base frame, the force at which half (F50) and nine tenths (F90) of the
-pushes give a *response* in the sense of :mod:`ditherlab.analysis.detection`, from the Jacobian at the
-pose, the friction bands, the noise and the estimator of eq. (3) itself;
+:func:`predict` gives, for a push applied at the tool along ±x, ±y, ±z of the base frame, the
+force [N] at which half (F50) and nine tenths (F90) of the pushes give a *response* in the sense
+of :mod:`ditherlab.analysis.detection`, from the Jacobian at the pose (levers [m]), the friction
+bands and noise [N·m] of one condition (:func:`condition_bands`: a model file, or the
+simulator's defaults), the joints' friction states before a push, the dithered push's
+transmission through the plant, and the estimator of eq. (3) itself;
 :mod:`ditherlab.analysis.sensitivity_map` does it over a grid of poses.
 
-Derivation
-----------
-Model (:mod:`ditherlab.data.torque_model`, the paper's §II): per joint the gravity-compensated torque is
-``r = J^T F + tau_f + e`` with ``F`` the wrench the robot exerts (the F/T sensor's sign: an
-applied force ``P u``, ``u`` a unit axis, reads ``F = -P u``), ``tau_f`` the friction inside the
-band ``[lo, hi]`` and ``e ~ N(0, sigma^2)``. Without dither the band is the ``still`` band and
-``r`` the raw torque; with dither the band is the dithered one (the still band shrunk by the
-dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dither]``, which
-``identify`` makes exactly so) and ``r`` the extracted signal (:func:`ditherlab.physics.dither.extract`).
-
-1. *The push, as eq. (3) models it.* The friction ``tau_f`` is an unknown constant in the band
-   while the robot stands; a push changes ``J^T F`` by ``-P l`` with ``l = J_f^T u`` (n,) [m]
-   the lever of each joint for a unit force along ``u`` (``J_f`` the force rows of the
-   tool-point Jacobian), so ``r = s - P l`` with ``s`` the state before the push. Joint ``j``
-   shows the push once ``P |l_j|`` exceeds the distance ``d_j`` from ``s_j`` to the band edge
-   the push drives ``r_j`` towards. This is the estimator's own model; in the simulator the
-   servo's response to a slip (a P position loop around a PI velocity loop) decides how much
-   of the push the torque shows, and a push from the favourable side of the band was seen to
-   respond only at about half the band: one reason the prediction comes out low on average.
-2. *Friction state before a push.* Without dither (``states="campaign"``, the default) the
-   plant decides it, not the estimator's model: the band sits mostly behind the gear spring,
-   so the logged torque stays put while the link's friction holds a push, the joint shows the
-   push only once ``P |l_j|`` breaks ``link_share · W/2 - sign(l_j)(s_j - mid_j)`` (the logged
-   state mirrors the link's friction) and then carries it whole, ``r_j = mid_j - P l_j``; a
-   push that slips it leaves ``s_j`` at the sliding level along the push. The campaign's
-   shuffled pushes are played on all joints at once (:func:`campaign_states`), which also
-   correlates the joints' states as the campaign does. Measured on the session-12 plant (README,
-   "Pose sensitivity"): the uniform-state model below predicted F50 35-41 % low, because a
-   state on the edge a push drives towards is, for the link, the far edge (1.75 Fs to break).
-   With dither (``states="plant"``, the default) the dither's centre loop holds the extracted
-   signal's window mean at the gravity torque between pushes, so every push meets every joint
-   at residual 0 (measured at pose C, seeds 44 and 60: the rest median within 0.13 N·m of 0 on
-   every joint), wherever the model's dithered band lies: ``identify`` may place it off 0 or
-   shrink it to a point (seed 61 at pose C: joint 5 at [-0.387, -0.387] N·m), and then the
-   estimate sits off 0 at rest (-3 N in x there), the noise level rises (4.5 N) and a push
-   against the offset must undo it first — the prediction shows the same, not a clipped
-   state.
-   Session 10's dithered model, kept for comparison: the state uniform over the dithered
-   band, ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
-   Joints slipped by the same earlier push sit alike (one ``v`` for both); joints last slipped
-   by different pushes independently. ``states="mixed"`` draws one
-   ``v`` for all joints with the probability that the two joints which see the direction
-   first were last slipped by the same push (:func:`shared_fraction`, from the levers of all
-   six directions and the campaign's push magnitudes), independent ones otherwise;
-   ``"shared"`` and ``"independent"`` are the two limits. Against session 10's plant (five
-   poses, the mean of up to five measured seed sets): mixed 13 of 15 axes within 25 %, at
-   most 30 % off, 13 % low on average; shared 13 of 15, 6 % high on average but up to 52 %
-   off; independent 4 of 15, 30 % low.
-3. *The estimate.* The estimator of eq. (3) itself (:func:`ditherlab.estimator.estimate`, with
-   the model's prior and the components the replay estimates, ``fxyz`` as ``sweep`` and
-   ``fleet``) turns ``r`` into ``F̂``: a joint inside its band contributes nothing, a joint
-   beyond it its distance to the edge, and the joints still inside their band hold ``F̂`` in
-   the directions they see. The response along the push axis is ``-u·F̂`` (the sensor's sign).
-   The report takes the largest estimate over the push, so the noise helps: each joint's
-   residual is moved towards detection by the median of the largest of ``K`` noise values
-   (:func:`peak_noise_factor`; ``K`` the samples of the push's top, one per dither period with
-   dither, whose extraction averages over a period).
-   With dither the push reaches the extracted signal through the plant (``states="plant"``):
-   joint ``j``'s signal drops by ``h_j(P |l_j|, D)`` for a push of length ``D``
-   (:func:`transmission_table`): from the model's ``dither_extraction`` law (``gain ·
-   lag(mean_period(J^T F))``, its gain and lag) on the joints it names, else simulated from the
-   plant's equations one joint at a time (:func:`dither_transmission`: the link freed or not
-   by the dither's spring torque, the creep the velocity integral stops, Kp = 0, the centre
-   loop, the one-period extraction). ``r = -sign(l) h``; ``p(P)`` is averaged over the
-   campaign's push lengths. Measured at pose C (seed 44, 1-25 N): a push's torque reaches the
-   signal with 0.6-0.9 on joints 1 and 2 (lower for short and large pushes), joint 3 (0.5 Fs
-   of dither) holds pushes below about 2.5 N·m, the wrists pass 0.1-0.5; the table follows
-   joints 1 and 2 within 0.3 N·m RMS (``tests/test_sensitivity.py``). Session 10's model
-   (``"mixed"`` and the others) has every joint show ``g P l``, ``g`` the centre loop's share
-   at the push's peak (:func:`centre_loop_gain`, 0.87).
-4. *Response.* :mod:`ditherlab.analysis.detection` counts a push as a response when that estimate
-   exceeds the **noise level**: the 99.9 % quantile of ``|F̂_axis|`` at rest, at least 1 N. At
-   rest ``r = s + e``; without dither ``s`` uniform in the band, so states within a few
-   ``sigma`` of an edge give a non-zero estimate; with dither the centre loop holds the
-   extracted signal at the band's middle (:func:`noise_levels`).
-5. *Detection probability and thresholds.* ``p(P) = Prob_v(-u·F̂(P, v) > noise level)``, by
-   stratified draws of ``v`` (``draws`` per force, seeded). ``F50`` and ``F90`` per direction
-   are where ``p`` crosses 0.5 and 0.9. For one joint alone carrying a direction (lever ``l``,
-   band width ``W``), ``p(P) = (P l - m) / W`` between ``m / l`` and ``(W + m) / l``, with ``m``
-   the torque beyond the edge that gives an estimate at the noise level (less the peak noise),
-   so ``F50 = (W / 2 + m) / l`` and ``F90 = (0.9 W + m) / l``: the paper's "the configuration
-   of the robot is of high importance", the threshold scales with 1 / lever. Several joints
-   seeing a direction lower it (each gives a chance, as far as their states are independent).
-6. *As the report measures it.* The report fits a logistic curve per axis to pushes of both
-   signs with magnitudes spread evenly over the campaign's range; ``curve_f50/curve_f90`` (per
-   direction) and ``axes`` (per axis, both signs) are that fit made to ``p(P)`` over
-   ``force_range`` by expected log-likelihood on the report's grid.
-
-What it leaves out: without dither the servo's dynamics during a slip (the overshoot beyond
-the push, about 0.2 Fs; the position loop's slow return after a small slip, which walks the
-state across the band during the rest, so the plant's states spread between the two sliding
-levels where the model keeps them on them); with dither the links' coupling through the mass
-matrix (each joint is simulated with the other links held: joint 3's link breaks free about
-0.5 N·m early at pose C), the dither's phase at a push and the torque noise in the loops.
-
-Bands come from a model file written by ``ditherlab identify`` (``still`` and ``dither``
-regimes; ``dither`` missing: the still band shrunk by the simulator's dither amplitude; its
-``dither_extraction`` effect, if any) or,
-without a model, from the built-in simulator's parameters (``ditherlab/sim/irb140.toml``):
-still band ``±Fs`` (``friction.static``), noise ``noise.tau_sigma_fraction·Fs``, dither band
-``±(1 - dither.amplitude_fraction)·Fs`` with the noise averaged over one dither period's
-samples. :attr:`Bands.source` says which; the prediction's ``transmission`` says where the
-dithered push transmission comes from. The plant (friction split, gear springs, servo, dither
-loops) is always the simulator's parameters (``params``; ``--config`` for ``sweep``).
+The derivation, the measurements behind its choices (the states a campaign leaves, the centre
+loop's hold with dither, the transmission table) and what it leaves out are in
+``docs/design/analysis-sensitivity.md``; the command is on ``docs/dither-design.md``.
 """
 
 from __future__ import annotations
@@ -168,7 +69,7 @@ SIM_ROBOT = "irb140"
 MAP_OPTIONS = {"forces": 80, "draws": 120, "rest_samples": 5000}
 #: the simulator's push magnitudes (``push_campaign.magnitude_min/max``) [N]
 DEFAULT_RANGE = (10.0, 60.0)
-#: how the friction states of the joints before a push are drawn (module docstring)
+#: how the friction states of the joints before a push are drawn (:func:`predict`)
 STATES = ("auto", "campaign", "plant", "mixed", "shared", "independent")
 #: the simulator's mean push length (``push_campaign.duration_min/max``) [s], log rate [Hz] and
 #: dither period (2 pi / 80 rad/s) [s]
@@ -238,7 +139,8 @@ def condition_bands(
     params: Mapping[str, Any] | None = None,
     robot_name: str = "irb140",
 ) -> Bands:
-    """The band and noise the estimator uses in one condition (module docstring).
+    """The band and noise the estimator uses in one condition (where the numbers come from:
+    ``docs/design/analysis-sensitivity.md``).
 
     Parameters
     ----------
@@ -491,7 +393,8 @@ def campaign_states(
     only once its torque ``P |l_j|`` breaks ``link_share · W_j / 2 - sign(l_j) (s_j - mid_j)``
     with ``s_j`` the logged residual before the push (at rest the spring carries the link's
     friction, so the logged state mirrors it: a residual on the edge the push drives towards is
-    a link friction on the far edge; measured against the plant, README "Pose sensitivity").
+    a link friction on the far edge; measured against the plant,
+    ``docs/design/analysis-sensitivity.md``).
     After a push that slipped the joint the servo leaves the motor ahead of the link and the
     spring holds the link along the push at the sliding level (measured after pushes beyond
     about 2 Fs), ``s_j = mid_j + sign(l_j) · sliding · W_j / 2``: a push the same way next
@@ -602,7 +505,8 @@ def predict(
     period: float = DITHER_PERIOD,
     seed: int = 0,
 ) -> dict[str, Any]:
-    """Predicted detection thresholds per push direction at pose ``q`` (module docstring).
+    """Predicted detection thresholds per push direction at pose ``q``
+    (``docs/design/analysis-sensitivity.md`` derives them).
 
     Parameters
     ----------
@@ -619,12 +523,12 @@ def predict(
     noise_level : (3,) [N] use these noise levels (e.g. measured, the report's at rest) instead
         of the predicted ones; the predicted ones are still returned beside
     noise_source : where ``noise_level`` comes from, for the output (default ``"given"``)
-    states : how the joints' friction states before a push are drawn (module docstring, step
+    states : how the joints' friction states before a push are drawn (the design note's step
         2): ``"campaign"`` (the states a campaign leaves on the plant, :func:`campaign_states`;
         without dither only), ``"plant"`` (with dither only: every joint at the centre loop's
         gravity torque, the push through :func:`transmission_table`), ``"mixed"``,
-        ``"shared"`` or ``"independent"`` (uniform in the band, the estimator's own model,
-        session 10's with dither); ``"auto"``: campaign without dither, plant with
+        ``"shared"`` or ``"independent"`` (uniform in the band, the estimator's own model, for
+        either condition); ``"auto"``: campaign without dither, plant with
     push_duration, sample_rate, period : the push's mean length [s], the log's rate [Hz] and the
         dither period [s] (:func:`peak_noise_factor`)
     seed : the draws' seed (the same seed gives the same numbers)

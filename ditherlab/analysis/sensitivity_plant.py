@@ -6,7 +6,8 @@ link's friction (behind the gear spring) every period, the creep the velocity in
 (the joint's only stiffness with Kp = 0), the centre loop and the one-period extraction.
 :func:`dither_transmission` simulates that from the plant's equations (:mod:`ditherlab.sim.plant`)
 one joint at a time; :func:`extraction_peak` is the model's ``dither_extraction`` law instead;
-:func:`transmitted` reads the table at any torque. README "Pose sensitivity" has the measurements.
+:func:`transmitted` reads the table at any torque. ``docs/design/analysis-sensitivity.md`` has
+the measurements.
 """
 
 from __future__ import annotations
@@ -90,7 +91,7 @@ def dither_transmission(
     a push, within the push and ``lag`` [s] after it (the report's window). Gravity is balanced
     by the controller's model (the loops work about it), the noise left out.
 
-    What it shows (README "Pose sensitivity"): a link whose friction the dither's spring torque
+    What it shows (``docs/design/analysis-sensitivity.md``): a link whose friction the dither's spring torque
     overcomes every period creeps under any push and the velocity integral (the joint's only
     stiffness with Kp = 0) builds the torque that holds it, late for short and large pushes; a
     link the dither does not free (joint 3 at 0.5 Fs) holds a push until it exceeds what the
