@@ -271,55 +271,103 @@ def run_pipeline(
     seconds: dict[str, float] = {}
     t_start = time.perf_counter()
     scratch = None if keep_data else Path(tempfile.mkdtemp(prefix=".demo-", dir=out))
-    futures = {}
-    for role, s in (("identification", seed + 1), ("evaluation", seed)):
-        for dither in (False, True):
-            name = f"{role}_{'dither' if dither else 'nodither'}"
-            path = (scratch or out) / f"{name}.parquet"
-            args = (str(path), s, dither, pushes_per_direction, config)
-            futures[name] = ex.submit(simulate_campaign, *args)
-    recs: dict[str, Recording] = {}
+    futures = _submit_campaigns(ex, scratch or out, seed, pushes_per_direction, config)
 
     def campaign(name: str) -> Recording:
-        rec, sec = futures[name].result()
-        object.__setattr__(rec, "name", str(out / f"{name}.parquet"))  # the file's, kept or not
-        _done(f"simulate {name}", sec, quiet)
-        return rec
+        return _campaign(futures[name], out / f"{name}.parquet", f"simulate {name}", quiet)
 
     try:
-        for name in ("identification_nodither", "identification_dither"):
-            recs[name] = campaign(name)
+        ids = [campaign("identification_nodither"), campaign("identification_dither")]
         seconds["simulate"] = time.perf_counter() - t_start
-
         t0 = time.perf_counter()
-        ids = [recs["identification_nodither"], recs["identification_dither"]]
-        with progress_bar("identify", quiet) as progress:
-            # the bands' point estimates: what add_effect starts from. Its re-fit replaces every
-            # band with its own (and its bootstrap's standard errors), so the bootstrap of this
-            # first fit is run only for a model that keeps it (add_effect refused)
-            model = identify(ids, n_boot=0, seed=seed, progress=progress)
-            # how the dither's extraction shows a push (late, in part): identified from the
-            # identification campaign's dithered pushes, used by replay (README "Calibrated
-            # intervals"); a campaign where it cannot be told apart from the bands keeps the
-            # model, then with its bootstrap
-            try:
-                model = add_effect(ids, model, "dither_extraction", executor=pool)
-            except ModelError:
-                model = identify(ids, n_boot=n_boot, seed=seed, executor=pool)
+        model = _identify_model(ids, seed, n_boot, pool, quiet)
         model_path = model.save(out / "model.toml")
         seconds["identify"] = time.perf_counter() - t0
-
         t0 = time.perf_counter()
-        for name in ("evaluation_nodither", "evaluation_dither"):
-            recs[name] = campaign(name)
+        evals = [campaign("evaluation_nodither"), campaign("evaluation_dither")]
         seconds["simulate, rest"] = time.perf_counter() - t0
     finally:
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
-    evals = [recs["evaluation_nodither"], recs["evaluation_dither"]]
     paths = [Path(r.name) for r in evals]
-
     t0 = time.perf_counter()
+    est_paths, ests = _replay_evaluations(ex, evals, model, out, keep_data, quiet)
+    seconds["replay"] = time.perf_counter() - t0
+    view_job = None
+    if view is not None:
+        src = (paths[1], est_paths[1]) if keep_data else (bare(evals[1]), ests[1])
+        rates = (view.get("series_rate"), view.get("rate_3d", 25.0))
+        view_job = ex.submit(write_view, Path(view["path"]), *src, Path(model_path), *rates)
+    t0 = time.perf_counter()
+    with progress_bar("report", quiet) as progress:
+        analysis = make_report(
+            ests, out / "report", n_boot=report_boot, seed=seed, recordings=evals,
+            progress=progress,
+        )  # fmt: skip
+    seconds["report"] = time.perf_counter() - t0
+    return PipelineResult(
+        out, Path(model_path), paths, est_paths, out / "report", analysis, seconds,
+        {"recordings": evals, "estimates": ests, "model": model},
+        view_job,
+    )  # fmt: skip
+
+
+def _submit_campaigns(
+    ex: Executor,
+    folder: Path,
+    seed: int,
+    pushes_per_direction: int,
+    config: Mapping[str, Any] | None,
+) -> dict[str, Future]:
+    """The four campaigns, submitted to ``ex`` (identification: ``seed + 1``, evaluation:
+    ``seed``; each without and with dither), their recordings written into ``folder``."""
+    futures = {}
+    for role, s in (("identification", seed + 1), ("evaluation", seed)):
+        for dither in (False, True):
+            name = f"{role}_{'dither' if dither else 'nodither'}"
+            path = folder / f"{name}.parquet"
+            args = (str(path), s, dither, pushes_per_direction, config)
+            futures[name] = ex.submit(simulate_campaign, *args)
+    return futures
+
+
+def _campaign(job: Future, name: Path, desc: str, quiet: bool) -> Recording:
+    """A submitted campaign's recording, named ``name`` (the file's, kept or not)."""
+    rec, sec = job.result()
+    object.__setattr__(rec, "name", str(name))
+    _done(desc, sec, quiet)
+    return rec
+
+
+def _identify_model(
+    ids: list[Recording], seed: int, n_boot: int, pool: Executor | None, quiet: bool
+) -> TorqueModel:
+    """The model of the identification pair ``ids``: the bands, then the dither's extraction."""
+    with progress_bar("identify", quiet) as progress:
+        # the bands' point estimates: what add_effect starts from. Its re-fit replaces every
+        # band with its own (and its bootstrap's standard errors), so the bootstrap of this
+        # first fit is run only for a model that keeps it (add_effect refused)
+        model = identify(ids, n_boot=0, seed=seed, progress=progress)
+        # how the dither's extraction shows a push (late, in part): identified from the
+        # identification campaign's dithered pushes, used by replay
+        # (docs/design/extraction-underestimates.md); a campaign where it cannot be told apart
+        # from the bands keeps the model, then with its bootstrap
+        try:
+            return add_effect(ids, model, "dither_extraction", executor=pool)
+        except ModelError:
+            return identify(ids, n_boot=n_boot, seed=seed, executor=pool)
+
+
+def _replay_evaluations(
+    ex: Executor,
+    evals: list[Recording],
+    model: TorqueModel,
+    out: Path,
+    keep_data: bool,
+    quiet: bool,
+) -> tuple[list[Path], list[Any]]:
+    """The estimates of the evaluation pair (replayed on ``ex``) and their files' paths (written
+    when ``keep_data``)."""
     jobs = [ex.submit(replay_campaign, bare(r), model) for r in evals]
     est_paths, ests = [], []
     for name, job in zip(("evaluation_nodither", "evaluation_dither"), jobs, strict=True):
@@ -331,36 +379,7 @@ def run_pipeline(
         est_paths.append(p)
         ests.append(est)
         _done(f"replay {name}", sec, quiet)
-    seconds["replay"] = time.perf_counter() - t0
-
-    view_job = None
-    if view is not None:
-        src = (paths[1], est_paths[1]) if keep_data else (bare(evals[1]), ests[1])
-        rates = (view.get("series_rate"), view.get("rate_3d", 25.0))
-        view_job = ex.submit(write_view, Path(view["path"]), *src, Path(model_path), *rates)
-
-    t0 = time.perf_counter()
-    with progress_bar("report", quiet) as progress:
-        analysis = make_report(
-            ests,
-            out / "report",
-            n_boot=report_boot,
-            seed=seed,
-            recordings=evals,
-            progress=progress,
-        )
-    seconds["report"] = time.perf_counter() - t0
-    return PipelineResult(
-        out,
-        Path(model_path),
-        paths,
-        est_paths,
-        out / "report",
-        analysis,
-        seconds,
-        {"recordings": evals, "estimates": ests, "model": model},
-        view_job,
-    )
+    return est_paths, ests
 
 
 #: The two readings of the paper's second §VI-C statistic ("how much force that was needed to
