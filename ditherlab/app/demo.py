@@ -438,7 +438,7 @@ def pipeline_text(res: PipelineResult) -> str:
         (
             "needed",
             "with the 10 N statistic read as the smallest force whose estimate exceeded 10 N "
-            '(README "Two readings")',
+            "(docs/method.md, the paper's detection statistics)",
         ),
     ):
         within, total, misses = paper_agreement(a, reading=reading)
