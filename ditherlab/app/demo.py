@@ -494,6 +494,31 @@ VIEW_RATE_3D = 10.0
 
 def main(argv: list[str] | None = None) -> int:
     """Run the demo; returns the exit status (0 when every step and round trip holds)."""
+    args = _parser().parse_args(argv)
+    t_start = time.perf_counter()
+    view = {
+        "path": args.out / "demo.rrd",
+        "series_rate": None if args.full_view else VIEW_SERIES_RATE,
+        "rate_3d": 25.0 if args.full_view else VIEW_RATE_3D,
+    }
+    ex = process_pool(args.jobs)
+    try:
+        results = _run_demo(args, ex, view)
+    except DitherlabError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        ex.shutdown(cancel_futures=True)
+    print(report(results))
+    # Parquet, CSV and MCAP are exact; a ROS 2 bag keeps t (ns stamps), q, dq, tau, wrench.
+    ok = all(r.exact if not r.fmt.startswith("rosbag") else r.max_error < 1e-6 for r in results)
+    print("\nall round trips hold" if ok else "\nA ROUND TRIP FAILED")
+    print(f"demo finished in {time.perf_counter() - t_start:.0f} s")
+    return 0 if ok else 1
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The demo's command line."""
     parser = argparse.ArgumentParser(prog="python -m ditherlab.app.demo", description=__doc__)
     parser.add_argument("--out", type=Path, default=Path("demo-out"), help="output folder")
     parser.add_argument("--recording", type=Path, default=SAMPLE, help="sample recording")
@@ -522,57 +547,44 @@ def main(argv: list[str] | None = None) -> int:
         f"(about 360 MB) instead of their envelope over {1 / VIEW_SERIES_RATE:g} s bins and "
         f"{VIEW_RATE_3D:g} Hz",
     )
-    args = parser.parse_args(argv)
-    t_start = time.perf_counter()
-    view = {
-        "path": args.out / "demo.rrd",
-        "series_rate": None if args.full_view else VIEW_SERIES_RATE,
-        "rate_3d": 25.0 if args.full_view else VIEW_RATE_3D,
-    }
-    ex = process_pool(args.jobs)
-    try:
+    return parser
+
+
+def _run_demo(args: argparse.Namespace, ex: Executor, view: Mapping[str, Any]) -> list[RoundTrip]:
+    """The pipeline, its view and the sample recording's round trips on ``ex``, printed as they
+    finish; the round trips."""
+    print(
+        "== push campaigns without and with dither on the built-in simulator "
+        f"({args.pushes} pushes per axis and sign) -> identify -> replay -> report",
+        flush=True,
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    # the sample recording's round trips need nothing of the pipeline: queued behind the
+    # campaigns, for a worker that would otherwise wait
+    trips = ex.submit(sample_round_trips, args.recording, args.out)
+    res = run_pipeline(
+        args.out,
+        pushes_per_direction=args.pushes,
+        quiet=args.quiet,
+        executor=ex,
+        keep_data=args.keep_data,
+        view=view,
+    )
+    print(pipeline_text(res), flush=True)
+    if not args.keep_data:
         print(
-            "== push campaigns without and with dither on the built-in simulator "
-            f"({args.pushes} pushes per axis and sign) -> identify -> replay -> report",
+            "(recordings and estimates kept in memory, not written: --keep-data writes "
+            "them under the names above)",
             flush=True,
         )
-        args.out.mkdir(parents=True, exist_ok=True)
-        # the sample recording's round trips need nothing of the pipeline: queued behind the
-        # campaigns, for a worker that would otherwise wait
-        trips = ex.submit(sample_round_trips, args.recording, args.out)
-        res = run_pipeline(
-            args.out,
-            pushes_per_direction=args.pushes,
-            quiet=args.quiet,
-            executor=ex,
-            keep_data=args.keep_data,
-            view=view,
-        )
-        print(pipeline_text(res), flush=True)
-        if not args.keep_data:
-            print(
-                "(recordings and estimates kept in memory, not written: --keep-data writes "
-                "them under the names above)",
-                flush=True,
-            )
-        assert res.view is not None
-        rrd, _ = res.view.result()
-        print(f"\n== Rerun view of {res.recordings[1].name}: open it with: rerun {rrd}", flush=True)
-        info, results = trips.result()
-        print(f"\n== ditherlab info {args.recording}")
-        print(info)
-        print(f"\n== round trips through every format, in {args.out}/")
-    except DitherlabError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    finally:
-        ex.shutdown(cancel_futures=True)
-    print(report(results))
-    # Parquet, CSV and MCAP are exact; a ROS 2 bag keeps t (ns stamps), q, dq, tau, wrench.
-    ok = all(r.exact if not r.fmt.startswith("rosbag") else r.max_error < 1e-6 for r in results)
-    print("\nall round trips hold" if ok else "\nA ROUND TRIP FAILED")
-    print(f"demo finished in {time.perf_counter() - t_start:.0f} s")
-    return 0 if ok else 1
+    assert res.view is not None
+    rrd, _ = res.view.result()
+    print(f"\n== Rerun view of {res.recordings[1].name}: open it with: rerun {rrd}", flush=True)
+    info, results = trips.result()
+    print(f"\n== ditherlab info {args.recording}")
+    print(info)
+    print(f"\n== round trips through every format, in {args.out}/")
+    return results
 
 
 if __name__ == "__main__":
