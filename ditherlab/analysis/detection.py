@@ -21,7 +21,7 @@ maximum likelihood (on a grid, which stays finite when the data separate perfect
 force error during pushes, and the width and coverage of the interval during pushes.
 
 Signs: the sensor columns hold the wrench the robot exerts, ``F = -P`` for an applied force ``P``
-(RECORDING.md). A push's ``sign`` is the sign of the applied force ``P`` along its axis; its
+(``docs/recording-format.md``). A push's ``sign`` is the sign of the applied force ``P`` along its axis; its
 ``peak`` is ``max |F_axis|`` over the push [N].
 """
 
@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -416,9 +416,8 @@ def analyse(
                 "every detection is judged against is measured at rest"
             )
         if pushes:
-            dithered = rec_out["dithered"]
-            args = (quantile, floor, lag, big, chunk_rows)
-            _add_variants(groups, src, t, pushes, rest, dithered, *args)
+            f = _File(src, t, pushes, rest, rec_out["dithered"])
+            _add_variants(groups, f, _Judging(quantile, floor, lag, big, chunk_rows))
     if total_pushes == 0:
         names = ", ".join(r["file"] for r in recs_out)
         raise NoPushesError(
@@ -596,72 +595,113 @@ class _PushRows:
             self.parts, self.k = [], self.k + 1
 
 
-def _add_variants(
-    groups: dict[str, Group],
-    src: EstimatesSource,
-    t: np.ndarray,
-    pushes: list[Push],
-    rest: np.ndarray,
-    dithered: bool,
-    quantile: float,
-    floor: float,
-    lag: float,
-    big: float,
-    chunk_rows: int,
-) -> None:
+class _Judging(NamedTuple):
+    """How every estimates file of one :func:`analyse` is judged: the noise level is the
+    ``quantile`` of ``|F̂|`` at rest, at least ``floor`` [N]; the response is read up to ``lag``
+    [s] after a push; ``big`` [N] is the "significant" estimate; a file is read ``chunk_rows``
+    rows at a time."""
+
+    quantile: float
+    floor: float
+    lag: float
+    big: float
+    chunk_rows: int
+
+
+class _File(NamedTuple):
+    """One estimates file with pushes: its source, time ``t`` (N,) [s], its pushes, the rest
+    mask ``rest`` (N,) and whether it is dithered."""
+
+    src: EstimatesSource
+    t: np.ndarray
+    pushes: list[Push]
+    rest: np.ndarray
+    dithered: bool
+
+
+@dataclass
+class _VariantSums:
+    """One pass over a file, per variant: the noise's quantile per axis at rest, the interval's
+    coverage (all samples, count; at rest, per axis) and its width at rest (all axes, per
+    axis), the pushes' numbers; ``rows`` read and ``n_rest`` rest samples."""
+
+    noise_q: dict[str, list[_Quantile]]
+    covered: dict[str, int]
+    covered_rest: dict[str, np.ndarray]
+    width: dict[str, _BlockMean]
+    width_axes: dict[str, list[_BlockMean]]
+    pushes: _PushRows
+    rows: int
+    n_rest: int
+
+
+def _add_variants(groups: dict[str, Group], f: _File, how: _Judging) -> None:
     """Add every variant of one estimates file to its condition's group: noise level per axis
-    at rest, push results, interval coverage (all samples, at rest) and width at rest; the file
-    read ``chunk_rows`` rows at a time."""
-    variants = src.variants
+    at rest, push results, interval coverage (all samples, at rest) and width at rest."""
+    variants = f.src.variants
     for v in variants:
         for c in [f"{v}/{c}{x}" for c in COMPONENTS for x in ("", "_lo", "_hi")]:
-            if c not in src.columns:
-                raise FormatError(f"{src.name}: column {c} is missing (variant {v} is listed)")
+            if c not in f.src.columns:
+                raise FormatError(f"{f.src.name}: column {c} is missing (variant {v} is listed)")
+    sums = _variant_sums(f, how)
+    a, n_rest = sums.rows, sums.n_rest
+    for v in variants:
+        cond = condition_of(v, f.dithered)
+        g = groups.setdefault(cond, Group(cond, v, f.dithered))
+        noise = {}
+        for k, ax in enumerate(AXES):
+            q = sums.noise_q[v][k].value()
+            noise[ax] = max(q, how.floor) if np.isfinite(q) else float("nan")
+            g.noise[ax].append(noise[ax])
+        g.results += [
+            _push_result(p, n, noise, how.big)
+            for p, n in zip(f.pushes, sums.pushes.nums[v], strict=True)
+        ]
+        g.all_coverage.append(sums.covered[v] / (3 * a) if a else float("nan"))
+        cr = sums.covered_rest[v] / n_rest if n_rest else np.full(len(AXES), np.nan)
+        g.rest_coverage.append(float(np.mean(cr)))
+        g.rest_coverage_axes.append(cr)
+        g.rest_width.append(sums.width[v].mean())
+        g.rest_width_axes.append(np.array([m.mean() for m in sums.width_axes[v]]))
+
+
+def _variant_sums(f: _File, how: _Judging) -> _VariantSums:
+    """Read the file ``how.chunk_rows`` rows at a time and sum what every variant needs."""
+    variants, rest = f.src.variants, f.rest
     n_rest = int(rest.sum())
-    noise_q = {v: [_Quantile(n_rest, quantile) for _ in AXES] for v in variants}
-    covered = dict.fromkeys(variants, 0)
-    covered_rest = {v: np.zeros(len(AXES), dtype=np.int64) for v in variants}
-    width = {v: _BlockMean() for v in variants}
-    width_axes = {v: [_BlockMean() for _ in AXES] for v in variants}
-    rows = _PushRows(t, pushes, variants, lag)
+    sums = _VariantSums(
+        noise_q={v: [_Quantile(n_rest, how.quantile) for _ in AXES] for v in variants},
+        covered=dict.fromkeys(variants, 0),
+        covered_rest={v: np.zeros(len(AXES), dtype=np.int64) for v in variants},
+        width={v: _BlockMean() for v in variants},
+        width_axes={v: [_BlockMean() for _ in AXES] for v in variants},
+        pushes=_PushRows(f.t, f.pushes, variants, how.lag),
+        rows=0,
+        n_rest=n_rest,
+    )
     a = 0
-    for block in src.blocks(chunk_rows):
+    for block in f.src.blocks(how.chunk_rows):
         b = a + len(block)
         r = rest[a:b]
-        est = src.estimates(block)
+        est = f.src.estimates(block)
         Fs = est.wrench
         for v in variants:
             Fh = est.F(v)
             lo, hi = est.interval(v)
             for k in range(len(AXES)):
-                noise_q[v][k].add(np.abs(Fh[r, k]))
+                sums.noise_q[v][k].add(np.abs(Fh[r, k]))
             cov = (lo[:, :3] <= Fs[:, :3]) & (Fs[:, :3] <= hi[:, :3])
-            covered[v] += int(cov.sum())
-            covered_rest[v] += cov[r].sum(axis=0)
+            sums.covered[v] += int(cov.sum())
+            sums.covered_rest[v] += cov[r].sum(axis=0)
             wr = (hi - lo)[r, :3]
-            width[v].add(wr[np.isfinite(wr)])
+            sums.width[v].add(wr[np.isfinite(wr)])
             for k in range(len(AXES)):
                 wk = wr[:, k]
-                width_axes[v][k].add(wk[np.isfinite(wk)])
-        rows.add(block, a)
+                sums.width_axes[v][k].add(wk[np.isfinite(wk)])
+        sums.pushes.add(block, a)
         a = b
-    for v in variants:
-        cond = condition_of(v, dithered)
-        g = groups.setdefault(cond, Group(cond, v, dithered))
-        noise = {}
-        for k, ax in enumerate(AXES):
-            q = noise_q[v][k].value()
-            noise[ax] = max(q, floor) if np.isfinite(q) else float("nan")
-            g.noise[ax].append(noise[ax])
-        g.results += [
-            _push_result(p, n, noise, big) for p, n in zip(pushes, rows.nums[v], strict=True)
-        ]
-        g.all_coverage.append(covered[v] / (3 * a) if a else float("nan"))
-        cr = covered_rest[v] / n_rest if n_rest else np.full(len(AXES), np.nan)
-        g.rest_coverage.append(float(np.mean(cr)))
-        g.rest_coverage_axes.append(cr)
-        g.rest_width.append(width[v].mean())
-        g.rest_width_axes.append(np.array([m.mean() for m in width_axes[v]]))
+    sums.rows = a
+    return sums
 
 
 def _condition_stats(g: Group, n_boot: int, seed: int) -> dict[str, Any]:

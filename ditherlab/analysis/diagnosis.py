@@ -49,6 +49,7 @@ from ditherlab.core.errors import ModelError, where_prefix
 from ditherlab.core.files import plain
 from ditherlab.core.names import REGIME_NAMES, Regime
 from ditherlab.core.spill import Spill
+from ditherlab.core.ticker import Ticker
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, Piece, Source, pieces_of
@@ -62,7 +63,9 @@ from ditherlab.physics.effects import (
     release,
 )
 from ditherlab.physics.residual import (
+    Local,
     Scored,
+    ScoreStats,
     StatsBuilder,
     check_noise,
     local,
@@ -304,94 +307,27 @@ def diagnose(
     recs = list(recs)
     if not recs:
         raise ModelError("diagnose needs at least one recording")
-    bad = [x for x in regimes or () if x not in REGIME_NAMES]
-    if bad:
-        raise ModelError(
-            f"regime {bad[0]!r} is unknown, expected one of: {', '.join(REGIME_NAMES)}"
-        )
+    _check_regimes(regimes)
     have = set(model.effect_names())
     names = [n for n in (effects or EFFECTS) if n not in have]
-    timed = [get_effect(n) for n in names if not get_effect(n).pointwise]
     totals = [len(r) if isinstance(r, Recording) else r.n_rows for r in recs]
-    stride = max(1, -(-sum(totals) // max_samples))
     counts = [1 if isinstance(r, Recording) else max(1, -(-r.n_rows // chunk_rows)) for r in recs]
-    steps = 2 * sum(counts) + len(names)
-    done = 0
-
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        if progress is not None:
-            progress(done, steps)
-
-    notes: list[str] = []
-    residual, force, corr = ResidualSums(model.n), ForceError(model), Correlations(model.n)
-    windows: list[dict[str, Any]] = []
-    thinned: list[Scored] = []
+    run = _Run(
+        model,
+        regimes,
+        chunk_rows,
+        stride=max(1, -(-sum(totals) // max_samples)),
+        timed=[get_effect(n) for n in names if not get_effect(n).pointwise],
+        tick=Ticker(2 * sum(counts) + len(names), progress),
+    )
+    sums = _Sums(ResidualSums(model.n), ForceError(model), Correlations(model.n))
     for r, total in zip(recs, totals, strict=True):
-        if total < 2:  # one sample: no step, no rate, nothing to score (said below if all are)
-            continue
-        name = r.name or "<memory>"
-        with Spill() as spill:
-            built = StatsBuilder(model, MIN_REGIME_SAMPLES, spill)
-            has_wrench = False
-            held = None  # a recording of one piece: its Local serves both passes
-            for piece in _pieces(r, chunk_rows):
-                loc = local(model, piece.rec)
-                built.add(loc, piece.keep)
-                held = loc if piece.count == 1 else None
-                has_wrench = piece.rec.has_wrench
-                tick()
-            _absent_regimes(model, built, regimes, r.name)
-            stats = built.finish(regimes)
-        check_noise(r.name, stats.sigma_hf)
-        t = r.t if isinstance(r, Recording) else r.times()
-        win = Windows(name, t[0], t[-1], model.n)
-        left = {"near": 0, "rev": 0, "no_extraction": False}
-        noband: dict[str, int] = {}
-        parts = []
-        for piece in _pieces(r, chunk_rows):
-            loc = held if held is not None else local(model, piece.rec)
-            sc = scored(model, piece.rec, stats=stats, loc=loc)
-            if regimes is not None:
-                sc.use = sc.use & np.isin(sc.sig.regime, [g for g in Regime if g.label in regimes])
-            k = piece.keep
-            residual.add(sc, k)
-            win.add(sc, k)
-            force.add(sc, k, piece.start, total)
-            corr.add(sc, k)
-            left["near"] += int(loc.near[k].sum())
-            left["rev"] += int(loc.rev[k].sum())
-            left["no_extraction"] |= loc.no_extraction
-            for x, rows in noband_rows(model, loc, stats).items():
-                noband[x] = noband.get(x, 0) + int(rows[k].sum())
-            own = np.arange(k.start, k.stop)
-            rows = own[(piece.start + own) % stride == 0]
-            if len(rows):
-                parts.append(
-                    _thin(sc, rows, timed, piece.start, parts[0].sig.rec if parts else None)
-                )
-            tick()
-        windows += win.result()
-        thinned.append(_join(parts, total))
-        why = score_notes(bool(left["no_extraction"]), left["near"], left["rev"], noband)
-        notes.extend(f"{r.name or 'recording'}: {x}" for x in why)
-        if not has_wrench:
-            notes.append(
-                f"{r.name or 'recording'}: no F/T columns: the residual contains any external "
-                "force, and there is no force error"
-            )
-    summary = residual.result()
+        if total >= 2:  # one sample: no step, no rate, nothing to score (said below if all are)
+            _score_recording(run, r, total, sums)
+    summary = sums.residual.result()
     if not summary["per_regime"]:
-        names = ", ".join(r.name or "<memory>" for r in recs)
-        raise ModelError(
-            f"{names}: no sample left to score ({sum(totals)} rows; stick transitions, velocity "
-            "reversals and the first dither period are not scored"
-            + (f", and only the regimes {', '.join(regimes)} were asked for" if regimes else "")
-            + "); expected a longer recording"
-        )
-    windows.sort(key=lambda d: -d["energy"])
-
+        _nothing_scored(recs, sum(totals), regimes)
+    sums.windows.sort(key=lambda d: -d["energy"])
     cands, skipped = candidates(
         model,
         [],
@@ -399,16 +335,157 @@ def diagnose(
         folds=folds,
         guard=guard,
         min_fraction=min_fraction,
-        scored_recs=thinned,
-        max_samples=max(1, sum(len(s.e) for s in thinned)),
-        progress=lambda i, n: tick(),
+        scored_recs=sums.thinned,
+        max_samples=max(1, sum(len(s.e) for s in sums.thinned)),
+        progress=lambda i, n: run.tick(),
     )
+    _demote_below_floor(cands, summary["ratio"], sums.notes)
+    cands.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
+    return Diagnosis(
+        model,
+        summary,
+        sums.force.result(),
+        sums.windows[:5],
+        cands,
+        skipped,
+        sums.notes,
+        [r.name or "<memory>" for r in recs],
+        sums.thinned,
+        verdict(summary, cands, sums.corr),
+    )
+
+
+def _check_regimes(regimes: Sequence[str] | None) -> None:
+    """Every asked-for regime is one of :data:`REGIME_NAMES`."""
+    bad = [x for x in regimes or () if x not in REGIME_NAMES]
+    if bad:
+        raise ModelError(
+            f"regime {bad[0]!r} is unknown, expected one of: {', '.join(REGIME_NAMES)}"
+        )
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What every recording of one :func:`diagnose` call is scored with: the model, the regimes
+    asked for (None: all), the rows of a piece, every ``stride``-th row kept for the candidates,
+    the candidate effects that filter in time, and the progress ticker."""
+
+    model: TorqueModel
+    regimes: Sequence[str] | None
+    chunk_rows: int
+    stride: int
+    timed: list[Effect]
+    tick: Ticker
+
+
+@dataclass
+class _Sums:
+    """What the recordings add up to: the residual, force error and correlation sums, the worst
+    windows, the thinned scored samples (one per recording) and the notes."""
+
+    residual: ResidualSums
+    force: ForceError
+    corr: Correlations
+    windows: list[dict[str, Any]] = field(default_factory=list)
+    thinned: list[Scored] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def _recording_stats(run: _Run, r: Recording | Source) -> tuple[ScoreStats, Local | None, bool]:
+    """The first pass over a recording: what scoring needs of the whole of it
+    (:class:`StatsBuilder`), the Local of a recording of one piece (it serves both passes, else
+    None), and whether it has F/T columns."""
+    with Spill() as spill:
+        built = StatsBuilder(run.model, MIN_REGIME_SAMPLES, spill)
+        has_wrench = False
+        held = None
+        for piece in _pieces(r, run.chunk_rows):
+            loc = local(run.model, piece.rec)
+            built.add(loc, piece.keep)
+            held = loc if piece.count == 1 else None
+            has_wrench = piece.rec.has_wrench
+            run.tick()
+        _absent_regimes(run.model, built, run.regimes, r.name)
+        stats = built.finish(run.regimes)
+    check_noise(r.name, stats.sigma_hf)
+    return stats, held, has_wrench
+
+
+def _score_recording(run: _Run, r: Recording | Source, total: int, sums: _Sums) -> None:
+    """Both passes over one recording of ``total`` rows: every piece scored and added to
+    ``sums``, every ``run.stride``-th row kept for the candidates, the recording's notes."""
+    model = run.model
+    stats, held, has_wrench = _recording_stats(run, r)
+    t = r.t if isinstance(r, Recording) else r.times()
+    win = Windows(r.name or "<memory>", t[0], t[-1], model.n)
+    left = {"near": 0, "rev": 0, "no_extraction": False}
+    noband: dict[str, int] = {}
+    parts: list[Scored] = []
+    for piece in _pieces(r, run.chunk_rows):
+        loc = held if held is not None else local(model, piece.rec)
+        sc = scored(model, piece.rec, stats=stats, loc=loc)
+        if run.regimes is not None:
+            sc.use = sc.use & np.isin(sc.sig.regime, [g for g in Regime if g.label in run.regimes])
+        k = piece.keep
+        sums.residual.add(sc, k)
+        win.add(sc, k)
+        sums.force.add(sc, k, piece.start, total)
+        sums.corr.add(sc, k)
+        left["near"] += int(loc.near[k].sum())
+        left["rev"] += int(loc.rev[k].sum())
+        left["no_extraction"] |= loc.no_extraction
+        for x, rows in noband_rows(model, loc, stats).items():
+            noband[x] = noband.get(x, 0) + int(rows[k].sum())
+        own = np.arange(k.start, k.stop)
+        rows = own[(piece.start + own) % run.stride == 0]
+        if len(rows):
+            parts.append(
+                _thin(sc, rows, run.timed, piece.start, parts[0].sig.rec if parts else None)
+            )
+        run.tick()
+    sums.windows.extend(win.result())
+    sums.thinned.append(_join(parts, total))
+    sums.notes.extend(_recording_notes(r.name, left, noband, has_wrench))
+
+
+def _recording_notes(
+    name: str | None, left: dict[str, Any], noband: dict[str, int], has_wrench: bool
+) -> list[str]:
+    """What the scoring of one recording left out (``left``: rows near a stick transition or a
+    velocity reversal, no dither extraction; ``noband``: rows per regime without a band), and
+    that it has no F/T columns."""
+    why = score_notes(bool(left["no_extraction"]), left["near"], left["rev"], noband)
+    out = [f"{name or 'recording'}: {x}" for x in why]
+    if not has_wrench:
+        out.append(
+            f"{name or 'recording'}: no F/T columns: the residual contains any external "
+            "force, and there is no force error"
+        )
+    return out
+
+
+def _nothing_scored(
+    recs: Sequence[Recording | Source], rows: int, regimes: Sequence[str] | None
+) -> None:
+    """The error when no sample of ``rows`` in all was left to score."""
+    names = ", ".join(r.name or "<memory>" for r in recs)
+    raise ModelError(
+        f"{names}: no sample left to score ({rows} rows; stick transitions, velocity "
+        "reversals and the first dither period are not scored"
+        + (f", and only the regimes {', '.join(regimes)} were asked for" if regimes else "")
+        + "); expected a longer recording"
+    )
+
+
+def _demote_below_floor(cands: Sequence[Candidate], ratio: list[float], notes: list[str]) -> None:
+    """No candidate is suggested whose joints all sit below :data:`FLOOR_SHARE` of their noise
+    floor (``ratio``: residual RMS over floor per joint); a note says so.
+
+    Nothing is left to explain where the residual is far below the noise floor: a share of what
+    is noise already is not evidence of an effect (a standing UR10e: viscous "explained" 6.6 %
+    of joint 1's residual at 0.34x its floor). Right models of moving logs sit at 0.83-0.87x,
+    and a real 5 degree F/T mount rotation at 0.84-0.97x: hence half the floor."""
     for c in cands:
-        # nothing to explain where the residual is far below the noise floor: a share of what
-        # is noise already is not evidence of an effect (a standing UR10e: viscous "explained"
-        # 6.6 % of joint 1's residual at 0.34x its floor). Right models of moving logs sit at
-        # 0.83-0.87x, and a real 5 degree F/T mount rotation at 0.84-0.97x: hence half the floor
-        ratio = summary["ratio"]
         low = [j for j in c.joints if not ratio[j - 1] > FLOOR_SHARE]
         if c.suggested and low == c.joints:
             c.suggested = False
@@ -418,19 +495,6 @@ def diagnose(
                 f"({', '.join(f'{ratio[j - 1]:.2f}x' for j in c.joints)}): not "
                 "suggested"
             )
-    cands.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
-    return Diagnosis(
-        model,
-        summary,
-        force.result(),
-        windows[:5],
-        cands,
-        skipped,
-        notes,
-        [r.name or "<memory>" for r in recs],
-        thinned,
-        verdict(summary, cands, corr),
-    )
 
 
 def _pieces(r: Recording | Source, rows: int) -> Iterator[Piece]:

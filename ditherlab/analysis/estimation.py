@@ -28,7 +28,7 @@ the sensor columns and ``dither`` copied, per variant ``V/f_x .. V/m_z``, ``V/<c
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -36,6 +36,7 @@ import pandas as pd
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.files import plain
 from ditherlab.core.names import DITHER, MOVING
+from ditherlab.core.ticker import Ticker
 from ditherlab.core.timeseries import causal_mean, time_spans
 from ditherlab.data.estimates import COMPONENTS, SCHEMA, VARIANTS, Estimates
 from ditherlab.data.recording import Recording, regimes
@@ -183,15 +184,76 @@ def replay_columns(
     model.validate()
     comps = parse_components(components)
     variants = _check_options(rec, variants, interval, level)
-    steps = 2 + 2 * len(variants)
-    done = 0
+    tick = Ticker(2 + 2 * len(variants), progress)
+    inp = _replay_inputs(rec, model, variants, q_tol, tick)
+    how = _How(level, interval, backend, comps)
+    cols = _recording_columns(rec)
+    bits = (1 << np.arange(rec.n)).astype(np.int64)
+    for v in variants:
+        F, active, ilo, ihi = _variant_estimate(v, inp, model, how, tick)
+        for suffix, X in (("", F), ("_lo", ilo), ("_hi", ihi)):
+            Xc = _columns(X)
+            for k, c in enumerate(COMPONENTS):
+                cols[f"{v}/{c}{suffix}"] = Xc[k]
+        cols[f"{v}/active"] = np.asarray(active, dtype=np.int64) @ bits
+    if inp.ext is not None:
+        cols.update(_extraction_columns(inp.ext, rec.n))
+    meta = {
+        "schema": SCHEMA,
+        "recording": rec.meta,
+        "recording_name": rec.name,
+        "model": model.to_dict(),
+        "n_joints": rec.n,
+        "variants": list(variants),
+        "interval": {"method": interval, "level": float(level)},
+        "components": comps,
+    }
+    if inp.ext is not None:
+        meta["dither_period"] = inp.ext.period
+    meta["moving_spans"] = time_spans(rec.t, (inp.reg == MOVING).any(axis=1))
+    return cols, meta
 
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        if progress:
-            progress(done, steps)
 
+class _How(NamedTuple):
+    """How every variant of one replay is estimated: the intervals' ``level`` and method
+    (``interval``), the solver ``backend``, the estimated components ``comps``."""
+
+    level: float
+    interval: str
+    backend: str
+    comps: list[str]
+
+
+class _Inputs(NamedTuple):
+    """What every variant of one replay reads.
+
+    Attributes
+    ----------
+    g : (N, n) [N·m] gravity; J : (N, 6, n) the Jacobians, scaled by the drive gains
+    eff : (N, n) [N·m] the model's effects
+    reg : (N, n) the regime codes
+    base : the still-band inputs (``tau - g - eff`` (N, n) [N·m], then the model's bands and
+        noise per sample)
+    ext : the dither extraction (None when no dither variant runs)
+    w_ext : [samples] one dither period (1 without extraction)
+    dq_mean : (N, n) [rad/s] the velocity's causal mean over it (None without extraction)
+    """
+
+    g: np.ndarray
+    J: np.ndarray
+    eff: np.ndarray
+    reg: np.ndarray
+    base: tuple
+    ext: Extraction | None
+    w_ext: int
+    dq_mean: np.ndarray | None
+
+
+def _replay_inputs(
+    rec: Recording, model: TorqueModel, variants: Sequence[str], q_tol: float, tick: Ticker
+) -> _Inputs:
+    """The robot's quantities, the model's effects and bands per sample (one ``tick``), and the
+    dither extraction when a dither variant runs (one more)."""
     robot = rec.robot()
     # one deduplication pass for both (a whole hour is too large for the robot's cache)
     g, J = robot.gravity_jacobian(rec.q, tol=q_tol)
@@ -206,64 +268,63 @@ def replay_columns(
     w_ext = max(int(round(ext.period * rec.sample_rate)), 1) if ext is not None else 1
     dq_mean = causal_mean(rec.dq, w_ext) if ext is not None else None
     tick()
+    return _Inputs(g, J, eff, reg, base, ext, w_ext, dq_mean)
 
-    def columns(X: np.ndarray) -> np.ndarray:  # (N, k) -> k contiguous (N,) columns
-        return np.ascontiguousarray(X.T)
 
+def _columns(X: np.ndarray) -> np.ndarray:
+    """(N, k) -> k contiguous (N,) columns."""
+    return np.ascontiguousarray(X.T)
+
+
+def _recording_columns(rec: Recording) -> dict[str, np.ndarray]:
+    """The estimates file's first columns: ``t``, the sensor's wrench, the dither flag."""
     cols: dict[str, np.ndarray] = {"t": rec.t}
     if rec.has_wrench:
-        w = columns(rec.wrench)
+        w = _columns(rec.wrench)
         for k, c in enumerate(COMPONENTS):
             cols[c] = w[k]
     if rec.dither is not None:
         cols["dither"] = rec.dither
-    bits = (1 << np.arange(rec.n)).astype(np.int64)
-    for v in variants:
-        tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext, dq_mean)
-        Jv = J
-        if v.startswith("dither"):
-            Jv = extraction_jacobian(J, model, reg, ext)
-            tb = extraction_lead(tb, model, reg, ext, w_ext)
-        # one validated problem for the estimate and its intervals
-        prob = problem(tb, Jv, a, b, s, model.prior_mean, model.prior_sigma, comps)
-        closed = interval == "profile" and v.endswith("noband")  # zero-width bands
-        if closed and backend == "exact":  # the estimate and its interval, one factorisation
-            F, active, ilo, ihi = gaussian_problem_estimate(prob, level=level)
-            tick()
-        else:
-            sol = solve(prob, backend)
-            F, active = sol.F, sol.active
-            tick()
-            if closed:
-                ilo, ihi = gaussian_profile_intervals(prob, F, level=level)
-            else:
-                ilo, ihi = intervals(prob, F, method=interval, level=level)
+    return cols
+
+
+def _variant_estimate(
+    v: str, inp: _Inputs, model: TorqueModel, how: _How, tick: Ticker
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Variant ``v``'s estimate ``F`` (N, 6) [N, N·m], active joints (N, n) and interval
+    ``lo``, ``hi`` (N, 6) (two ``tick``)."""
+    tb, a, b, s = variant_inputs(v, inp.base, model, inp.reg, inp.g, inp.eff, inp.ext, inp.dq_mean)
+    Jv = inp.J
+    if v.startswith("dither"):
+        Jv = extraction_jacobian(inp.J, model, inp.reg, inp.ext)
+        tb = extraction_lead(tb, model, inp.reg, inp.ext, inp.w_ext)
+    # one validated problem for the estimate and its intervals
+    prob = problem(tb, Jv, a, b, s, model.prior_mean, model.prior_sigma, how.comps)
+    closed = how.interval == "profile" and v.endswith("noband")  # zero-width bands
+    if closed and how.backend == "exact":  # the estimate and its interval, one factorisation
+        F, active, ilo, ihi = gaussian_problem_estimate(prob, level=how.level)
         tick()
-        for suffix, X in (("", F), ("_lo", ilo), ("_hi", ihi)):
-            Xc = columns(X)
-            for k, c in enumerate(COMPONENTS):
-                cols[f"{v}/{c}{suffix}"] = Xc[k]
-        cols[f"{v}/active"] = np.asarray(active, dtype=np.int64) @ bits
-    if ext is not None:
-        up, low, sig = columns(ext.upper), columns(ext.lower), columns(ext.signal)
-        for j in range(rec.n):
-            cols[f"extract/upper_{j + 1}"] = up[j]
-            cols[f"extract/lower_{j + 1}"] = low[j]
-            cols[f"extract/signal_{j + 1}"] = sig[j]
-    meta = {
-        "schema": SCHEMA,
-        "recording": rec.meta,
-        "recording_name": rec.name,
-        "model": model.to_dict(),
-        "n_joints": rec.n,
-        "variants": list(variants),
-        "interval": {"method": interval, "level": float(level)},
-        "components": comps,
-    }
-    if ext is not None:
-        meta["dither_period"] = ext.period
-    meta["moving_spans"] = time_spans(rec.t, (reg == MOVING).any(axis=1))
-    return cols, meta
+    else:
+        sol = solve(prob, how.backend)
+        F, active = sol.F, sol.active
+        tick()
+        if closed:
+            ilo, ihi = gaussian_profile_intervals(prob, F, level=how.level)
+        else:
+            ilo, ihi = intervals(prob, F, method=how.interval, level=how.level)
+    tick()
+    return F, active, ilo, ihi
+
+
+def _extraction_columns(ext: Extraction, n: int) -> dict[str, np.ndarray]:
+    """The dither extraction's columns: upper and lower means and the signal per joint."""
+    up, low, sig = _columns(ext.upper), _columns(ext.lower), _columns(ext.signal)
+    cols = {}
+    for j in range(n):
+        cols[f"extract/upper_{j + 1}"] = up[j]
+        cols[f"extract/lower_{j + 1}"] = low[j]
+        cols[f"extract/signal_{j + 1}"] = sig[j]
+    return cols
 
 
 def _check_options(

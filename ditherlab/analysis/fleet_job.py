@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.detection import AXES, NoPushesError, analyse
-from ditherlab.analysis.diagnosis import diagnose
+from ditherlab.analysis.diagnosis import Diagnosis, diagnose
 from ditherlab.analysis.estimation import available_variants, replay
 from ditherlab.analysis.identification import identify
-from ditherlab.data.torque_model import TorqueModel
+from ditherlab.data.torque_model import Band, TorqueModel
 from ditherlab.io import read
 
 __all__ = ["COLUMNS", "analyse_recording"]
@@ -94,18 +94,7 @@ def analyse_recording(path: str, info: dict[str, Any], options: dict[str, Any]) 
     "suggested": [{"effect", "joints", "explained_fraction"}], "verdict": text or None}``
     """
     rec = read(path, **options.get("read", {}))
-    base = (
-        TorqueModel.from_dict(tomllib.loads(options["base"]), source=options.get("base_name"))
-        if options.get("base")
-        else None
-    )
-    model = identify(
-        [rec],
-        base=base,
-        assume_no_force=bool(options.get("assume_no_force")),
-        n_boot=int(options.get("n_boot", 0)),
-        seed=int(options.get("seed", 0)),
-    )
+    model = _identify(rec, options)
     d = diagnose([rec], model)
     suggested = [
         {"effect": c.effect, "joints": list(c.joints), "explained_fraction": c.explained_fraction}
@@ -118,17 +107,58 @@ def analyse_recording(path: str, info: dict[str, Any], options: dict[str, Any]) 
         if options.get("thresholds", True)
         else {}
     )
-    force = d.force["rms"] if d.force is not None else [np.nan] * 6
     verdict = d.verdict["text"] if d.verdict else None
+    common = _common_columns(path, info, rec, d, suggested, thr)
+    rows = [
+        {**common, **_joint_columns(model, d, suggested, regime, band, j)}
+        for regime, band in model.regimes.items()
+        for j in range(model.n)
+    ]
+    return {
+        "rows": [{k: r[k] for k in COLUMNS} for r in rows],
+        "model": model.dumps(),
+        "suggested": suggested,
+        "verdict": verdict,
+    }
+
+
+def _identify(rec: Any, options: dict[str, Any]) -> TorqueModel:
+    """The model of one recording, from the fleet's base model (``options["base"]``, TOML
+    text) when there is one."""
+    base = (
+        TorqueModel.from_dict(tomllib.loads(options["base"]), source=options.get("base_name"))
+        if options.get("base")
+        else None
+    )
+    return identify(
+        [rec],
+        base=base,
+        assume_no_force=bool(options.get("assume_no_force")),
+        n_boot=int(options.get("n_boot", 0)),
+        seed=int(options.get("seed", 0)),
+    )
+
+
+def _common_columns(
+    path: str,
+    info: dict[str, Any],
+    rec: Any,
+    d: Diagnosis,
+    suggested: list[dict[str, Any]],
+    thr: dict[str, float],
+) -> dict[str, Any]:
+    """The columns every row of one recording shares: the robot and file, the diagnosis's
+    suggestions and verdict, the force error RMS [N], the thresholds ``thr`` [N], the length."""
+    force = d.force["rms"] if d.force is not None else [np.nan] * 6
     t = rec.t
-    common = {
+    return {
         "robot": str(info.get("robot") or Path(path).stem),
         "file": str(path),
         "date": info.get("date"),
         "notes": info.get("notes") or "",
         "effect": suggested[0]["effect"] if suggested else "",
         "effects": ",".join(s["effect"] for s in suggested),
-        "verdict": verdict or "",
+        "verdict": (d.verdict["text"] if d.verdict else None) or "",
         "force_rms_x": float(force[0]),
         "force_rms_y": float(force[1]),
         "force_rms_z": float(force[2]),
@@ -136,30 +166,28 @@ def analyse_recording(path: str, info: dict[str, Any], options: dict[str, Any]) 
         "samples": int(len(t)),
         "duration_s": float(t[-1] - t[0]) if len(t) > 1 else 0.0,
     }
-    rows = []
-    for regime, band in model.regimes.items():
-        for j in range(model.n):
-            rows.append(
-                {
-                    **common,
-                    "regime": regime,
-                    "joint": j + 1,
-                    "tau_min": float(band.tau_min[j]),
-                    "tau_max": float(band.tau_max[j]),
-                    "sigma": float(band.sigma[j]),
-                    "coulomb": float(band.coulomb[j]) if band.coulomb is not None else np.nan,
-                    "viscous": float(band.viscous[j]) if band.viscous is not None else np.nan,
-                    "torque_rms": float(d.residual["torque_rms"][j]),
-                    "noise_floor": float(d.residual["noise_floor"][j]),
-                    "effect_on_joint": bool(suggested) and (j + 1) in suggested[0]["joints"],
-                    "joint_effects": ",".join(
-                        s["effect"] for s in suggested if (j + 1) in s["joints"]
-                    ),
-                }
-            )
+
+
+def _joint_columns(
+    model: TorqueModel,
+    d: Diagnosis,
+    suggested: list[dict[str, Any]],
+    regime: str,
+    band: Band,
+    j: int,
+) -> dict[str, Any]:
+    """The columns of one regime and 0-based joint ``j``: the band [N·m], the residual against
+    the noise floor [N·m], the suggested effects on the joint."""
     return {
-        "rows": [{k: r[k] for k in COLUMNS} for r in rows],
-        "model": model.dumps(),
-        "suggested": suggested,
-        "verdict": verdict,
+        "regime": regime,
+        "joint": j + 1,
+        "tau_min": float(band.tau_min[j]),
+        "tau_max": float(band.tau_max[j]),
+        "sigma": float(band.sigma[j]),
+        "coulomb": float(band.coulomb[j]) if band.coulomb is not None else np.nan,
+        "viscous": float(band.viscous[j]) if band.viscous is not None else np.nan,
+        "torque_rms": float(d.residual["torque_rms"][j]),
+        "noise_floor": float(d.residual["noise_floor"][j]),
+        "effect_on_joint": bool(suggested) and (j + 1) in suggested[0]["joints"],
+        "joint_effects": ",".join(s["effect"] for s in suggested if (j + 1) in s["joints"]),
     }

@@ -33,12 +33,14 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
+from dataclasses import dataclass
 
 import numpy as np
 
 from ditherlab.core.errors import ConfigError, RecordingError
 from ditherlab.core.names import DITHER, MOVING, STILL
 from ditherlab.core.spill import SPILL_BYTES, Spill
+from ditherlab.core.ticker import Ticker
 from ditherlab.core.timeseries import REVERSAL_V, causal_mean, jtf, stick_transitions
 from ditherlab.data.recording import Recording, regimes
 from ditherlab.data.torque_model import PAPER_PRIOR_SIGMA, Band, TorqueModel
@@ -222,87 +224,28 @@ def identify(
         No F/T columns (and not ``assume_no_force``), recordings of different robots, or no
         joint with enough samples in any regime.
     """
-    recs = list(recs)
+    o = IdentifyOptions(assume_no_force, n_boot, block, min_samples, dither_band, max_accel, seed)
     if dither_band not in ("shrunk", "ml"):
         raise ConfigError(f"dither_band is {dither_band!r}, expected 'shrunk' or 'ml'")
+    recs = list(recs)
     if not recs:
         raise RecordingError("identify needs at least one recording")
-    steps = sum(_piece_count(r, chunk_rows) for r in recs)  # + 3 n fits, once n is known
-    done = 0
-    first: Recording | None = None
+    # the steps: every piece read, then 3 n fits once n is known
+    tick = Ticker(sum(_piece_count(r, chunk_rows) for r in recs), progress)
     with Spill(spill_bytes) as store:
         samples = _Samples(store)
-        for r in recs:
-            for k, piece in enumerate(pieces_of(r, chunk_rows)):
-                if k == 0:
-                    _check_input(piece.rec, first, assume_no_force)
-                    if first is None:
-                        first = piece.rec
-                        if base is not None:
-                            base.check_robot(first)
-                        samples.n = first.n
-                        steps += 3 * first.n
-                    samples.start(_times(r), piece.rec.t0, block)
-                if len(piece.rec) >= 2:  # one sample: no step, no rate, nothing to fit
-                    samples.add(
-                        piece.rec,
-                        piece.keep,
-                        base,
-                        assume_no_force=assume_no_force,
-                        block=block,
-                        max_accel=max_accel,
-                    )
-                if piece.count > 1:  # a piece of a long log: its robot quantities go now
-                    release(piece.rec)
-                done += 1
-                if progress:
-                    progress(done, steps)
-            samples.finish()
-        assert first is not None
-        n = first.n
+        first = _gather(recs, base, o, samples, chunk_rows, tick)
         store.flush()  # a long log's last held samples join the rest on disk before fitting
-        fits: dict[tuple[int, int], dict[str, tuple[float, float]]] = {}
-        keys = [(code, j) for code in (STILL, DITHER, MOVING) for j in range(n)]
-        kw = {"min_samples": min_samples, "n_boot": n_boot, "seed": seed}
-        jobs = (samples.fit_job(code, j, **kw) for code, j in keys)
-        for (code, j), f in zip(keys, fit_regimes(jobs, executor), strict=True):
-            if f is not None:
-                fits[(code, j)] = f
-            done += 1
-            if progress:
-                progress(done, steps)
+        fits = _fit_all(samples, first.n, o, executor, tick)
         amps = samples.amps
-        # where the extracted residual rests: its median over the dithered samples (the centre
-        # loop holds it there between pushes; pushes are a minority of the samples, of both
-        # signs, and move the median by < 0.005 N·m on the simulator's campaigns)
-        centres = {
-            j: float(np.median(samples.store.load(("x", DITHER, j))))
-            for j in range(n)
-            if samples.count((DITHER, j))
-        }
+        centres = _dither_centres(samples, first.n)
     if not fits:
         raise RecordingError(
             f"{first.name or 'recording'}: no joint has {min_samples} samples in any regime "
             "(still, dither, moving); record longer"
         )
-    # a joint without noise in every regime fitted: its torque did not vary (refused)
-    check_noise(
-        first.name,
-        np.array(
-            [
-                max((f["sigma"][0] for (_, i), f in fits.items() if i == j), default=np.nan)
-                for j in range(n)
-            ]
-        ),
-    )
-    out_regimes: dict[str, Band] = dict(base.regimes) if base is not None else {}
-    borrowed: dict[str, list[int]] = {}
-    for code in (STILL, DITHER, MOVING):
-        band, from_other = _assemble(code, n, fits, out_regimes.get(code.label))
-        if band is not None:
-            out_regimes[code.label] = band
-            if from_other:
-                borrowed[code.label] = from_other
+    _check_fitted_noise(first, fits)
+    out_regimes, borrowed = _regimes_of(fits, first.n, base)
     capped = _cap_moving(out_regimes, fits)
     widened = _coulomb_floor(out_regimes, fits)
     amp = None
@@ -310,21 +253,130 @@ def identify(
         out_regimes["dither"], amp = _shrunk_dither_band(
             out_regimes["still"], out_regimes["dither"], amps, centres
         )
-    notes = _notes(
-        [r.name for r in recs],
-        assume_no_force,
-        n_boot,
-        block,
-        seed,
-        amp,
-        bool(amps),
-        capped,
-        widened,
-    ) + _coverage_notes(samples.all_moving, max_accel, borrowed)
+    notes = _notes([r.name for r in recs], o, amp, bool(amps), capped, widened)
+    notes += _coverage_notes(samples.all_moving, max_accel, borrowed)
+    return _model_of(first, base, out_regimes, notes)
+
+
+@dataclass(frozen=True)
+class IdentifyOptions:
+    """The settings of one :func:`identify`: its parameters of the same names."""
+
+    assume_no_force: bool
+    n_boot: int
+    block: float
+    min_samples: int
+    dither_band: str
+    max_accel: float
+    seed: int
+
+
+def _gather(
+    recs: Sequence[Recording | Source],
+    base: TorqueModel | None,
+    o: IdentifyOptions,
+    samples: _Samples,
+    chunk_rows: int,
+    tick: Ticker,
+) -> Recording:
+    """Read every recording a piece of ``chunk_rows`` rows at a time and add its friction
+    residual's samples to ``samples``; returns the first recording's first piece (the robot,
+    its joints and metadata). Once its joints are known, ``tick`` gets 3 fits per joint more."""
+    first: Recording | None = None
+    for r in recs:
+        for k, piece in enumerate(pieces_of(r, chunk_rows)):
+            if k == 0:
+                _check_input(piece.rec, first, o.assume_no_force)
+                if first is None:
+                    first = piece.rec
+                    if base is not None:
+                        base.check_robot(first)
+                    samples.n = first.n
+                    tick.total += 3 * first.n
+                samples.start(_times(r), piece.rec.t0, o.block)
+            if len(piece.rec) >= 2:  # one sample: no step, no rate, nothing to fit
+                samples.add(
+                    piece.rec,
+                    piece.keep,
+                    base,
+                    assume_no_force=o.assume_no_force,
+                    block=o.block,
+                    max_accel=o.max_accel,
+                )
+            if piece.count > 1:  # a piece of a long log: its robot quantities go now
+                release(piece.rec)
+            tick()
+        samples.finish()
+    assert first is not None
+    return first
+
+
+def _fit_all(
+    samples: _Samples, n: int, o: IdentifyOptions, executor: Executor | None, tick: Ticker
+) -> dict[tuple[int, int], dict[str, tuple[float, float]]]:
+    """The band-plus-noise fit of every (regime, joint) with enough samples, by (regime code,
+    0-based joint)."""
+    fits: dict[tuple[int, int], dict[str, tuple[float, float]]] = {}
+    keys = [(code, j) for code in (STILL, DITHER, MOVING) for j in range(n)]
+    kw = {"min_samples": o.min_samples, "n_boot": o.n_boot, "seed": o.seed}
+    jobs = (samples.fit_job(code, j, **kw) for code, j in keys)
+    for (code, j), f in zip(keys, fit_regimes(jobs, executor), strict=True):
+        if f is not None:
+            fits[(code, j)] = f
+        tick()
+    return fits
+
+
+def _dither_centres(samples: _Samples, n: int) -> dict[int, float]:
+    """Where the extracted residual rests [N·m] per dithered 0-based joint: its median over the
+    dithered samples (the centre loop holds it there between pushes; pushes are a minority of
+    the samples, of both signs, and move the median by < 0.005 N·m on the simulator's
+    campaigns)."""
+    return {
+        j: float(np.median(samples.store.load(("x", DITHER, j))))
+        for j in range(n)
+        if samples.count((DITHER, j))
+    }
+
+
+def _check_fitted_noise(first: Recording, fits: dict[tuple[int, int], dict]) -> None:
+    """A joint without noise in every regime fitted: its torque did not vary (refused)."""
+    check_noise(
+        first.name,
+        np.array(
+            [
+                max((f["sigma"][0] for (_, i), f in fits.items() if i == j), default=np.nan)
+                for j in range(first.n)
+            ]
+        ),
+    )
+
+
+def _regimes_of(
+    fits: dict[tuple[int, int], dict], n: int, base: TorqueModel | None
+) -> tuple[dict[str, Band], dict[str, list[int]]]:
+    """The model's bands by regime name (``base``'s where the data cover none), and per regime
+    the 0-based joints whose values were taken from the other regime's fit (:func:`_assemble`)."""
+    out: dict[str, Band] = dict(base.regimes) if base is not None else {}
+    borrowed: dict[str, list[int]] = {}
+    for code in (STILL, DITHER, MOVING):
+        band, from_other = _assemble(code, n, fits, out.get(code.label))
+        if band is not None:
+            out[code.label] = band
+            if from_other:
+                borrowed[code.label] = from_other
+    return out, borrowed
+
+
+def _model_of(
+    first: Recording, base: TorqueModel | None, regs: dict[str, Band], notes: str
+) -> TorqueModel:
+    """The identified model: the robot of ``first``, the bands ``regs``, ``base``'s prior,
+    effects, history and version (the paper's prior and none without a base)."""
     return TorqueModel(
         robot=first.meta["robot"],
-        n=n,
-        regimes=out_regimes,
+        n=first.n,
+        regimes=regs,
         prior_mean=base.prior_mean if base is not None else np.zeros(6),
         prior_sigma=base.prior_sigma if base is not None else np.array(PAPER_PRIOR_SIGMA),
         effects=list(base.effects) if base is not None else [],
@@ -545,16 +597,15 @@ def _coverage_notes(all_moving: list[int], max_accel: float, borrowed: dict[str,
 
 def _notes(
     names: Sequence[str | None],
-    assume_no_force: bool,
-    n_boot: int,
-    block: float,
-    seed: int,
+    o: IdentifyOptions,
     amp: np.ndarray | None,
     dithered: bool,
     capped: list[int],
     widened: list[int],
 ) -> str:
-    """The model file's ``notes``: what it was identified from and every rule applied."""
+    """The model file's ``notes``: what it was identified from (the recordings ``names``, the
+    options ``o``) and every rule applied (the dither band's ``amp``, ``capped`` moving bands,
+    ``widened`` still bands)."""
     if amp is not None:
         dither_note = (
             "; dither band = still band shrunk by the measured dither amplitude "
@@ -569,8 +620,8 @@ def _notes(
     return (
         "identified by ditherlab identify from "
         + ", ".join(name or "<memory>" for name in names)
-        + (" assuming no external force (no F/T sensor)" if assume_no_force else "")
-        + f"; bootstrap {n_boot} x {block:g} s blocks, seed {seed}"
+        + (" assuming no external force (no F/T sensor)" if o.assume_no_force else "")
+        + f"; bootstrap {o.n_boot} x {o.block:g} s blocks, seed {o.seed}"
         + dither_note
         + (
             "; moving band capped at the still band's width and viscous at >= 0 (the moving "
@@ -799,6 +850,7 @@ __all__ = [
     "band_noise_logpdf",
     "fit_band",
     "fit_sliding",
+    "IdentifyOptions",
     "friction_residual",
     "identify",
     "summary",

@@ -38,6 +38,7 @@ coverage      with the interval law's ``flo_x..z, fhi_x..z``: the share of sampl
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -116,103 +117,192 @@ def lead_metrics(rec: Recording, name: str = "recording") -> dict[str, Any]:
         The recording is not a lead-through simulation.
     """
     sim = _lead_meta(rec, name)
-    lt = sim["params"]["lead_through"]
-    segs = sim["operator"]
-    t = rec.t
-    dt = rec.dt
-    push = operator_push(t, segs)
-    omega = float(sim["params"]["dither"]["frequency"])
-    width = max(1, round(2 * np.pi / omega / dt))
-    x = _smooth(tool_path(rec), width)
-    v = np.gradient(x, dt, axis=0)
-    jerk = np.gradient(np.gradient(v, dt, axis=0), dt, axis=0)
-    span = t >= t[0] + SETTLE_S
-    # the smoothing's partial windows at the ends would read as jerk: leave two widths out
-    jn = np.linalg.norm(jerk[span & (np.arange(len(t)) < len(t) - 2 * width)], axis=1)
-
-    onsets = [float(s["t0"]) for s in segs] + [float(t[-1]) + dt]
-    pushes = []
-    for i, s in enumerate(segs):
-        d = np.asarray(s["direction"], dtype=float)
-        a = int(np.searchsorted(t, onsets[i]))
-        b = min(int(np.searchsorted(t, onsets[i + 1])), len(t) - 1)
-        dx = x[b] - x[a]
-        along = float(dx @ d)
-        off = float(np.linalg.norm(dx - along * d))
-        intended = float(lt["admittance"] * np.sum(push[a:b] @ d) * dt)
-        moving = np.nonzero(v[a:b] @ d > DELAY_SPEED)[0]
-        pushes.append(
-            {
-                "direction": [float(c) for c in d],
-                "magnitude": float(s["magnitude"]),
-                "along_mm": 1e3 * along,
-                "off_axis_mm": 1e3 * off,
-                "intended_mm": 1e3 * intended,
-                "along_share": along / intended if intended > 0 else float("nan"),
-                "delay_s": float(moving[0] * dt) if len(moving) else float("nan"),
-            }
-        )
-
-    # rest: no push, from REST_AFTER_S after each release (and after SETTLE_S at the start)
-    pnorm = np.linalg.norm(push, axis=1)
-    rest = span & (pnorm == 0)
-    for s in segs:
-        end = s["t0"] + 2 * EDGE_S + s["flat"]
-        rest &= ~((t > s["t0"]) & (t < end + REST_AFTER_S))
-    step = np.linalg.norm(np.diff(x, axis=0), axis=1)
-    both = rest[1:] & rest[:-1]
-    rest_path = float(step[both].sum())
-    # the rise of each push while below the dead zone
-    rise = np.zeros(len(t), dtype=bool)
-    for s in segs:
-        rise |= (t >= s["t0"]) & (t <= s["t0"] + EDGE_S) & (pnorm < lt["dead_zone"])
-    sub_path = float(step[rise[1:] & rise[:-1]].sum())
-
+    run = _lead_run(rec, sim)
+    pushes = [_push_row(run, i) for i in range(len(run.segs))]
+    rest = _rest(run)
     fhat = np.column_stack([rec.data[f"fhat_{a}"].to_numpy(float) for a in AXES])
-    cols = [f"flo_{a}" for a in AXES] + [f"fhi_{a}" for a in AXES]
-    bounds = all(c in rec.data.columns for c in cols)
-    if bounds:
-        lo = np.column_stack([rec.data[f"flo_{a}"].to_numpy(float) for a in AXES])
-        hi = np.column_stack([rec.data[f"fhi_{a}"].to_numpy(float) for a in AXES])
-        cmd = interval_command(lo, hi)
-    else:
-        mag = np.linalg.norm(fhat, axis=1, keepdims=True)
-        beyond = np.maximum(mag - lt["dead_zone"], 0.0)
-        cmd = np.where(mag > 0, beyond * fhat / np.where(mag > 0, mag, 1.0), 0.0)
-    steps = np.linalg.norm(np.diff(cmd, axis=0), axis=1)[span[1:]]
-    steps = steps[steps > 0]  # the updates that changed the command
+    bounds = _interval_bounds(rec)
+    cmd = _force_command(fhat, bounds, run.lt["dead_zone"])
     summary: dict[str, Any] = {
-        "along_share": _nanmean(p["along_share"] for p in pushes),
-        "off_axis_mm": float(np.mean([p["off_axis_mm"] for p in pushes])),
-        "delay_s": _nanmean(p["delay_s"] for p in pushes),
-        "missed_pushes": int(sum(np.isnan(p["delay_s"]) for p in pushes)),
-        "jerk_rms": float(np.sqrt(np.mean(jn**2))),
-        "jerk_p99": float(np.percentile(jn, 99)),
-        "rest_path_mm": 1e3 * rest_path,
-        "rest_s": float(rest.sum() * dt),
-        "sub_dead_zone_path_mm": 1e3 * sub_path,
-        "fhat_rms_error": float(np.sqrt(np.mean(np.sum((fhat - push)[span] ** 2, axis=1)))),
-        "cmd_step_p99": float(np.percentile(steps, 99)) if len(steps) else 0.0,
-        "cmd_step_max": float(steps.max()) if len(steps) else 0.0,
+        **_push_means(pushes),
+        **_jerk(run),
+        **_rest_motion(run, rest),
+        "fhat_rms_error": float(np.sqrt(np.mean(np.sum((fhat - run.push)[run.span] ** 2, axis=1)))),
+        **_command_steps(cmd, run.span),
     }
-    if bounds:
-        inside = (lo <= push) & (push <= hi)  # NaN bounds count as a miss
-        pushing = span & (pnorm > 0)
-        summary["coverage"] = [float(c) for c in inside[span].mean(0)]
-        summary["coverage_rest"] = [float(c) for c in inside[rest].mean(0)]
-        summary["coverage_push"] = [float(c) for c in inside[pushing].mean(0)]
-        summary["empty_share"] = float(np.isnan(hi - lo).any(axis=1)[span].mean())
-        width_ok = np.isfinite(hi - lo)[span]
-        summary["width_mean"] = [
-            float((hi - lo)[span][width_ok[:, i], i].mean()) if width_ok[:, i].any() else np.nan
-            for i in range(3)
-        ]
+    if bounds is not None:
+        summary.update(_coverage(run, rest, *bounds))
     return {
-        "law": lt.get("law", "dead-zone"),
+        "law": run.lt.get("law", "dead-zone"),
         "dither": bool(sim.get("dither", False)),
         "seed": int(sim.get("seed", 0)),
         "pushes": pushes,
         "summary": summary,
+    }
+
+
+@dataclass(frozen=True)
+class _LeadRun:
+    """What the metrics of one lead-through recording read.
+
+    Attributes
+    ----------
+    t : (N,) [s] time; dt [s] its step
+    lt : the simulator's ``lead_through`` parameters; segs : the operator's pushes
+    push : (N, 3) [N] the operator's true push; pnorm : (N,) [N] its magnitude
+    x, v : (N, 3) [m, m/s] the smoothed tool point and its velocity
+    width : [samples] the smoothing's width (one dither period)
+    span : (N,) bool the measured span (from :data:`SETTLE_S` on)
+    """
+
+    t: np.ndarray
+    dt: float
+    lt: Mapping[str, Any]
+    segs: Sequence[Mapping[str, Any]]
+    push: np.ndarray
+    pnorm: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    width: int
+    span: np.ndarray
+
+
+def _lead_run(rec: Recording, sim: Mapping[str, Any]) -> _LeadRun:
+    """The true push and the smoothed tool motion of ``rec`` (its ``meta["sim"]``: ``sim``)."""
+    t, dt = rec.t, rec.dt
+    push = operator_push(t, sim["operator"])
+    omega = float(sim["params"]["dither"]["frequency"])
+    width = max(1, round(2 * np.pi / omega / dt))
+    x = _smooth(tool_path(rec), width)
+    return _LeadRun(
+        t, dt, sim["params"]["lead_through"], sim["operator"], push,
+        pnorm=np.linalg.norm(push, axis=1),
+        x=x,
+        v=np.gradient(x, dt, axis=0),
+        width=width,
+        span=t >= t[0] + SETTLE_S,
+    )  # fmt: skip
+
+
+def _push_row(run: _LeadRun, i: int) -> dict[str, Any]:
+    """Push ``i``'s path (onset to the next onset) and delay."""
+    t, dt, x, s = run.t, run.dt, run.x, run.segs[i]
+    onsets = [float(g["t0"]) for g in run.segs] + [float(t[-1]) + dt]
+    d = np.asarray(s["direction"], dtype=float)
+    a = int(np.searchsorted(t, onsets[i]))
+    b = min(int(np.searchsorted(t, onsets[i + 1])), len(t) - 1)
+    dx = x[b] - x[a]
+    along = float(dx @ d)
+    off = float(np.linalg.norm(dx - along * d))
+    intended = float(run.lt["admittance"] * np.sum(run.push[a:b] @ d) * dt)
+    moving = np.nonzero(run.v[a:b] @ d > DELAY_SPEED)[0]
+    return {
+        "direction": [float(c) for c in d],
+        "magnitude": float(s["magnitude"]),
+        "along_mm": 1e3 * along,
+        "off_axis_mm": 1e3 * off,
+        "intended_mm": 1e3 * intended,
+        "along_share": along / intended if intended > 0 else float("nan"),
+        "delay_s": float(moving[0] * dt) if len(moving) else float("nan"),
+    }
+
+
+def _push_means(pushes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """The pushes' means: ``along_share``, ``off_axis_mm``, ``delay_s``; the missed ones."""
+    return {
+        "along_share": _nanmean(p["along_share"] for p in pushes),
+        "off_axis_mm": float(np.mean([p["off_axis_mm"] for p in pushes])),
+        "delay_s": _nanmean(p["delay_s"] for p in pushes),
+        "missed_pushes": int(sum(np.isnan(p["delay_s"]) for p in pushes)),
+    }
+
+
+def _jerk(run: _LeadRun) -> dict[str, float]:
+    """RMS and 99th percentile of the tool point's jerk [m/s^3] over the measured span."""
+    t, dt = run.t, run.dt
+    jerk = np.gradient(np.gradient(run.v, dt, axis=0), dt, axis=0)
+    # the smoothing's partial windows at the ends would read as jerk: leave two widths out
+    jn = np.linalg.norm(jerk[run.span & (np.arange(len(t)) < len(t) - 2 * run.width)], axis=1)
+    return {"jerk_rms": float(np.sqrt(np.mean(jn**2))), "jerk_p99": float(np.percentile(jn, 99))}
+
+
+def _rest(run: _LeadRun) -> np.ndarray:
+    """(N,) bool rest: no push, from :data:`REST_AFTER_S` after each release (and after
+    :data:`SETTLE_S` at the start)."""
+    t = run.t
+    rest = run.span & (run.pnorm == 0)
+    for s in run.segs:
+        end = s["t0"] + 2 * EDGE_S + s["flat"]
+        rest &= ~((t > s["t0"]) & (t < end + REST_AFTER_S))
+    return rest
+
+
+def _rest_motion(run: _LeadRun, rest: np.ndarray) -> dict[str, float]:
+    """The tool point's path [mm] at ``rest`` and during the rise of each push while it is
+    below the dead zone; the rest's length [s]."""
+    t = run.t
+    step = np.linalg.norm(np.diff(run.x, axis=0), axis=1)
+    both = rest[1:] & rest[:-1]
+    rest_path = float(step[both].sum())
+    rise = np.zeros(len(t), dtype=bool)
+    for s in run.segs:
+        rise |= (t >= s["t0"]) & (t <= s["t0"] + EDGE_S) & (run.pnorm < run.lt["dead_zone"])
+    sub_path = float(step[rise[1:] & rise[:-1]].sum())
+    return {
+        "rest_path_mm": 1e3 * rest_path,
+        "rest_s": float(rest.sum() * run.dt),
+        "sub_dead_zone_path_mm": 1e3 * sub_path,
+    }
+
+
+def _interval_bounds(rec: Recording) -> tuple[np.ndarray, np.ndarray] | None:
+    """The interval law's bounds ``flo``, ``fhi`` (N, 3) [N], or None without them."""
+    cols = [f"flo_{a}" for a in AXES] + [f"fhi_{a}" for a in AXES]
+    if not all(c in rec.data.columns for c in cols):
+        return None
+    lo = np.column_stack([rec.data[f"flo_{a}"].to_numpy(float) for a in AXES])
+    hi = np.column_stack([rec.data[f"fhi_{a}"].to_numpy(float) for a in AXES])
+    return lo, hi
+
+
+def _force_command(
+    fhat: np.ndarray, bounds: tuple[np.ndarray, np.ndarray] | None, dead_zone: float
+) -> np.ndarray:
+    """The force (N, 3) [N] that drives the admittance: from the interval (``bounds``), else
+    the estimate ``fhat`` beyond the ``dead_zone`` [N]."""
+    if bounds is not None:
+        return interval_command(*bounds)
+    mag = np.linalg.norm(fhat, axis=1, keepdims=True)
+    beyond = np.maximum(mag - dead_zone, 0.0)
+    return np.where(mag > 0, beyond * fhat / np.where(mag > 0, mag, 1.0), 0.0)
+
+
+def _command_steps(cmd: np.ndarray, span: np.ndarray) -> dict[str, float]:
+    """The 99th percentile and the maximum [N] of the command's changes over ``span``."""
+    steps = np.linalg.norm(np.diff(cmd, axis=0), axis=1)[span[1:]]
+    steps = steps[steps > 0]  # the updates that changed the command
+    return {
+        "cmd_step_p99": float(np.percentile(steps, 99)) if len(steps) else 0.0,
+        "cmd_step_max": float(steps.max()) if len(steps) else 0.0,
+    }
+
+
+def _coverage(run: _LeadRun, rest: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> dict[str, Any]:
+    """The interval's coverage of the true push (all, rest, pushing), its empty share and mean
+    width [N] per axis."""
+    push, span = run.push, run.span
+    inside = (lo <= push) & (push <= hi)  # NaN bounds count as a miss
+    pushing = span & (run.pnorm > 0)
+    width_ok = np.isfinite(hi - lo)[span]
+    return {
+        "coverage": [float(c) for c in inside[span].mean(0)],
+        "coverage_rest": [float(c) for c in inside[rest].mean(0)],
+        "coverage_push": [float(c) for c in inside[pushing].mean(0)],
+        "empty_share": float(np.isnan(hi - lo).any(axis=1)[span].mean()),
+        "width_mean": [
+            float((hi - lo)[span][width_ok[:, i], i].mean()) if width_ok[:, i].any() else np.nan
+            for i in range(3)
+        ],
     }
 
 

@@ -239,19 +239,68 @@ def _score(
     fs = scs[0].sig.rec.sample_rate
     guard = int(round(guard_s * fs)) if np.isfinite(fs) else 0
     grid = e.grid(sigs, j)
-    allowed: dict[int, set[int]] | None = None
-    if j is not None and len(grid) > 1:
-        st0 = stack(e, scs, j, grid[0], ref, lags)
-        fl0 = _folds(st0, total, K, guard)
-        masks = [tr(st0.block) for _, tr in fl0] + [np.ones(len(st0.e), dtype=bool)]
-        lists = e.shortlist(scs, j, grid, masks, lags)
-        allowed = {}
-        for k, lst in enumerate(lists):
-            for h in lst:
-                allowed.setdefault(grid.index(h), set()).add(k)
-        grid_idx = sorted(allowed)
-    else:
-        grid_idx = list(range(len(grid)))
+    pb = _Scoring(e, scs, j, K, guard, total, ref, grid, lags)
+    allowed = _shortlist(pb) if j is not None and len(grid) > 1 else None
+    grid_idx = sorted(allowed) if allowed is not None else list(range(len(grid)))
+    return _joint_score(pb, _search(pb, grid_idx, allowed))
+
+
+@dataclass(frozen=True)
+class _Scoring:
+    """One effect ``e`` on joint ``j`` (None: shared fit over all joints) to score on ``scs``:
+    ``K`` folds with ``guard`` samples removed from training on each side of a test block,
+    ``total`` samples, the effect's reference ``ref`` and ``grid`` of hyper-parameters, and
+    ``lags`` (one per recording: the surrogate whose design is shifted by that much, or None)."""
+
+    e: Effect
+    scs: Sequence[Scored]
+    j: int | None
+    K: int
+    guard: int
+    total: int
+    ref: Any
+    grid: list
+    lags: Sequence[int] | None
+
+    def stack(self, h: Any) -> Stack:
+        """The stacked problem at grid value ``h``."""
+        return stack(self.e, self.scs, self.j, h, self.ref, self.lags)
+
+
+def _shortlist(pb: _Scoring) -> dict[int, set[int]]:
+    """Per grid index, the fits (folds ``0..K-1``, and ``K`` the full fit) on whose training
+    data the effect's shortlist keeps that grid value."""
+    st0 = pb.stack(pb.grid[0])
+    fl0 = _folds(st0, pb.total, pb.K, pb.guard)
+    masks = [tr(st0.block) for _, tr in fl0] + [np.ones(len(st0.e), dtype=bool)]
+    lists = pb.e.shortlist(pb.scs, pb.j, pb.grid, masks, pb.lags)
+    allowed: dict[int, set[int]] = {}
+    for k, lst in enumerate(lists):
+        for h in lst:
+            allowed.setdefault(pb.grid.index(h), set()).add(k)
+    return allowed
+
+
+@dataclass
+class _Searched:
+    """The grid search's result: the folds, the first grid value's stack (the baseline's),
+    the held-out loss per fold of the best training fit, the best full fit and its residual
+    beyond the band [sigma]."""
+
+    folds: list[tuple[np.ndarray, Callable]]
+    base_st: Stack
+    test_l1: list[float]
+    full: FitResult
+    full_resid: np.ndarray
+
+
+def _search(
+    pb: _Scoring, grid_idx: Sequence[int], allowed: dict[int, set[int]] | None
+) -> _Searched:
+    """Fit the effect at every grid value of ``grid_idx`` on every fold's training data (where
+    ``allowed`` lets it) and on all data: per fold the held-out loss of the best training fit,
+    and the best full fit."""
+    K = pb.K
     folds = None
     best_train = [math.inf] * K
     test_l1 = [0.0] * K
@@ -259,11 +308,11 @@ def _score(
     full_resid = None
     base_st = None
     for gi in grid_idx:
-        h = grid[gi]
-        st = stack(e, scs, j, h, ref, lags)
-        sg = st.signs(e.signs(h))
+        h = pb.grid[gi]
+        st = pb.stack(h)
+        sg = st.signs(pb.e.signs(h))
         if folds is None:
-            folds = _folds(st, total, K, guard)
+            folds = _folds(st, pb.total, K, pb.guard)
             base_st = st
         for k, (test, train) in enumerate(folds):
             if allowed is not None and k not in allowed[gi]:
@@ -277,11 +326,19 @@ def _score(
             continue
         w, L = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg)
         if full is None or L < full.loss:
-            full = FitResult(w[: st.k], h, ref, L)
+            full = FitResult(w[: st.k], h, pb.ref, L)
             x = st.e - st.o - st.C @ w
             full_resid = np.sign(x) * np.maximum(np.abs(x) - st.h - st.W @ w, 0) / st.s
     assert folds is not None and base_st is not None and full is not None
-    test_l0, L0, b0 = _baseline(base_st, folds)
+    assert full_resid is not None
+    return _Searched(folds, base_st, test_l1, full, full_resid)
+
+
+def _joint_score(pb: _Scoring, sr: _Searched) -> JointScore:
+    """The evidence of the search against the baseline (no effect): held-out losses, the folds
+    that improve, and the BIC difference over the effective samples outside the band."""
+    base_st, full, full_resid = sr.base_st, sr.full, sr.full_resid
+    test_l0, L0, b0 = _baseline(base_st, sr.folds)
     L1 = full.loss
     # samples outside the band (in sigma units; beyond rounding, which differs with the order of
     # the sums when the log is read in pieces)
@@ -292,6 +349,7 @@ def _score(
     n_eff = max(n_act / tau, 1.0)
     # parameters: the design's columns that act on these samples (an effect's count may follow
     # the robot, e.g. one offset per joint), plus the searched ones
+    e = pb.e
     k_lin = int(np.any(base_st.C[:, : base_st.k] != 0, axis=0).sum())
     k_par = k_lin + (len(e.hyper) if isinstance(e.hyper, tuple) else 1 if e.hyper else 0)
     if L0 > 0 and L1 > 0:
@@ -300,8 +358,8 @@ def _score(
         dbic = 0.0
     # a fold counts as better only beyond rounding: an effect that changes nothing on a fold
     # (equal losses, summed in another order when the log is read in pieces) is not better there
-    better = sum(1 for a, b in zip(test_l0, test_l1, strict=True) if b < a - TIE * abs(a))
-    return JointScore(j, sum(test_l0), sum(test_l1), better, K, dbic, n_eff, full)
+    better = sum(1 for a, b in zip(test_l0, sr.test_l1, strict=True) if b < a - TIE * abs(a))
+    return JointScore(pb.j, sum(test_l0), sum(sr.test_l1), better, pb.K, dbic, n_eff, full)
 
 
 def _judged(

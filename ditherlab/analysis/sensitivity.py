@@ -1,115 +1,16 @@
 """Pose sensitivity: the detection threshold of a push, per direction, predicted at a pose.
 
-``ditherlab robot irb140 --q paper --sensitivity`` predicts, for a push applied at the tool
-along ±x, ±y, ±z of the base frame, the force at which half (F50) and nine tenths (F90) of the
-pushes give a *response* in the sense of :mod:`ditherlab.analysis.detection`, from the Jacobian at the
-pose, the friction bands, the noise and the estimator of eq. (3) itself;
+:func:`predict` gives, for a push applied at the tool along ±x, ±y, ±z of the base frame, the
+force [N] at which half (F50) and nine tenths (F90) of the pushes give a *response* in the sense
+of :mod:`ditherlab.analysis.detection`, from the Jacobian at the pose (levers [m]), the friction
+bands and noise [N·m] of one condition (:func:`condition_bands`: a model file, or the
+simulator's defaults), the joints' friction states before a push, the dithered push's
+transmission through the plant, and the estimator of eq. (3) itself;
 :mod:`ditherlab.analysis.sensitivity_map` does it over a grid of poses.
 
-Derivation
-----------
-Model (:mod:`ditherlab.data.torque_model`, the paper's §II): per joint the gravity-compensated torque is
-``r = J^T F + tau_f + e`` with ``F`` the wrench the robot exerts (the F/T sensor's sign: an
-applied force ``P u``, ``u`` a unit axis, reads ``F = -P u``), ``tau_f`` the friction inside the
-band ``[lo, hi]`` and ``e ~ N(0, sigma^2)``. Without dither the band is the ``still`` band and
-``r`` the raw torque; with dither the band is the dithered one (the still band shrunk by the
-dither's peak amplitude on each side, paper Fig. 4, or a model's ``[regimes.dither]``, which
-``identify`` makes exactly so) and ``r`` the extracted signal (:func:`ditherlab.physics.dither.extract`).
-
-1. *The push, as eq. (3) models it.* The friction ``tau_f`` is an unknown constant in the band
-   while the robot stands; a push changes ``J^T F`` by ``-P l`` with ``l = J_f^T u`` (n,) [m]
-   the lever of each joint for a unit force along ``u`` (``J_f`` the force rows of the
-   tool-point Jacobian), so ``r = s - P l`` with ``s`` the state before the push. Joint ``j``
-   shows the push once ``P |l_j|`` exceeds the distance ``d_j`` from ``s_j`` to the band edge
-   the push drives ``r_j`` towards. This is the estimator's own model; in the simulator the
-   servo's response to a slip (a P position loop around a PI velocity loop) decides how much
-   of the push the torque shows, and a push from the favourable side of the band was seen to
-   respond only at about half the band: one reason the prediction comes out low on average.
-2. *Friction state before a push.* Without dither (``states="campaign"``, the default) the
-   plant decides it, not the estimator's model: the band sits mostly behind the gear spring,
-   so the logged torque stays put while the link's friction holds a push, the joint shows the
-   push only once ``P |l_j|`` breaks ``link_share · W/2 - sign(l_j)(s_j - mid_j)`` (the logged
-   state mirrors the link's friction) and then carries it whole, ``r_j = mid_j - P l_j``; a
-   push that slips it leaves ``s_j`` at the sliding level along the push. The campaign's
-   shuffled pushes are played on all joints at once (:func:`campaign_states`), which also
-   correlates the joints' states as the campaign does. Measured on the session-12 plant (README,
-   "Pose sensitivity"): the uniform-state model below predicted F50 35-41 % low, because a
-   state on the edge a push drives towards is, for the link, the far edge (1.75 Fs to break).
-   With dither (``states="plant"``, the default) the dither's centre loop holds the extracted
-   signal's window mean at the gravity torque between pushes, so every push meets every joint
-   at residual 0 (measured at pose C, seeds 44 and 60: the rest median within 0.13 N·m of 0 on
-   every joint), wherever the model's dithered band lies: ``identify`` may place it off 0 or
-   shrink it to a point (seed 61 at pose C: joint 5 at [-0.387, -0.387] N·m), and then the
-   estimate sits off 0 at rest (-3 N in x there), the noise level rises (4.5 N) and a push
-   against the offset must undo it first — the prediction shows the same, not a clipped
-   state.
-   Session 10's dithered model, kept for comparison: the state uniform over the dithered
-   band, ``d_j = v_j W_j`` with ``W_j = hi_j - lo_j`` and ``v_j ~ U[0, 1]``.
-   Joints slipped by the same earlier push sit alike (one ``v`` for both); joints last slipped
-   by different pushes independently. ``states="mixed"`` draws one
-   ``v`` for all joints with the probability that the two joints which see the direction
-   first were last slipped by the same push (:func:`shared_fraction`, from the levers of all
-   six directions and the campaign's push magnitudes), independent ones otherwise;
-   ``"shared"`` and ``"independent"`` are the two limits. Against session 10's plant (five
-   poses, the mean of up to five measured seed sets): mixed 13 of 15 axes within 25 %, at
-   most 30 % off, 13 % low on average; shared 13 of 15, 6 % high on average but up to 52 %
-   off; independent 4 of 15, 30 % low.
-3. *The estimate.* The estimator of eq. (3) itself (:func:`ditherlab.estimator.estimate`, with
-   the model's prior and the components the replay estimates, ``fxyz`` as ``sweep`` and
-   ``fleet``) turns ``r`` into ``F̂``: a joint inside its band contributes nothing, a joint
-   beyond it its distance to the edge, and the joints still inside their band hold ``F̂`` in
-   the directions they see. The response along the push axis is ``-u·F̂`` (the sensor's sign).
-   The report takes the largest estimate over the push, so the noise helps: each joint's
-   residual is moved towards detection by the median of the largest of ``K`` noise values
-   (:func:`peak_noise_factor`; ``K`` the samples of the push's top, one per dither period with
-   dither, whose extraction averages over a period).
-   With dither the push reaches the extracted signal through the plant (``states="plant"``):
-   joint ``j``'s signal drops by ``h_j(P |l_j|, D)`` for a push of length ``D``
-   (:func:`transmission_table`): from the model's ``dither_extraction`` law (``gain ·
-   lag(mean_period(J^T F))``, its gain and lag) on the joints it names, else simulated from the
-   plant's equations one joint at a time (:func:`dither_transmission`: the link freed or not
-   by the dither's spring torque, the creep the velocity integral stops, Kp = 0, the centre
-   loop, the one-period extraction). ``r = -sign(l) h``; ``p(P)`` is averaged over the
-   campaign's push lengths. Measured at pose C (seed 44, 1-25 N): a push's torque reaches the
-   signal with 0.6-0.9 on joints 1 and 2 (lower for short and large pushes), joint 3 (0.5 Fs
-   of dither) holds pushes below about 2.5 N·m, the wrists pass 0.1-0.5; the table follows
-   joints 1 and 2 within 0.3 N·m RMS (``tests/test_sensitivity.py``). Session 10's model
-   (``"mixed"`` and the others) has every joint show ``g P l``, ``g`` the centre loop's share
-   at the push's peak (:func:`centre_loop_gain`, 0.87).
-4. *Response.* :mod:`ditherlab.analysis.detection` counts a push as a response when that estimate
-   exceeds the **noise level**: the 99.9 % quantile of ``|F̂_axis|`` at rest, at least 1 N. At
-   rest ``r = s + e``; without dither ``s`` uniform in the band, so states within a few
-   ``sigma`` of an edge give a non-zero estimate; with dither the centre loop holds the
-   extracted signal at the band's middle (:func:`noise_levels`).
-5. *Detection probability and thresholds.* ``p(P) = Prob_v(-u·F̂(P, v) > noise level)``, by
-   stratified draws of ``v`` (``draws`` per force, seeded). ``F50`` and ``F90`` per direction
-   are where ``p`` crosses 0.5 and 0.9. For one joint alone carrying a direction (lever ``l``,
-   band width ``W``), ``p(P) = (P l - m) / W`` between ``m / l`` and ``(W + m) / l``, with ``m``
-   the torque beyond the edge that gives an estimate at the noise level (less the peak noise),
-   so ``F50 = (W / 2 + m) / l`` and ``F90 = (0.9 W + m) / l``: the paper's "the configuration
-   of the robot is of high importance", the threshold scales with 1 / lever. Several joints
-   seeing a direction lower it (each gives a chance, as far as their states are independent).
-6. *As the report measures it.* The report fits a logistic curve per axis to pushes of both
-   signs with magnitudes spread evenly over the campaign's range; ``curve_f50/curve_f90`` (per
-   direction) and ``axes`` (per axis, both signs) are that fit made to ``p(P)`` over
-   ``force_range`` by expected log-likelihood on the report's grid.
-
-What it leaves out: without dither the servo's dynamics during a slip (the overshoot beyond
-the push, about 0.2 Fs; the position loop's slow return after a small slip, which walks the
-state across the band during the rest, so the plant's states spread between the two sliding
-levels where the model keeps them on them); with dither the links' coupling through the mass
-matrix (each joint is simulated with the other links held: joint 3's link breaks free about
-0.5 N·m early at pose C), the dither's phase at a push and the torque noise in the loops.
-
-Bands come from a model file written by ``ditherlab identify`` (``still`` and ``dither``
-regimes; ``dither`` missing: the still band shrunk by the simulator's dither amplitude; its
-``dither_extraction`` effect, if any) or,
-without a model, from the built-in simulator's parameters (``ditherlab/sim/irb140.toml``):
-still band ``±Fs`` (``friction.static``), noise ``noise.tau_sigma_fraction·Fs``, dither band
-``±(1 - dither.amplitude_fraction)·Fs`` with the noise averaged over one dither period's
-samples. :attr:`Bands.source` says which; the prediction's ``transmission`` says where the
-dithered push transmission comes from. The plant (friction split, gear springs, servo, dither
-loops) is always the simulator's parameters (``params``; ``--config`` for ``sweep``).
+The derivation, the measurements behind its choices (the states a campaign leaves, the centre
+loop's hold with dither, the transmission table) and what it leaves out are in
+``docs/design/analysis-sensitivity.md``; the command is on ``docs/dither-design.md``.
 """
 
 from __future__ import annotations
@@ -168,7 +69,7 @@ SIM_ROBOT = "irb140"
 MAP_OPTIONS = {"forces": 80, "draws": 120, "rest_samples": 5000}
 #: the simulator's push magnitudes (``push_campaign.magnitude_min/max``) [N]
 DEFAULT_RANGE = (10.0, 60.0)
-#: how the friction states of the joints before a push are drawn (module docstring)
+#: how the friction states of the joints before a push are drawn (:func:`predict`)
 STATES = ("auto", "campaign", "plant", "mixed", "shared", "independent")
 #: the simulator's mean push length (``push_campaign.duration_min/max``) [s], log rate [Hz] and
 #: dither period (2 pi / 80 rad/s) [s]
@@ -238,7 +139,8 @@ def condition_bands(
     params: Mapping[str, Any] | None = None,
     robot_name: str = "irb140",
 ) -> Bands:
-    """The band and noise the estimator uses in one condition (module docstring).
+    """The band and noise the estimator uses in one condition (where the numbers come from:
+    ``docs/design/analysis-sensitivity.md``).
 
     Parameters
     ----------
@@ -491,7 +393,8 @@ def campaign_states(
     only once its torque ``P |l_j|`` breaks ``link_share · W_j / 2 - sign(l_j) (s_j - mid_j)``
     with ``s_j`` the logged residual before the push (at rest the spring carries the link's
     friction, so the logged state mirrors it: a residual on the edge the push drives towards is
-    a link friction on the far edge; measured against the plant, README "Pose sensitivity").
+    a link friction on the far edge; measured against the plant,
+    ``docs/design/analysis-sensitivity.md``).
     After a push that slipped the joint the servo leaves the motor ahead of the link and the
     spring holds the link along the push at the sliding level (measured after pushes beyond
     about 2 Fs), ``s_j = mid_j + sign(l_j) · sliding · W_j / 2``: a push the same way next
@@ -602,7 +505,8 @@ def predict(
     period: float = DITHER_PERIOD,
     seed: int = 0,
 ) -> dict[str, Any]:
-    """Predicted detection thresholds per push direction at pose ``q`` (module docstring).
+    """Predicted detection thresholds per push direction at pose ``q``
+    (``docs/design/analysis-sensitivity.md`` derives them).
 
     Parameters
     ----------
@@ -619,12 +523,12 @@ def predict(
     noise_level : (3,) [N] use these noise levels (e.g. measured, the report's at rest) instead
         of the predicted ones; the predicted ones are still returned beside
     noise_source : where ``noise_level`` comes from, for the output (default ``"given"``)
-    states : how the joints' friction states before a push are drawn (module docstring, step
+    states : how the joints' friction states before a push are drawn (the design note's step
         2): ``"campaign"`` (the states a campaign leaves on the plant, :func:`campaign_states`;
         without dither only), ``"plant"`` (with dither only: every joint at the centre loop's
         gravity torque, the push through :func:`transmission_table`), ``"mixed"``,
-        ``"shared"`` or ``"independent"`` (uniform in the band, the estimator's own model,
-        session 10's with dither); ``"auto"``: campaign without dither, plant with
+        ``"shared"`` or ``"independent"`` (uniform in the band, the estimator's own model, for
+        either condition); ``"auto"``: campaign without dither, plant with
     push_duration, sample_rate, period : the push's mean length [s], the log's rate [Hz] and the
         dither period [s] (:func:`peak_noise_factor`)
     seed : the draws' seed (the same seed gives the same numbers)
@@ -642,6 +546,67 @@ def predict(
     """
     q = np.asarray(q, float).reshape(robot.n)
     J = robot.jacobian(q[None, :])[0]  # (6, n)
+    o = PredictOptions(
+        components, force_range, max_force, forces, draws, rest_samples, noise_level,
+        noise_source, _states_for(states, bands), push_duration, sample_rate, period, seed,
+    )  # fmt: skip
+    st = _setting(robot, q, J, bands, o)
+    fr = np.linspace(o.force_range[0], o.force_range[1], 41)
+    out: dict[str, Any] = {}
+    curves: dict[str, np.ndarray] = {}
+    for di, (name, ax, sign) in enumerate(DIRECTIONS):
+        u = np.zeros(3)
+        u[ax] = sign
+        lev = J[:3].T @ u  # (n,) [m] joint torque per newton applied along u
+        if st.camp is not None:
+            p = _campaign_detection(st, di, u, lev, ax)
+        elif st.table is not None:
+            p = _plant_detection(st, u, lev, ax)
+        else:
+            p = _uniform_detection(st, name, u, lev, ax)
+        p = np.maximum.accumulate(p)  # the response grows with P; ties of the draws aside
+        curves[name] = np.interp(fr, st.P, p, left=0.0)
+        out[name] = _direction_result(st.P, p, fr, curves[name], lev)
+    return {
+        "q": q.tolist(),
+        "levers": np.abs(J[:3]).tolist(),
+        "noise_level": dict(zip(AXES, st.nl.tolist(), strict=True)),
+        "noise_level_predicted": dict(zip(AXES, st.nl_pred.tolist(), strict=True)),
+        "noise_level_source": "predicted" if noise_level is None else noise_source or "given",
+        "directions": out,
+        "axes": _axes_fit(curves, fr),
+        "source": bands.source,
+        "dithered": bands.dithered,
+        "states": o.states,
+        "transmission": st.table[3] if st.table is not None else None,
+        "force_range": list(force_range),
+        "components": components,
+    }
+
+
+@dataclass(frozen=True)
+class PredictOptions:
+    """The settings of one :func:`predict`: its parameters of the same names, ``states``
+    resolved (never ``"auto"``)."""
+
+    components: str
+    force_range: tuple[float, float]
+    max_force: float
+    forces: int
+    draws: int
+    rest_samples: int
+    noise_level: Sequence[float] | None
+    noise_source: str | None
+    states: str
+    push_duration: float
+    sample_rate: float
+    period: float
+    seed: int
+
+
+def _states_for(states: str, bands: Bands) -> str:
+    """``states`` checked against the bands' condition, ``"auto"`` resolved: ``"plant"`` with
+    dither, ``"campaign"`` without."""
     if states not in STATES:
         raise ConfigError(f"states {states!r} is unknown; expected one of {', '.join(STATES)}")
     if states == "auto":
@@ -656,105 +621,171 @@ def predict(
             "states 'plant' is the plant with dither; expected campaign, mixed, shared or "
             "independent for the undithered bands"
         )
-    camp = campaign_states(J, bands, force_range, seed=seed + 2) if states == "campaign" else None
+    return states
+
+
+@dataclass(frozen=True)
+class _Setting:
+    """What every push direction of one :func:`predict` is evaluated with.
+
+    Attributes
+    ----------
+    J : (6, n) the pose's Jacobian
+    bands : the condition's bands
+    o : the options (``states`` resolved)
+    P : (forces,) [N] the force grid
+    forces : its points
+    nl, nl_pred : (3,) [N] the noise level the thresholds use, and the predicted one
+    z_peak : [-] the noise's median maximum over a push's top (:func:`peak_noise_factor`)
+    camp : :func:`campaign_states` (``states="campaign"``), else None
+    table : :func:`transmission_table` (``states="plant"``), else None
+    centre : (n,) [N·m] the residual the centre loop holds (``states="plant"``), else None
+    shared_u, own_u : (draws, 1), (draws, n) stratified uniform draws of the friction state
+    rho : per direction :func:`shared_fraction` (``states="mixed"``), else None
+    """
+
+    J: np.ndarray
+    bands: Bands
+    o: PredictOptions
+    P: np.ndarray
+    forces: int
+    nl: np.ndarray
+    nl_pred: np.ndarray
+    z_peak: float
+    camp: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    table: tuple[np.ndarray, np.ndarray, np.ndarray, str] | None
+    centre: np.ndarray | None
+    shared_u: np.ndarray
+    own_u: np.ndarray
+    rho: dict[str, float] | None
+
+
+def _setting(
+    robot: RobotModel, q: np.ndarray, J: np.ndarray, bands: Bands, o: PredictOptions
+) -> _Setting:
+    """The friction states (or the push transmission), the noise levels, the force grid and the
+    draws of :func:`predict` at pose ``q`` (n,) [rad] with Jacobian ``J`` (6, n)."""
+    n = robot.n
+    camp = None
+    if o.states == "campaign":
+        camp = campaign_states(J, bands, o.force_range, seed=o.seed + 2)
     # with dither the centre loop holds the extracted signal at the gravity torque: residual 0,
     # wherever the model's band lies (one off 0 offsets the estimate at rest and after)
-    centre = np.zeros(robot.n) if states == "plant" else None
-    table = transmission_table(robot, q, bands) if states == "plant" else None
+    centre = np.zeros(n) if o.states == "plant" else None
+    table = transmission_table(robot, q, bands) if o.states == "plant" else None
     nl_pred = noise_levels(
         J,
         bands,
-        components=components,
-        rest_samples=rest_samples,
-        seed=seed,
+        components=o.components,
+        rest_samples=o.rest_samples,
+        seed=o.seed,
         rest_states=camp[2] if camp is not None else None if centre is None else centre[None],
     )  # fmt: skip
-    nl = nl_pred if noise_level is None else np.asarray(noise_level, float).reshape(3)
-    rng = np.random.default_rng(seed + 1)
-    n = robot.n
-    if table is not None:  # thresholds of a few newtons: a finer grid over a shorter span
-        forces = max(forces, 400)
-        top = min(max_force, 2.0 * force_range[1] + 20.0)
-        P = np.linspace(top / forces, top, forces)
+    nl = nl_pred if o.noise_level is None else np.asarray(o.noise_level, float).reshape(3)
+    rng = np.random.default_rng(o.seed + 1)
+    forces, P = _force_grid(o, table is not None)
+    return _Setting(
+        J, bands, o, P, forces, nl, nl_pred,
+        z_peak=peak_noise_factor(bands, o.push_duration, o.sample_rate, o.period),
+        camp=camp,
+        table=table,
+        centre=centre,
+        shared_u=_strata(rng, o.draws, 1),
+        own_u=_strata(rng, o.draws, n),
+        rho=shared_fraction(J, bands, o.force_range, n) if o.states == "mixed" else None,
+    )  # fmt: skip
+
+
+def _force_grid(o: PredictOptions, plant: bool) -> tuple[int, np.ndarray]:
+    """The force grid's points and forces (forces,) [N] over ``(0, max_force]``; with the
+    plant's transmission (``plant``) thresholds of a few newtons: a finer grid (at least 400
+    points) over a shorter span (at most twice the campaign's largest push plus 20 N)."""
+    if plant:
+        forces = max(o.forces, 400)
+        top = min(o.max_force, 2.0 * o.force_range[1] + 20.0)
+        return forces, np.linspace(top / forces, top, forces)
+    return o.forces, np.linspace(o.max_force / o.forces, o.max_force, o.forces)
+
+
+def _campaign_detection(
+    st: _Setting, di: int, u: np.ndarray, lev: np.ndarray, ax: int
+) -> np.ndarray:
+    """Detection probability (forces,) along direction ``di`` (unit ``u``, levers ``lev`` (n,)
+    [m], axis ``ax``) from the campaign's states before pushes along it: a joint shows the push
+    once it breaks the link's friction, and then carries it whole."""
+    bands, n = st.bands, len(lev)
+    mid, half = 0.5 * (bands.lo + bands.hi), 0.5 * (bands.hi - bands.lo)
+    s = st.camp[2][st.camp[0] == di][: st.o.draws]  # (m, n)
+    brk = bands.link_share * half - np.sign(lev) * (s - mid)  # (m, n) [N·m]
+    slip = st.P[:, None, None] * np.abs(lev) > brk[None]
+    r = np.where(slip, mid - st.P[:, None, None] * lev, s[None])
+    r = (r - np.sign(lev) * st.z_peak * bands.sigma).reshape(-1, n)
+    F = _estimates(r, st.J, bands, st.o.components)
+    return np.mean(-(F @ u).reshape(st.forces, len(s)) > st.nl[ax], axis=1)
+
+
+def _plant_detection(st: _Setting, u: np.ndarray, lev: np.ndarray, ax: int) -> np.ndarray:
+    """Detection probability (forces,) along unit ``u`` (levers ``lev`` (n,) [m], axis ``ax``)
+    with every joint at the centre: the extracted signal drops by what the plant (or the
+    model's dither_extraction) passes of the joint's push torque, per push length."""
+    bands, n = st.bands, len(lev)
+    _, tq, drop, _ = st.table
+    dr = transmitted(st.P[:, None] * np.abs(lev)[None, :], tq, drop)  # (D, forces, n)
+    s = st.centre - np.sign(lev) * st.z_peak * bands.sigma
+    r = (s - np.sign(lev) * dr).reshape(-1, n)
+    F = _estimates(r, st.J, bands, st.o.components)
+    return np.mean(-(F @ u).reshape(len(drop), st.forces) > st.nl[ax], axis=0)
+
+
+def _uniform_detection(
+    st: _Setting, name: str, u: np.ndarray, lev: np.ndarray, ax: int
+) -> np.ndarray:
+    """Detection probability (forces,) along direction ``name`` (unit ``u``, levers ``lev``
+    (n,) [m], axis ``ax``) with the states uniform in the band: the state's distance to the edge
+    the push drives the residual towards is ``u·W``, ``u`` shared by the joints, independent, or
+    (``"mixed"``) the first ``round(rho·draws)`` draws shared and the rest independent."""
+    bands, n, draws = st.bands, len(lev), st.o.draws
+    if st.o.states == "shared":
+        u01 = st.shared_u
+    elif st.o.states == "independent":
+        u01 = st.own_u
     else:
-        P = np.linspace(max_force / forces, max_force, forces)
-    shared_u = _strata(rng, draws, 1)  # (draws, 1)
-    own_u = _strata(rng, draws, n)  # (draws, n)
-    rho = shared_fraction(J, bands, force_range, n) if states == "mixed" else None
-    z_peak = peak_noise_factor(bands, push_duration, sample_rate, period)
+        u01 = np.where(
+            np.arange(draws)[:, None] < round(st.rho[name] * draws), st.shared_u, st.own_u
+        )
     width = bands.hi - bands.lo
-    fr = np.linspace(force_range[0], force_range[1], 41)
-    out: dict[str, Any] = {}
-    curves: dict[str, np.ndarray] = {}
-    mid, half = 0.5 * (bands.lo + bands.hi), 0.5 * width
-    for di, (name, ax, sign) in enumerate(DIRECTIONS):
-        u = np.zeros(3)
-        u[ax] = sign
-        lev = J[:3].T @ u  # (n,) [m] joint torque per newton applied along u
-        if camp is not None:
-            # the campaign's states before pushes along this direction; a joint shows the
-            # push once it breaks the link's friction, and then carries it whole
-            st = camp[2][camp[0] == di][:draws]  # (m, n)
-            brk = bands.link_share * half - np.sign(lev) * (st - mid)  # (m, n) [N·m]
-            slip = P[:, None, None] * np.abs(lev) > brk[None]
-            r = np.where(slip, mid - P[:, None, None] * lev, st[None])
-            r = (r - np.sign(lev) * z_peak * bands.sigma).reshape(-1, n)
-            F = _estimates(r, J, bands, components)
-            p = np.mean(-(F @ u).reshape(forces, len(st)) > nl[ax], axis=1)
-        elif table is not None:
-            # every joint at the centre; the extracted signal drops by what the plant (or the
-            # model's dither_extraction) passes of the joint's push torque, per push length
-            _, tq, drop, _ = table
-            dr = transmitted(P[:, None] * np.abs(lev)[None, :], tq, drop)  # (D, forces, n)
-            s = centre - np.sign(lev) * z_peak * bands.sigma
-            r = (s - np.sign(lev) * dr).reshape(-1, n)
-            F = _estimates(r, J, bands, components)
-            p = np.mean(-(F @ u).reshape(len(drop), forces) > nl[ax], axis=0)
-        # the state's distance to the edge the push drives the residual towards is u·W
-        elif states == "shared":
-            u01 = shared_u
-        elif states == "independent":
-            u01 = own_u
-        else:  # the first round(rho·draws) draws shared, the rest independent
-            u01 = np.where(np.arange(draws)[:, None] < round(rho[name] * draws), shared_u, own_u)
-        if camp is None and table is None:
-            s = np.where(lev > 0, bands.lo + u01 * width, bands.hi - u01 * width)  # (draws, n)
-            # the report takes the largest estimate of the push: the noise's median maximum
-            # over the push's top, on every joint in the direction the push drives its residual
-            s = s - np.sign(lev) * z_peak * bands.sigma
-            r = (s[None, :, :] - bands.gain * P[:, None, None] * lev).reshape(-1, n)
-            F = _estimates(r, J, bands, components)
-            resp = -(F @ u).reshape(forces, draws)
-            p = np.mean(resp > nl[ax], axis=1)
-        p = np.maximum.accumulate(p)  # the response grows with P; ties of the draws aside
-        curves[name] = np.interp(fr, P, p, left=0.0)
-        c50, c90 = _logistic_fit(fr, curves[name])
-        big = np.abs(lev).max()
-        out[name] = {
-            "f50": _crossing(P, p, 0.5),
-            "f90": _crossing(P, p, 0.9),
-            "curve_f50": c50,
-            "curve_f90": c90,
-            "joints": [j + 1 for j in range(n) if big > 0 and abs(lev[j]) >= 0.01 * big],
-        }
+    s = np.where(lev > 0, bands.lo + u01 * width, bands.hi - u01 * width)  # (draws, n)
+    # the report takes the largest estimate of the push: the noise's median maximum over the
+    # push's top, on every joint in the direction the push drives its residual
+    s = s - np.sign(lev) * st.z_peak * bands.sigma
+    r = (s[None, :, :] - bands.gain * st.P[:, None, None] * lev).reshape(-1, n)
+    F = _estimates(r, st.J, bands, st.o.components)
+    resp = -(F @ u).reshape(st.forces, draws)
+    return np.mean(resp > st.nl[ax], axis=1)
+
+
+def _direction_result(
+    P: np.ndarray, p: np.ndarray, fr: np.ndarray, curve: np.ndarray, lev: np.ndarray
+) -> dict[str, Any]:
+    """One direction's thresholds: the crossings of ``p`` (forces,) over the grid ``P`` [N], the
+    report's logistic fit to ``curve`` over the campaign's forces ``fr`` [N], and the joints
+    whose lever (``lev`` (n,) [m]) exceeds 1 % of the largest."""
+    c50, c90 = _logistic_fit(fr, curve)
+    big = np.abs(lev).max()
+    return {
+        "f50": _crossing(P, p, 0.5),
+        "f90": _crossing(P, p, 0.9),
+        "curve_f50": c50,
+        "curve_f90": c90,
+        "joints": [j + 1 for j in range(len(lev)) if big > 0 and abs(lev[j]) >= 0.01 * big],
+    }
+
+
+def _axes_fit(curves: dict[str, np.ndarray], fr: np.ndarray) -> dict[str, dict[str, float]]:
+    """Per axis, F50 and F90 [N] of the report's logistic fit to both signs' curves."""
     axes = {}
-    for ax, a in enumerate(AXES):
+    for a in AXES:
         both = np.concatenate([curves[f"+{a}"], curves[f"-{a}"]])
         f50, f90 = _logistic_fit(np.concatenate([fr, fr]), both)
         axes[a] = {"f50": f50, "f90": f90}
-        del ax
-    return {
-        "q": q.tolist(),
-        "levers": np.abs(J[:3]).tolist(),
-        "noise_level": dict(zip(AXES, nl.tolist(), strict=True)),
-        "noise_level_predicted": dict(zip(AXES, nl_pred.tolist(), strict=True)),
-        "noise_level_source": "predicted" if noise_level is None else noise_source or "given",
-        "directions": out,
-        "axes": axes,
-        "source": bands.source,
-        "dithered": bands.dithered,
-        "states": states,
-        "transmission": table[3] if table is not None else None,
-        "force_range": list(force_range),
-        "components": components,
-    }
+    return axes

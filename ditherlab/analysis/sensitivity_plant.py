@@ -6,13 +6,15 @@ link's friction (behind the gear spring) every period, the creep the velocity in
 (the joint's only stiffness with Kp = 0), the centre loop and the one-period extraction.
 :func:`dither_transmission` simulates that from the plant's equations (:mod:`ditherlab.sim.plant`)
 one joint at a time; :func:`extraction_peak` is the model's ``dither_extraction`` law instead;
-:func:`transmitted` reads the table at any torque. README "Pose sensitivity" has the measurements.
+:func:`transmitted` reads the table at any torque. ``docs/design/analysis-sensitivity.md`` has
+the measurements.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -90,11 +92,11 @@ def dither_transmission(
     a push, within the push and ``lag`` [s] after it (the report's window). Gravity is balanced
     by the controller's model (the loops work about it), the noise left out.
 
-    What it shows (README "Pose sensitivity"): a link whose friction the dither's spring torque
-    overcomes every period creeps under any push and the velocity integral (the joint's only
-    stiffness with Kp = 0) builds the torque that holds it, late for short and large pushes; a
-    link the dither does not free (joint 3 at 0.5 Fs) holds a push until it exceeds what the
-    dither leaves of the link's band; the centre loop eats part of a long push.
+    What it shows (``docs/design/analysis-sensitivity.md``): a link whose friction the dither's
+    spring torque overcomes every period creeps under any push and the velocity integral (the
+    joint's only stiffness with Kp = 0) builds the torque that holds it, late for short and
+    large pushes; a link the dither does not free (joint 3 at 0.5 Fs) holds a push until it
+    exceeds what the dither leaves of the link's band; the centre loop eats part of a long push.
 
     Parameters
     ----------
@@ -108,7 +110,6 @@ def dither_transmission(
     -------
     (D, m, n) [N·m] the drop of the extracted signal, >= 0
     """
-    f, jt, sv, d, tm = p["friction"], p["joints"], p["servo"], p["dither"], p["timing"]
     torques = np.asarray(torques, float)
     durations = np.asarray(durations, float)
     m, n = torques.shape
@@ -116,84 +117,220 @@ def dither_transmission(
     jj = np.tile(np.arange(n), nd * (m + 1))  # joint of each simulated case
     tq = np.concatenate([np.tile(np.vstack([torques, np.zeros((1, n))]).ravel(), nd)])
     dur = np.repeat(durations, (m + 1) * n)
+    pl = _plant(p, n, jj, link_inertia)
+    ns = int(round((settle + durations.max() + lag + 0.1) * pl.rate))
+    k0 = int(round(settle * pl.rate))
+    logged = _logged_torque(pl, tq, dur, ns, k0)
+    return _largest_drop(logged, pl, k0, durations, lag, (nd, m + 1, n))
+
+
+@dataclass(frozen=True)
+class _Plant:
+    """The simulated cases of :func:`dither_transmission`: per case (B,) the joint's motor,
+    spring, link and friction, its servo and dither loops; and the timing.
+
+    Attributes
+    ----------
+    jm, kg, cg, me : [kg m^2, N·m/rad, N·m·s/rad, kg m^2] motor inertia, gear stiffness and
+        damping, link inertia
+    fs_m, fs_o, fv : [N·m, N·m, N·m·s/rad] static friction at the motor and at the gear output,
+        viscous friction (split by ``ms``)
+    ms, cr : [-] the motor's share of the friction, Coulomb over static
+    kv, ki : the servo's velocity PI gains
+    on : (B,) bool whether the joint dithers
+    asp, cap, hold : [N·m] the amplitude loop's set point and cap, the loops' dead band
+    rate, nserv, nsub, dts, h : log rate [Hz], servo ticks per sample and plant steps per tick,
+        their steps [s]
+    omega, per, wave, peak : the dither's frequency [rad/s], period [s], waveform and its peak
+        factor [-]
+    L, upd, kc, ka : the loops' window [samples], update interval [samples] and gains [1/s]
+    """
+
+    jm: np.ndarray
+    kg: np.ndarray
+    cg: np.ndarray
+    me: np.ndarray
+    fs_m: np.ndarray
+    fs_o: np.ndarray
+    fv: np.ndarray
+    ms: float
+    cr: float
+    kv: np.ndarray
+    ki: np.ndarray
+    on: np.ndarray
+    asp: np.ndarray
+    cap: np.ndarray
+    hold: np.ndarray
+    rate: float
+    nserv: int
+    nsub: int
+    dts: float
+    h: float
+    omega: float
+    per: float
+    wave: str
+    peak: float
+    L: int
+    upd: int
+    kc: float
+    ka: float
+
+
+def _plant(p: Mapping[str, Any], n: int, jj: np.ndarray, link_inertia: np.ndarray) -> _Plant:
+    """The cases' plant from simulator parameters ``p``: case ``b`` is joint ``jj[b]`` of ``n``
+    (link inertia ``link_inertia`` (n,) [kg m^2])."""
+    f, jt, sv, d, tm = p["friction"], p["joints"], p["servo"], p["dither"], p["timing"]
 
     def per_joint(v: Any) -> np.ndarray:
         return np.broadcast_to(np.asarray(v, float), (n,))[jj]
 
     fs = per_joint(f["static"])
-    ms, cr = float(f["motor_share"]), float(f["coulomb_ratio"])
-    fv = per_joint(f["viscous"])
+    ms = float(f["motor_share"])
     jm, kg = per_joint(jt["motor_inertia"]), per_joint(jt["gear_stiffness"])
-    cg = float(jt["gear_damping_ratio"]) * 2.0 * np.sqrt(kg * jm)
-    kv, ki = per_joint(sv["kv"]), per_joint(sv["ki"])
     on = per_joint(np.asarray(d["joints"], bool).astype(float)) > 0.5
-    asp = np.where(on, per_joint(d["amplitude_fraction"]) * fs, 0.0)
-    cap = float(d["amplitude_cap"]) * fs
-    me = np.asarray(link_inertia, float)[jj]
-    fs_m, fs_o = ms * fs, (1.0 - ms) * fs
     rate = float(tm["sample_rate_hz"])
     nserv = max(int(round(float(tm["servo_rate_hz"]) / rate)), 1)
     nsub = max(int(tm["plant_substeps"]), 1)
     dts = 1.0 / (rate * nserv)
-    h = dts / nsub
     omega = float(d["frequency"])
     per = 2.0 * math.pi / omega
-    L = max(int(round(float(d["periods"]) * per * rate)), 1)
-    upd = max(int(d["update_every"]), 1)
-    kc, ka = float(d["centre_gain"]), float(d["amplitude_gain"])
-    hold = float(d["hold_fraction"]) * 2.0 * fs
-    wave, peak = str(d["waveform"]), PEAK_FACTOR[str(d["waveform"])]
-    B = len(jj)
-    qm, vm, q, v, integ, c = (np.zeros(B) for _ in range(6))
-    sm, so = np.ones(B, bool), np.ones(B, bool)
-    a = asp.copy()
-    ns = int(round((settle + durations.max() + lag + 0.1) * rate))
-    k0 = int(round(settle * rate))
+    return _Plant(
+        jm=jm,
+        kg=kg,
+        cg=float(jt["gear_damping_ratio"]) * 2.0 * np.sqrt(kg * jm),
+        me=np.asarray(link_inertia, float)[jj],
+        fs_m=ms * fs,
+        fs_o=(1.0 - ms) * fs,
+        fv=per_joint(f["viscous"]),
+        ms=ms,
+        cr=float(f["coulomb_ratio"]),
+        kv=per_joint(sv["kv"]),
+        ki=per_joint(sv["ki"]),
+        on=on,
+        asp=np.where(on, per_joint(d["amplitude_fraction"]) * fs, 0.0),
+        cap=float(d["amplitude_cap"]) * fs,
+        hold=float(d["hold_fraction"]) * 2.0 * fs,
+        rate=rate,
+        nserv=nserv,
+        nsub=nsub,
+        dts=dts,
+        h=dts / nsub,
+        omega=omega,
+        per=per,
+        wave=str(d["waveform"]),
+        peak=PEAK_FACTOR[str(d["waveform"])],
+        L=max(int(round(float(d["periods"]) * per * rate)), 1),
+        upd=max(int(d["update_every"]), 1),
+        kc=float(d["centre_gain"]),
+        ka=float(d["amplitude_gain"]),
+    )
+
+
+@dataclass
+class _State:
+    """The cases' state (B,): motor and link angles [rad] and velocities [rad/s], the velocity
+    integral and the centre [N·m], motor and output stuck, the dither amplitude [N·m]."""
+
+    qm: np.ndarray
+    vm: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    integ: np.ndarray
+    c: np.ndarray
+    sm: np.ndarray
+    so: np.ndarray
+    a: np.ndarray
+
+
+def _logged_torque(pl: _Plant, tq: np.ndarray, dur: np.ndarray, ns: int, k0: int) -> np.ndarray:
+    """The logged torque (ns, B) [N·m] of every case: the dither from rest, a raised-cosine
+    push of peak ``tq`` (B,) [N·m] and length ``dur`` (B,) [s] from sample ``k0`` on."""
+    B = len(tq)
+    z = [np.zeros(B) for _ in range(6)]
+    s = _State(*z, np.ones(B, bool), np.ones(B, bool), pl.asp.copy())
     logged = np.zeros((ns, B))
     clock = 0.0
     for k in range(ns):
-        tk = (k - k0) / rate
+        tk = (k - k0) / pl.rate
         push = np.where(
             (tk >= 0.0) & (tk < dur), 0.5 * (1.0 - np.cos(2.0 * np.pi * max(tk, 0.0) / dur)), 0.0
         ) * tq  # fmt: skip
-        for i in range(nserv):
-            sn = math.sin(omega * clock)
-            w = (1.0 if sn >= 0.0 else -1.0) if wave == "square" else sn
-            if wave == "triangle":
-                w = 2.0 / math.pi * math.asin(sn)
-            ev = -vm
-            integ += ki * ev * dts
-            u = c + np.where(on, a * w, 0.0) + kv * ev + integ
+        for i in range(pl.nserv):
+            u = _servo_tick(pl, s, clock)
             if i == 0:
                 logged[k] = u
-            clock += dts
-            for _ in range(nsub):
-                ts = kg * (qm - q) + cg * (vm - v)
-                vm, sm = _stick_slip_all(
-                    jm, jm * vm + h * (u - ts), h, fs_m, cr * fs_m, ms * fv, sm, vm
-                )
-                v, so = _stick_slip_all(
-                    me, me * v + h * (ts + push), h, fs_o, cr * fs_o, (1.0 - ms) * fv, so, v
-                )
-                qm += h * vm
-                q += h * v
-        if k >= L and k % upd == 0:  # the centre and amplitude loops
-            x = logged[k - L + 1 : k + 1]
-            cm = x.mean(axis=0)
-            up, lo = x > cm, x < cm
-            amp = 0.5 * peak * (
-                (x * up).sum(0) / np.maximum(up.sum(0), 1)
-                - (x * lo).sum(0) / np.maximum(lo.sum(0), 1)
-            )  # fmt: skip
-            dtl = upd / rate
-            c = np.where(np.abs(cm) > hold, c - kc * cm * dtl, c)
-            a = np.where(np.abs(asp - amp) > hold, np.clip(a + ka * (asp - amp) * dtl, 0, cap), a)
-    wx = max(int(round(per * rate)), 1)
+            clock += pl.dts
+            for _ in range(pl.nsub):
+                _plant_step(pl, s, u, push)
+        if k >= pl.L and k % pl.upd == 0:
+            _dither_loops(pl, s, logged[k - pl.L + 1 : k + 1])
+    return logged
+
+
+def _servo_tick(pl: _Plant, s: _State, clock: float) -> np.ndarray:
+    """One servo tick at dither time ``clock`` [s]: the velocity PI (position gain 0) plus the
+    dither's feedforward -> the torque reference (B,) [N·m]."""
+    sn = math.sin(pl.omega * clock)
+    w = (1.0 if sn >= 0.0 else -1.0) if pl.wave == "square" else sn
+    if pl.wave == "triangle":
+        w = 2.0 / math.pi * math.asin(sn)
+    ev = -s.vm
+    s.integ += pl.ki * ev * pl.dts
+    return s.c + np.where(pl.on, s.a * w, 0.0) + pl.kv * ev + s.integ
+
+
+def _plant_step(pl: _Plant, s: _State, u: np.ndarray, push: np.ndarray) -> None:
+    """One plant step: the motor under ``u`` and the link under ``push`` (B,) [N·m], coupled by
+    the gear spring, each with its rigid stick-slip friction."""
+    ts = pl.kg * (s.qm - s.q) + pl.cg * (s.vm - s.v)
+    h, ms, cr = pl.h, pl.ms, pl.cr
+    s.vm, s.sm = _stick_slip_all(
+        pl.jm, pl.jm * s.vm + h * (u - ts), h, pl.fs_m, cr * pl.fs_m, ms * pl.fv, s.sm, s.vm
+    )
+    s.v, s.so = _stick_slip_all(
+        pl.me, pl.me * s.v + h * (ts + push), h, pl.fs_o, cr * pl.fs_o, (1.0 - ms) * pl.fv,
+        s.so, s.v,
+    )  # fmt: skip
+    s.qm += h * s.vm
+    s.q += h * s.v
+
+
+def _dither_loops(pl: _Plant, s: _State, x: np.ndarray) -> None:
+    """The centre and amplitude loops on the last window ``x`` (L, B) [N·m] of logged torque:
+    the window mean driven to 0, the amplitude to its set point, outside the dead band."""
+    cm = x.mean(axis=0)
+    up, lo = x > cm, x < cm
+    amp = 0.5 * pl.peak * (
+        (x * up).sum(0) / np.maximum(up.sum(0), 1)
+        - (x * lo).sum(0) / np.maximum(lo.sum(0), 1)
+    )  # fmt: skip
+    dtl = pl.upd / pl.rate
+    s.c = np.where(np.abs(cm) > pl.hold, s.c - pl.kc * cm * dtl, s.c)
+    s.a = np.where(
+        np.abs(pl.asp - amp) > pl.hold, np.clip(s.a + pl.ka * (pl.asp - amp) * dtl, 0, pl.cap), s.a
+    )
+
+
+def _largest_drop(
+    logged: np.ndarray,
+    pl: _Plant,
+    k0: int,
+    durations: np.ndarray,
+    lag: float,
+    shape: tuple[int, int, int],
+) -> np.ndarray:
+    """The largest drop (D, m, n) [N·m] of the extracted signal of pushes against the same run
+    without a push (the last of the ``m + 1`` torques per length), within each push (pushes
+    from sample ``k0``, ``durations`` (D,) [s]) and ``lag`` [s] after it; ``shape`` is
+    ``(D, m + 1, n)``, the cases' order."""
+    nd, m1, n = shape
+    m = m1 - 1
+    wx = max(int(round(pl.per * pl.rate)), 1)
     s0 = max(k0 - wx - 1, 0)
     sig = _extracted(logged[s0:], wx)
-    sig = sig.reshape(len(sig), nd, m + 1, n)
+    sig = sig.reshape(len(sig), nd, m1, n)
     drop = sig[:, :, m : m + 1, :] - sig[:, :, :m, :]  # against the same run without a push
-    t = (np.arange(len(sig)) + s0 - k0) / rate
+    t = (np.arange(len(sig)) + s0 - k0) / pl.rate
     win = (t[:, None] >= 0.0) & (t[:, None] <= durations[None, :] + lag)  # (T, D)
     drop = np.where(win[:, :, None, None], np.nan_to_num(drop, nan=-np.inf), -np.inf)
     return np.maximum(drop.max(axis=0), 0.0)

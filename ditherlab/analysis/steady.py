@@ -29,7 +29,7 @@ SETTLE_SIGMAS = NormalDist().inv_cdf(0.5 + 0.999 / 2)
 #: The levels the signal held and holds next are its medians over this many seconds before
 #: and after a sample: longer than the time constant of a centre loop of the paper's kind
 #: (integral, Fig. 5 settles within 1-2 s; the simulator's 1/s gain) so that while the signal
-#: still approaches the two differ by most of the offset, and no longer than the campaigns'
+#: still approaches the two differ by most of the offset, and not longer than the campaigns'
 #: longest push (2 s), so that a push fills at most half a window, which a median ignores.
 SETTLE_WINDOW_S = 2.0
 
@@ -84,9 +84,9 @@ def steady_dither(src: EstimatesSource, dith: np.ndarray) -> np.ndarray:
        band's half-width; the stretch runs from the first sample at which every dithering
        joint's amplitude has reached :data:`STEADY_FRACTION` of that median to the last one
        at which it still has. A log's ``dither`` flag is true while the feedforward is on, its
-       ramps included (RECORDING.md); while it ramps out the centre term moves the extracted
-       signal by up to the band (~8 N·m on the simulator's joint 1), which counted as rest set
-       the dithered noise level at 10.6 N instead of 1 N. A dip inside the stretch (a joint
+       ramps included (``docs/recording-format.md``); while it ramps out the centre term moves
+       the extracted signal by up to the band (~8 N·m on the simulator's joint 1), which
+       counted as rest would set the dithered noise level at 10.6 N instead of 1 N. A dip inside the stretch (a joint
        slipping under a push) is kept.
     2. *Centre* (the start-up): the centre loop (paper §IV-B, Fig. 5) drives the extracted
        signal from where the torque stood before the dither to the gravity torque and then

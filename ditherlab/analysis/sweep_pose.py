@@ -46,7 +46,8 @@ def without_ramp_down(rec: Recording) -> Recording:
     ["dither_off"]`` on): while the amplitude ramps to zero the dither flag is still on, so the
     report would count those samples as rest with dither, where the extracted signal moves by
     the centre's feedforward (up to ~8 N·m) and sets the noise level (measured at the paper's
-    pose: 10.6 N in x instead of 1 N; README, "Pose sensitivity")."""
+    pose: 10.6 N in x instead of 1 N; where rest with dither ends: ``docs/method.md``, "The
+    paper's detection statistics")."""
     off = ((rec.meta.get("sim") or {}).get("timeline") or {}).get("dither_off")
     return rec.slice(t1=float(off)) if off is not None else rec
 

@@ -271,55 +271,103 @@ def run_pipeline(
     seconds: dict[str, float] = {}
     t_start = time.perf_counter()
     scratch = None if keep_data else Path(tempfile.mkdtemp(prefix=".demo-", dir=out))
-    futures = {}
-    for role, s in (("identification", seed + 1), ("evaluation", seed)):
-        for dither in (False, True):
-            name = f"{role}_{'dither' if dither else 'nodither'}"
-            path = (scratch or out) / f"{name}.parquet"
-            args = (str(path), s, dither, pushes_per_direction, config)
-            futures[name] = ex.submit(simulate_campaign, *args)
-    recs: dict[str, Recording] = {}
+    futures = _submit_campaigns(ex, scratch or out, seed, pushes_per_direction, config)
 
     def campaign(name: str) -> Recording:
-        rec, sec = futures[name].result()
-        object.__setattr__(rec, "name", str(out / f"{name}.parquet"))  # the file's, kept or not
-        _done(f"simulate {name}", sec, quiet)
-        return rec
+        return _campaign(futures[name], out / f"{name}.parquet", f"simulate {name}", quiet)
 
     try:
-        for name in ("identification_nodither", "identification_dither"):
-            recs[name] = campaign(name)
+        ids = [campaign("identification_nodither"), campaign("identification_dither")]
         seconds["simulate"] = time.perf_counter() - t_start
-
         t0 = time.perf_counter()
-        ids = [recs["identification_nodither"], recs["identification_dither"]]
-        with progress_bar("identify", quiet) as progress:
-            # the bands' point estimates: what add_effect starts from. Its re-fit replaces every
-            # band with its own (and its bootstrap's standard errors), so the bootstrap of this
-            # first fit is run only for a model that keeps it (add_effect refused)
-            model = identify(ids, n_boot=0, seed=seed, progress=progress)
-            # how the dither's extraction shows a push (late, in part): identified from the
-            # identification campaign's dithered pushes, used by replay (docs/method.md, "Where
-            # the estimator reads the extraction"); a campaign where it cannot be told apart
-            # from the bands keeps the model, then with its bootstrap
-            try:
-                model = add_effect(ids, model, "dither_extraction", executor=pool)
-            except ModelError:
-                model = identify(ids, n_boot=n_boot, seed=seed, executor=pool)
+        model = _identify_model(ids, seed, n_boot, pool, quiet)
         model_path = model.save(out / "model.toml")
         seconds["identify"] = time.perf_counter() - t0
-
         t0 = time.perf_counter()
-        for name in ("evaluation_nodither", "evaluation_dither"):
-            recs[name] = campaign(name)
+        evals = [campaign("evaluation_nodither"), campaign("evaluation_dither")]
         seconds["simulate, rest"] = time.perf_counter() - t0
     finally:
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
-    evals = [recs["evaluation_nodither"], recs["evaluation_dither"]]
     paths = [Path(r.name) for r in evals]
-
     t0 = time.perf_counter()
+    est_paths, ests = _replay_evaluations(ex, evals, model, out, keep_data, quiet)
+    seconds["replay"] = time.perf_counter() - t0
+    view_job = None
+    if view is not None:
+        src = (paths[1], est_paths[1]) if keep_data else (bare(evals[1]), ests[1])
+        rates = (view.get("series_rate"), view.get("rate_3d", 25.0))
+        view_job = ex.submit(write_view, Path(view["path"]), *src, Path(model_path), *rates)
+    t0 = time.perf_counter()
+    with progress_bar("report", quiet) as progress:
+        analysis = make_report(
+            ests, out / "report", n_boot=report_boot, seed=seed, recordings=evals,
+            progress=progress,
+        )  # fmt: skip
+    seconds["report"] = time.perf_counter() - t0
+    return PipelineResult(
+        out, Path(model_path), paths, est_paths, out / "report", analysis, seconds,
+        {"recordings": evals, "estimates": ests, "model": model},
+        view_job,
+    )  # fmt: skip
+
+
+def _submit_campaigns(
+    ex: Executor,
+    folder: Path,
+    seed: int,
+    pushes_per_direction: int,
+    config: Mapping[str, Any] | None,
+) -> dict[str, Future]:
+    """The four campaigns, submitted to ``ex`` (identification: ``seed + 1``, evaluation:
+    ``seed``; each without and with dither), their recordings written into ``folder``."""
+    futures = {}
+    for role, s in (("identification", seed + 1), ("evaluation", seed)):
+        for dither in (False, True):
+            name = f"{role}_{'dither' if dither else 'nodither'}"
+            path = folder / f"{name}.parquet"
+            args = (str(path), s, dither, pushes_per_direction, config)
+            futures[name] = ex.submit(simulate_campaign, *args)
+    return futures
+
+
+def _campaign(job: Future, name: Path, desc: str, quiet: bool) -> Recording:
+    """A submitted campaign's recording, named ``name`` (the file's, kept or not)."""
+    rec, sec = job.result()
+    object.__setattr__(rec, "name", str(name))
+    _done(desc, sec, quiet)
+    return rec
+
+
+def _identify_model(
+    ids: list[Recording], seed: int, n_boot: int, pool: Executor | None, quiet: bool
+) -> TorqueModel:
+    """The model of the identification pair ``ids``: the bands, then the dither's extraction."""
+    with progress_bar("identify", quiet) as progress:
+        # the bands' point estimates: what add_effect starts from. Its re-fit replaces every
+        # band with its own (and its bootstrap's standard errors), so the bootstrap of this
+        # first fit is run only for a model that keeps it (add_effect refused)
+        model = identify(ids, n_boot=0, seed=seed, progress=progress)
+        # how the dither's extraction shows a push (late, in part): identified from the
+        # identification campaign's dithered pushes, used by replay
+        # (docs/design/extraction-underestimates.md); a campaign where it cannot be told apart
+        # from the bands keeps the model, then with its bootstrap
+        try:
+            return add_effect(ids, model, "dither_extraction", executor=pool)
+        except ModelError:
+            return identify(ids, n_boot=n_boot, seed=seed, executor=pool)
+
+
+def _replay_evaluations(
+    ex: Executor,
+    evals: list[Recording],
+    model: TorqueModel,
+    out: Path,
+    keep_data: bool,
+    quiet: bool,
+) -> tuple[list[Path], list[Any]]:
+    """The estimates of the evaluation pair (replayed on ``ex``) and their files' paths (written
+    when ``keep_data``)."""
     jobs = [ex.submit(replay_campaign, bare(r), model) for r in evals]
     est_paths, ests = [], []
     for name, job in zip(("evaluation_nodither", "evaluation_dither"), jobs, strict=True):
@@ -331,36 +379,7 @@ def run_pipeline(
         est_paths.append(p)
         ests.append(est)
         _done(f"replay {name}", sec, quiet)
-    seconds["replay"] = time.perf_counter() - t0
-
-    view_job = None
-    if view is not None:
-        src = (paths[1], est_paths[1]) if keep_data else (bare(evals[1]), ests[1])
-        rates = (view.get("series_rate"), view.get("rate_3d", 25.0))
-        view_job = ex.submit(write_view, Path(view["path"]), *src, Path(model_path), *rates)
-
-    t0 = time.perf_counter()
-    with progress_bar("report", quiet) as progress:
-        analysis = make_report(
-            ests,
-            out / "report",
-            n_boot=report_boot,
-            seed=seed,
-            recordings=evals,
-            progress=progress,
-        )
-    seconds["report"] = time.perf_counter() - t0
-    return PipelineResult(
-        out,
-        Path(model_path),
-        paths,
-        est_paths,
-        out / "report",
-        analysis,
-        seconds,
-        {"recordings": evals, "estimates": ests, "model": model},
-        view_job,
-    )
+    return est_paths, ests
 
 
 #: The two readings of the paper's second §VI-C statistic ("how much force that was needed to
@@ -419,7 +438,7 @@ def pipeline_text(res: PipelineResult) -> str:
         (
             "needed",
             "with the 10 N statistic read as the smallest force whose estimate exceeded 10 N "
-            '(docs/method.md, "The paper\'s detection statistics")',
+            "(docs/method.md, the paper's detection statistics)",
         ),
     ):
         within, total, misses = paper_agreement(a, reading=reading)
@@ -475,6 +494,31 @@ VIEW_RATE_3D = 10.0
 
 def main(argv: list[str] | None = None) -> int:
     """Run the demo; returns the exit status (0 when every step and round trip holds)."""
+    args = _parser().parse_args(argv)
+    t_start = time.perf_counter()
+    view = {
+        "path": args.out / "demo.rrd",
+        "series_rate": None if args.full_view else VIEW_SERIES_RATE,
+        "rate_3d": 25.0 if args.full_view else VIEW_RATE_3D,
+    }
+    ex = process_pool(args.jobs)
+    try:
+        results = _run_demo(args, ex, view)
+    except DitherlabError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        ex.shutdown(cancel_futures=True)
+    print(report(results))
+    # Parquet, CSV and MCAP are exact; a ROS 2 bag keeps t (ns stamps), q, dq, tau, wrench.
+    ok = all(r.exact if not r.fmt.startswith("rosbag") else r.max_error < 1e-6 for r in results)
+    print("\nall round trips hold" if ok else "\nA ROUND TRIP FAILED")
+    print(f"demo finished in {time.perf_counter() - t_start:.0f} s")
+    return 0 if ok else 1
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The demo's command line."""
     parser = argparse.ArgumentParser(prog="python -m ditherlab.app.demo", description=__doc__)
     parser.add_argument("--out", type=Path, default=Path("demo-out"), help="output folder")
     parser.add_argument("--recording", type=Path, default=SAMPLE, help="sample recording")
@@ -503,57 +547,44 @@ def main(argv: list[str] | None = None) -> int:
         f"(about 360 MB) instead of their envelope over {1 / VIEW_SERIES_RATE:g} s bins and "
         f"{VIEW_RATE_3D:g} Hz",
     )
-    args = parser.parse_args(argv)
-    t_start = time.perf_counter()
-    view = {
-        "path": args.out / "demo.rrd",
-        "series_rate": None if args.full_view else VIEW_SERIES_RATE,
-        "rate_3d": 25.0 if args.full_view else VIEW_RATE_3D,
-    }
-    ex = process_pool(args.jobs)
-    try:
+    return parser
+
+
+def _run_demo(args: argparse.Namespace, ex: Executor, view: Mapping[str, Any]) -> list[RoundTrip]:
+    """The pipeline, its view and the sample recording's round trips on ``ex``, printed as they
+    finish; the round trips."""
+    print(
+        "== push campaigns without and with dither on the built-in simulator "
+        f"({args.pushes} pushes per axis and sign) -> identify -> replay -> report",
+        flush=True,
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    # the sample recording's round trips need nothing of the pipeline: queued behind the
+    # campaigns, for a worker that would otherwise wait
+    trips = ex.submit(sample_round_trips, args.recording, args.out)
+    res = run_pipeline(
+        args.out,
+        pushes_per_direction=args.pushes,
+        quiet=args.quiet,
+        executor=ex,
+        keep_data=args.keep_data,
+        view=view,
+    )
+    print(pipeline_text(res), flush=True)
+    if not args.keep_data:
         print(
-            "== push campaigns without and with dither on the built-in simulator "
-            f"({args.pushes} pushes per axis and sign) -> identify -> replay -> report",
+            "(recordings and estimates kept in memory, not written: --keep-data writes "
+            "them under the names above)",
             flush=True,
         )
-        args.out.mkdir(parents=True, exist_ok=True)
-        # the sample recording's round trips need nothing of the pipeline: queued behind the
-        # campaigns, for a worker that would otherwise wait
-        trips = ex.submit(sample_round_trips, args.recording, args.out)
-        res = run_pipeline(
-            args.out,
-            pushes_per_direction=args.pushes,
-            quiet=args.quiet,
-            executor=ex,
-            keep_data=args.keep_data,
-            view=view,
-        )
-        print(pipeline_text(res), flush=True)
-        if not args.keep_data:
-            print(
-                "(recordings and estimates kept in memory, not written: --keep-data writes "
-                "them under the names above)",
-                flush=True,
-            )
-        assert res.view is not None
-        rrd, _ = res.view.result()
-        print(f"\n== Rerun view of {res.recordings[1].name}: open it with: rerun {rrd}", flush=True)
-        info, results = trips.result()
-        print(f"\n== ditherlab info {args.recording}")
-        print(info)
-        print(f"\n== round trips through every format, in {args.out}/")
-    except DitherlabError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    finally:
-        ex.shutdown(cancel_futures=True)
-    print(report(results))
-    # Parquet, CSV and MCAP are exact; a ROS 2 bag keeps t (ns stamps), q, dq, tau, wrench.
-    ok = all(r.exact if not r.fmt.startswith("rosbag") else r.max_error < 1e-6 for r in results)
-    print("\nall round trips hold" if ok else "\nA ROUND TRIP FAILED")
-    print(f"demo finished in {time.perf_counter() - t_start:.0f} s")
-    return 0 if ok else 1
+    assert res.view is not None
+    rrd, _ = res.view.result()
+    print(f"\n== Rerun view of {res.recordings[1].name}: open it with: rerun {rrd}", flush=True)
+    info, results = trips.result()
+    print(f"\n== ditherlab info {args.recording}")
+    print(info)
+    print(f"\n== round trips through every format, in {args.out}/")
+    return results
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from ditherlab.output.diagnosis_report import DiagnosisReport, load_report
 from ditherlab.output.rerun.columns import ViewSummary
 from ditherlab.output.rerun.inputs import load_estimates, load_view_request
 from ditherlab.output.rerun.rerun_log import (
+    PiecesView,
     save_view,
     save_view_pieces,
     show_view,
@@ -129,20 +130,20 @@ def run(options: ViewOptions, progress: Progress | None = None) -> ViewResult:
         mode=o.mode,
         read_options=o.read.kwargs(),
     )
-    kw: dict = {
-        "head": req.head,
-        "estimates": req.estimates,
-        "model": req.model,
-        "diagnosis": req.diagnosis,
-        "rate_3d": o.rate_3d,
-        "series_rate": o.series_rate,
-        "chunk_rows": o.chunk_rows,
-        "progress": progress,
-    }
+    pv = PiecesView(
+        req.src,
+        req.head,
+        estimates=req.estimates,
+        model=req.model,
+        diagnosis=req.diagnosis,
+        rate_3d=o.rate_3d,
+        series_rate=o.series_rate,
+        chunk_rows=o.chunk_rows,
+    )
     if req.save is not None:
-        summary = save_view_pieces(req.src, req.save, inputs=req.inputs, **kw)
+        summary = save_view_pieces(pv, req.save, inputs=req.inputs, progress=progress)
         return ViewResult(summary, path=req.save)
-    summary, url = show_view_pieces(req.src, mode=str(req.mode), **kw)
+    summary, url = show_view_pieces(pv, mode=str(req.mode), progress=progress)
     return ViewResult(summary, url=url)
 
 

@@ -145,7 +145,31 @@ def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Pat
         "",
     ]
     md += ["## Model", "", "```", model_text(d.model), "```", ""]
-    md += ["## Torque residual (band-aware) against the noise floor", ""]
+    md += _residual_section(d)
+    if d.force is not None:
+        md += _force_section(d.force)
+    if d.windows:
+        md += _windows_section(d.windows)
+    md += _candidates_section(d, figs)
+    if hist:
+        md += [
+            "",
+            "## History: the error falling",
+            "",
+            *_history_rows(hist),
+            "",
+            "![history](history.png)",
+            "",
+        ]
+    for n in d.notes:
+        md.append(f"- note: {n}")
+    atomic_write_json(out / "report.json", d.to_dict(), indent=2)
+    return atomic_write_text(out / "report.md", "\n".join(md) + "\n")
+
+
+def _residual_section(d: Diagnosis) -> list[str]:
+    """The torque residual per joint and regime against the noise floor, as Markdown lines."""
+    md = ["## Torque residual (band-aware) against the noise floor", ""]
     md += [
         "| joint | regime | samples | RMS [N·m] | floor [N·m] | outside band | mean excess [σ] |",
         "|---|---|---|---|---|---|---|",
@@ -156,40 +180,51 @@ def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Pat
             f"{100 * r['outside_fraction']:.0f} % | {r['mean_excess_sigma']:+.2f} |"
         )
     md.append("")
-    if d.force is not None:
-        md += [
-            "## Force error (estimate − sensor)",
-            "",
-            "| regime | samples | " + " | ".join(AXES) + " |",
-            "|---|---|" + "---|" * 6,
-        ]
-        for r in d.force["per_regime"]:
-            md.append(
-                f"| {r['regime']} | {r['samples']} | "
-                + " | ".join(f"{v:.3g}" for v in r["rms"])
-                + " |"
-            )
-        if d.force.get("coverage") is not None:
-            md.append(
-                "| coverage (95 % set-membership) | | "
-                + " | ".join(f"{v:.2f}" for v in d.force["coverage"])
-                + " |"
-            )
-        md.append("")
-    if d.windows:
-        md += [
-            "## Worst time windows",
-            "",
-            "| recording | t [s] | energy [floor²] | worst joint (× floor) |",
-            "|---|---|---|---|",
-        ]
-        for w in d.windows:
-            md.append(
-                f"| {w['recording']} | {w['t0']:.1f}–{w['t1']:.1f} | {w['energy']:.3g} | "
-                f"{w['worst_joint']} ({w['worst_joint_ratio']:.2g}) |"
-            )
-        md.append("")
-    md += [
+    return md
+
+
+def _force_section(force: Mapping[str, Any]) -> list[str]:
+    """The force error per regime and axis [N, N·m] and the interval's coverage."""
+    md = [
+        "## Force error (estimate − sensor)",
+        "",
+        "| regime | samples | " + " | ".join(AXES) + " |",
+        "|---|---|" + "---|" * 6,
+    ]
+    for r in force["per_regime"]:
+        md.append(
+            f"| {r['regime']} | {r['samples']} | " + " | ".join(f"{v:.3g}" for v in r["rms"]) + " |"
+        )
+    if force.get("coverage") is not None:
+        md.append(
+            "| coverage (95 % set-membership) | | "
+            + " | ".join(f"{v:.2f}" for v in force["coverage"])
+            + " |"
+        )
+    md.append("")
+    return md
+
+
+def _windows_section(windows: list[dict[str, Any]]) -> list[str]:
+    """The worst time windows by residual energy."""
+    md = [
+        "## Worst time windows",
+        "",
+        "| recording | t [s] | energy [floor²] | worst joint (× floor) |",
+        "|---|---|---|---|",
+    ]
+    for w in windows:
+        md.append(
+            f"| {w['recording']} | {w['t0']:.1f}–{w['t1']:.1f} | {w['energy']:.3g} | "
+            f"{w['worst_joint']} ({w['worst_joint_ratio']:.2g}) |"
+        )
+    md.append("")
+    return md
+
+
+def _candidates_section(d: Diagnosis, figs: list[Candidate]) -> list[str]:
+    """The candidate effects ranked, the figured ones' evidence, the skipped effects."""
+    md = [
         "## Candidate effects (held-out explained fraction, best first)",
         "",
         "| effect | joints | explained | suggested | ΔBIC (best joint) |",
@@ -206,20 +241,7 @@ def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Pat
         md += [f"### {c.effect}", "", c.text(), "", f"![{c.effect}]({c.figure})", ""]
     for n, why in d.skipped.items():
         md.append(f"- skipped {n}: {why}")
-    if hist:
-        md += [
-            "",
-            "## History: the error falling",
-            "",
-            *_history_rows(hist),
-            "",
-            "![history](history.png)",
-            "",
-        ]
-    for n in d.notes:
-        md.append(f"- note: {n}")
-    atomic_write_json(out / "report.json", d.to_dict(), indent=2)
-    return atomic_write_text(out / "report.md", "\n".join(md) + "\n")
+    return md
 
 
 # ---------------------------------------------------------------------- reading report.json

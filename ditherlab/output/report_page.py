@@ -618,15 +618,48 @@ def _dither_figures(
     out: Path,
     blocks: list[tuple],
 ) -> list[str]:
-    """Figs. 4 and 5 of the dithered recording."""
+    """Figs. 4 and 5 of the dithered recording, their blocks appended to ``blocks``; the files
+    written."""
     i0, i1 = dith.from_first_push(6.0)
     ext_sig = _extraction(dith, est, i0, i1)
     if ext_sig is None:
         return []
-    upper, lower, signal, period = ext_sig
+    _fig4(dith, ext_sig, (i0, i1), model, joint, out / "fig4_extraction.png")
+    blocks.append(
+        (
+            "img",
+            "fig4_extraction.png",
+            "Fig. 4: upper and lower one-period means, the extracted signal against "
+            "J^T F of the sensor, the still band and the band used with dither.",
+        )
+    )
+    _fig5(dith, ext_sig[3], model, joint, out / "fig5_dither_control.png")
+    blocks.append(
+        (
+            "img",
+            "fig5_dither_control.png",
+            "Fig. 5: centre and amplitude of the logged torque (five-period means), "
+            "the feedforward, and the torque with the band around gravity.",
+        )
+    )
+    return ["fig4_extraction.png", "fig5_dither_control.png"]
+
+
+def _fig4(
+    dith: RecordingLog,
+    ext_sig: tuple[np.ndarray, np.ndarray, np.ndarray, float],
+    rows: tuple[int, int],
+    model: TorqueModel,
+    joint: int,
+    path: Path,
+) -> None:
+    """Fig. 4 of the rows ``rows`` of the dithered recording: the extraction ``ext_sig``
+    (upper, lower, signal [N·m], period [s]) of the 1-based ``joint`` against J^T F and the
+    model's bands."""
+    upper, lower, signal, _ = ext_sig
     still = model.regimes[STILL.label]
     j = joint - 1
-    rec, m = dith.window(i0, i1)
+    rec, m = dith.window(*rows)
     g, ext = _gravity_and_sensor_torque(rec)
     g, ext, gm = g[m], ext[m], g[m, j]
     db = model.regimes.get(DITHER.label)
@@ -640,21 +673,18 @@ def _dither_figures(
         ext[:, j],
         (float(still.tau_min[j]), float(still.tau_max[j])),
         nb,
-        out / "fig4_extraction.png",
+        path,
         joint,
     )
-    written = ["fig4_extraction.png"]
-    blocks.append(
-        (
-            "img",
-            "fig4_extraction.png",
-            "Fig. 4: upper and lower one-period means, the extracted signal against "
-            "J^T F of the sensor, the still band and the band used with dither.",
-        )
-    )
-    # Fig. 5 shows five-period means, which replay does not write: extracted here, on the
-    # rows shown with five periods of history before them.
+
+
+def _fig5(dith: RecordingLog, period: float, model: TorqueModel, joint: int, path: Path) -> None:
+    """Fig. 5 of the dithered recording around the dither's start (dither ``period`` [s]) for
+    the 1-based ``joint``: five-period means, which replay does not write, extracted here on the
+    rows shown with five periods of history before them."""
     assert dith.dither is not None
+    still = model.regimes[STILL.label]
+    j = joint - 1
     on = np.flatnonzero(dith.dither)
     t_on = dith.t[on[0]] if len(on) else dith.t[0]
     i0, i1 = _span(dith.t, t_on - 1.0, t_on + 6.0)
@@ -665,13 +695,6 @@ def _dither_figures(
         rec.tau, rec.t, period, periods=5, dt=_step(dith.t), waveform=dither_waveform(dith.meta)
     )
     ffw = rec.tau_ffw[m, j] if rec.tau_ffw is not None else None
-    amp_ref = None
-    sim = dith.meta.get("sim", {})
-    frac = (sim.get("params", {}).get("dither", {}) or {}).get("amplitude_fraction")
-    stat = (sim.get("bands", {}) or {}).get("static")
-    if frac is not None and stat is not None:
-        fr = frac[j] if isinstance(frac, list) else frac
-        amp_ref = float(fr) * float(stat[j])
     figs.fig5_dither_control(
         rec.t[m],
         five.centre[m, j],
@@ -680,20 +703,22 @@ def _dither_figures(
         rec.tau[m, j],
         g[m, j],
         (float(still.tau_min[j]), float(still.tau_max[j])),
-        amp_ref,
-        out / "fig5_dither_control.png",
+        _amplitude_reference(dith.meta, j),
+        path,
         joint,
     )
-    written.append("fig5_dither_control.png")
-    blocks.append(
-        (
-            "img",
-            "fig5_dither_control.png",
-            "Fig. 5: centre and amplitude of the logged torque (five-period means), "
-            "the feedforward, and the torque with the band around gravity.",
-        )
-    )
-    return written
+
+
+def _amplitude_reference(meta: dict, j: int) -> float | None:
+    """The simulator's dither amplitude set point [N·m] of 0-based joint ``j`` (its
+    ``amplitude_fraction`` of the static friction), None for a log without them."""
+    sim = meta.get("sim", {})
+    frac = (sim.get("params", {}).get("dither", {}) or {}).get("amplitude_fraction")
+    stat = (sim.get("bands", {}) or {}).get("static")
+    if frac is not None and stat is not None:
+        fr = frac[j] if isinstance(frac, list) else frac
+        return float(fr) * float(stat[j])
+    return None
 
 
 def _step(t: np.ndarray) -> float:

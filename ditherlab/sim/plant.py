@@ -600,6 +600,60 @@ def _advance_joints(h, W, x, w):
         x[X_V, j] = v
 
 
+@njit(cache=True)
+def _motor_side(h, jp, x, u, fscale, kk, w):
+    """Motor side of a plant step of ``h`` [s] under the torque reference ``u`` (n,) [N·m]: gear
+    torque, friction factor (``fscale`` row ``kk``), implicit stick-slip of the rotor
+    (``w.ts``, ``w.mult``, ``w.vnew`` written; the motor's stuck flags in ``x``). A plain
+    compiled call, not inlined (docs/design/sim-kernel.md)."""
+    ts, mult, vnew = w.ts, w.mult, w.vnew
+    n = ts.shape[0]
+    for j in range(n):
+        ts[j] = _gear_torque(
+            jp[KG, j],
+            jp[CG, j],
+            x[X_QM, j],
+            x[X_Q, j],
+            x[X_VM, j],
+            x[X_V, j],
+            jp[LM, j],
+            jp[LMK, j],
+        )
+        band = jp[FS_M, j] + jp[FS_O, j]
+        mult[j] = _load_factor(jp[LOAD, j], band, ts[j]) * fscale[kk, j]
+        ripple = _ripple(jp[RIP_A, j], jp[RIP_F, j], x[X_QM, j])
+        vm = x[X_VM, j]
+        fc = jp[FC_M, j] * mult[j] * _stribeck(vm, jp[STRIB, j], jp[STRIB_V, j])
+        p = jp[JM, j] * vm + h * (u[j] - ts[j] - ripple)
+        fs, fv = jp[FS_M, j] * mult[j], jp[FV_M, j] * fscale[kk, j]
+        vnew[j], stuck = _stick_slip(jp[JM, j], p, h, fs, fc, fv, x[X_SM, j] > 0.5, vm)
+        x[X_SM, j] = 1.0 if stuck else 0.0
+
+
+@njit(cache=True)
+def _link_side(h, sweeps, jp, W, x, fscale, kk, w):
+    """Output side of a plant step of ``h`` [s]: ``sweeps`` projected Gauss-Seidel sweeps on
+    ``W = M^-1`` for the coupled friction torques ``x[X_FO]`` (warm-started), a stick-slip box
+    problem per joint; ``w.tnet`` is spent once ``w.vstar`` is formed and holds the new stuck
+    flags. A plain compiled call, not inlined (docs/design/sim-kernel.md)."""
+    vstar, mult, tnet = w.vstar, w.mult, w.tnet
+    n = vstar.shape[0]
+    for _sw in range(sweeps):
+        for j in range(n):
+            a = vstar[j]
+            for m in range(n):
+                if m != j:
+                    a -= h * W[j, m] * x[X_FO, m]
+            me = 1.0 / W[j, j]
+            p = me * a
+            vo = x[X_V, j]
+            fc = jp[FC_O, j] * mult[j] * _stribeck(vo, jp[STRIB, j], jp[STRIB_V, j])
+            fs, fv = jp[FS_O, j] * mult[j], jp[FV_O, j] * fscale[kk, j]
+            v, stuck = _stick_slip(me, p, h, fs, fc, fv, x[X_SO, j] > 0.5, vo)
+            x[X_FO, j] = (p - me * v) / h
+            tnet[j] = 1.0 if stuck else 0.0
+
+
 def run_kernel(par: Params, dyn: Dynamics, inp: Samples, st: State, out: np.ndarray, k0: int):
     """Advance the plant, servo and dither loops over the K samples of ``inp`` (compiled).
 
@@ -615,7 +669,8 @@ def run_kernel(par: Params, dyn: Dynamics, inp: Samples, st: State, out: np.ndar
     _kernel(*par, *dyn, *inp, *st, out, k0)
 
 
-# Whole and flat: hot-loop helpers and NamedTuple arguments both slow it (docs/design/sim-kernel.md)
+# Flat: numba's dispatcher types a NamedTuple argument in Python, field by field, on every call
+# from Python; inside, rebuilding the objects is free (docs/design/sim-kernel.md)
 @njit(cache=True)
 def _kernel(
     jp, sp, W, gp0, Gp, qp_lin, gc0, Gc, qc_lin, JT, Gam,
@@ -627,12 +682,24 @@ def _kernel(
     dyn = Dynamics(W, gp0, Gp, qp_lin, gc0, Gc, qc_lin, JT, Gam)
     inp = Samples(push, tau_ext, q_ref, dq_ref, kp_on, dcmd, noise, fscale)
     st = State(x, ist, fst, hist)
+    _run_chunk(par, dyn, inp, st, out, k0)
+
+
+@njit(cache=True, inline="always")
+def _run_chunk(par, dyn, inp, st, out, k0):
+    """The step over the chunk's samples: per sample ``SP_NSERVO`` servo ticks (the first logs
+    the sample and runs the dither loops on it), each followed by ``SP_NSUB`` plant steps with
+    its torque reference held: the motor side, the link's free velocity, the Gauss-Seidel
+    sweeps of the link-side friction, the joints advanced. Inlined into :func:`_kernel`; the
+    arrays the loop reads are taken out of the objects before it (docs/design/sim-kernel.md)."""
+    jp, sp, W, x, ist, fst = par.jp, par.sp, dyn.W, st.x, st.ist, st.fst
+    push, dcmd, fscale = inp.push, inp.dcmd, inp.fscale
     n = jp.shape[1]
     z = np.zeros
     w = Scratch(z(n), z(n), z(n), z(n), z(n), z(n), z(n))
+    u = w.u
     h, dts = sp[SP_H], sp[SP_DTS]
     nservo, nsub, sweeps = int(sp[SP_NSERVO]), int(sp[SP_NSUB]), int(sp[SP_SWEEPS])
-    u, ts, mult, vnew, vstar, tnet = w.u, w.ts, w.mult, w.vnew, w.vstar, w.tnet
     for kk in range(push.shape[0]):
         k = k0 + kk
         for i in range(nservo):
@@ -644,49 +711,10 @@ def _kernel(
                 _log_loops(out, k, st)
             if ist[I_MODE] != 0:
                 fst[F_CLOCK] += dts
-            # plant steps with the torque reference u held; the motor side and the
-            # Gauss-Seidel sweeps stay written out here: as inlined helpers numba adds reference
-            # counting of their arguments to this loop, which slows it (docs/design/sim-kernel.md)
             for _ in range(nsub):
-                # motor side: gear torque, friction factor, implicit stick-slip of the rotor
-                for j in range(n):
-                    ts[j] = _gear_torque(
-                        jp[KG, j],
-                        jp[CG, j],
-                        x[X_QM, j],
-                        x[X_Q, j],
-                        x[X_VM, j],
-                        x[X_V, j],
-                        jp[LM, j],
-                        jp[LMK, j],
-                    )
-                    band = jp[FS_M, j] + jp[FS_O, j]
-                    mult[j] = _load_factor(jp[LOAD, j], band, ts[j]) * fscale[kk, j]
-                    ripple = _ripple(jp[RIP_A, j], jp[RIP_F, j], x[X_QM, j])
-                    vm = x[X_VM, j]
-                    fc = jp[FC_M, j] * mult[j] * _stribeck(vm, jp[STRIB, j], jp[STRIB_V, j])
-                    p = jp[JM, j] * vm + h * (u[j] - ts[j] - ripple)
-                    fs, fv = jp[FS_M, j] * mult[j], jp[FV_M, j] * fscale[kk, j]
-                    vnew[j], stuck = _stick_slip(jp[JM, j], p, h, fs, fc, fv, x[X_SM, j] > 0.5, vm)
-                    x[X_SM, j] = 1.0 if stuck else 0.0
+                _motor_side(h, jp, x, u, fscale, kk, w)
                 _free_link_velocity(h, dyn, inp, kk, x, w)
-                # output side: projected Gauss-Seidel on W = M^-1 for the coupled friction
-                # torques x[X_FO] (warm-started), a stick-slip box problem per joint; tnet is
-                # spent once vstar is formed and holds the new stuck flags
-                for _sw in range(sweeps):
-                    for j in range(n):
-                        a = vstar[j]
-                        for m in range(n):
-                            if m != j:
-                                a -= h * W[j, m] * x[X_FO, m]
-                        me = 1.0 / W[j, j]
-                        p = me * a
-                        vo = x[X_V, j]
-                        fc = jp[FC_O, j] * mult[j] * _stribeck(vo, jp[STRIB, j], jp[STRIB_V, j])
-                        fs, fv = jp[FS_O, j] * mult[j], jp[FV_O, j] * fscale[kk, j]
-                        v, stuck = _stick_slip(me, p, h, fs, fc, fv, x[X_SO, j] > 0.5, vo)
-                        x[X_FO, j] = (p - me * v) / h
-                        tnet[j] = 1.0 if stuck else 0.0
+                _link_side(h, sweeps, jp, W, x, fscale, kk, w)
                 _advance_joints(h, W, x, w)
 
 

@@ -33,7 +33,38 @@ def make_blueprint(
     rerun.blueprint.Blueprint
     """
     joints = range(1, n_joints + 1)
-    torque = rrb.Grid(
+    torque = _torque_tab(joints)
+    dither = _dither_tab(joints)
+    residual = _residual_tab(joints)
+    forces = _forces_tab(variants)
+    info = rrb.Tabs(
+        rrb.TextDocumentView(origin="info/recording", name="Recording"),
+        rrb.TextDocumentView(origin="info/diagnosis", name="Diagnosis"),
+        rrb.TextDocumentView(origin="info/history", name="Model history"),
+        rrb.TextDocumentView(origin="info/model", name="Model"),
+        name="Info",
+    )
+    tabs = (
+        [forces, torque, dither, residual, info]
+        if has_wrench or variants
+        else [torque, dither, residual, info]
+    )
+    left = rrb.Vertical(
+        rrb.Spatial3DView(origin="robot", name="Robot and forces"),
+        rrb.TextLogView(origin="/", contents=["/events/**", "/diagnosis/**"], name="Events"),
+        row_shares=[3, 2],
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(left, rrb.Tabs(*tabs), column_shares=[2, 3]),
+        rrb.TimePanel(state="expanded"),
+        collapse_panels=False,
+    )
+
+
+def _torque_tab(joints: range) -> rrb.Grid:
+    """Per joint: tau - gravity against J^T F of the sensor with the bands, and the logged
+    torque."""
+    return rrb.Grid(
         *[
             rrb.Vertical(
                 rrb.TimeSeriesView(
@@ -50,7 +81,12 @@ def make_blueprint(
         ],
         name="Torques",
     )
-    dither = rrb.Grid(
+
+
+def _dither_tab(joints: range) -> rrb.Grid:
+    """Per joint: the extraction and the centre (Figs. 4, 5), the amplitude (Fig. 5), the
+    extracted signal against J^T F and the bands (Fig. 4)."""
+    return rrb.Grid(
         *[
             rrb.Vertical(
                 rrb.TimeSeriesView(
@@ -78,7 +114,11 @@ def make_blueprint(
         ],
         name="Dither (Figs. 4, 5)",
     )
-    residual = rrb.Vertical(
+
+
+def _residual_tab(joints: range) -> rrb.Vertical:
+    """Per joint the residual of every model version, and its RMS per version."""
+    return rrb.Vertical(
         rrb.Grid(
             *[
                 rrb.TimeSeriesView(
@@ -99,32 +139,14 @@ def make_blueprint(
         row_shares=[3, 1],
         name="Residuals",
     )
-    forces = rrb.Vertical(
+
+
+def _forces_tab(variants: Sequence[str]) -> rrb.Vertical:
+    """Per force axis the sensor and the estimates (Figs. 6, 7)."""
+    return rrb.Vertical(
         *[
             rrb.TimeSeriesView(origin=f"force/{a}", name=f"f_{a} [N]: sensor and estimates")
             for a in FORCE_AXES
         ],
         name="Forces (Figs. 6, 7)" + (f": {', '.join(variants)}" if variants else ""),
-    )
-    info = rrb.Tabs(
-        rrb.TextDocumentView(origin="info/recording", name="Recording"),
-        rrb.TextDocumentView(origin="info/diagnosis", name="Diagnosis"),
-        rrb.TextDocumentView(origin="info/history", name="Model history"),
-        rrb.TextDocumentView(origin="info/model", name="Model"),
-        name="Info",
-    )
-    tabs = (
-        [forces, torque, dither, residual, info]
-        if has_wrench or variants
-        else [torque, dither, residual, info]
-    )
-    left = rrb.Vertical(
-        rrb.Spatial3DView(origin="robot", name="Robot and forces"),
-        rrb.TextLogView(origin="/", contents=["/events/**", "/diagnosis/**"], name="Events"),
-        row_shares=[3, 2],
-    )
-    return rrb.Blueprint(
-        rrb.Horizontal(left, rrb.Tabs(*tabs), column_shares=[2, 3]),
-        rrb.TimePanel(state="expanded"),
-        collapse_panels=False,
     )

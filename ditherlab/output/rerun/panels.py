@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -17,7 +18,7 @@ from ditherlab.core.names import DITHER, FORCE_AXES, STILL
 from ditherlab.core.timeseries import causal_mean
 from ditherlab.data.estimates import Estimates
 from ditherlab.data.recording import Recording
-from ditherlab.data.torque_model import TorqueModel
+from ditherlab.data.torque_model import Band, TorqueModel
 from ditherlab.output.rerun.columns import REGIME_COLORS, SENSOR_COLOR, VARIANT_COLORS, ColumnLogger
 from ditherlab.physics import dither
 from ditherlab.physics.dither import (
@@ -161,6 +162,15 @@ def _fig5_group(col: str, n: int) -> tuple[str, str, int] | None:
     return group, name, int(m["j"])
 
 
+#: Fig. 5's colours: the centre, the amplitude, the other dither columns
+_SHADES = {"centre": (40, 110, 230), "amplitude": (230, 130, 30), "other": (120, 120, 120)}
+
+
+def _light(c: tuple[int, ...]) -> tuple[int, ...]:
+    """Colour ``c`` half-way to white (references and commands beside their measured series)."""
+    return tuple(int(x + (255 - x) * 0.5) for x in c)
+
+
 def log_dither(
     log: ColumnLogger,
     rec: Recording,
@@ -177,26 +187,7 @@ def log_dither(
     ``rec`` is a piece (or the whole recording) and ``keep`` its owned rows; ``g``, ``tb`` (L, n)
     [N·m] on all its rows; ``estimates`` the owned rows' estimates; ``period`` [s] the whole
     recording's dither period (:func:`dither_period`), None without dither."""
-    ffw = rec.tau_ffw
-    if ffw is not None:
-        for j in range(rec.n):
-            log.series(
-                f"joints/{j + 1}/dither/ffw",
-                ffw[keep, j],
-                names="tau_ffw",
-                colors=[[150, 150, 150]],
-            )
-    shades = {"centre": (40, 110, 230), "amplitude": (230, 130, 30), "other": (120, 120, 120)}
-    for col in rec.data.columns:
-        hit = _fig5_group(str(col), rec.n)
-        if hit is None:
-            continue
-        group, name, j = hit
-        light = "ref" in name or "ffw" in name or "cmd" in name
-        c = shades[group] if not light else tuple(int(x + (255 - x) * 0.5) for x in shades[group])
-        vals = pd.to_numeric(rec.data[col].iloc[keep], errors="coerce").to_numpy(dtype=float)
-        log.series(f"joints/{j}/dither/{group}/{name}", vals, names=name, colors=[c], step=True)
-
+    _log_fig5_columns(log, rec, keep)
     d = estimates.data if estimates is not None else None
     have = d is not None and all(f"extract/{s}_1" in d.columns for s in EXTRACT_SIGNALS)
     if period is None:
@@ -214,10 +205,14 @@ def log_dither(
     # Dither quantities mean something only where the dither was on over the whole window; NaN
     # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
     on = _dither_window_on(rec, window)[keep]
-    off = ~on
-    g, tau, tb = g[keep], rec.tau[keep], tb[keep]
-    # The simulator states its amplitude set-points (the reference of Fig. 5) in the metadata.
-    setpoint = ((rec.meta.get("sim") or {}).get("dither_amplitudes") or {}).get("set_point")
+    rows = _DitherRows(
+        centre, g[keep], rec.tau[keep], tb[keep], on, ~on,
+        # the simulator states its amplitude set-points (the reference of Fig. 5) in its metadata
+        ((rec.meta.get("sim") or {}).get("dither_amplitudes") or {}).get("set_point"),
+        # the paper's rule (Fig. 4) for a model without a dither band
+        still if still is not None and (model is None or DITHER.label not in model.regimes)
+        else None,
+    )  # fmt: skip
     for j in range(1, rec.n + 1):
         sig: dict[str, np.ndarray] = {}
         for s in EXTRACT_SIGNALS:
@@ -226,58 +221,126 @@ def log_dither(
                 sig[s] = d[f"extract/{s}_{j}"].to_numpy(dtype=float)
             else:
                 sig[s] = getattr(ext, s)[keep, j - 1]
-        # upper, lower, signal, the window mean (Fig. 5's measured centre) and its reference, the
-        # gravity torque, share one entity (same units, scale and time base: one time column and
-        # row id for five series).
-        light = tuple(int(x + (255 - x) * 0.5) for x in shades["centre"])
-        log.series(
-            f"joints/{j}/extract",
-            np.where(
-                off[:, None],
-                np.nan,
-                np.column_stack(
-                    [sig[s] for s in EXTRACT_SIGNALS] + [centre[:, j - 1], g[:, j - 1]]
-                ),
+        amp = _log_extraction_joint(log, rows, sig, j)
+        _log_fig4_joint(log, rows, sig, amp, j)
+
+
+def _log_fig5_columns(log: ColumnLogger, rec: Recording, keep: slice) -> None:
+    """The dither's feedforward and the recording's own Fig. 5 columns (centre, amplitude,
+    their references and commands) on the owned rows ``keep``."""
+    ffw = rec.tau_ffw
+    if ffw is not None:
+        for j in range(rec.n):
+            log.series(
+                f"joints/{j + 1}/dither/ffw",
+                ffw[keep, j],
+                names="tau_ffw",
+                colors=[[150, 150, 150]],
+            )
+    for col in rec.data.columns:
+        hit = _fig5_group(str(col), rec.n)
+        if hit is None:
+            continue
+        group, name, j = hit
+        light = "ref" in name or "ffw" in name or "cmd" in name
+        c = _SHADES[group] if not light else _light(_SHADES[group])
+        vals = pd.to_numeric(rec.data[col].iloc[keep], errors="coerce").to_numpy(dtype=float)
+        log.series(f"joints/{j}/dither/{group}/{name}", vals, names=name, colors=[c], step=True)
+
+
+class _DitherRows(NamedTuple):
+    """The owned rows of a piece, for every joint's dither panels: the window mean ``centre``,
+    gravity ``g``, torque ``tau`` and the estimator's torque ``tb`` (M, n) [N·m]; where the
+    dither was on over the whole window (``on``) and not (``off``) (M,); the simulator's
+    amplitude set-points (n,) [N·m] or None; the still band to shrink by the paper's rule, or
+    None (the model has a dither band, or no still band)."""
+
+    centre: np.ndarray
+    g: np.ndarray
+    tau: np.ndarray
+    tb: np.ndarray
+    on: np.ndarray
+    off: np.ndarray
+    setpoint: list[float] | None
+    shrink: Band | None
+
+
+def _log_extraction_joint(
+    log: ColumnLogger, rows: _DitherRows, sig: Mapping[str, np.ndarray], j: int
+) -> np.ndarray:
+    """Joint ``j``'s (1-based) extraction ``sig`` (upper, lower, signal) beside the window mean
+    and gravity, and the extracted amplitude beside its set-point; returns the amplitude (M,)
+    [N·m]."""
+    off = rows.off
+    # upper, lower, signal, the window mean (Fig. 5's measured centre) and its reference, the
+    # gravity torque, share one entity (same units, scale and time base: one time column and
+    # row id for five series).
+    log.series(
+        f"joints/{j}/extract",
+        np.where(
+            off[:, None],
+            np.nan,
+            np.column_stack(
+                [sig[s] for s in EXTRACT_SIGNALS] + [rows.centre[:, j - 1], rows.g[:, j - 1]]
             ),
-            names=[*EXTRACT_SIGNALS, "centre (window mean)", "centre reference (gravity)"],
-            colors=[[220, 50, 50], [40, 170, 60], [0, 0, 0], shades["centre"], light],
-            widths=[1.0, 1.0, 2.0, 2.0, 1.5],
-        )
-        amp = (sig["upper"] - sig["lower"]) / 2
+        ),
+        names=[*EXTRACT_SIGNALS, "centre (window mean)", "centre reference (gravity)"],
+        colors=[
+            [220, 50, 50],
+            [40, 170, 60],
+            [0, 0, 0],
+            _SHADES["centre"],
+            _light(_SHADES["centre"]),
+        ],
+        widths=[1.0, 1.0, 2.0, 2.0, 1.5],
+    )
+    amp = (sig["upper"] - sig["lower"]) / 2
+    log.series(
+        f"joints/{j}/dither/amplitude/extracted",
+        np.where(off, np.nan, amp),
+        names="amplitude (extracted)",
+        colors=[_SHADES["amplitude"]],
+        widths=2.0,
+    )
+    if rows.setpoint is not None and j <= len(rows.setpoint):
         log.series(
-            f"joints/{j}/dither/amplitude/extracted",
-            np.where(off, np.nan, amp),
-            names="amplitude (extracted)",
-            colors=[shades["amplitude"]],
-            widths=2.0,
+            f"joints/{j}/dither/amplitude/set_point",
+            np.where(off, np.nan, float(rows.setpoint[j - 1])),
+            names="amplitude set-point",
+            colors=[_light(_SHADES["amplitude"])],
+            widths=1.5,
         )
-        if setpoint is not None and j <= len(setpoint):
-            log.series(
-                f"joints/{j}/dither/amplitude/set_point",
-                np.where(off, np.nan, float(setpoint[j - 1])),
-                names="amplitude set-point",
-                colors=[tuple(int(x + (255 - x) * 0.5) for x in shades["amplitude"])],
-                widths=1.5,
-            )
-        # Fig. 4, lower: the extracted signal in the estimator's units (gravity and effects off).
-        offset = tau[:, j - 1] - tb[:, j - 1]  # gravity + effects [N·m]
+    return amp
+
+
+def _log_fig4_joint(
+    log: ColumnLogger,
+    rows: _DitherRows,
+    sig: Mapping[str, np.ndarray],
+    amp: np.ndarray,
+    j: int,
+) -> None:
+    """Fig. 4, lower, of joint ``j`` (1-based): the extracted signal in the estimator's units
+    (gravity and effects off), and the still band shrunk by the amplitude ``amp`` (M,) [N·m]."""
+    offset = rows.tau[:, j - 1] - rows.tb[:, j - 1]  # gravity + effects [N·m]
+    log.series(
+        f"joints/{j}/fig4/signal_bar",
+        np.where(rows.off, np.nan, sig["signal"] - offset),
+        names="extracted signal - gravity",
+        colors=[[200, 0, 200]],
+        widths=2.0,
+    )
+    if rows.shrink is not None:
+        # The paper's rule (Fig. 4): the still band shrunk by the dither amplitude on each
+        # side, where the dither was on over the whole window; the still band elsewhere.
+        still = rows.shrink
+        lo, hi = dithered_band(still.tau_min[j - 1], still.tau_max[j - 1], amp, on=rows.on)
         log.series(
-            f"joints/{j}/fig4/signal_bar",
-            np.where(off, np.nan, sig["signal"] - offset),
-            names="extracted signal - gravity",
-            colors=[[200, 0, 200]],
-            widths=2.0,
+            f"joints/{j}/band/dither_shrunk",
+            np.column_stack([lo, hi]),
+            names=["shrunk band min", "shrunk band max"],
+            colors=[REGIME_COLORS[DITHER.label]] * 2,
         )
-        if still is not None and (model is None or DITHER.label not in model.regimes):
-            # The paper's rule (Fig. 4): the still band shrunk by the dither amplitude on each
-            # side, where the dither was on over the whole window; the still band elsewhere.
-            lo, hi = dithered_band(still.tau_min[j - 1], still.tau_max[j - 1], amp, on=on)
-            log.series(
-                f"joints/{j}/band/dither_shrunk",
-                np.column_stack([lo, hi]),
-                names=["shrunk band min", "shrunk band max"],
-                colors=[REGIME_COLORS[DITHER.label]] * 2,
-            )
 
 
 def _dither_window_on(rec: Recording, window: int) -> np.ndarray:

@@ -56,7 +56,8 @@ Entity layout (``j`` = 1..n, ``a`` = x, y, z, ``V`` = estimator variant)::
                                 simulator's own; detections per variant; worst windows)
     info/recording, info/model, info/history, info/diagnosis    text documents (static)
 
-Forces are the wrench the robot exerts on its environment (RECORDING.md): a push P shows as -P.
+Forces are the wrench the robot exerts on its environment (``docs/recording-format.md``): a push
+P shows as -P.
 
 Series that stay constant over runs of samples (dither extraction, loop outputs, estimates held
 at the prior) are thinned losslessly: a sample is dropped only when it equals both neighbours, so
@@ -69,6 +70,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +112,7 @@ __all__ = [
     "TIMELINE",
     "VARIANT_COLORS",
     "WEB_PORT",
+    "PiecesView",
     "ViewRequest",
     "ViewSummary",
     "check_estimates_match",
@@ -192,36 +195,66 @@ def log_view(
     )
 
 
+@dataclass(frozen=True)
+class PiecesView:
+    """A recording read in pieces and what its view shows.
+
+    Attributes
+    ----------
+    src : the recording, read ``chunk_rows`` rows at a time
+    head : its first rows with its time base (:func:`ditherlab.output.rerun.inputs.
+        load_view_request`)
+    estimates : its estimates, read in blocks of the pieces' rows (checked against the
+        recording by the caller)
+    model, diagnosis : as for :func:`log_view`
+    rate_3d : [Hz] rate of the 3D entities; None = every sample
+    series_rate : [1/s] the time series' envelope bins per second; None = every sample
+    chunk_rows : rows of a piece
+    """
+
+    src: Source
+    head: Recording
+    estimates: EstimatesSource | None = None
+    model: TorqueModel | None = None
+    diagnosis: DiagnosisLike | None = None
+    rate_3d: float | None = 25.0
+    series_rate: float | None = None
+    chunk_rows: int = CHUNK_ROWS
+
+    def stream(self) -> rr.RecordingStream:
+        """A RecordingStream whose id is derived from the inputs (:func:`new_stream`)."""
+        return _stream(
+            json.dumps(self.src.meta, sort_keys=True), self.src.times(), self.estimates, self.model
+        )
+
+    def blueprint(self) -> rrb.Blueprint:
+        """The view's layout (:func:`~ditherlab.output.rerun.blueprint.make_blueprint`)."""
+        variants = self.estimates.variants if self.estimates else []
+        return make_blueprint(self.head.n, variants, has_wrench=self.head.has_wrench)
+
+
 def log_view_pieces(
-    src: Source,
+    view: PiecesView,
     stream: rr.RecordingStream,
     *,
-    head: Recording,
-    estimates: EstimatesSource | None = None,
-    model: TorqueModel | None = None,
-    diagnosis: DiagnosisLike | None = None,
-    rate_3d: float | None = 25.0,
     force_scale: float = 0.005,
-    chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
-    series_rate: float | None = None,
 ) -> ViewSummary:
-    """:func:`log_view` of a recording read in pieces of ``chunk_rows`` rows
-    (:func:`ditherlab.output.rerun.pieces.log_pieces`): the same rows and values, memory for one piece
-    (and 8 bytes per sample for the time stamps). ``head``: the recording's first rows with its
-    time base (:func:`ditherlab.output.rerun.inputs.load_view_request`); ``estimates`` checked against
-    the recording by the caller."""
+    """:func:`log_view` of a recording read in pieces (``view``,
+    :func:`ditherlab.output.rerun.pieces.log_pieces`): the same rows and values, memory for one
+    piece (and 8 bytes per sample for the time stamps)."""
     if progress is not None:
         progress(0, 1)
-    whole = WholeView.of_source(src, head, estimates, rate_3d, chunk_rows)
-    whole.series_rate = series_rate
+    v = view
+    whole = WholeView.of_source(v.src, v.head, v.estimates, v.rate_3d, v.chunk_rows)
+    whole.series_rate = v.series_rate
     return log_pieces(
         stream,
         whole,
-        src.pieces(chunk_rows),
-        estimates=estimates,
-        model=model,
-        diagnosis=diagnosis,
+        v.src.pieces(v.chunk_rows),
+        estimates=v.estimates,
+        model=v.model,
+        diagnosis=v.diagnosis,
         force_scale=force_scale,
         progress=progress,
     )
@@ -288,35 +321,20 @@ def save_view(
 
 
 def save_view_pieces(
-    src: Source,
+    view: PiecesView,
     path: str | Path,
     *,
-    head: Recording,
-    estimates: EstimatesSource | None = None,
-    model: TorqueModel | None = None,
-    diagnosis: DiagnosisLike | None = None,
     inputs: Sequence[str | Path] = (),
-    rate_3d: float | None = 25.0,
-    chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
-    series_rate: float | None = None,
 ) -> ViewSummary:
     """Write the view of a recording read in pieces to an ``.rrd`` file as the pieces come
     (Rerun's file sink streams; the file is renamed into place at the end); see
     :func:`log_view_pieces`. Raises DitherlabError when ``path`` is one of ``inputs``."""
-    out = _check_out(path, [*inputs, src.name])
-    stream = _stream(json.dumps(src.meta, sort_keys=True), src.times(), estimates, model)
-    variants = estimates.variants if estimates else []
-    bp = make_blueprint(head.n, variants, has_wrench=head.has_wrench)
-    kw = {"estimates": estimates, "model": model, "diagnosis": diagnosis, "rate_3d": rate_3d}
-    kw["series_rate"] = series_rate
-
-    def log() -> ViewSummary:
-        return log_view_pieces(
-            src, stream, head=head, chunk_rows=chunk_rows, progress=progress, **kw
-        )
-
-    return _save(out, stream, bp, log)
+    out = _check_out(path, [*inputs, view.src.name])
+    stream = view.stream()
+    return _save(
+        out, stream, view.blueprint(), lambda: log_view_pieces(view, stream, progress=progress)
+    )
 
 
 def _check_out(path: str | Path, inputs: Sequence[str | Path]) -> Path:
@@ -373,35 +391,16 @@ def show_view(
 
 
 def show_view_pieces(
-    src: Source,
+    view: PiecesView,
     *,
-    head: Recording,
     mode: str = "spawn",
-    estimates: EstimatesSource | None = None,
-    model: TorqueModel | None = None,
-    diagnosis: DiagnosisLike | None = None,
-    rate_3d: float | None = 25.0,
-    chunk_rows: int = CHUNK_ROWS,
     progress: Callable[[int, int], None] | None = None,
-    series_rate: float | None = None,
 ) -> tuple[ViewSummary, str | None]:
     """:func:`show_view` of a recording read in pieces (:func:`log_view_pieces`); returns what
     was logged and the web viewer's URL (``mode="serve"``)."""
-    stream = _stream(json.dumps(src.meta, sort_keys=True), src.times(), estimates, model)
-    variants = estimates.variants if estimates else []
-    url = _connect(stream, make_blueprint(head.n, variants, has_wrench=head.has_wrench), mode)
-    summary = log_view_pieces(
-        src,
-        stream,
-        head=head,
-        estimates=estimates,
-        model=model,
-        diagnosis=diagnosis,
-        rate_3d=rate_3d,
-        chunk_rows=chunk_rows,
-        series_rate=series_rate,
-        progress=progress,
-    )
+    stream = view.stream()
+    url = _connect(stream, view.blueprint(), mode)
+    summary = log_view_pieces(view, stream, progress=progress)
     stream.flush()
     return summary, url
 
