@@ -180,7 +180,8 @@ def test_never_still_report_refuses(cli, base, tmp_path):
     assert_refused(
         run(cli, "report", est, "-o", tmp_path / "rep", "-q"),
         f"{est}: 4 pushes but no rest (the robot never stands still more than 1 s from a "
-        "push); the noise level that every detection is judged against is measured at rest",
+        "push); the noise level that every detection is judged against is measured at rest; "
+        "for the force error of a log without push experiments: ditherlab diagnose REC --model M",
     )
     assert not (tmp_path / "rep").exists()
     assert_ok(run(cli, "diagnose", p, "--model", m, "-q", "--no-history"))

@@ -186,7 +186,7 @@ def test_functions_are_short_and_take_few_parameters():
 
 def test_the_exemptions_still_hold():
     """Every entry of EXCEPTIONS and USER_OPTIONS names a function that exists and still
-    exceeds the limit it is excused from (a stale entry is removed, not kept)."""
+    exceeds the limit it is excused from (a stale entry is removed from the list)."""
     funcs = {f.key: f for f in all_functions()[0]}
     stale = []
     for key in EXCEPTIONS:

@@ -413,7 +413,8 @@ def analyse(
             raise RecordingError(
                 f"{src.name or 'estimates'}: {len(pushes)} pushes but no rest (the robot never "
                 f"stands still more than {rest_margin:g} s from a push); the noise level that "
-                "every detection is judged against is measured at rest"
+                "every detection is judged against is measured at rest; for the force error "
+                "of a log without push experiments: ditherlab diagnose REC --model M"
             )
         if pushes:
             f = _File(src, t, pushes, rest, rec_out["dithered"])
