@@ -1,4 +1,5 @@
-"""The package's shape: dependencies run one way, imports at the top, no module too long.
+"""The package's shape: every folder a layer, dependencies run one way, imports at the top,
+unique module names, and the estimator standalone (function size: test_function_size.py).
 
 Reads the source with ``ast`` (nothing is imported): every ``import ditherlab...`` /
 ``from ditherlab... import`` of a library module, outside ``if TYPE_CHECKING:`` blocks. A new
