@@ -61,7 +61,7 @@ def run(quick: bool = False) -> list[dict]:
     n = len(rec)
     # the reference in the same run: the same replay with the profile intervals of the reference
     # kernel (a refactorisation per path segment)
-    ivl = sys.modules["ditherlab.estimator.intervals"]
+    ivl = sys.modules["ditherlab.estimator.interval_methods"]
     fast = ivl._profile
     ivl._profile = lambda prob, Fm, level, progress=None: profile_reference(prob, Fm, level)
     try:
