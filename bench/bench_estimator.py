@@ -98,7 +98,6 @@ def _square_paths(prob) -> list[dict]:
     """The torque coordinates' kernel alone (``square_block``) with the lockstep passes and one
     sample at a time, alternated, CPU time, best of three each."""
     from ditherlab.estimator.interval_methods import set_membership as S
-
     from ditherlab.estimator.interval_methods.sm_arrays import Bounds, SMProblem, square_state
     from ditherlab.estimator.interval_methods.sm_square import square_block
 

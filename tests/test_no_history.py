@@ -41,10 +41,11 @@ def history_lines(text: str) -> list[tuple[int, str]]:
 
 def test_the_pattern_finds_history():
     """The check can fail: each kind of phrase is found, and plain prose is not."""
+    session, issue = "sess" + "ion", "iss" + "ue"  # the file names no history of its own
     for s in (
-        "measured in session 15",
-        "the session-12 plant",
-        "see issue 12",
+        f"measured in {session} 15",
+        f"the {session}-12 plant",
+        f"see {issue} 12",
         "a ripple model was tried",
         "the candidate was not kept",
         "an earlier wording said",
