@@ -849,3 +849,30 @@ def test_joint_held_at_its_edge_by_tiny_noise_is_released():
     ref = E.estimate(**args, backend="quadprog")
     np.testing.assert_allclose(ex.F, ref.F, atol=1e-6)
     assert not ex.active[0, 2]
+
+
+@pytest.mark.parametrize("held", [False, True])
+def test_kernels_see_one_array_type_whatever_the_inputs_flags(held):
+    """Read-only inputs (broadcast views, Arrow-backed columns) and per-sample bands give the
+    problem the same numba array types as fresh per-joint arrays: numba compiles one kernel
+    specialisation per combination of array types (minutes each), so a second one is a defect."""
+    import dataclasses
+
+    from numba import typeof
+
+    args, _ = model_data(3, N=50)
+    comps = ["f_x", "f_y", "f_z"] if held else None
+    plain = E.problem(**args, components=comps)
+    ro = dict(args)
+    for key in ("tau_bar", "J"):
+        ro[key] = args[key].copy()
+        ro[key].flags.writeable = False
+    for key in ("tau_min", "tau_max", "sigma"):  # per-sample, contiguous and read-only
+        ro[key] = np.tile(np.asarray(args[key], float), (len(args["tau_bar"]), 1))
+        ro[key].flags.writeable = False
+    other = E.problem(**ro, components=comps)
+    for f in dataclasses.fields(plain):
+        a, b = getattr(plain, f.name), getattr(other, f.name)
+        if isinstance(a, np.ndarray):
+            assert typeof(a) == typeof(b), (f.name, typeof(a), typeof(b))
+            assert b.flags.writeable and b.flags.c_contiguous, f.name

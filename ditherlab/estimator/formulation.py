@@ -188,7 +188,18 @@ def _per_sample(name: str, x, N: int, n: int) -> np.ndarray:
         raise ConfigError(
             f"estimator: {name} has shape {a.shape}; expected ({n},) or ({N}, {n}) to match tau_bar"
         )
-    return np.ascontiguousarray(np.broadcast_to(a, (N, n)))
+    return kernel_array(np.broadcast_to(a, (N, n)))
+
+
+def kernel_array(x) -> np.ndarray:
+    """``x`` as a C-contiguous, writable float array (copied only when it is not one already).
+
+    numba compiles one specialisation of a kernel per combination of its arrays' types, and a
+    read-only array (a broadcast view, an Arrow-backed column) is a type of its own: each new
+    combination costs minutes of compilation. Every array a :class:`Problem` hands to the kernels
+    goes through here, so one compiled signature serves every input.
+    """
+    return np.require(x, dtype=float, requirements=["C", "W"])
 
 
 def _component_indices(components: Sequence[str] | None) -> np.ndarray:
@@ -320,13 +331,13 @@ def problem(
     # The held components' torque moves into tau_bar:  tau_bar - J_held^T F_bar_held.
     if len(held):
         tb_red = tb - np.einsum("kin,i->kn", Jx[:, held, :], fbar[held])
-        Jf = np.ascontiguousarray(Jx[:, free, :])
-    else:  # all six estimated: no copies
-        tb_red, Jf = np.ascontiguousarray(tb), np.ascontiguousarray(Jx)
+        Jf = kernel_array(Jx[:, free, :])
+    else:  # all six estimated: no copies of contiguous, writable inputs
+        tb_red, Jf = tb, kernel_array(Jx)
     w = 1.0 / s**2
     p, p_true = _prior_weights(psig, free, Jf, w)
     return Problem(
-        tau_bar=np.ascontiguousarray(tb_red),
+        tau_bar=kernel_array(tb_red),
         J=Jf,
         tau_min=a,
         tau_max=b,
