@@ -108,7 +108,7 @@ def _one_line_errors(call: Callable[[], Any]) -> Any:
     except UsageErrors.ClickException as exc:
         typer.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
         sys.exit(exc.exit_code)
-    except UsageErrors.Abort:
+    except typer.Abort:  # Ctrl-C at a prompt
         typer.echo("aborted", err=True)
         sys.exit(1)
 

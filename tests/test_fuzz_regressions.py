@@ -386,3 +386,44 @@ def test_damaged_estimates_file_is_one_line_and_checked(tmp_path):
     p.write_bytes(bytes(data))
     with pytest.raises(FormatError, match=r"^\S+: not a readable Parquet file, .*CRC checksum"):
         Estimates.load(p)
+
+
+# ------------------------------------------------------------------ a header and no rows
+def test_a_csv_of_its_header_line_only_is_one_line_everywhere(cli, tmp_path):
+    """A CSV holding only its header line: every command that reads it (info, replay, convert,
+    identify, view) says in one line that it holds no samples, exit 2, and writes nothing."""
+    from ditherlab.data.torque_model import Band, TorqueModel
+
+    csv = tmp_path / "empty.csv"
+    csv.write_text("t," + ",".join(f"q_{j}" for j in range(1, 7)) + ","
+                   + ",".join(f"tau_{j}" for j in range(1, 7)) + "\n")  # fmt: skip
+    model = tmp_path / "m.toml"
+    band = Band(-np.ones(6), np.ones(6), np.full(6, 0.1))
+    TorqueModel("irb140", 6, regimes={"moving": band, "still": band}).save(model)
+    before = {p.name for p in tmp_path.iterdir()}
+    runs = [
+        ["info", csv, "--robot", "irb140"],
+        ["replay", csv, "--robot", "irb140", "--model", model, "-o", tmp_path / "e.parquet", "-q"],
+        ["convert", csv, tmp_path / "c.parquet", "--robot", "irb140"],
+        ["identify", csv, "--robot", "irb140", "--assume-no-force", "-o", tmp_path / "i.toml", "-q"],
+        ["view", csv, "--robot", "irb140", "--save", tmp_path / "v.rrd", "-q"],
+    ]  # fmt: skip
+    for args in runs:
+        line = one_error(cli, *args)
+        assert line == (
+            f"error: {csv}: the recording holds no samples (its columns and no rows); "
+            "expected at least one row of data"
+        ), (args[0], line)
+    assert {p.name for p in tmp_path.iterdir()} == before
+
+
+def test_an_unexpected_error_is_its_own_traceback(monkeypatch):
+    """A bug (an exception that is not the user's) reaches Python as itself: the CLI's one-line
+    handler matches its clauses without raising an error of its own on the way."""
+    from ditherlab import cli as cli_module
+
+    def boom():
+        raise ZeroDivisionError("a bug")
+
+    with pytest.raises(ZeroDivisionError, match="a bug"):
+        cli_module._one_line_errors(boom)

@@ -118,6 +118,11 @@ class Source:
         # (report, view): a repeated name would come back 2-D, a missing one unnoticed
         joint_columns(self.columns, f"{self.name}: ")
         wrench_columns(self.columns, f"{self.name}: ")
+        if self.n_rows == 0:
+            raise RecordingError(
+                f"{self.name}: the recording holds no samples (its columns and no rows); "
+                "expected at least one row of data"
+            )
 
     # ------------------------------------------------------------------ reading
     def frames(self, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
