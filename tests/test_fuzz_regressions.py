@@ -280,12 +280,15 @@ def test_bag_record_longer_than_the_file_is_one_line(cli, tmp_path, rec):
 def test_csv_whose_header_lost_a_comma_is_one_line(cli, tmp_path, rec):
     """``t,q_1`` written as ``tq_1``: the rows have one field more than the header, and pandas,
     asked for the first column only to count the rows, fails inside (a ValueError traceback
-    "zip() argument 2 is shorter than argument 1"); the missing t is named instead."""
+    "zip() argument 2 is shorter than argument 1"); the field counts are named instead."""
     p = tmp_path / "a.csv"
     dio.write(rec, p)
     text = p.read_text()
     p.write_text(text[:1] + text[2:])
-    assert one_error(cli, "info", p) == f"error: {p}: required column t is missing"
+    assert one_error(cli, "info", p) == (
+        f"error: {p}: line 2 has 13 fields but the header line has 12; expected one field per "
+        "column name on every line"
+    )
 
 
 def test_csv_first_line_wider_than_the_header_is_refused(cli, tmp_path, rec):
@@ -427,3 +430,17 @@ def test_an_unexpected_error_is_its_own_traceback(monkeypatch):
 
     with pytest.raises(ZeroDivisionError, match="a bug"):
         cli_module._one_line_errors(boom)
+
+
+def test_a_first_data_line_of_200000_fields_is_one_line(cli, tmp_path):
+    """A first data line far longer than the header: counted before pandas reads the file (which
+    would build an index of the 199 997 extra fields, for minutes), named in one line."""
+    p = tmp_path / "wide.csv"
+    p.write_text("t,q_1,tau_1\n" + ",".join(["1.0"] * 200_000) + "\n")
+    before = p.read_bytes()
+    line = one_error(cli, "info", p, "--robot", "irb140")
+    assert line == (
+        f"error: {p}: line 2 has 200000 fields but the header line has 3; "
+        "expected one field per column name on every line"
+    )
+    unchanged(p, before)
