@@ -282,3 +282,48 @@ def test_numerical_warnings_never_precede_an_error(cli, monkeypatch):
         monkeypatch.setattr(info, "describe", warn_then_work)
         res = cli("info", SAMPLE)
     assert res.code == 0 and numpy_warned(caught)  # released after the success
+
+
+def _writer_process(target: Path):
+    """A process holding an atomic write of ``target`` open (its temporary file made)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, time\n"
+        "from ditherlab.core.files import atomic_path\n"
+        "with atomic_path(sys.argv[1]) as tmp:\n"
+        "    tmp.write_bytes(b'partial')\n"
+        "    print(tmp, flush=True)\n"
+        "    time.sleep(600)\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, str(target)], stdout=subprocess.PIPE, text=True
+    )
+    return proc, Path(proc.stdout.readline().strip())
+
+
+def test_a_killed_writers_temporary_file_is_cleared_by_the_next_write(tmp_path):
+    """``kill -9`` during a write leaves the hidden temporary file; the next write of the same
+    target removes it, and never the temporary file of a writer that still runs."""
+    import signal
+
+    from ditherlab.core.files import atomic_path
+
+    target = tmp_path / "est.parquet"
+    killed, left = _writer_process(target)
+    running, live = _writer_process(target)
+    try:
+        killed.send_signal(signal.SIGKILL)
+        killed.wait()
+        assert left.exists() and live.exists() and left.name.startswith(".est.parquet.")
+        other = tmp_path / ".est.parquet.notes.txt"  # not of the pattern: never touched
+        other.write_text("x")
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b"whole")
+        assert not left.exists(), "the killed writer's temporary file stayed"
+        assert live.exists() and other.exists()
+        assert target.read_bytes() == b"whole"
+    finally:
+        running.kill()
+        running.wait()

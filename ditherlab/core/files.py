@@ -6,8 +6,10 @@ A crash never leaves half a file, and no command may write over one of its input
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import os
+import re
 import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -208,15 +210,18 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; on success rename it to ``path``.
 
     The temporary file keeps the target's suffix (writers dispatch on it). On an exception the
-    temporary file is removed and ``path`` is untouched.
+    temporary file is removed and ``path`` is untouched. Its name holds the writing process's
+    id (``.NAME.PID.XXXXXXXX.SUFFIX``): a process killed outright (``kill -9``) cannot remove
+    its own, and the next write of the same target clears those whose process no longer runs
+    on this machine (:func:`clear_stale_temporaries`).
     """
     target = Path(path)
+    suffix = suffix if suffix is not None else target.suffix
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
+        clear_stale_temporaries(target, suffix)
         fd, tmp = tempfile.mkstemp(
-            prefix=f".{target.name}.",
-            suffix=suffix if suffix is not None else target.suffix,
-            dir=target.parent,
+            prefix=f".{target.name}.{os.getpid()}.", suffix=suffix, dir=target.parent
         )
     except OSError as exc:  # a file in the way, no permission, read-only: one line
         raise DitherlabError(f"{target}: cannot write ({exc.strerror or exc})") from None
@@ -230,6 +235,35 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def clear_stale_temporaries(target: Path, suffix: str) -> list[Path]:
+    """Remove the temporary files :func:`atomic_path` left beside ``target`` in processes that
+    no longer run (a ``kill -9``, a power cut): only names of exactly its pattern, and only when
+    the process id in the name is not a live process here. Returns the paths removed."""
+    pattern = re.compile(
+        re.escape(f".{target.name}.") + r"(\d+)\.[a-z0-9_]{8}" + re.escape(suffix) + r"\Z"
+    )
+    removed = []
+    for p in target.parent.glob(f".{glob.escape(target.name)}.*"):
+        m = pattern.match(p.name)
+        if m is None or _process_runs(int(m.group(1))) or not p.is_file():
+            continue
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+            removed.append(p)
+    return removed
+
+
+def _process_runs(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (a process of another user counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
 
 
 @contextlib.contextmanager
