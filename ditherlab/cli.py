@@ -227,6 +227,15 @@ def convert(
     robot: RobotOpt = None,
     chunk: Chunk = None,
     force: Force = False,
+    known_load: Annotated[
+        str | None,
+        typer.Option(
+            "--known-load",
+            metavar="MASS[@X,Y,Z]",
+            help="A known load at the tool [kg; centre of mass in m, tool frame], stored in the "
+            "output's metadata: replay and report compare the estimate with its wrench.",
+        ),
+    ] = None,
 ) -> None:
     """Convert a recording to another format.
 
@@ -235,7 +244,12 @@ def convert(
     from ditherlab.app import convert as cmd
 
     opts = cmd.ConvertOptions(
-        src=src, dst=dst, read=_read(mapping, robot), force=force, **_chunk(chunk)
+        src=src,
+        dst=dst,
+        read=_read(mapping, robot),
+        force=force,
+        known_load=known_load,
+        **_chunk(chunk),
     )
     _show(cmd.run(opts))
 
