@@ -39,6 +39,7 @@ __all__ = [
     "KNOWN_PREFIX",
     "ReferenceSums",
     "known_columns",
+    "known_load_analysis",
     "known_load_of",
     "known_load_text",
     "known_wrench",
@@ -182,3 +183,32 @@ class ReferenceSums:
             if v in self.sse
         }
         return {"samples": self.n, "reference_mean": (self.ref_sum / n).tolist(), "variants": per}
+
+
+def known_load_analysis(ests: Sequence[Any], chunk_rows: int) -> dict[str, Any] | None:
+    """The estimate against the known load in each estimates file that holds its wrench.
+
+    Parameters
+    ----------
+    ests : :class:`ditherlab.data.estimates.EstimatesSource` of the files
+    chunk_rows : rows read at a time
+
+    Returns
+    -------
+    ``{"files": [{"file", "load": {"mass", "com"}, "samples", "reference_mean": (6,),
+    "variants": {V: {"rms", "bias", "coverage"}}}]}`` (:meth:`ReferenceSums.result`), or None
+    when no file declares a known load.
+    """
+    files = []
+    cols = [KNOWN_PREFIX + c for c in WRENCH_COLUMNS]
+    for e in ests:
+        load = known_load_of(e.meta.get("recording"))
+        if load is None or cols[0] not in e.columns:
+            continue
+        sums = ReferenceSums(KNOWN_PREFIX)
+        for block in e.blocks(chunk_rows):
+            sums.add(block, e.variants)
+        res = sums.result()
+        if res is not None:
+            files.append({"file": e.name, "load": load, **res})
+    return {"files": files} if files else None
