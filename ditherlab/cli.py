@@ -293,6 +293,15 @@ def simulate(
             help="With --hidden temperature_friction: write temp_j columns.",
         ),
     ] = True,
+    sim_robot: Annotated[
+        str,
+        typer.Option(
+            "--robot",
+            metavar="NAME|URDF",
+            help="The simulated arm (built-in name or URDF) with six joints; the IRB140's "
+            "drive, friction and servo parameters unless --config sets them.",
+        ),
+    ] = "irb140",
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -305,7 +314,7 @@ def simulate(
     opts = cmd.SimulateOptions(
         scenario=scenario, out=out, seed=seed, dither=dither, config=config,
         hidden=tuple(hidden or ()), pushes_per_direction=pushes_per_direction,
-        log_temperature=log_temperature, force=force,
+        log_temperature=log_temperature, force=force, robot=sim_robot,
     )  # fmt: skip
     with _progress(f"simulate {scenario}", quiet) as progress:
         _show(cmd.run(opts, progress))
