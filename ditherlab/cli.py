@@ -227,6 +227,15 @@ def convert(
     robot: RobotOpt = None,
     chunk: Chunk = None,
     force: Force = False,
+    known_load: Annotated[
+        str | None,
+        typer.Option(
+            "--known-load",
+            metavar="MASS[@X,Y,Z]",
+            help="A known load at the tool [kg; centre of mass in m, tool frame], stored in the "
+            "output's metadata: replay and report compare the estimate with its wrench.",
+        ),
+    ] = None,
 ) -> None:
     """Convert a recording to another format.
 
@@ -235,7 +244,12 @@ def convert(
     from ditherlab.app import convert as cmd
 
     opts = cmd.ConvertOptions(
-        src=src, dst=dst, read=_read(mapping, robot), force=force, **_chunk(chunk)
+        src=src,
+        dst=dst,
+        read=_read(mapping, robot),
+        force=force,
+        known_load=known_load,
+        **_chunk(chunk),
     )
     _show(cmd.run(opts))
 
@@ -279,6 +293,15 @@ def simulate(
             help="With --hidden temperature_friction: write temp_j columns.",
         ),
     ] = True,
+    sim_robot: Annotated[
+        str,
+        typer.Option(
+            "--robot",
+            metavar="NAME|URDF",
+            help="The simulated arm (built-in name or URDF) with six joints; the IRB140's "
+            "drive, friction and servo parameters unless --config sets them.",
+        ),
+    ] = "irb140",
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -291,7 +314,7 @@ def simulate(
     opts = cmd.SimulateOptions(
         scenario=scenario, out=out, seed=seed, dither=dither, config=config,
         hidden=tuple(hidden or ()), pushes_per_direction=pushes_per_direction,
-        log_temperature=log_temperature, force=force,
+        log_temperature=log_temperature, force=force, robot=sim_robot,
     )  # fmt: skip
     with _progress(f"simulate {scenario}", quiet) as progress:
         _show(cmd.run(opts, progress))

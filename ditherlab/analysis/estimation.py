@@ -33,6 +33,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import pandas as pd
 
+from ditherlab.analysis.known_load import known_columns
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.files import plain
 from ditherlab.core.names import DITHER, MOVING
@@ -188,6 +189,7 @@ def replay_columns(
     inp = _replay_inputs(rec, model, variants, q_tol, tick)
     how = _How(level, interval, backend, comps)
     cols = _recording_columns(rec)
+    cols.update(known_columns(rec))  # the known load's wrench, when the recording declares one
     bits = (1 << np.arange(rec.n)).astype(np.int64)
     for v in variants:
         F, active, ilo, ihi = _variant_estimate(v, inp, model, how, tick)

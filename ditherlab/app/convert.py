@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ditherlab.analysis.known_load import KNOWN_LOAD, parse_known_load
 from ditherlab.app.workflow import ReadOptions, guard_recording
 from ditherlab.io.stream import CHUNK_ROWS, open_source, write_stream
 
@@ -24,6 +25,9 @@ class ConvertOptions:
     read : how to read a foreign log (``--mapping``, ``--robot``)
     chunk_rows : rows read and written at a time
     force : replace an existing output file or bag folder
+    known_load : ``MASS[@X,Y,Z]``: a known load at the tool [kg; m, tool frame], written into the
+        output's metadata as ``known_load`` (:mod:`ditherlab.analysis.known_load`); None: keep
+        the input's
     """
 
     src: Path
@@ -31,6 +35,7 @@ class ConvertOptions:
     read: ReadOptions = ReadOptions()
     chunk_rows: int = CHUNK_ROWS
     force: bool = False
+    known_load: str | None = None
 
 
 @dataclass
@@ -60,6 +65,9 @@ def run(options: ConvertOptions) -> Converted:
     Converted
     """
     o = options
+    load = None if o.known_load is None else parse_known_load(o.known_load)
     dst = guard_recording(o.dst, [o.src], read=o.read, force=o.force)
     src = open_source(o.src, **o.read.kwargs())
+    if load is not None:
+        src.meta = {**src.meta, KNOWN_LOAD: load}
     return Converted(write_stream(src, dst, rows=o.chunk_rows))

@@ -211,6 +211,9 @@ def add_effect(
         if why is not None:
             raise ModelError(why)
     spec = clean_none(make_spec(e, fits))
+    why = e.outside_range(spec.params, [x.sig for x in sc]) if e.shared else None
+    if why is not None:
+        raise ModelError(f"identify --add {effect}: {why}; the model is not written")
     if weak:  # the model file says which joints took the shared values
         spec.params["pooled"] = [1.0 if j - 1 in weak else 0.0 for j in spec.joints]
     new = base.copy()

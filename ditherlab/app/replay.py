@@ -12,9 +12,15 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.estimation import replay_columns
+from ditherlab.analysis.known_load import (
+    KNOWN_PREFIX,
+    ReferenceSums,
+    known_load_of,
+    known_load_text,
+)
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.files import FileKind, plain
-from ditherlab.data.estimates import COMPONENTS, Estimates, EstimatesWriter
+from ditherlab.data.estimates import Estimates, EstimatesWriter
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.physics.effects import release
@@ -126,13 +132,14 @@ def replay_stream(
     spans: list[list[float]] = []
     meta: dict[str, Any] | None = None
     last = None
-    tally = Tally()
+    tally, known = Tally(), ReferenceSums(KNOWN_PREFIX)
     with EstimatesWriter(out) as writer:
         for piece in src.pieces(chunk_rows):
             cols, pmeta = replay_columns(piece.rec, model, **options)
             rows = {k: v[piece.keep] for k, v in cols.items()}
             writer.write(rows)
-            tally.add_columns(rows, pmeta["variants"])
+            tally.add(rows, pmeta["variants"])
+            known.add(rows, pmeta["variants"])
             t = rows["t"]
             for a, b in pmeta["moving_spans"]:
                 a, b = max(a, t[0]), min(b, t[-1])
@@ -153,7 +160,7 @@ def replay_stream(
         meta = {**meta, "recording": plain(src.meta), "recording_name": src.name}
         meta["moving_spans"] = spans
         writer.meta = meta
-    return Replayed(Path(out), meta, tally)
+    return Replayed(Path(out), meta, tally, known)
 
 
 @dataclass
@@ -164,6 +171,7 @@ class Replayed:
     path: Path
     meta: dict[str, Any]
     tally: Tally
+    known: ReferenceSums | None = None
 
     @property
     def variants(self) -> list[str]:
@@ -174,60 +182,62 @@ class Replayed:
         return f"{describe(self)}\nwrote {self.path}"
 
 
-class Tally:
+class Tally(ReferenceSums):
     """Running force error and interval coverage against the F/T sensor, per variant, over
-    pieces of estimates (what :func:`describe` prints)."""
+    pieces of estimates (what :func:`describe` prints): :class:`ReferenceSums` of the sensor's
+    columns, and ``rows``, every row counted."""
 
     def __init__(self) -> None:
-        self.n = 0
-        self.variants: list[str] = []
-        self.sse: dict[str, np.ndarray] = {}
-        self.covered: dict[str, int] = {}
+        super().__init__("")
+        self.rows = 0
 
-    def add(self, est: Estimates) -> None:
+    def add(self, cols: Mapping[str, Any], variants: Sequence[str]) -> None:
+        """Count the rows of ``cols`` (a DataFrame or a dict of (N,) arrays) of ``variants``."""
+        self.rows += len(cols["t"])
+        super().add(cols, variants)
+
+    def add_estimates(self, est: Estimates) -> None:
         """Count the rows of ``est`` (a whole file or one piece of it)."""
-        self.add_columns(est.data, est.variants)
-
-    def add_columns(self, cols: Mapping[str, Any], variants: Sequence[str]) -> None:
-        """Count rows given as the estimates file's columns (a DataFrame or a dict of (N,)
-        arrays) of the estimator ``variants``."""
-        self.variants = list(variants)
-        self.n += len(cols["t"])
-        if "f_x" not in cols:
-            return
-
-        def stack(names: list[str]) -> np.ndarray:
-            return np.stack([np.asarray(cols[c], dtype=float) for c in names], axis=1)
-
-        F = stack(list(COMPONENTS[:3]))
-        for v in variants:
-            Fh = stack([f"{v}/{c}" for c in COMPONENTS[:3]])
-            lo = stack([f"{v}/{c}_lo" for c in COMPONENTS[:3]])
-            hi = stack([f"{v}/{c}_hi" for c in COMPONENTS[:3]])
-            self.sse[v] = self.sse.get(v, 0.0) + ((Fh - F) ** 2).sum(axis=0)
-            self.covered[v] = self.covered.get(v, 0) + int(((lo <= F) & (F <= hi)).sum())
+        self.add(est.data, est.variants)
 
 
 def describe(est: Estimates | Replayed) -> str:
     """A few lines: samples, variants, interval method, and per variant the force RMS error and
-    interval coverage against the F/T sensor when it is there (over the whole file for what
-    :func:`replay_stream` wrote)."""
+    interval coverage against the F/T sensor when it is there, and against the known load when
+    the recording declares one (over the whole file for what :func:`replay_stream` wrote)."""
     if isinstance(est, Replayed):
-        tally = est.tally
+        tally, known = est.tally, est.known
     else:
-        tally = Tally()
-        tally.add(est)
+        tally, known = Tally(), ReferenceSums(KNOWN_PREFIX)
+        tally.add_estimates(est)
+        known.add(est.data, est.variants)
     lines = [
-        f"{tally.n} samples, variants: {', '.join(est.variants)}; intervals "
+        f"{tally.rows} samples, variants: {', '.join(est.variants)}; intervals "
         f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
     ]
-    for v in est.variants:
-        if v not in tally.sse:
-            continue
-        rms = np.sqrt(tally.sse[v] / max(tally.n, 1))
-        cov = tally.covered[v] / max(3 * tally.n, 1)
+    lines += _error_lines(tally.result(), "")
+    load = known_load_of(est.meta.get("recording"))
+    res = known.result() if known is not None else None
+    if load is not None and res is not None:
+        mean = res["reference_mean"]
         lines.append(
-            f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
-            f" interval coverage {cov:.1%}"
+            f"  known load {known_load_text(load)}: mean wrench "
+            f"{mean[0]:.1f}/{mean[1]:.1f}/{mean[2]:.1f} N; the estimate against it:"
         )
+        lines += _error_lines(res, "  ")
     return "\n".join(lines)
+
+
+def _error_lines(res: dict[str, Any] | None, indent: str) -> list[str]:
+    """Per variant: the force error RMS and bias x/y/z [N] and the interval coverage of the
+    force axes, of a :meth:`ReferenceSums.result` (none for None)."""
+    if res is None:
+        return []
+    out = []
+    for v, r in res["variants"].items():
+        rms, bias, cov = r["rms"], r["bias"], float(np.mean(r["coverage"][:3]))
+        out.append(
+            f"{indent}  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
+            f" bias {bias[0]:.1f}/{bias[1]:.1f}/{bias[2]:.1f} N, interval coverage {cov:.1%}"
+        )
+    return out

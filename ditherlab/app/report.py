@@ -10,12 +10,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ditherlab.analysis.detection import analyse
+from ditherlab.analysis.detection import NoPushesError, analyse
+from ditherlab.analysis.known_load import known_load_analysis
 from ditherlab.app.workflow import Progress, guard
 from ditherlab.core.files import all_or_nothing, check_not_input
 from ditherlab.data.estimates import Estimates, EstimatesSource
 from ditherlab.data.recording import Recording
 from ditherlab.io.stream import CHUNK_ROWS
+from ditherlab.output.known_load_page import (
+    known_load_blocks,
+    known_load_lines,
+    write_known_load_pages,
+)
 from ditherlab.output.report_page import open_logs, summary_text, write_pages
 
 __all__ = ["ReportOptions", "Reported", "make_report", "run"]
@@ -55,6 +61,14 @@ class Reported:
     out: Path
 
     def text(self) -> str:
+        """What the CLI prints: the paper's table, the known load's comparison, the folder."""
+        known = self.analysis.get("known_load")
+        lines = known_load_lines(known) if known else []
+        if "recordings" not in self.analysis:  # a known load's report without pushes
+            return "\n".join([*lines, f"wrote {self.out}"])
+        return "\n".join([self._text(), *lines])
+
+    def _text(self) -> str:
         """The paper's table beside ours and where the report went (what the CLI prints)."""
         return summary_text(self.analysis) + f"\nwrote {self.out}/report.md"
 
@@ -149,7 +163,35 @@ def make_report(
         if progress:
             progress(done, steps)
 
-    analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
+    known = known_load_analysis(ests, chunk_rows)
+    try:
+        analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
+    except NoPushesError:
+        if known is None:
+            raise
+        return _known_load_report(ests, known, out)  # a run with a known load and no pushes
     tick()
-    write_pages(ests, analysis, logs, out, figures=figures, chunk_rows=chunk_rows, tick=tick)
+    extra = []
+    if known is not None:
+        analysis["known_load"] = known
+        extra = known_load_blocks(known, _level_text(ests))
+    write_pages(
+        ests, analysis, logs, out, figures=figures, chunk_rows=chunk_rows, tick=tick, extra=extra
+    )
+    return analysis
+
+
+def _level_text(ests: Sequence[EstimatesSource]) -> str:
+    """``95% profile``: the intervals' level and method."""
+    level = ests[0].meta.get("interval", {})
+    return f"{level.get('level', 0.95):.0%} {level.get('method', '')}".strip()
+
+
+def _known_load_report(
+    ests: Sequence[EstimatesSource], known: dict[str, Any], out: Path
+) -> dict[str, Any]:
+    """The report of estimates without pushes whose recordings declare a known load: the
+    estimate against the load's wrench alone."""
+    analysis: dict[str, Any] = {"known_load": known}
+    write_known_load_pages([e.name for e in ests], analysis, _level_text(ests), out)
     return analysis

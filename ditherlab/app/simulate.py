@@ -28,6 +28,7 @@ class SimulateOptions:
     pushes_per_direction : pushes per axis and sign (push-campaign); None: the config's
     log_temperature : with ``temperature_friction`` hidden, write the ``temp_j`` columns
     force : replace an existing output
+    robot : the simulated arm (a built-in name or a URDF path) with the parameters' joint count
     """
 
     scenario: str
@@ -39,6 +40,7 @@ class SimulateOptions:
     pushes_per_direction: int | None = None
     log_temperature: bool = True
     force: bool = False
+    robot: str = "irb140"
 
 
 @dataclass
@@ -76,5 +78,6 @@ def run(options: SimulateOptions, progress: Progress | None = None) -> Simulated
         progress=progress,
         pushes_per_direction=o.pushes_per_direction,
         log_temperature=None if o.log_temperature else False,
+        robot=o.robot,
     )
     return Simulated(write(rec, out), rec.duration)

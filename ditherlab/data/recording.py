@@ -93,6 +93,7 @@ META_SCHEMA = Table(
         "robot": ROBOT_NODE,
         "tool_offset": TOOL_OFFSET_NODE,
         "payload": PAYLOAD_NODE,
+        "known_load": PAYLOAD_NODE,
         "sample_rate_hz": Number(0.0, MAX_RATE_HZ, "Hz", lo_open=True),
         "source": Text(),
         "notes": Text(),

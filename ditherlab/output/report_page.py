@@ -243,16 +243,18 @@ def write_pages(
     figures: bool = True,
     chunk_rows: int = CHUNK_ROWS,
     tick: Callable[[], None] = lambda: None,
+    extra: Sequence[tuple] = (),
 ) -> list[str]:
     """Write the report of an analysis (:func:`ditherlab.analysis.detection.analyse` of
     ``ests``) into ``out``: ``report.md``, ``report.html``, ``report.json`` (the analysis, with
     ``files`` listing what was written) and, with ``figures``, the PNG figures (those of the
     recordings ``logs`` too: :func:`open_logs`). ``tick()`` is called after the
     text, after each of the figures' 4 steps and after the pages (6 calls; 2 without
-    figures); returns the files' names."""
+    figures); ``extra`` blocks (another section, e.g. a known load's) follow the text's; returns
+    the files' names."""
     level = ests[0].meta.get("interval", {})
     level_txt = f"{level.get('level', 0.95):.0%} {level.get('method', '')}".strip()
-    blocks = _blocks(ests, analysis, level_txt)
+    blocks = _blocks(ests, analysis, level_txt) + list(extra)
     tick()
     written: list[str] = []
     if figures:

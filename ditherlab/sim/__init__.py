@@ -36,6 +36,7 @@ def simulate(
     config: str | Path | Mapping[str, Any] | None = None,
     hidden: Iterable[Any] = (),
     progress: Callable[[int, int], None] | None = None,
+    robot: str = "irb140",
     **options: Any,
 ) -> Recording:
     """Simulate a scenario and return its Recording (250 Hz, 6 joints of the built-in IRB140).
@@ -50,6 +51,9 @@ def simulate(
     hidden : effects to inject, ``"NAME[:SIZE]"`` strings or ``(name, size)`` pairs
         (names: :data:`EFFECTS`)
     progress : ``progress(done, total)`` callback
+    robot : the simulated arm: a built-in name or a URDF path, with as many joints as the
+        parameters' per-joint lists (6 in ``irb140.toml``); the IRB140's drive, friction and
+        servo parameters apply to it unless ``config`` sets its own
     options : any key of the scenario's table in ``irb140.toml`` (e.g.
         ``pushes_per_direction=10``), and ``log_temperature=False`` for ``temperature_friction``
 
@@ -73,7 +77,7 @@ def simulate(
     params = load_params(config, _overrides(scenario, options))
     if int(seed) < 0:
         raise ConfigError(f"seed {seed} is negative; expected an integer >= 0")
-    robot = RobotModel.from_spec("irb140")
+    robot_spec, robot = robot, _robot(robot, params)
 
     def engine_for(hp: Any) -> Engine:
         return Engine(params, robot, hp.plant_robot(robot), sc.plant_extras(hp))
@@ -88,6 +92,13 @@ def simulate(
         robot=robot,
     )
     meta = _meta(scenario, seed, dither, options, params, robot.n, sim_meta)
+    if robot_spec != "irb140":  # a built-in by its name, any other arm by its URDF text
+        builtin = robot.name == robot_spec
+        meta["robot"] = (
+            robot_spec
+            if builtin
+            else {"urdf": robot.urdf, "tool_frame": robot.tool_frame, "name": robot.name}
+        )
     return sc.to_recording(arrays, meta)
 
 
@@ -116,6 +127,19 @@ def _overrides(scenario: str, options: Mapping[str, Any]) -> dict[str, Any]:
             raise ConfigError(f"option '{key}' = {value!r} is negative; expected a value >= 0")
         overrides.setdefault(table, {})[key] = value
     return overrides
+
+
+def _robot(spec: str, params: Mapping[str, Any]) -> RobotModel:
+    """The simulated arm ``spec``; ConfigError when its joints are not as many as the
+    parameters' per-joint lists."""
+    robot = RobotModel.from_spec(spec)
+    n = len(params["friction"]["static"])
+    if robot.n != n:
+        raise ConfigError(
+            f"--robot {spec}: {robot.n} joints, the simulator's parameters give {n} per joint; "
+            f"expected a robot with {n} joints"
+        )
+    return robot
 
 
 def _meta(

@@ -143,6 +143,12 @@ class Effect(abc.ABC):
         both diagnosis's suggestions and ``identify --add``."""
         return None
 
+    def outside_range(self, p: dict[str, Any], sigs: Sequence[Signals]) -> str | None:
+        """Why the fitted parameters ``p`` of a shared effect lie outside their physical range
+        on the robot of the recordings seen by ``sigs`` (None: inside); such a fit is never
+        written."""
+        return None
+
     def check(self, sig: Signals) -> None:
         """Raise ModelError naming a column the effect needs but the recording lacks."""
         return None

@@ -40,6 +40,27 @@ class Payload(Effect):
     def design(self, sig, j, h, ref):
         return Design(sig.torque_regressor[:, :, :4])
 
+    def outside_range(self, p, sigs):
+        """A mass below 0 [kg], or a centre of mass farther from the tool than the arm reaches
+        (the largest distance of the tool point from the base in the recordings) [m]."""
+        m = float(p["mass"])
+        if m < 0:
+            return f"payload mass {m:.3g} kg; expected a mass >= 0 kg"
+        if m == 0:
+            return None
+        com = np.asarray(p["mass_com"], dtype=float) / m
+        reach = max(
+            float(np.linalg.norm(s.rec.robot().tool_pose(s.q)[:, :3, 3], axis=1).max())
+            for s in sigs
+        )
+        if np.linalg.norm(com) > reach:
+            c = ", ".join(f"{x:.3g}" for x in com)
+            return (
+                f"payload centre of mass [{c}] m is {np.linalg.norm(com):.3g} m from the tool, "
+                f"beyond the arm's reach of {reach:.3g} m; expected a load held at the tool"
+            )
+        return None
+
     def driver(self, sig, j, p):
         w = np.array([p["mass"], *p["mass_com"]])
         return sig.torque_regressor[:, j, :4] @ w, f"payload torque joint {j + 1} [N·m]"
