@@ -212,7 +212,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     The temporary file keeps the target's suffix (writers dispatch on it). On an exception the
     temporary file is removed and ``path`` is untouched. Its name holds the writing process's
     id (``.NAME.PID.XXXXXXXX.SUFFIX``): a process killed outright (``kill -9``) cannot remove
-    its own, and the next write of the same target clears those whose process no longer runs
+    its own, and the next write of the same target clears those whose process has ended
     on this machine (:func:`clear_stale_temporaries`).
     """
     target = Path(path)
@@ -239,7 +239,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
 
 def clear_stale_temporaries(target: Path, suffix: str) -> list[Path]:
     """Remove the temporary files :func:`atomic_path` left beside ``target`` in processes that
-    no longer run (a ``kill -9``, a power cut): only names of exactly its pattern, and only when
+    have ended (a ``kill -9``, a power cut): only names of exactly its pattern, and only when
     the process id in the name is not a live process here. Returns the paths removed."""
     pattern = re.compile(
         re.escape(f".{target.name}.") + r"(\d+)\.[a-z0-9_]{8}" + re.escape(suffix) + r"\Z"
