@@ -33,6 +33,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import pandas as pd
 
+from ditherlab.analysis.vendor import vendor_columns
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.files import plain
 from ditherlab.core.names import DITHER, MOVING
@@ -188,6 +189,8 @@ def replay_columns(
     inp = _replay_inputs(rec, model, variants, q_tol, tick)
     how = _How(level, interval, backend, comps)
     cols = _recording_columns(rec)
+    vendor_cols, vendor_meta = vendor_columns(rec)
+    cols.update(vendor_cols)
     bits = (1 << np.arange(rec.n)).astype(np.int64)
     for v in variants:
         F, active, ilo, ihi = _variant_estimate(v, inp, model, how, tick)
@@ -208,6 +211,8 @@ def replay_columns(
         "interval": {"method": interval, "level": float(level)},
         "components": comps,
     }
+    if vendor_meta:
+        meta["vendor"] = vendor_meta
     if inp.ext is not None:
         meta["dither_period"] = inp.ext.period
     meta["moving_spans"] = time_spans(rec.t, (inp.reg == MOVING).any(axis=1))

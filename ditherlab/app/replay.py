@@ -14,6 +14,7 @@ import numpy as np
 from ditherlab.analysis.estimation import replay_columns
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.files import FileKind, plain
+from ditherlab.core.names import VENDOR
 from ditherlab.data.estimates import COMPONENTS, Estimates, EstimatesWriter
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
@@ -206,6 +207,9 @@ class Tally:
             hi = stack([f"{v}/{c}_hi" for c in COMPONENTS[:3]])
             self.sse[v] = self.sse.get(v, 0.0) + ((Fh - F) ** 2).sum(axis=0)
             self.covered[v] = self.covered.get(v, 0) + int(((lo <= F) & (F <= hi)).sum())
+        if f"{VENDOR}/f_x" in cols:  # the vendor's estimate: an error, no interval
+            Fv = stack([f"{VENDOR}/{c}" for c in COMPONENTS[:3]])
+            self.sse[VENDOR] = self.sse.get(VENDOR, 0.0) + ((Fv - F) ** 2).sum(axis=0)
 
 
 def describe(est: Estimates | Replayed) -> str:
@@ -221,13 +225,16 @@ def describe(est: Estimates | Replayed) -> str:
         f"{tally.n} samples, variants: {', '.join(est.variants)}; intervals "
         f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
     ]
-    for v in est.variants:
+    for v in [*est.variants, VENDOR]:
         if v not in tally.sse:
             continue
         rms = np.sqrt(tally.sse[v] / max(tally.n, 1))
-        cov = tally.covered[v] / max(3 * tally.n, 1)
+        cov = (
+            f"interval coverage {tally.covered[v] / max(3 * tally.n, 1):.1%}"
+            if v in tally.covered
+            else "no interval (the vendor's own estimate)"
+        )
         lines.append(
-            f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
-            f" interval coverage {cov:.1%}"
+            f"  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N, {cov}"
         )
     return "\n".join(lines)
