@@ -14,6 +14,7 @@ bias at rest (the mean of estimate minus reference on the report's rest samples)
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -117,13 +118,15 @@ def compare(
     files = [e for e in ests if has_vendor(e)]
     if not files:
         return None
-    vendor = analyse(
-        [_VendorView(e) for e in files],
-        n_boot=n_boot,
-        seed=seed,
-        rest_margin=rest_margin,
-        chunk_rows=chunk_rows,
-    )
+    with warnings.catch_warnings():  # the interval's width: none, and nanmean says so
+        warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        vendor = analyse(
+            [_VendorView(e) for e in files],
+            n_boot=n_boot,
+            seed=seed,
+            rest_margin=rest_margin,
+            chunk_rows=chunk_rows,
+        )
     sums: dict[str, _ErrorSums] = {}
     for src in files:
         _add_errors(src, sums, rest_margin, chunk_rows)

@@ -11,12 +11,14 @@ from pathlib import Path
 from typing import Any
 
 from ditherlab.analysis.detection import analyse
+from ditherlab.analysis.vendor import compare
 from ditherlab.app.workflow import Progress, guard
 from ditherlab.core.files import all_or_nothing, check_not_input
 from ditherlab.data.estimates import Estimates, EstimatesSource
 from ditherlab.data.recording import Recording
 from ditherlab.io.stream import CHUNK_ROWS
 from ditherlab.output.report_page import open_logs, summary_text, write_pages
+from ditherlab.output.vendor_page import vendor_text
 
 __all__ = ["ReportOptions", "Reported", "make_report", "run"]
 
@@ -56,7 +58,12 @@ class Reported:
 
     def text(self) -> str:
         """The paper's table beside ours and where the report went (what the CLI prints)."""
-        return summary_text(self.analysis) + f"\nwrote {self.out}/report.md"
+        vendor = vendor_text(self.analysis)
+        return (
+            summary_text(self.analysis)
+            + (f"\n{vendor}" if vendor else "")
+            + f"\nwrote {self.out}/report.md"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """The ``--json`` output: the analysis."""
@@ -150,6 +157,9 @@ def make_report(
             progress(done, steps)
 
     analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
+    vendor = compare(ests, analysis, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
+    if vendor is not None:
+        analysis["vendor"] = vendor
     tick()
     write_pages(ests, analysis, logs, out, figures=figures, chunk_rows=chunk_rows, tick=tick)
     return analysis
