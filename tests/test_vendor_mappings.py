@@ -1,4 +1,5 @@
-"""The built-in vendor mappings (``ur_rtde``, ``franka``) end to end, as a user runs them.
+"""The built-in vendor mappings (``ur_rtde``, ``franka``, ``iiwa_fri``, ``kinova_gen3``) end to
+end, as a user runs them.
 
 Each test writes a small log in the vendor's own layout (header and delimiter as the vendor's
 tool writes them, realistic values), runs ``ditherlab info`` / ``ditherlab convert`` with
@@ -62,8 +63,12 @@ RTDE_MINIMAL_RECIPE = [
     ("timestamp", 1),
     ("target_moment", 6),
     ("actual_qd", 6),
+    ("actual_TCP_force", 6),
     ("actual_q", 6),
 ]
+#: ur_rtde.toml's turn of actual_TCP_force (UR base, force on the tool) into the F/T columns'
+#: frame and sign (URDF base_link, the wrench the robot exerts)
+UR_TCP_SCALE = np.array([1.0, 1.0, -1.0, 1.0, 1.0, -1.0])
 
 
 def _smooth_motion(pose: np.ndarray, t: np.ndarray, amp: float) -> tuple[np.ndarray, np.ndarray]:
@@ -92,6 +97,7 @@ def write_rtde_csv(path: Path, recipe: list[tuple[str, int]], n_rows: int = 400)
         "actual_qd": dq,
         "actual_current": cur,
         "target_moment": tau + rng.normal(0, 0.02, tau.shape),  # [N·m]
+        "actual_TCP_force": rng.normal(0, [3, 3, 3, 0.3, 0.3, 0.3], (n_rows, 6)),  # [N, N·m]
         "target_q": q + rng.normal(0, 1e-4, q.shape),
         "target_qd": dq + rng.normal(0, 1e-4, q.shape),
         "joint_temperatures": 31.0 + rng.normal(0, 0.1, q.shape),  # [°C]
@@ -125,7 +131,7 @@ def franka_header() -> list[str]:
     ``<field>_k``."""
     return (
         ["time"]
-        + [f"{f}_{k}" for f in ("q", "dq", "tau_J") for k in range(7)]
+        + [f"{f}_{k}" for f in ("q", "dq", "tau_J", "tau_ext_hat_filtered") for k in range(7)]
         + [f"O_F_ext_hat_K_{k}" for k in range(6)]
     )
 
@@ -138,10 +144,18 @@ def write_franka_csv(path: Path, n_rows: int = 500) -> dict:
     q, dq = _smooth_motion(ready, t, 0.1)
     tau_j = RobotModel.from_spec("panda").gravity(q) + rng.normal(0, 0.05, q.shape)  # [N·m]
     wrench = rng.normal(0, [0.5, 0.5, 0.5, 0.05, 0.05, 0.05], (n_rows, 6))  # [N, N·m]
-    table = np.column_stack([t, q, dq, tau_j, wrench])
+    tau_ext = rng.normal(0, 0.2, q.shape)  # [N·m]
+    table = np.column_stack([t, q, dq, tau_j, tau_ext, wrench])
     lines = [",".join(franka_header())] + [",".join(repr(float(x)) for x in row) for row in table]
     path.write_text("\n".join(lines) + "\n")
-    return {"time": t, "q": q, "dq": dq, "tau_J": tau_j, "O_F_ext_hat_K": wrench}
+    return {
+        "time": t,
+        "q": q,
+        "dq": dq,
+        "tau_J": tau_j,
+        "tau_ext_hat_filtered": tau_ext,
+        "O_F_ext_hat_K": wrench,
+    }
 
 
 def _info(cli, path: Path, mapping: str) -> dict:
@@ -173,7 +187,7 @@ def test_ur_rtde_recording_through_info_and_convert(cli, tmp_path, recipe):
     d = _info(cli, src, "ur_rtde")
     assert d["samples"] == 400 and d["joints"] == 6 and d["robot"] == "ur10e"
     assert d["t_start_s"] == 8123.456 and d["sample_rate_hz"] == pytest.approx(500.0)
-    assert d["columns"]["dq"] and not d["columns"]["wrench"]
+    assert d["columns"]["dq"] and not d["columns"]["wrench"] and d["columns"]["vendor"]
     assert d["extra_columns"] == [f"tau_desired_{j}" for j in range(1, 7)]
 
     rec = _convert(cli, src, "ur_rtde")
@@ -187,12 +201,15 @@ def test_ur_rtde_recording_through_info_and_convert(cli, tmp_path, recipe):
     assert rec.meta["robot"]["tool_frame"] == "tool0" and rec.robot_label == "ur10e"
     assert rec.meta["mapping"] == "ur_rtde.toml"
     assert not any(c in rec.data for c in ("f_x", "temp_1", "tau_ffw_1"))
+    # actual_TCP_force is the vendor's estimate, turned into the F/T columns' frame and sign
+    np.testing.assert_array_equal(rec.vendor_wrench, v["actual_TCP_force"] * UR_TCP_SCALE)
 
 
 # ------------------------------------------------------------------ Franka robot state export
 def test_franka_state_export_through_info_and_convert(cli, tmp_path):
     """A Franka state CSV: t = time [s], q/dq/tau = q/dq/tau_J exactly, 7 joints on the built-in
-    Panda, O_F_ext_hat_K as extra columns f_ext_hat_x..m_ext_hat_z and NOT as the F/T columns."""
+    Panda, O_F_ext_hat_K as the vendor's wrench and tau_ext_hat_filtered as its joint torques,
+    both in libfranka's sign (that of the F/T columns), and NOT as the F/T columns."""
     src = tmp_path / "panda_state.csv"
     v = write_franka_csv(src)
 
@@ -206,8 +223,8 @@ def test_franka_state_export_through_info_and_convert(cli, tmp_path):
     np.testing.assert_array_equal(rec.q, v["q"])
     np.testing.assert_array_equal(rec.dq, v["dq"])
     np.testing.assert_array_equal(rec.tau, v["tau_J"])
-    ext = [f"{fm}_ext_hat_{ax}" for fm in ("f", "m") for ax in ("x", "y", "z")]
-    np.testing.assert_array_equal(rec.data[ext].to_numpy(), v["O_F_ext_hat_K"])
+    np.testing.assert_array_equal(rec.vendor_wrench, v["O_F_ext_hat_K"])
+    np.testing.assert_array_equal(rec.tau_ext_vendor, v["tau_ext_hat_filtered"])
     assert not any(c in rec.data for c in ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z"))
     assert rec.meta["robot"]["urdf"] == builtin_urdf("panda")
     assert rec.meta["robot"]["tool_frame"] == "panda_hand_tcp" and rec.robot_label == "panda"
@@ -242,13 +259,25 @@ def drop_column(path: Path, name: str, delimiter: str) -> None:
             "franka",
             "columns.tau.columns[7]",
             "tau_J_6",
-            "27 names; closest: tau_J_5, tau_J_4, tau_J_3",
+            "34 names; closest: tau_J_5, tau_J_4, tau_J_3",
+        ),
+        (
+            "ur_rtde",
+            "columns.vendor_wrench.columns[3]",
+            "actual_TCP_force_2",
+            "117 names; closest: actual_TCP_force_5, actual_TCP_force_4, actual_TCP_force_3",
+        ),
+        (
+            "franka",
+            "columns.vendor_wrench.columns[1]",
+            "O_F_ext_hat_K_0",
+            "34 names; closest: O_F_ext_hat_K_5, O_F_ext_hat_K_4, O_F_ext_hat_K_3",
         ),
         (
             "franka",
             "time.column",
             "time",
-            "27 names: q_0, q_1, q_2, q_3, q_4, q_5, q_6, dq_0, dq_1, dq_2, dq_3, dq_4, ...",
+            "34 names: q_0, q_1, q_2, q_3, q_4, q_5, q_6, dq_0, dq_1, dq_2, dq_3, dq_4, ...",
         ),
     ],
 )
