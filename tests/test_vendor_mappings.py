@@ -303,3 +303,83 @@ def test_missing_column_is_one_line_and_writes_nothing(
         f"{src} has no such column (expected one of its {hint})\n"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.csv"]
+
+
+# ------------------------------------------------------------------ KUKA iiwa FRI, Kinova Gen3
+def write_lbr_state_csv(path: Path, n_rows: int = 400) -> dict:
+    """``ros2 topic echo --csv /lbr/state`` of lbr_fri_ros2's LBRState: no header, the fields in
+    message order (lbr_fri_idl/msg/LBRState), a fixed array element by element; 200 Hz."""
+    rng = np.random.default_rng(8)
+    stamp = 1_718_000_000 * 10**9 + 123_456_789 + 5_000_000 * np.arange(n_rows)  # [ns]
+    sec, nsec = stamp // 10**9, stamp % 10**9
+    q, _ = _smooth_motion(np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0]), stamp / 1e9, 0.1)
+    msr = rng.normal(0, 5, q.shape)  # [N·m]
+    ext = rng.normal(0, 0.5, q.shape)  # [N·m]
+    lines = []
+    for i in range(n_rows):
+        state = [0.005, 4, 3, 0, 2, 1, 2, 1, 1, int(sec[i]), int(nsec[i])]  # sample_time .. nanosec
+        arrays = [q[i], q[i] + 1e-4, msr[i], msr[i] + 0.1, ext[i], q[i]]
+        cells = [repr(x) for x in state] + [repr(float(x)) for a in arrays for x in a] + ["0.0"]
+        lines.append(",".join(cells))
+    path.write_text("\n".join(lines) + "\n")
+    return {"t": sec + nsec * 1e-9, "q": q, "measured_torque": msr, "external_torque": ext}
+
+
+def test_iiwa_fri_state_through_convert(cli, tmp_path):
+    """An LBRState CSV: 54 numbered columns, t = seconds + nanoseconds, q = measured position,
+    tau = measured_torque, external_torque as tau_ext_vendor_1..7; the robot from --robot."""
+    src = tmp_path / "lbr_state.csv"
+    v = write_lbr_state_csv(src)
+    assert len(src.read_text().splitlines()[0].split(",")) == 54
+    dst = tmp_path / "out.parquet"
+    res = cli("convert", src, dst, "--mapping", "iiwa_fri", "--robot", "panda")
+    assert res.code == 0, res.err
+    rec = dio.read(dst)
+    np.testing.assert_allclose(rec.t, v["t"], rtol=0, atol=1e-6)
+    assert np.median(np.diff(rec.t)) == pytest.approx(0.005, abs=1e-6)
+    np.testing.assert_array_equal(rec.q, v["q"])
+    np.testing.assert_array_equal(rec.tau, v["measured_torque"])
+    np.testing.assert_array_equal(rec.tau_ext_vendor, v["external_torque"])
+    assert rec.vendor_wrench is None and not rec.has_dq and rec.meta["mapping"] == "iiwa_fri.toml"
+
+
+def test_iiwa_fri_without_robot_is_one_line(cli, tmp_path):
+    """The iiwa mapping names no robot: without --robot one line asks for it, exit 2."""
+    src = tmp_path / "lbr_state.csv"
+    write_lbr_state_csv(src, n_rows=20)
+    res = cli("info", src, "--mapping", "iiwa_fri")
+    assert res.code == 2 and res.err.count("\n") == 1 and "expected --robot" in res.err, res.err
+
+
+def write_gen3_csv(path: Path, n_rows: int = 300) -> dict:
+    """A Kortex BaseCyclic feedback export: Kortex field paths as the header, degrees."""
+    rng = np.random.default_rng(9)
+    t = 100.0 + 0.001 * np.arange(n_rows)
+    q = np.mod(rng.normal(0, 40, 7) + 0.5 * np.arange(n_rows)[:, None] * 1e-2, 360.0)  # [deg]
+    dq = np.full((n_rows, 7), 0.5)  # [deg/s]
+    tau = rng.normal(0, 3, (n_rows, 7))
+    wrench = rng.normal(0, [2, 2, 2, 0.2, 0.2, 0.2], (n_rows, 6))
+    head = ["time"] + [
+        f"actuators[{k}].{f}" for f in ("position", "velocity", "torque") for k in range(7)
+    ]
+    head += [f"base.tool_external_wrench_{a}_{x}" for a in ("force", "torque") for x in "xyz"]
+    table = np.column_stack([t, q, dq, tau, wrench])
+    lines = [",".join(head)] + [",".join(repr(float(x)) for x in row) for row in table]
+    path.write_text("\n".join(lines) + "\n")
+    return {"t": t, "q": q, "dq": dq, "tau": tau, "wrench": wrench}
+
+
+def test_kinova_gen3_feedback_through_convert(cli, tmp_path):
+    """A Gen3 feedback CSV: q, dq from degrees, tau = actuator torque, the tool's external
+    wrench as the vendor's estimate with its sign reversed (the wrench the robot exerts)."""
+    src = tmp_path / "gen3.csv"
+    v = write_gen3_csv(src)
+    dst = tmp_path / "out.parquet"
+    res = cli("convert", src, dst, "--mapping", "kinova_gen3", "--robot", "panda")
+    assert res.code == 0, res.err
+    rec = dio.read(dst)
+    np.testing.assert_array_equal(rec.t, v["t"])
+    np.testing.assert_allclose(rec.q, np.deg2rad(v["q"]), rtol=1e-15)
+    np.testing.assert_allclose(rec.dq, np.deg2rad(v["dq"]), rtol=1e-15)
+    np.testing.assert_array_equal(rec.tau, v["tau"])
+    np.testing.assert_array_equal(rec.vendor_wrench, -v["wrench"])
