@@ -41,7 +41,7 @@ def test_info_text(cli):
     assert res.code == 0, res.err
     assert "rate       100.00 Hz (interval 10.000 ms, jitter 0.944 ms std" in res.out
     assert "robot      ur10e (6 joints: shoulder_pan_joint" in res.out
-    assert "columns    t, q, tau, dq; absent: tau_ffw, temp, wrench, dither" in res.out
+    assert "columns    t, q, tau, dq; absent: tau_ffw, temp, wrench, dither, vendor" in res.out
     assert "regimes    still 97.9 %, dither 0.0 %, moving 2.1 %" in res.out
 
 
@@ -59,6 +59,7 @@ def test_info_json(cli):
         "temp": False,
         "wrench": False,
         "dither": False,
+        "vendor": False,
     }
     assert len(d["q_range_rad"]) == 6
 

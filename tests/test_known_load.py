@@ -19,9 +19,11 @@ from ditherlab.analysis.known_load import (
     parse_known_load,
 )
 from ditherlab.core.errors import ConfigError, RecordingError
+from ditherlab.core.names import VENDOR
 from ditherlab.data.estimates import EstimatesSource
 from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.io import read, write
+from ditherlab.output.known_load_page import known_load_lines, known_load_table
 from ditherlab.physics.effects import EFFECTS
 from ditherlab.physics.effects.signals import Signals
 from ditherlab.robot import RobotModel
@@ -105,6 +107,29 @@ def test_reference_sums_give_rms_bias_and_coverage():
     assert np.allclose(res["rms"], np.sqrt(5.0))
     assert np.allclose(res["coverage"], 0.5)
     assert ReferenceSums("x/").result() is None
+
+
+def test_reference_sums_count_the_vendor_estimate_without_an_interval():
+    """The vendor's own estimate is compared with the reference like a variant: its error RMS
+    and bias, and no coverage (it has no interval), in the table and in the printed lines."""
+    n = 50
+    names = ["f_x", "f_y", "f_z", "m_x", "m_y", "m_z"]
+    cols = {f"{KNOWN_PREFIX}{c}": np.full(n, 5.0) for c in names}
+    for c in names:
+        cols[f"v/{c}"] = np.full(n, 5.0)
+        cols[f"v/{c}_lo"], cols[f"v/{c}_hi"] = np.full(n, 4.0), np.full(n, 6.0)
+        cols[f"{VENDOR}/{c}"] = np.full(n, 8.0)  # a bias of +3 everywhere
+    sums = ReferenceSums(KNOWN_PREFIX)
+    sums.add(pd.DataFrame(cols), ["v"])
+    res = sums.result()
+    assert list(res["variants"]) == ["v", VENDOR]
+    assert np.allclose(res["variants"][VENDOR]["bias"], 3.0)
+    assert res["variants"][VENDOR]["coverage"] is None
+    assert np.allclose(res["variants"]["v"]["coverage"], 1.0)
+    entry = {**res, "file": "a", "load": {"mass": 1.0, "com": [0, 0, 0]}}
+    _, rows = known_load_table(entry)
+    assert [r[-1] for r in rows if r[0] == VENDOR] == ["no interval"] * 3
+    assert "coverage no interval" in known_load_lines({"files": [entry]})[-1]
 
 
 def test_replay_of_a_loaded_run_estimates_the_load():

@@ -181,14 +181,14 @@ def test_coverage_at_rest_per_axis(tmp_path, pair):
     sensor force along that axis, and their mean is the per-condition coverage at rest."""
     import pandas as pd
 
-    from ditherlab.analysis.detection import _pushes_and_rest
+    from ditherlab.analysis.detection import pushes_and_rest
 
     paths, recs = pair
     out = tmp_path / "rep"
     make_report([paths[0]], out, recordings=[recs[0]], n_boot=5)
     est = Estimates.load(paths[0])
     src = EstimatesSource.of(est)
-    _, _, _, rest = _pushes_and_rest(src, 1.0, 65_536)
+    _, _, _, rest = pushes_and_rest(src, 1.0, 65_536)
     df = pd.read_parquet(paths[0])
     j = json.loads((out / "report.json").read_text())
     for cond in ("nodither_band", "nodither_noband"):

@@ -1,4 +1,5 @@
-"""The built-in vendor mappings (``ur_rtde``, ``franka``) end to end, as a user runs them.
+"""The built-in vendor mappings (``ur_rtde``, ``franka``, ``iiwa_fri``, ``kinova_gen3``) end to
+end, as a user runs them.
 
 Each test writes a small log in the vendor's own layout (header and delimiter as the vendor's
 tool writes them, realistic values), runs ``ditherlab info`` / ``ditherlab convert`` with
@@ -62,8 +63,12 @@ RTDE_MINIMAL_RECIPE = [
     ("timestamp", 1),
     ("target_moment", 6),
     ("actual_qd", 6),
+    ("actual_TCP_force", 6),
     ("actual_q", 6),
 ]
+#: ur_rtde.toml's turn of actual_TCP_force (UR base, force on the tool) into the F/T columns'
+#: frame and sign (URDF base_link, the wrench the robot exerts)
+UR_TCP_SCALE = np.array([1.0, 1.0, -1.0, 1.0, 1.0, -1.0])
 
 
 def _smooth_motion(pose: np.ndarray, t: np.ndarray, amp: float) -> tuple[np.ndarray, np.ndarray]:
@@ -92,6 +97,7 @@ def write_rtde_csv(path: Path, recipe: list[tuple[str, int]], n_rows: int = 400)
         "actual_qd": dq,
         "actual_current": cur,
         "target_moment": tau + rng.normal(0, 0.02, tau.shape),  # [N·m]
+        "actual_TCP_force": rng.normal(0, [3, 3, 3, 0.3, 0.3, 0.3], (n_rows, 6)),  # [N, N·m]
         "target_q": q + rng.normal(0, 1e-4, q.shape),
         "target_qd": dq + rng.normal(0, 1e-4, q.shape),
         "joint_temperatures": 31.0 + rng.normal(0, 0.1, q.shape),  # [°C]
@@ -125,7 +131,7 @@ def franka_header() -> list[str]:
     ``<field>_k``."""
     return (
         ["time"]
-        + [f"{f}_{k}" for f in ("q", "dq", "tau_J") for k in range(7)]
+        + [f"{f}_{k}" for f in ("q", "dq", "tau_J", "tau_ext_hat_filtered") for k in range(7)]
         + [f"O_F_ext_hat_K_{k}" for k in range(6)]
     )
 
@@ -138,10 +144,18 @@ def write_franka_csv(path: Path, n_rows: int = 500) -> dict:
     q, dq = _smooth_motion(ready, t, 0.1)
     tau_j = RobotModel.from_spec("panda").gravity(q) + rng.normal(0, 0.05, q.shape)  # [N·m]
     wrench = rng.normal(0, [0.5, 0.5, 0.5, 0.05, 0.05, 0.05], (n_rows, 6))  # [N, N·m]
-    table = np.column_stack([t, q, dq, tau_j, wrench])
+    tau_ext = rng.normal(0, 0.2, q.shape)  # [N·m]
+    table = np.column_stack([t, q, dq, tau_j, tau_ext, wrench])
     lines = [",".join(franka_header())] + [",".join(repr(float(x)) for x in row) for row in table]
     path.write_text("\n".join(lines) + "\n")
-    return {"time": t, "q": q, "dq": dq, "tau_J": tau_j, "O_F_ext_hat_K": wrench}
+    return {
+        "time": t,
+        "q": q,
+        "dq": dq,
+        "tau_J": tau_j,
+        "tau_ext_hat_filtered": tau_ext,
+        "O_F_ext_hat_K": wrench,
+    }
 
 
 def _info(cli, path: Path, mapping: str) -> dict:
@@ -173,7 +187,7 @@ def test_ur_rtde_recording_through_info_and_convert(cli, tmp_path, recipe):
     d = _info(cli, src, "ur_rtde")
     assert d["samples"] == 400 and d["joints"] == 6 and d["robot"] == "ur10e"
     assert d["t_start_s"] == 8123.456 and d["sample_rate_hz"] == pytest.approx(500.0)
-    assert d["columns"]["dq"] and not d["columns"]["wrench"]
+    assert d["columns"]["dq"] and not d["columns"]["wrench"] and d["columns"]["vendor"]
     assert d["extra_columns"] == [f"tau_desired_{j}" for j in range(1, 7)]
 
     rec = _convert(cli, src, "ur_rtde")
@@ -187,12 +201,15 @@ def test_ur_rtde_recording_through_info_and_convert(cli, tmp_path, recipe):
     assert rec.meta["robot"]["tool_frame"] == "tool0" and rec.robot_label == "ur10e"
     assert rec.meta["mapping"] == "ur_rtde.toml"
     assert not any(c in rec.data for c in ("f_x", "temp_1", "tau_ffw_1"))
+    # actual_TCP_force is the vendor's estimate, turned into the F/T columns' frame and sign
+    np.testing.assert_array_equal(rec.vendor_wrench, v["actual_TCP_force"] * UR_TCP_SCALE)
 
 
 # ------------------------------------------------------------------ Franka robot state export
 def test_franka_state_export_through_info_and_convert(cli, tmp_path):
     """A Franka state CSV: t = time [s], q/dq/tau = q/dq/tau_J exactly, 7 joints on the built-in
-    Panda, O_F_ext_hat_K as extra columns f_ext_hat_x..m_ext_hat_z and NOT as the F/T columns."""
+    Panda, O_F_ext_hat_K as the vendor's wrench and tau_ext_hat_filtered as its joint torques,
+    both in libfranka's sign (that of the F/T columns), and NOT as the F/T columns."""
     src = tmp_path / "panda_state.csv"
     v = write_franka_csv(src)
 
@@ -206,8 +223,8 @@ def test_franka_state_export_through_info_and_convert(cli, tmp_path):
     np.testing.assert_array_equal(rec.q, v["q"])
     np.testing.assert_array_equal(rec.dq, v["dq"])
     np.testing.assert_array_equal(rec.tau, v["tau_J"])
-    ext = [f"{fm}_ext_hat_{ax}" for fm in ("f", "m") for ax in ("x", "y", "z")]
-    np.testing.assert_array_equal(rec.data[ext].to_numpy(), v["O_F_ext_hat_K"])
+    np.testing.assert_array_equal(rec.vendor_wrench, v["O_F_ext_hat_K"])
+    np.testing.assert_array_equal(rec.tau_ext_vendor, v["tau_ext_hat_filtered"])
     assert not any(c in rec.data for c in ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z"))
     assert rec.meta["robot"]["urdf"] == builtin_urdf("panda")
     assert rec.meta["robot"]["tool_frame"] == "panda_hand_tcp" and rec.robot_label == "panda"
@@ -242,13 +259,25 @@ def drop_column(path: Path, name: str, delimiter: str) -> None:
             "franka",
             "columns.tau.columns[7]",
             "tau_J_6",
-            "27 names; closest: tau_J_5, tau_J_4, tau_J_3",
+            "34 names; closest: tau_J_5, tau_J_4, tau_J_3",
+        ),
+        (
+            "ur_rtde",
+            "columns.vendor_wrench.columns[3]",
+            "actual_TCP_force_2",
+            "117 names; closest: actual_TCP_force_5, actual_TCP_force_4, actual_TCP_force_3",
+        ),
+        (
+            "franka",
+            "columns.vendor_wrench.columns[1]",
+            "O_F_ext_hat_K_0",
+            "34 names; closest: O_F_ext_hat_K_5, O_F_ext_hat_K_4, O_F_ext_hat_K_3",
         ),
         (
             "franka",
             "time.column",
             "time",
-            "27 names: q_0, q_1, q_2, q_3, q_4, q_5, q_6, dq_0, dq_1, dq_2, dq_3, dq_4, ...",
+            "34 names: q_0, q_1, q_2, q_3, q_4, q_5, q_6, dq_0, dq_1, dq_2, dq_3, dq_4, ...",
         ),
     ],
 )
@@ -274,3 +303,83 @@ def test_missing_column_is_one_line_and_writes_nothing(
         f"{src} has no such column (expected one of its {hint})\n"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.csv"]
+
+
+# ------------------------------------------------------------------ KUKA iiwa FRI, Kinova Gen3
+def write_lbr_state_csv(path: Path, n_rows: int = 400) -> dict:
+    """``ros2 topic echo --csv /lbr/state`` of lbr_fri_ros2's LBRState: no header, the fields in
+    message order (lbr_fri_idl/msg/LBRState), a fixed array element by element; 200 Hz."""
+    rng = np.random.default_rng(8)
+    stamp = 1_718_000_000 * 10**9 + 123_456_789 + 5_000_000 * np.arange(n_rows)  # [ns]
+    sec, nsec = stamp // 10**9, stamp % 10**9
+    q, _ = _smooth_motion(np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0]), stamp / 1e9, 0.1)
+    msr = rng.normal(0, 5, q.shape)  # [N·m]
+    ext = rng.normal(0, 0.5, q.shape)  # [N·m]
+    lines = []
+    for i in range(n_rows):
+        state = [0.005, 4, 3, 0, 2, 1, 2, 1, 1, int(sec[i]), int(nsec[i])]  # sample_time .. nanosec
+        arrays = [q[i], q[i] + 1e-4, msr[i], msr[i] + 0.1, ext[i], q[i]]
+        cells = [repr(x) for x in state] + [repr(float(x)) for a in arrays for x in a] + ["0.0"]
+        lines.append(",".join(cells))
+    path.write_text("\n".join(lines) + "\n")
+    return {"t": sec + nsec * 1e-9, "q": q, "measured_torque": msr, "external_torque": ext}
+
+
+def test_iiwa_fri_state_through_convert(cli, tmp_path):
+    """An LBRState CSV: 54 numbered columns, t = seconds + nanoseconds, q = measured position,
+    tau = measured_torque, external_torque as tau_ext_vendor_1..7; the robot from --robot."""
+    src = tmp_path / "lbr_state.csv"
+    v = write_lbr_state_csv(src)
+    assert len(src.read_text().splitlines()[0].split(",")) == 54
+    dst = tmp_path / "out.parquet"
+    res = cli("convert", src, dst, "--mapping", "iiwa_fri", "--robot", "panda")
+    assert res.code == 0, res.err
+    rec = dio.read(dst)
+    np.testing.assert_allclose(rec.t, v["t"], rtol=0, atol=1e-6)
+    assert np.median(np.diff(rec.t)) == pytest.approx(0.005, abs=1e-6)
+    np.testing.assert_array_equal(rec.q, v["q"])
+    np.testing.assert_array_equal(rec.tau, v["measured_torque"])
+    np.testing.assert_array_equal(rec.tau_ext_vendor, v["external_torque"])
+    assert rec.vendor_wrench is None and not rec.has_dq and rec.meta["mapping"] == "iiwa_fri.toml"
+
+
+def test_iiwa_fri_without_robot_is_one_line(cli, tmp_path):
+    """The iiwa mapping names no robot: without --robot one line asks for it, exit 2."""
+    src = tmp_path / "lbr_state.csv"
+    write_lbr_state_csv(src, n_rows=20)
+    res = cli("info", src, "--mapping", "iiwa_fri")
+    assert res.code == 2 and res.err.count("\n") == 1 and "expected --robot" in res.err, res.err
+
+
+def write_gen3_csv(path: Path, n_rows: int = 300) -> dict:
+    """A Kortex BaseCyclic feedback export: Kortex field paths as the header, degrees."""
+    rng = np.random.default_rng(9)
+    t = 100.0 + 0.001 * np.arange(n_rows)
+    q = np.mod(rng.normal(0, 40, 7) + 0.5 * np.arange(n_rows)[:, None] * 1e-2, 360.0)  # [deg]
+    dq = np.full((n_rows, 7), 0.5)  # [deg/s]
+    tau = rng.normal(0, 3, (n_rows, 7))
+    wrench = rng.normal(0, [2, 2, 2, 0.2, 0.2, 0.2], (n_rows, 6))
+    head = ["time"] + [
+        f"actuators[{k}].{f}" for f in ("position", "velocity", "torque") for k in range(7)
+    ]
+    head += [f"base.tool_external_wrench_{a}_{x}" for a in ("force", "torque") for x in "xyz"]
+    table = np.column_stack([t, q, dq, tau, wrench])
+    lines = [",".join(head)] + [",".join(repr(float(x)) for x in row) for row in table]
+    path.write_text("\n".join(lines) + "\n")
+    return {"t": t, "q": q, "dq": dq, "tau": tau, "wrench": wrench}
+
+
+def test_kinova_gen3_feedback_through_convert(cli, tmp_path):
+    """A Gen3 feedback CSV: q, dq from degrees, tau = actuator torque, the tool's external
+    wrench as the vendor's estimate with its sign reversed (the wrench the robot exerts)."""
+    src = tmp_path / "gen3.csv"
+    v = write_gen3_csv(src)
+    dst = tmp_path / "out.parquet"
+    res = cli("convert", src, dst, "--mapping", "kinova_gen3", "--robot", "panda")
+    assert res.code == 0, res.err
+    rec = dio.read(dst)
+    np.testing.assert_array_equal(rec.t, v["t"])
+    np.testing.assert_allclose(rec.q, np.deg2rad(v["q"]), rtol=1e-15)
+    np.testing.assert_allclose(rec.dq, np.deg2rad(v["dq"]), rtol=1e-15)
+    np.testing.assert_array_equal(rec.tau, v["tau"])
+    np.testing.assert_array_equal(rec.vendor_wrench, -v["wrench"])

@@ -406,7 +406,7 @@ def analyse(
     total_pushes = 0
     for est in estimates:
         src = est if isinstance(est, EstimatesSource) else EstimatesSource.of(est)
-        rec_out, t, pushes, rest = _pushes_and_rest(src, rest_margin, chunk_rows)
+        rec_out, t, pushes, rest = pushes_and_rest(src, rest_margin, chunk_rows)
         recs_out.append(rec_out)
         total_pushes += len(pushes)
         if pushes and not rest.any():
@@ -462,7 +462,7 @@ def pushes_of(src: EstimatesSource, chunk_rows: int = CHUNK_ROWS) -> tuple[np.nd
     return t, pushes
 
 
-def _pushes_and_rest(
+def pushes_and_rest(
     src: EstimatesSource, rest_margin: float, chunk_rows: int
 ) -> tuple[dict[str, Any], np.ndarray, list[Push], np.ndarray]:
     """One estimates file's summary row, time stamps (N,) [s], pushes (from its F/T columns)

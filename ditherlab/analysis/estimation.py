@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from ditherlab.analysis.known_load import known_columns
+from ditherlab.analysis.vendor import vendor_columns
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.files import plain
 from ditherlab.core.names import DITHER, MOVING
@@ -190,6 +191,8 @@ def replay_columns(
     how = _How(level, interval, backend, comps)
     cols = _recording_columns(rec)
     cols.update(known_columns(rec))  # the known load's wrench, when the recording declares one
+    vendor_cols, vendor_meta = vendor_columns(rec)
+    cols.update(vendor_cols)
     bits = (1 << np.arange(rec.n)).astype(np.int64)
     for v in variants:
         F, active, ilo, ihi = _variant_estimate(v, inp, model, how, tick)
@@ -210,6 +213,8 @@ def replay_columns(
         "interval": {"method": interval, "level": float(level)},
         "components": comps,
     }
+    if vendor_meta:
+        meta["vendor"] = vendor_meta
     if inp.ext is not None:
         meta["dither_period"] = inp.ext.period
     meta["moving_spans"] = time_spans(rec.t, (inp.reg == MOVING).any(axis=1))

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.core.errors import ConfigError, RecordingError
-from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.core.names import VENDOR, WRENCH_COLUMNS
 from ditherlab.core.schema import check
 from ditherlab.data.recording import PAYLOAD_NODE, Recording
 from ditherlab.physics.effects.signals import Signals
@@ -146,9 +146,11 @@ class ReferenceSums:
         self.ref_sum = np.zeros(6)
 
     def add(self, cols: Mapping[str, Any], variants: Sequence[str]) -> None:
-        """Count the rows of ``cols`` (a DataFrame or a dict of (N,) arrays) of ``variants``;
-        nothing when the reference columns are missing."""
-        self.variants = list(variants)
+        """Count the rows of ``cols`` (a DataFrame or a dict of (N,) arrays) of ``variants``,
+        and of the vendor's own estimate (:data:`~ditherlab.core.names.VENDOR`, no interval)
+        when ``cols`` holds it; nothing when the reference columns are missing."""
+        vendor = f"{VENDOR}/f_x" in cols
+        self.variants = [*variants, VENDOR] if vendor else list(variants)
         if f"{self.prefix}f_x" not in cols:
             return
 
@@ -158,18 +160,21 @@ class ReferenceSums:
         R = stack([self.prefix + c for c in WRENCH_COLUMNS])
         self.n += len(R)
         self.ref_sum += R.sum(axis=0)
-        for v in variants:
+        for v in self.variants:
             E = stack([f"{v}/{c}" for c in WRENCH_COLUMNS]) - R
-            lo = stack([f"{v}/{c}_lo" for c in WRENCH_COLUMNS])
-            hi = stack([f"{v}/{c}_hi" for c in WRENCH_COLUMNS])
             self.sum[v] = self.sum.get(v, 0.0) + E.sum(axis=0)
             self.sse[v] = self.sse.get(v, 0.0) + (E**2).sum(axis=0)
+            if v == VENDOR:
+                continue
+            lo = stack([f"{v}/{c}_lo" for c in WRENCH_COLUMNS])
+            hi = stack([f"{v}/{c}_hi" for c in WRENCH_COLUMNS])
             inside = ((lo <= R) & (R <= hi)).sum(axis=0)
             self.covered[v] = self.covered.get(v, 0) + inside
 
     def result(self) -> dict[str, Any] | None:
         """``{"samples", "reference_mean": (6,), "variants": {V: {"rms", "bias", "coverage"}}}``
-        (each (6,) [N, N·m]; coverage a share per axis), or None without reference rows."""
+        (each (6,) [N, N·m]; coverage a share per axis, None for the vendor's estimate, which
+        has no interval), or None without reference rows."""
         if self.n == 0:
             return None
         n = float(self.n)
@@ -177,7 +182,7 @@ class ReferenceSums:
             v: {
                 "rms": np.sqrt(self.sse[v] / n).tolist(),
                 "bias": (self.sum[v] / n).tolist(),
-                "coverage": (self.covered[v] / n).tolist(),
+                "coverage": (self.covered[v] / n).tolist() if v in self.covered else None,
             }
             for v in self.variants
             if v in self.sse

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.core.names import DITHER, MOVING, STILL, WRENCH_COLUMNS
+from ditherlab.core.names import DITHER, MOVING, STILL, VENDOR_WRENCH_COLUMNS, WRENCH_COLUMNS
 from ditherlab.data.recording import JOINT_FAMILIES, Recording, regimes
 from ditherlab.io.stream import CHUNK_ROWS, Piece, Source
 
@@ -80,8 +80,9 @@ def describe(rec: Recording | Source, chunk_rows: int | None = None) -> dict[str
         "temp": "temp_1" in cols,
         "wrench": first.has_wrench,
         "dither": "dither" in cols,
+        "vendor": first.has_vendor,  # the vendor's own estimate (wrench or joint torques)
     }
-    known = {"t", "dither", *WRENCH_COLUMNS}
+    known = {"t", "dither", *WRENCH_COLUMNS, *VENDOR_WRENCH_COLUMNS}
     known |= {f"{p}_{j + 1}" for p in JOINT_FAMILIES for j in range(first.n)}
     total = sum(time.values())
     meta = rec.meta

@@ -229,15 +229,20 @@ def describe(est: Estimates | Replayed) -> str:
 
 
 def _error_lines(res: dict[str, Any] | None, indent: str) -> list[str]:
-    """Per variant: the force error RMS and bias x/y/z [N] and the interval coverage of the
-    force axes, of a :meth:`ReferenceSums.result` (none for None)."""
+    """Per variant (and the vendor's own estimate): the force error RMS and bias x/y/z [N] and
+    the interval coverage of the force axes, of a :meth:`ReferenceSums.result` (none for None)."""
     if res is None:
         return []
     out = []
     for v, r in res["variants"].items():
-        rms, bias, cov = r["rms"], r["bias"], float(np.mean(r["coverage"][:3]))
+        rms, bias = r["rms"], r["bias"]
+        cov = (
+            "no interval (the vendor's own estimate)"
+            if r["coverage"] is None
+            else f"interval coverage {float(np.mean(r['coverage'][:3])):.1%}"
+        )
         out.append(
             f"{indent}  {v:<16} force error RMS x/y/z {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N,"
-            f" bias {bias[0]:.1f}/{bias[1]:.1f}/{bias[2]:.1f} N, interval coverage {cov:.1%}"
+            f" bias {bias[0]:.1f}/{bias[1]:.1f}/{bias[2]:.1f} N, {cov}"
         )
     return out

@@ -12,6 +12,7 @@ from typing import Any
 
 from ditherlab.analysis.detection import NoPushesError, analyse
 from ditherlab.analysis.known_load import known_load_analysis
+from ditherlab.analysis.vendor import compare
 from ditherlab.app.workflow import Progress, guard
 from ditherlab.core.files import all_or_nothing, check_not_input
 from ditherlab.data.estimates import Estimates, EstimatesSource
@@ -23,6 +24,7 @@ from ditherlab.output.known_load_page import (
     write_known_load_pages,
 )
 from ditherlab.output.report_page import open_logs, summary_text, write_pages
+from ditherlab.output.vendor_page import vendor_text
 
 __all__ = ["ReportOptions", "Reported", "make_report", "run"]
 
@@ -70,7 +72,12 @@ class Reported:
 
     def _text(self) -> str:
         """The paper's table beside ours and where the report went (what the CLI prints)."""
-        return summary_text(self.analysis) + f"\nwrote {self.out}/report.md"
+        vendor = vendor_text(self.analysis)
+        return (
+            summary_text(self.analysis)
+            + (f"\n{vendor}" if vendor else "")
+            + f"\nwrote {self.out}/report.md"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """The ``--json`` output: the analysis."""
@@ -170,6 +177,9 @@ def make_report(
         if known is None:
             raise
         return _known_load_report(ests, known, out)  # a run with a known load and no pushes
+    vendor = compare(ests, analysis, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
+    if vendor is not None:
+        analysis["vendor"] = vendor
     tick()
     extra = []
     if known is not None:

@@ -13,6 +13,24 @@ from enum import IntEnum
 WRENCH_COLUMNS = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
 #: The force axes of the paper's detection table.
 FORCE_AXES = ("x", "y", "z")
+#: The robot vendor's own estimate of the external wrench (a controller's or a driver's, logged
+#: beside the joints): the same point, axes and sign as the F/T columns :data:`WRENCH_COLUMNS`
+#: (the wrench the robot exerts, at the tool point, base axes), forces [N] then moments [N·m].
+#: A mapping file converts the vendor's frame and sign to this one where it can.
+VENDOR_WRENCH_COLUMNS = (
+    "f_vendor_x",
+    "f_vendor_y",
+    "f_vendor_z",
+    "m_vendor_x",
+    "m_vendor_y",
+    "m_vendor_z",
+)
+#: The vendor's estimate of the external joint torques, ``tau_ext_vendor_1 .. _n`` [N·m]: the
+#: term ``J(q)^T F`` of eq. (1), so with the sign of ``tau`` (a push P gives ``-J^T P``).
+VENDOR_TAU_FAMILY = "tau_ext_vendor"
+#: The name of the vendor's estimate beside ditherlab's variants in an estimates file
+#: (``vendor/f_x .. vendor/m_z``) and in reports.
+VENDOR = "vendor"
 
 
 class Regime(IntEnum):

@@ -27,6 +27,8 @@ from ditherlab.core.names import (
     MOVING,
     REGIME_NAMES,
     STILL,
+    VENDOR_TAU_FAMILY,
+    VENDOR_WRENCH_COLUMNS,
     WRENCH_COLUMNS,
     Regime,
 )
@@ -42,8 +44,9 @@ JOINT_FAMILIES: dict[str, tuple[bool, str]] = {
     "tau": (True, "N·m"),
     "tau_ffw": (False, "N·m"),
     "temp": (False, "°C"),
+    VENDOR_TAU_FAMILY: (False, "N·m"),
 }
-_JOINT_COL = re.compile(r"^(q|dq|tau|tau_ffw|temp)_(\d+)$")
+_JOINT_COL = re.compile(rf"^({'|'.join(JOINT_FAMILIES)})_(\d+)$")
 
 #: Longest tool offset or payload lever accepted [m], heaviest payload [kg], fastest rate [Hz]:
 #: far beyond any robot, small enough that nothing downstream overflows.
@@ -114,6 +117,8 @@ __all__ = [
     "MOVING",
     "REGIME_NAMES",
     "STILL",
+    "VENDOR_TAU_FAMILY",
+    "VENDOR_WRENCH_COLUMNS",
     "WRENCH_COLUMNS",
     "Recording",
     "RecordingArrays",
@@ -180,6 +185,8 @@ class RecordingArrays:
     wrench : (N, 6) [N, N·m], optional, ``f_x .. m_z``
     temp : (N, n) [°C], optional
     dither : (N,) bool, optional
+    vendor_wrench : (N, 6) [N, N·m], optional, the vendor's estimate ``f_vendor_x .. m_vendor_z``
+    tau_ext_vendor : (N, n) [N·m], optional, the vendor's external joint torques
     extra : further columns by name, each (N,), passed through untouched
     """
 
@@ -191,6 +198,8 @@ class RecordingArrays:
     wrench: np.ndarray | None = None
     temp: np.ndarray | None = None
     dither: np.ndarray | None = None
+    vendor_wrench: np.ndarray | None = None
+    tau_ext_vendor: np.ndarray | None = None
     extra: Mapping[str, np.ndarray] | None = None
 
     def columns(self) -> dict[str, np.ndarray]:
@@ -203,16 +212,20 @@ class RecordingArrays:
             ("tau", self.tau),
             ("tau_ffw", self.tau_ffw),
             ("temp", self.temp),
+            (VENDOR_TAU_FAMILY, self.tau_ext_vendor),
         ):
             if arr is None:
                 continue
             arr = np.asarray(arr, dtype=float).reshape(len(cols["t"]), -1)
             for j in range(arr.shape[1]):
                 cols[f"{prefix}_{j + 1}"] = arr[:, j]
-        if self.wrench is not None:
-            w = np.asarray(self.wrench, dtype=float).reshape(len(cols["t"]), 6)
-            for k, c in enumerate(WRENCH_COLUMNS):
-                cols[c] = w[:, k]
+        for names, arr in (
+            (WRENCH_COLUMNS, self.wrench),
+            (VENDOR_WRENCH_COLUMNS, self.vendor_wrench),
+        ):
+            if arr is not None:
+                w = np.asarray(arr, dtype=float).reshape(len(cols["t"]), 6)
+                cols.update({c: w[:, k] for k, c in enumerate(names)})
         if self.dither is not None:
             cols["dither"] = np.asarray(self.dither, dtype=bool)
         if self.extra:
@@ -344,6 +357,27 @@ class Recording:
         if not self.has_wrench:
             return None
         return self.data[list(WRENCH_COLUMNS)].to_numpy(dtype=float)
+
+    @property
+    def has_vendor(self) -> bool:
+        """True when the vendor's own estimate is logged: its wrench ``f_vendor_x .. m_vendor_z``
+        or its external joint torques ``tau_ext_vendor_*``."""
+        cols = self.data.columns
+        return VENDOR_WRENCH_COLUMNS[0] in cols or f"{VENDOR_TAU_FAMILY}_1" in cols
+
+    @property
+    def vendor_wrench(self) -> np.ndarray | None:
+        """The vendor's estimate of the external wrench, (N, 6) [N, N·m], or None; the F/T
+        columns' point, axes and sign (``docs/recording-format.md``)."""
+        if VENDOR_WRENCH_COLUMNS[0] not in self.data.columns:
+            return None
+        return self.data[list(VENDOR_WRENCH_COLUMNS)].to_numpy(dtype=float)
+
+    @property
+    def tau_ext_vendor(self) -> np.ndarray | None:
+        """The vendor's estimate of the external joint torques ``J^T F``, (N, n) [N·m], or
+        None."""
+        return self._family(VENDOR_TAU_FAMILY)
 
     @property
     def dither(self) -> np.ndarray | None:
@@ -683,13 +717,21 @@ def _joint_columns(cols: list[Any], where: str) -> tuple[dict[str, set[int]], in
 
 
 def _wrench_columns(cols: list[Any], where: str) -> list[str]:
-    """The F/T columns present: none or all six."""
-    present_wrench = [c for c in WRENCH_COLUMNS if c in cols]
+    """The wrench columns present, the F/T sensor's and the vendor's estimate: of each none or
+    all six."""
+    return _six_columns(cols, where, WRENCH_COLUMNS, "the F/T sensor") + _six_columns(
+        cols, where, VENDOR_WRENCH_COLUMNS, "the vendor's estimate"
+    )
+
+
+def _six_columns(cols: list[Any], where: str, names: tuple[str, ...], what: str) -> list[str]:
+    """The wrench columns ``names`` present (the F/T sensor's or the vendor's estimate): none
+    or all six."""
+    present_wrench = [c for c in names if c in cols]
     if present_wrench and len(present_wrench) != 6:
-        missing_w = [c for c in WRENCH_COLUMNS if c not in cols]
+        missing_w = [c for c in names if c not in cols]
         raise RecordingError(
-            f"{where}column {missing_w[0]} is missing: the F/T sensor needs all of "
-            f"{', '.join(WRENCH_COLUMNS)}"
+            f"{where}column {missing_w[0]} is missing: {what} needs all of {', '.join(names)}"
         )
     return present_wrench
 

@@ -26,7 +26,7 @@ from ditherlab.data.recording import _check_increasing as check_increasing
 from ditherlab.robot import RobotModel, resolve_spec
 
 #: the recording columns that hold numbers (besides the wrench)
-NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp)_\d+)$")
+NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp|tau_ext_vendor)_\d+)$")
 #: Options every reader accepts: they fill in or override the recording's metadata.
 META_OPTIONS = ("robot", "tool_frame", "tool_offset", "payload", "source", "notes")
 #: Their values (``robot`` is checked where it is resolved); other options are the readers'.

@@ -20,7 +20,7 @@ import pandas as pd
 
 from ditherlab.core.errors import FormatError, one_line
 from ditherlab.core.files import atomic_path
-from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.core.names import VENDOR_WRENCH_COLUMNS, WRENCH_COLUMNS
 from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
     META_OPTIONS,
@@ -150,7 +150,7 @@ def check_numeric(
     ``row_offset`` is the file row of ``data``'s first row (a block of a longer file).
     """
     for c in data.columns:
-        if not (NUMERIC.match(str(c)) or c in WRENCH_COLUMNS):
+        if not (NUMERIC.match(str(c)) or c in WRENCH_COLUMNS or c in VENDOR_WRENCH_COLUMNS):
             continue
         col = data[c]
         if col.dtype.kind in "fiub":

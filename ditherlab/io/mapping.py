@@ -14,6 +14,7 @@ is a complete example)::
     [time]
     column = 1              # 1-based index (as in a spreadsheet) or a header name
     unit = "s"              # s | ms | us | ns
+    # add = { column = 11, unit = "ns" }   # optional: a second column added (seconds + nanoseconds)
 
     [robot]                 # a built-in name, or a URDF path relative to the mapping file
     name = "irb140"         #   (the URDF text is embedded into the recording's metadata)
@@ -30,6 +31,10 @@ is a complete example)::
     offset = 0.0            # optional: a number or one per joint, added after scaling
 
     [columns.wrench]        # optional: six columns f_x, f_y, f_z [N], m_x, m_y, m_z [N·m]
+    [columns.vendor_wrench] # optional: the vendor's own wrench estimate, six columns f_vendor_x ..
+                            #   m_vendor_z; a scale per component turns its sign and axes into
+                            #   the F/T columns' (the wrench the robot exerts, base axes)
+    [columns.tau_ext_vendor]  # optional: the vendor's external joint torques [N·m], one per joint
     [columns.dither]        # optional: `column = k`; nonzero means dither on
 
     [extra]                 # optional: more columns passed through: name = { column, scale, offset }
@@ -56,7 +61,7 @@ import numpy as np
 import pandas as pd
 
 from ditherlab.core.errors import ConfigError, FormatError, one_line
-from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.core.names import VENDOR_TAU_FAMILY, VENDOR_WRENCH_COLUMNS, WRENCH_COLUMNS
 from ditherlab.core.schema import Either, Flag, Integer, ListOf, MapOf, Number, Table, Text, check
 from ditherlab.data.recording import (
     PAYLOAD_NODE,
@@ -82,7 +87,10 @@ FAMILY_UNITS: dict[str, dict[str, float]] = {
     "tau": {"N·m": 1.0, "Nm": 1.0, "N*m": 1.0},
     "tau_ffw": {"N·m": 1.0, "Nm": 1.0, "N*m": 1.0},
     "temp": {"°C": 1.0, "degC": 1.0, "C": 1.0},
+    VENDOR_TAU_FAMILY: {"N·m": 1.0, "Nm": 1.0, "N*m": 1.0},
 }
+#: The six-column families: the F/T sensor's wrench and the vendor's own estimate of it.
+WRENCH_FAMILIES = {"wrench": WRENCH_COLUMNS, "vendor_wrench": VENDOR_WRENCH_COLUMNS}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 _COLUMN = Either(
     options=(Integer(1), Text(nonempty=True)),
@@ -127,6 +135,10 @@ MAPPING_SCHEMA = Table(
                 "column": _COLUMN,
                 "unit": Text(choices=tuple(TIME_UNITS)),
                 "offset": Number(-1e12, 1e12, "s"),
+                "add": Table(
+                    keys={"column": _COLUMN, "unit": Text(choices=tuple(TIME_UNITS))},
+                    required=("column", "unit"),
+                ),
             }
         ),
         "robot": Table(
@@ -142,7 +154,7 @@ MAPPING_SCHEMA = Table(
         "columns": Table(
             keys={
                 **{fam: _family_node(tuple(units)) for fam, units in FAMILY_UNITS.items()},
-                "wrench": _family_node(),
+                **{fam: _family_node() for fam in WRENCH_FAMILIES},
                 "dither": Table(keys={"column": _COLUMN}, required=("column",)),
             },
             required=("q", "tau"),
@@ -238,7 +250,7 @@ def read(path: Path, mapping: str | Path, **options: Any) -> Recording:
     spec, mp = load_mapping(mapping)
     header = bool(spec.get("input", {}).get("header", True))
     cols = _table(_Columns(_parse(path, spec, mp), path, mp, header), spec, mp)
-    meta = meta_from_options(_meta(spec, mp), options, where=str(path))
+    meta = meta_from_options(_meta(spec, mp, options.get("robot")), options, where=str(path))
     meta.setdefault("mapping", mp.name)
     return Recording(pd.DataFrame(cols), meta, name=str(path))
 
@@ -277,13 +289,19 @@ def _table(reader: _Columns, spec: dict[str, Any], mp: Path) -> dict[str, np.nda
     cols["t"] = reader.get(tspec.get("column"), "t", "time.column") * TIME_UNITS[tunit] + float(
         tspec.get("offset", 0.0)
     )
+    if "add" in tspec:  # e.g. a stamp's nanoseconds beside its seconds
+        add = tspec["add"]
+        cols["t"] = (
+            cols["t"] + reader.get(add["column"], "t", "time.add.column") * TIME_UNITS[add["unit"]]
+        )
     n = len(spec["columns"]["q"].get("columns", []))
     for fam in FAMILY_UNITS:
         sub = spec["columns"].get(fam)
         if sub is not None:
             cols.update(_family(reader, sub, fam, n, mp))
-    if "wrench" in spec["columns"]:
-        cols.update(_family(reader, spec["columns"]["wrench"], "wrench", 6, mp))
+    for fam in WRENCH_FAMILIES:
+        if fam in spec["columns"]:
+            cols.update(_family(reader, spec["columns"][fam], fam, 6, mp))
     if "dither" in spec["columns"]:
         d = reader.get(spec["columns"]["dither"].get("column"), "dither", "columns.dither.column")
         cols["dither"] = d != 0
@@ -295,9 +313,10 @@ def _table(reader: _Columns, spec: dict[str, Any], mp: Path) -> dict[str, np.nda
     return cols
 
 
-def _meta(spec: dict[str, Any], mp: Path) -> dict[str, Any]:
+def _meta(spec: dict[str, Any], mp: Path, given: Any = None) -> dict[str, Any]:
     """The recording's metadata from the mapping: its ``[meta]`` and ``[robot]`` (a URDF path
-    relative to the mapping file, its text embedded)."""
+    relative to the mapping file, its text embedded). A ``[robot]`` that names no robot (an arm
+    whose URDF is not built in) takes the reader option ``robot`` (``given``)."""
     meta = {"schema": SCHEMA, **spec.get("meta", {})}
     rob = spec["robot"]
     if "urdf" in rob:  # a path relative to the mapping file; its text goes into the metadata
@@ -309,8 +328,11 @@ def _meta(spec: dict[str, Any], mp: Path) -> dict[str, Any]:
         )
     elif "name" in rob:
         meta["robot"] = str(rob["name"])
-    else:
-        raise ConfigError(f"{mp}: table [robot] needs 'name' (built-in) or 'urdf' (a path)")
+    elif given is None:
+        raise ConfigError(
+            f"{mp}: table [robot] names no robot ('name' or 'urdf'); expected --robot with a "
+            "built-in name or the path of the arm's URDF file"
+        )
     for key in ("tool_offset", "payload"):
         if key in rob:
             meta[key] = rob[key]
@@ -340,11 +362,11 @@ def _family(
     if not isinstance(src, list) or len(src) != n:
         raise ConfigError(
             f"{mp}: {key}.columns is {src!r}, expected a list of {n} columns (one per "
-            f"{'wrench component' if fam == 'wrench' else 'joint'})"
+            f"{'wrench component' if fam in WRENCH_FAMILIES else 'joint'})"
         )
-    if fam == "wrench":
+    if fam in WRENCH_FAMILIES:
         unit_factor = 1.0
-        names = list(WRENCH_COLUMNS)
+        names = list(WRENCH_FAMILIES[fam])
     else:
         units = FAMILY_UNITS[fam]
         unit_factor = units[sub.get("unit", next(iter(units)))]

@@ -34,10 +34,18 @@ def known_load_table(entry: dict[str, Any]) -> tuple[list[str], list[list[str]]]
                     f"{ref[k] + r['bias'][k]:.2f} N",
                     f"{r['rms'][k]:.2f} N",
                     f"{r['bias'][k]:+.2f} N",
-                    f"{r['coverage'][k]:.1%}",
+                    _share(r["coverage"], k),
                 ]
             )
     return _HEAD, rows
+
+
+def _share(coverage: list[float] | None, k: int | None) -> str:
+    """Axis ``k``'s coverage (the force axes' mean for None) as a percentage; "no interval" for
+    the vendor's own estimate, which has none."""
+    if coverage is None:
+        return "no interval"
+    return f"{(coverage[k] if k is not None else sum(coverage[:3]) / 3):.1%}"
 
 
 def known_load_blocks(known: dict[str, Any], level_txt: str) -> list[tuple]:
@@ -73,7 +81,7 @@ def known_load_lines(known: dict[str, Any]) -> list[str]:
             out.append(
                 f"  {v:<16} estimated mean {est[0]:.1f}/{est[1]:.1f}/{est[2]:.1f} N, error RMS "
                 f"{rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N, coverage "
-                f"{sum(r['coverage'][:3]) / 3:.1%}"
+                f"{_share(r['coverage'], None)}"
             )
     return out
 

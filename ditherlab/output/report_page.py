@@ -30,6 +30,7 @@ from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, HALO_S, open_source
 from ditherlab.output import figures as figs
+from ditherlab.output.vendor_page import vendor_blocks
 from ditherlab.physics.dither import dither_waveform, extract, extract_dither
 from ditherlab.physics.effects import signals
 
@@ -296,6 +297,7 @@ def _blocks(ests: Sequence[EstimatesSource], analysis: dict, level_txt: str) -> 
     blocks.append(("h2", "Interval coverage against the F/T sensor (forces)"))
     h, r = coverage_table(analysis, level_txt)
     blocks.append(("table", h, r))
+    blocks += vendor_blocks(analysis)
     blocks.append(("h2", "Pushes found"))
     blocks.append(("table", ["file", "dither", "pushes", "x", "y", "z"], _push_rows(analysis)))
     return blocks

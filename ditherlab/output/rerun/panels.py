@@ -14,7 +14,7 @@ import rerun as rr
 
 from ditherlab.analysis.estimation import model_effects
 from ditherlab.core.errors import ConfigError
-from ditherlab.core.names import DITHER, FORCE_AXES, STILL
+from ditherlab.core.names import DITHER, FORCE_AXES, STILL, VENDOR
 from ditherlab.core.timeseries import causal_mean
 from ditherlab.data.estimates import Estimates
 from ditherlab.data.recording import Recording
@@ -350,6 +350,10 @@ def _dither_window_on(rec: Recording, window: int) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- per force axis
+#: the vendor's own estimate in the force panels (RGB): apart from the variants and the sensor
+VENDOR_COLOR = (200, 0, 160)
+
+
 def log_forces(log: ColumnLogger, rec: Recording, keep: slice, estimates: Estimates | None) -> None:
     """Per force axis the sensor, the controller's online estimate and every variant's estimate
     with its interval (``rec`` a piece, ``keep`` its owned rows, ``estimates`` theirs)."""
@@ -377,6 +381,15 @@ def log_forces(log: ColumnLogger, rec: Recording, keep: slice, estimates: Estima
     if estimates is None:
         return
     d = estimates.data
+    if f"{VENDOR}/f_x" in d.columns:  # the vendor's own estimate, beside ditherlab's
+        for a in FORCE_AXES:
+            log.series(
+                f"force/{a}/{VENDOR}",
+                d[f"{VENDOR}/f_{a}"].to_numpy(dtype=float),
+                names="vendor's estimate",
+                colors=[VENDOR_COLOR],
+                widths=1.5,
+            )
     for v in estimates.variants:
         c = VARIANT_COLORS[v]
         light = tuple(int(x + (255 - x) * 0.55) for x in c)
