@@ -38,12 +38,14 @@ from typer.core import TyperGroup
 from ditherlab.cli_options import (
     Chunk,
     Force,
+    JointTopicOpt,
     JsonFlag,
     MappingOpt,
     ModelIn,
     Quiet,
     RobotOpt,
     Seed,
+    WrenchTopicOpt,
     _format_warning,
     echo,
     held_warnings,
@@ -108,7 +110,7 @@ def _one_line_errors(call: Callable[[], Any]) -> Any:
     except UsageErrors.ClickException as exc:
         typer.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
         sys.exit(exc.exit_code)
-    except UsageErrors.Abort:
+    except typer.Abort:
         typer.echo("aborted", err=True)
         sys.exit(1)
 
@@ -181,11 +183,17 @@ def _show(result: Any, json_out: bool = False) -> None:
         echo(result.text())
 
 
-def _read(mapping: str | None, robot: str | None) -> Any:
-    """:class:`ditherlab.app.workflow.ReadOptions` of ``--mapping`` and ``--robot``."""
+def _read(
+    mapping: str | None,
+    robot: str | None,
+    joint_topic: str | None = None,
+    wrench_topic: str | None = None,
+) -> Any:
+    """:class:`ditherlab.app.workflow.ReadOptions` of ``--mapping``, ``--robot``,
+    ``--joint-topic`` and ``--wrench-topic``."""
     from ditherlab.app.workflow import ReadOptions
 
-    return ReadOptions(mapping, robot)
+    return ReadOptions(mapping, robot, joint_topic, wrench_topic)
 
 
 def _chunk(chunk: int | None) -> dict[str, int]:
@@ -201,6 +209,8 @@ def info(
     ],
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     json_out: JsonFlag = False,
     chunk: Chunk = None,
 ) -> None:
@@ -210,7 +220,8 @@ def info(
     """
     from ditherlab.app import info as cmd
 
-    opts = cmd.InfoOptions(file=file, read=_read(mapping, robot), **_chunk(chunk))
+    read = _read(mapping, robot, joint_topic, wrench_topic)
+    opts = cmd.InfoOptions(file=file, read=read, **_chunk(chunk))
     _show(cmd.run(opts), json_out)
 
 
@@ -225,6 +236,8 @@ def convert(
     ],
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     chunk: Chunk = None,
     force: Force = False,
 ) -> None:
@@ -234,9 +247,8 @@ def convert(
     """
     from ditherlab.app import convert as cmd
 
-    opts = cmd.ConvertOptions(
-        src=src, dst=dst, read=_read(mapping, robot), force=force, **_chunk(chunk)
-    )
+    read = _read(mapping, robot, joint_topic, wrench_topic)
+    opts = cmd.ConvertOptions(src=src, dst=dst, read=read, force=force, **_chunk(chunk))
     _show(cmd.run(opts))
 
 
@@ -336,6 +348,8 @@ def identify(
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -350,7 +364,8 @@ def identify(
     opts = cmd.IdentifyOptions(
         recordings=tuple(recordings), out=out, model=model, add=tuple(add or ()),
         assume_no_force=assume_no_force, n_boot=bootstrap, seed=seed,
-        read=_read(mapping, robot), force=force, **_chunk(chunk),
+        read=_read(mapping, robot, joint_topic, wrench_topic),
+        force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("identify", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -384,6 +399,8 @@ def replay(
     ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -398,7 +415,8 @@ def replay(
     opts = cmd.ReplayOptions(
         recording=recording, model=model, out=out, level=level, interval=interval,
         components=components, variants=tuple(variants.split(",")) if variants else None,
-        read=_read(mapping, robot), force=force, **_chunk(chunk),
+        read=_read(mapping, robot, joint_topic, wrench_topic),
+        force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("replay", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -467,6 +485,8 @@ def diagnose(
     ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     no_history: Annotated[
         bool,
         typer.Option(
@@ -494,7 +514,8 @@ def diagnose(
 
     opts = cmd.DiagnoseOptions(
         recordings=tuple(recordings), model=model, out=out, history=not no_history,
-        regimes=tuple(regime) if regime else None, read=_read(mapping, robot), force=force,
+        regimes=tuple(regime) if regime else None, force=force,
+        read=_read(mapping, robot, joint_topic, wrench_topic),
         **_chunk(chunk),
     )  # fmt: skip
     with _progress("diagnose", quiet or json_out) as progress:
@@ -525,6 +546,8 @@ def view(
     serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -537,7 +560,8 @@ def view(
 
     opts = cmd.ViewOptions(
         recording=recording, estimates=estimates, model=model, diagnosis=diagnosis, save=save,
-        mode=cmd.view_mode(spawn, serve), read=_read(mapping, robot), force=force,
+        mode=cmd.view_mode(spawn, serve), force=force,
+        read=_read(mapping, robot, joint_topic, wrench_topic),
         **_chunk(chunk),
     )  # fmt: skip
     with _progress("view", quiet) as progress:
@@ -680,6 +704,8 @@ def fleet(
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -692,7 +718,8 @@ def fleet(
     opts = cmd.FleetOptions(
         recordings=tuple(recordings or ()), out=out, manifest=manifest, scheduler=scheduler,
         workers=workers, model=model, assume_no_force=assume_no_force, n_boot=bootstrap,
-        thresholds=thresholds, seed=seed, read=_read(mapping, robot), force=force,
+        thresholds=thresholds, seed=seed, force=force,
+        read=_read(mapping, robot, joint_topic, wrench_topic),
     )  # fmt: skip
     _show(cmd.run(opts, progress=not quiet))
 

@@ -442,7 +442,9 @@ def test_bag_topic_options(tmp_path):
     write_foreign_bag(
         bag, StoragePlugin.MCAP, t, np.zeros((20, 6)), np.ones((20, 6)), t, np.ones((20, 6))
     )
-    with pytest.raises(FormatError, match=r"topic /joint_states \(joint_topic\) is not in the bag"):
+    with pytest.raises(
+        FormatError, match=r"--joint-topic \(joint_topic=\) names topic /joint_states, which"
+    ):
         dio.read(bag, robot="irb140", joint_topic="/joint_states")
     rec = dio.read(bag, robot="irb140", wrench_topic="")
     assert not rec.has_wrench and len(rec) == 20

@@ -95,6 +95,11 @@ def _topic_list(topics: dict[str, str]) -> str:
     return ", ".join(f"{k} [{v}]" for k, v in sorted(topics.items())) or "none"
 
 
+def _cli_option(option: str) -> str:
+    """A reader option as the CLI spells it, with its API name: ``--joint-topic (joint_topic=)``."""
+    return f"--{option.replace('_', '-')} ({option}=)"
+
+
 def _pick(
     topics: dict[str, str],
     wanted: str | None,
@@ -103,21 +108,26 @@ def _pick(
     path: Path,
     required: bool,
 ) -> str | None:
+    """The topic of type ``msgtype`` to read: ``wanted`` (the reader option ``option``) when
+    given, else the bag's only one; FormatError naming the option and the topics found when
+    ``wanted`` is not a topic of that type or the choice is not unique."""
     if wanted:
         if wanted not in topics:
             raise FormatError(
-                f"{path}: topic {wanted} ({option}) is not in the bag; topics "
-                f"found: {_topic_list(topics)}"
+                f"{path}: {_cli_option(option)} names topic {wanted}, which is not in the bag; "
+                f"topics found: {_topic_list(topics)}"
             )
         if topics[wanted] != msgtype:
             raise FormatError(
-                f"{path}: topic {wanted} has type {topics[wanted]}, expected {msgtype}"
+                f"{path}: {_cli_option(option)} names topic {wanted} of type {topics[wanted]}; "
+                f"expected a {msgtype} topic; topics found: {_topic_list(topics)}"
             )
         return wanted
     found = sorted(k for k, v in topics.items() if v == msgtype)
     if len(found) > 1:
         raise FormatError(
-            f"{path}: several {msgtype} topics ({', '.join(found)}); choose one with {option}="
+            f"{path}: several {msgtype} topics ({', '.join(found)}); choose one with "
+            f"{_cli_option(option)}"
         )
     if not found:
         if required:
