@@ -6,8 +6,11 @@ A crash never leaves half a file, and no command may write over one of its input
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
+import re
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -203,33 +206,90 @@ def current_umask() -> int:
     return mask
 
 
+#: the temporary file of :func:`atomic_path` for a target ``NAME.SUF``: ``.NAME.SUF.XXXXXXXX.SUF``
+#: (mkstemp's eight characters)
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+(?P<suffix>\.[A-Za-z0-9]+))\.[a-z0-9_]{8}(?P=suffix)$")
+
+
+def _locked(fd: int) -> bool:
+    """Take the exclusive lock of the open file ``fd`` without waiting; False when another
+    process holds it."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
+def clear_stale_temporaries(folder: str | Path) -> list[Path]:
+    """Remove the temporary files that :func:`atomic_path` left in ``folder`` when its process
+    died before renaming them (``kill -9``, a power cut); returns the paths removed.
+
+    Only names of :func:`atomic_path`'s pattern (``.NAME.SUF.XXXXXXXX.SUF``) are considered,
+    and only those whose lock no process holds: a writer holds its temporary file's lock from
+    its creation to its rename, and the system releases it when the process ends, however it
+    ends. Each is removed while holding its lock, so no writer can take it meanwhile.
+    """
+    removed: list[Path] = []
+    try:
+        names = [n for n in os.listdir(folder) if _TEMP_NAME.match(n)]
+    except OSError:
+        return removed
+    for n in names:
+        p = Path(folder) / n
+        try:
+            fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW)
+        except OSError:
+            continue  # gone meanwhile, or not ours to open
+        try:
+            if stat.S_ISREG(os.fstat(fd).st_mode) and _locked(fd):
+                p.unlink()
+                removed.append(p)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return removed
+
+
+def _locked_temp(target: Path, suffix: str) -> tuple[int, Path]:
+    """A new temporary file beside ``target`` (:data:`_TEMP_NAME`), open and locked; made again
+    when a :func:`clear_stale_temporaries` removed it between its creation and its lock."""
+    while True:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix, dir=target.parent)
+        with contextlib.suppress(OSError):  # no locks on this file system: none clears it either
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        if os.fstat(fd).st_nlink > 0:
+            return fd, Path(tmp)
+        os.close(fd)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; on success rename it to ``path``.
 
-    The temporary file keeps the target's suffix (writers dispatch on it). On an exception the
-    temporary file is removed and ``path`` is untouched.
+    The temporary file keeps the target's suffix (writers dispatch on it) and stays locked
+    while it is written; the temporary files that a killed process left in the folder are
+    removed first (:func:`clear_stale_temporaries`). On an exception the temporary file is
+    removed and ``path`` is untouched.
     """
     target = Path(path)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{target.name}.",
-            suffix=suffix if suffix is not None else target.suffix,
-            dir=target.parent,
-        )
+        clear_stale_temporaries(target.parent)
+        fd, tmp_path = _locked_temp(target, suffix if suffix is not None else target.suffix)
     except OSError as exc:  # a file in the way, no permission, read-only: one line
         raise DitherlabError(f"{target}: cannot write ({exc.strerror or exc})") from None
-    os.close(fd)
-    os.chmod(tmp, 0o666 & ~current_umask())  # mkstemp makes 0600; give the file the usual mode
-    tmp_path = Path(tmp)
     try:
+        os.chmod(tmp_path, 0o666 & ~current_umask())  # mkstemp makes 0600: the usual mode
         yield tmp_path
         os.replace(tmp_path, target)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+    finally:
+        os.close(fd)  # the lock goes with it
 
 
 @contextlib.contextmanager

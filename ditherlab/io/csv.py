@@ -9,6 +9,7 @@ block by block (:func:`write_frames`): :data:`FORMAT`.
 
 from __future__ import annotations
 
+import csv as pycsv
 import json
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -97,7 +98,27 @@ def header(path: Path) -> list[str]:
                 f"(fields {first[c] + 1} and {i + 1}); expected unique column names"
             )
         first[c] = i
+    _check_first_line(path, len(names))
     return names
+
+
+def _check_first_line(path: Path, n: int) -> None:
+    """FormatError when the first data line has more fields than the ``n`` names of the header
+    line, counted before pandas parses the file: given such a line pandas builds an index of
+    every extra field, which for a line of 200 000 fields takes minutes. A file this check
+    cannot read (not UTF-8, a field beyond the csv module's limit) is left to pandas."""
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = pycsv.reader(fh, skipinitialspace=True)
+            next(reader, None)  # the header line
+            row = next((r for r in reader if r), None)  # pandas skips blank lines
+    except (UnicodeDecodeError, pycsv.Error, OSError):
+        return
+    if row is not None and len(row) > n:
+        raise FormatError(
+            f"{path}: line {reader.line_num} has {len(row)} fields but the header line has {n}; "
+            "expected one field per column name on every line"
+        )
 
 
 def read_meta(path: Path, options: dict[str, Any]) -> dict[str, Any]:

@@ -118,6 +118,8 @@ class Source:
         # (report, view): a repeated name would come back 2-D, a missing one unnoticed
         joint_columns(self.columns, f"{self.name}: ")
         wrench_columns(self.columns, f"{self.name}: ")
+        if self.n_rows == 0:  # a CSV of its header line only: as the Recording says it
+            raise RecordingError(f"{self.name}: the table has no rows; expected samples")
 
     # ------------------------------------------------------------------ reading
     def frames(self, rows: int, columns: list[str] | None = None) -> Iterator[pd.DataFrame]:
