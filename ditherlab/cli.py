@@ -665,7 +665,10 @@ def fleet(
     manifest: Annotated[
         Path | None,
         typer.Option(
-            "--manifest", metavar="FILE", help="CSV with columns file, robot, date, notes."
+            "--manifest",
+            metavar="FILE",
+            help="CSV with columns file, robot, date, notes and per-recording settings (mapping, "
+            "description, sensor, joint_topic, wrench_topic).",
         ),
     ] = None,
     scheduler: Annotated[
@@ -712,6 +715,7 @@ def fleet(
     """Identify and diagnose many recordings.
 
     Each recording as a Dask task; one table and a fleet report (effects, drift, outliers).
+    Exit status 1 when a recording failed (the outputs hold the others).
     """
     from ditherlab.app import fleet as cmd
 
@@ -721,7 +725,11 @@ def fleet(
         thresholds=thresholds, seed=seed, force=force,
         read=_read(mapping, robot, joint_topic, wrench_topic),
     )  # fmt: skip
-    _show(cmd.run(opts, progress=not quiet))
+    res = cmd.run(opts, progress=not quiet)
+    _show(res)
+    if res.failed:  # the outputs hold the others: one line and status 1, not 2
+        typer.echo(f"error: {res.failed}", err=True)
+        raise typer.Exit(1)
 
 
 @app.command()

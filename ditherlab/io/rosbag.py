@@ -230,18 +230,36 @@ class _Bag:
                     if c.topic in (jtopic, wtopic)
                     or (c.topic == "/robot_description" and c.msgtype == STRING)
                 ]
+                seen = dict.fromkeys({c.topic for c in conns}, 0)
                 for conn, stamp, raw in reader.messages(connections=conns):
                     msg = reader.deserialize(raw, conn.msgtype)
+                    seen[conn.topic] += 1
                     if conn.topic == jtopic:
                         yield _JOINT, _stamp(msg.header) or stamp, msg
                     elif conn.topic == wtopic:
                         yield _WRENCH, _stamp(msg.header) or stamp, msg
                     else:
                         yield _URDF, stamp, msg
+                _check_counts(path, conns, seen)
         except FormatError:
             raise
         except _DAMAGE as exc:
             raise FormatError(f"{path}: not a readable ROS 2 bag ({one_line(exc)})") from None
+
+
+def _check_counts(path: Path, conns: list[Any], seen: dict[str, int]) -> None:
+    """FormatError when a topic gave fewer messages than the bag's index counts (its
+    metadata.yaml, or the MCAP summary's statistics): a damaged storage file whose reader
+    skipped what it could not parse. A bag without counts (0) is not checked."""
+    listed: dict[str, int] = {}
+    for c in conns:
+        listed[c.topic] = listed.get(c.topic, 0) + int(getattr(c, "msgcount", 0) or 0)
+    for topic, n in sorted(listed.items()):
+        if n and seen.get(topic, 0) < n:
+            raise FormatError(
+                f"{path}: topic {topic} gave {seen.get(topic, 0)} of the {n} messages the bag's "
+                "index counts; the bag is cut off or damaged (expected a whole bag; copy it again)"
+            )
 
 
 @dataclass
