@@ -763,8 +763,8 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
 def not_stored(columns: list[str]) -> list[str]:
     """The columns of a recording that a bag written by :func:`write` does not hold: all but
     ``t``, ``q_j``, ``dq_j``, ``tau_j`` and the wrench."""
-    kept = re.compile(r"^(t|(q|dq|tau)_\d+)$")
-    return [c for c in columns if not kept.match(c) and c not in WRENCH_COLUMNS]
+    stored = re.compile(r"^(t|(q|dq|tau)_\d+)$")
+    return [c for c in columns if not stored.match(c) and c not in WRENCH_COLUMNS]
 
 
 def column_list(columns: list[str]) -> str:
