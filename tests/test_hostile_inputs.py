@@ -224,3 +224,44 @@ def test_live_temporary_file_is_never_cleared(tmp_path):
     left = _killed_write(tmp_path / "y.parquet")
     assert clear_stale_temporaries(tmp_path) == [left]
     assert not left.exists()
+
+
+_KILLED_BAG_WRITER = textwrap.dedent(
+    """
+    import os, signal, sys
+    import numpy as np
+    from ditherlab.data.recording import Recording, RecordingArrays
+    from ditherlab.io import rosbag
+
+    def killed(bag, plugin, rec, robot, ns):  # the bag half written, then the process killed
+        bag.mkdir()
+        (bag / (bag.name + ".mcap")).write_bytes(b"half")
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    rosbag._write_bag = killed
+    t = np.arange(10) * 0.004
+    meta = {"schema": "ditherlab.recording/1", "robot": "irb140"}
+    rec = Recording.from_arrays(RecordingArrays(t, np.zeros((10, 6)), np.zeros((10, 6))), meta)
+    rosbag.write(rec, sys.argv[1])
+    """
+)
+
+
+def test_stale_bag_folder_of_a_killed_writer_is_cleared(tmp_path, rec):
+    """A bag writer killed half-way leaves its hidden folder ``.NAME.XXXXXXXX``: the next bag
+    written into that folder removes it; a hidden folder that holds a replaced bag (``.old``)
+    or anything else is left."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    r = subprocess.run([sys.executable, "-c", _KILLED_BAG_WRITER, str(tmp_path / "run")],
+                       env=env, check=False)  # fmt: skip
+    assert r.returncode == -9
+    (left,) = [p for p in tmp_path.iterdir() if p.name.startswith(".run.")]
+    assert (left / "run" / "run.mcap").is_file()
+    other = tmp_path / ".cfg.abcdefgh"  # the pattern, but not a bag being written
+    (other / ".old").mkdir(parents=True)
+    small = Recording(rec.data[["t", *(c for c in rec.data.columns if c[:2] in ("q_", "ta"))]],
+                      META)  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DitherlabWarning)
+        dio.write(small, tmp_path / "second")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".cfg.abcdefgh", "second"]

@@ -211,7 +211,7 @@ def current_umask() -> int:
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+(?P<suffix>\.[A-Za-z0-9]+))\.[a-z0-9_]{8}(?P=suffix)$")
 
 
-def _locked(fd: int) -> bool:
+def try_lock(fd: int) -> bool:
     """Take the exclusive lock of the open file ``fd`` without waiting; False when another
     process holds it."""
     try:
@@ -242,7 +242,7 @@ def clear_stale_temporaries(folder: str | Path) -> list[Path]:
         except OSError:
             continue  # gone meanwhile, or not ours to open
         try:
-            if stat.S_ISREG(os.fstat(fd).st_mode) and _locked(fd):
+            if stat.S_ISREG(os.fstat(fd).st_mode) and try_lock(fd):
                 p.unlink()
                 removed.append(p)
         except OSError:
@@ -261,6 +261,21 @@ def _locked_temp(target: Path, suffix: str) -> tuple[int, Path]:
             fcntl.flock(fd, fcntl.LOCK_EX)
         if os.fstat(fd).st_nlink > 0:
             return fd, Path(tmp)
+        os.close(fd)
+
+
+def locked_temp_dir(parent: Path, prefix: str) -> tuple[int, Path]:
+    """A new temporary folder in ``parent`` (``PREFIX`` and eight characters), with an open
+    descriptor of it holding its lock while the caller writes it (closing the descriptor, or
+    the process ending, releases it): a clearing of stale folders leaves it alone. Made again
+    when such a clearing removed it between its creation and its lock."""
+    while True:
+        tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=parent))
+        fd = os.open(tmp, os.O_RDONLY)
+        with contextlib.suppress(OSError):  # no locks on this file system: none clears it either
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        if os.fstat(fd).st_nlink > 0:
+            return fd, tmp
         os.close(fd)
 
 

@@ -51,7 +51,6 @@ import re
 import shutil
 import sqlite3
 import struct
-import tempfile
 import warnings
 from array import array
 from collections.abc import Iterable, Iterator
@@ -67,7 +66,7 @@ from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from ditherlab.core.errors import ConfigError, DitherlabWarning, FormatError, one_line
-from ditherlab.core.files import current_umask
+from ditherlab.core.files import current_umask, locked_temp_dir, try_lock
 from ditherlab.core.names import WRENCH_COLUMNS
 from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
@@ -742,7 +741,8 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
             stacklevel=2,
         )
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    clear_stale_bag_folders(path.parent)
+    fd, tmpdir = locked_temp_dir(path.parent, f".{path.name}.")
     try:
         bag = tmpdir / path.name
         _write_bag(bag, plugins[storage], rec, robot, ns)
@@ -757,7 +757,55 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
     finally:
         with contextlib.suppress(OSError):
             shutil.rmtree(tmpdir)
+        os.close(fd)
     return path
+
+
+#: the temporary folder of :func:`write` for a bag ``NAME``: ``.NAME.XXXXXXXX`` (mkdtemp's eight
+#: characters) holding the bag folder ``NAME`` as it is written
+_TEMP_BAG = re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}$")
+#: what a bag folder being written holds (rosbags' storage files and their SQLite journals)
+_BAG_FILES = (".mcap", ".db3", ".yaml", ".db3-journal", ".db3-wal", ".db3-shm")
+
+
+def clear_stale_bag_folders(parent: Path) -> list[Path]:
+    """Remove the temporary folders that :func:`write` left in ``parent`` when its process died
+    before renaming the bag (``kill -9``); returns those removed. Only a folder of the pattern
+    ``.NAME.XXXXXXXX`` that holds nothing but a bag folder ``NAME`` of storage files, and whose
+    lock no process holds (:func:`ditherlab.core.files.locked_temp_dir`); one that holds a
+    replaced bag (``.old``, a process killed between its two renames) is left for the user."""
+    removed: list[Path] = []
+    try:
+        found = [(parent / n, m["name"]) for n in os.listdir(parent) if (m := _TEMP_BAG.match(n))]
+    except OSError:
+        return removed
+    for d, name in found:
+        try:
+            fd = os.open(d, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+        except OSError:
+            continue  # not a folder, or gone meanwhile
+        try:
+            if _only_a_bag_being_written(d, name) and try_lock(fd):
+                shutil.rmtree(d)
+                removed.append(d)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return removed
+
+
+def _only_a_bag_being_written(d: Path, name: str) -> bool:
+    """Whether the folder ``d`` holds nothing but the folder ``name`` of a bag's files."""
+    entries = os.listdir(d)
+    if any(e != name for e in entries):
+        return False
+    inner = d / name
+    if not entries:
+        return True
+    return inner.is_dir() and all(
+        f.is_file() and f.name.endswith(_BAG_FILES) for f in inner.iterdir()
+    )
 
 
 def not_stored(columns: list[str]) -> list[str]:
