@@ -1,8 +1,8 @@
 """Many recordings of many robots at once, on Dask distributed (``ditherlab fleet``).
 
 :func:`run` resolves the inputs (files, folders, glob patterns, or a manifest CSV with
-``file, robot, date, notes``), runs :func:`ditherlab.analysis.fleet_job.analyse_recording` on each as one
-Dask task (:func:`ditherlab.core.tasks.run_tasks`: a LocalCluster in this process by default),
+``file, robot, date, notes`` and each recording's own settings: :func:`read_manifest`), runs
+:func:`ditherlab.analysis.fleet_job.analyse_recording` on each as one Dask task (:func:`ditherlab.core.tasks.run_tasks`: a LocalCluster in this process by default),
 and writes, atomically, into the output folder:
 
 - ``fleet.parquet``: one row per recording, regime and joint (:data:`ditherlab.analysis.fleet_job.COLUMNS`);
@@ -10,7 +10,9 @@ and writes, atomically, into the output folder:
   included;
 - ``models/<robot>__<file stem>.toml``: each recording's identified model.
 
-One recording's failure is reported in the summary; the others go on.
+One recording's failure is reported in the summary and the others go on (:attr:`Fleet.failed`
+then says so: the CLI exits with status 1); an optional step that fails on a recording (the
+thresholds) is reported and its rows stand.
 """
 
 from __future__ import annotations
@@ -87,10 +89,9 @@ def read_manifest(path: str | Path) -> list[tuple[Path, dict[str, Any]]]:
     cell leaving the command's option: ``mapping`` (``--mapping``), ``description``
     (``--robot``: a built-in name or a URDF path), ``sensor`` (``yes``: an F/T sensor; ``no``:
     ``--assume-no-force``), ``joint_topic`` and ``wrench_topic`` (a ROS 2 bag's topics;
-    ``wrench_topic`` ``none`` reads no wrench). A
-    relative path of a mapping or URDF file is taken from the manifest's folder. ``info`` holds
-    ``robot``, ``date``, ``notes``, ``read`` (reader options) and ``assume_no_force`` (None:
-    the command's).
+    ``wrench_topic`` ``none`` reads no wrench). A relative path of a mapping or URDF file is
+    taken from the manifest's folder. ``info`` holds ``robot``, ``date``, ``notes``, ``read``
+    (reader options) and ``assume_no_force`` (None: the command's).
     """
     p = Path(path)
     if not p.is_file():
