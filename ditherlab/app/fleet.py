@@ -2,8 +2,9 @@
 
 :func:`run` resolves the inputs (files, folders, glob patterns, or a manifest CSV with
 ``file, robot, date, notes`` and each recording's own settings: :func:`read_manifest`), runs
-:func:`ditherlab.analysis.fleet_job.analyse_recording` on each as one Dask task (:func:`ditherlab.core.tasks.run_tasks`: a LocalCluster in this process by default),
-and writes, atomically, into the output folder:
+:func:`ditherlab.analysis.fleet_job.analyse_recording` on each as one Dask task
+(:func:`ditherlab.core.tasks.run_tasks`: a LocalCluster in this process by default), and writes,
+atomically, into the output folder:
 
 - ``fleet.parquet``: one row per recording, regime and joint (:data:`ditherlab.analysis.fleet_job.COLUMNS`);
 - ``fleet.json`` and ``fleet.md``: the fleet report (:mod:`ditherlab.analysis.fleet_summary`), failures
