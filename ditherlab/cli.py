@@ -38,12 +38,14 @@ from typer.core import TyperGroup
 from ditherlab.cli_options import (
     Chunk,
     Force,
+    JointTopicOpt,
     JsonFlag,
     MappingOpt,
     ModelIn,
     Quiet,
     RobotOpt,
     Seed,
+    WrenchTopicOpt,
     _format_warning,
     echo,
     held_warnings,
@@ -181,11 +183,17 @@ def _show(result: Any, json_out: bool = False) -> None:
         echo(result.text())
 
 
-def _read(mapping: str | None, robot: str | None) -> Any:
-    """:class:`ditherlab.app.workflow.ReadOptions` of ``--mapping`` and ``--robot``."""
+def _read(
+    mapping: str | None,
+    robot: str | None,
+    joint_topic: str | None = None,
+    wrench_topic: str | None = None,
+) -> Any:
+    """:class:`ditherlab.app.workflow.ReadOptions` of ``--mapping``, ``--robot``,
+    ``--joint-topic`` and ``--wrench-topic``."""
     from ditherlab.app.workflow import ReadOptions
 
-    return ReadOptions(mapping, robot)
+    return ReadOptions(mapping, robot, joint_topic, wrench_topic)
 
 
 def _chunk(chunk: int | None) -> dict[str, int]:
@@ -201,6 +209,8 @@ def info(
     ],
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     json_out: JsonFlag = False,
     chunk: Chunk = None,
 ) -> None:
@@ -210,7 +220,8 @@ def info(
     """
     from ditherlab.app import info as cmd
 
-    opts = cmd.InfoOptions(file=file, read=_read(mapping, robot), **_chunk(chunk))
+    read = _read(mapping, robot, joint_topic, wrench_topic)
+    opts = cmd.InfoOptions(file=file, read=read, **_chunk(chunk))
     _show(cmd.run(opts), json_out)
 
 
@@ -225,6 +236,8 @@ def convert(
     ],
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     known_load: Annotated[
@@ -246,7 +259,7 @@ def convert(
     opts = cmd.ConvertOptions(
         src=src,
         dst=dst,
-        read=_read(mapping, robot),
+        read=_read(mapping, robot, joint_topic, wrench_topic),
         force=force,
         known_load=known_load,
         **_chunk(chunk),
@@ -359,6 +372,8 @@ def identify(
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -373,7 +388,8 @@ def identify(
     opts = cmd.IdentifyOptions(
         recordings=tuple(recordings), out=out, model=model, add=tuple(add or ()),
         assume_no_force=assume_no_force, n_boot=bootstrap, seed=seed,
-        read=_read(mapping, robot), force=force, **_chunk(chunk),
+        read=_read(mapping, robot, joint_topic, wrench_topic),
+        force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("identify", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -407,6 +423,8 @@ def replay(
     ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -421,7 +439,8 @@ def replay(
     opts = cmd.ReplayOptions(
         recording=recording, model=model, out=out, level=level, interval=interval,
         components=components, variants=tuple(variants.split(",")) if variants else None,
-        read=_read(mapping, robot), force=force, **_chunk(chunk),
+        read=_read(mapping, robot, joint_topic, wrench_topic),
+        force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("replay", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -490,6 +509,8 @@ def diagnose(
     ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     no_history: Annotated[
         bool,
         typer.Option(
@@ -517,7 +538,8 @@ def diagnose(
 
     opts = cmd.DiagnoseOptions(
         recordings=tuple(recordings), model=model, out=out, history=not no_history,
-        regimes=tuple(regime) if regime else None, read=_read(mapping, robot), force=force,
+        regimes=tuple(regime) if regime else None, force=force,
+        read=_read(mapping, robot, joint_topic, wrench_topic),
         **_chunk(chunk),
     )  # fmt: skip
     with _progress("diagnose", quiet or json_out) as progress:
@@ -548,6 +570,8 @@ def view(
     serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -560,7 +584,8 @@ def view(
 
     opts = cmd.ViewOptions(
         recording=recording, estimates=estimates, model=model, diagnosis=diagnosis, save=save,
-        mode=cmd.view_mode(spawn, serve), read=_read(mapping, robot), force=force,
+        mode=cmd.view_mode(spawn, serve), force=force,
+        read=_read(mapping, robot, joint_topic, wrench_topic),
         **_chunk(chunk),
     )  # fmt: skip
     with _progress("view", quiet) as progress:
@@ -664,7 +689,10 @@ def fleet(
     manifest: Annotated[
         Path | None,
         typer.Option(
-            "--manifest", metavar="FILE", help="CSV with columns file, robot, date, notes."
+            "--manifest",
+            metavar="FILE",
+            help="CSV with columns file, robot, date, notes and per-recording settings (mapping, "
+            "description, sensor, joint_topic, wrench_topic).",
         ),
     ] = None,
     scheduler: Annotated[
@@ -703,21 +731,29 @@ def fleet(
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    joint_topic: JointTopicOpt = None,
+    wrench_topic: WrenchTopicOpt = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Identify and diagnose many recordings.
 
     Each recording as a Dask task; one table and a fleet report (effects, drift, outliers).
+    Exit status 1 when a recording failed (the outputs hold the others).
     """
     from ditherlab.app import fleet as cmd
 
     opts = cmd.FleetOptions(
         recordings=tuple(recordings or ()), out=out, manifest=manifest, scheduler=scheduler,
         workers=workers, model=model, assume_no_force=assume_no_force, n_boot=bootstrap,
-        thresholds=thresholds, seed=seed, read=_read(mapping, robot), force=force,
+        thresholds=thresholds, seed=seed, force=force,
+        read=_read(mapping, robot, joint_topic, wrench_topic),
     )  # fmt: skip
-    _show(cmd.run(opts, progress=not quiet))
+    res = cmd.run(opts, progress=not quiet)
+    _show(res)
+    if res.failed:  # the outputs hold the others: one line and status 1, not 2
+        typer.echo(f"error: {res.failed}", err=True)
+        raise typer.Exit(1)
 
 
 @app.command()

@@ -36,6 +36,22 @@ RobotOpt = Annotated[
         help="Robot for files without metadata: a built-in name (irb140) or a URDF path.",
     ),
 ]
+JointTopicOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--joint-topic",
+        metavar="TOPIC",
+        help="ROS 2 bag: the JointState topic to read (needed when the bag has several).",
+    ),
+]
+WrenchTopicOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--wrench-topic",
+        metavar="TOPIC",
+        help="ROS 2 bag: the WrenchStamped topic to merge ('' for none; default: the only one).",
+    ),
+]
 ModelIn = Annotated[
     Path,
     typer.Option("--model", metavar="FILE", help="Torque model (TOML) from `ditherlab identify`."),

@@ -123,7 +123,11 @@ def fleet(tmp_path_factory):
 
 def test_every_robot_done_and_the_corrupt_file_reported(fleet):
     _, _, out, r = fleet
-    assert r.code == 0, r.err
+    assert r.code == 1, r.err  # a recording failed: status 1, the outputs hold the others
+    assert r.err.splitlines()[-1] == (
+        f"error: fleet: 1 of {len(ROBOTS) + 1} recordings failed (listed above); {out} holds "
+        f"the other {len(ROBOTS)}"
+    )
     s = json.loads((out / "fleet.json").read_text())
     assert s["recordings"] == len(ROBOTS)
     assert [f["file"].endswith("r12_2026-01-20.parquet") for f in s["failures"]] == [True]

@@ -442,7 +442,9 @@ def test_bag_topic_options(tmp_path):
     write_foreign_bag(
         bag, StoragePlugin.MCAP, t, np.zeros((20, 6)), np.ones((20, 6)), t, np.ones((20, 6))
     )
-    with pytest.raises(FormatError, match=r"topic /joint_states \(joint_topic\) is not in the bag"):
+    with pytest.raises(
+        FormatError, match=r"--joint-topic \(joint_topic=\) names topic /joint_states, which"
+    ):
         dio.read(bag, robot="irb140", joint_topic="/joint_states")
     rec = dio.read(bag, robot="irb140", wrench_topic="")
     assert not rec.has_wrench and len(rec) == 20
@@ -634,7 +636,8 @@ def test_bag_storage_file_alone_reads_robot_from_description(tmp_path, sample, s
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_damaged_bag_is_a_format_error(tmp_path, sample, storage):
-    """A bag whose storage file is cut or overwritten in the middle is a FormatError."""
+    """A bag whose storage file is cut or overwritten in the middle is a FormatError, never a
+    shorter recording."""
     dio.write(sample.slice(None, 336.0), tmp_path / "bag", storage=storage)
     f = next(p for p in (tmp_path / "bag").iterdir() if p.suffix in (".mcap", ".db3"))
     data = f.read_bytes()
@@ -643,8 +646,12 @@ def test_damaged_bag_is_a_format_error(tmp_path, sample, storage):
         data[: len(data) // 2] + b"\0" * 200 + data[len(data) // 2 + 200 :],
     ):
         f.write_bytes(damaged)
-        with pytest.raises(FormatError, match=rf"^{tmp_path / 'bag'}: not a readable ROS 2 bag"):
+        with pytest.raises(FormatError) as e:
             dio.read(tmp_path / "bag")
+        assert str(e.value).startswith(f"{tmp_path / 'bag'}: ")
+        # the reader's own error, a storage file shorter than its header says, or fewer
+        # messages than the bag's index counts
+        assert "not a readable ROS 2 bag" in str(e.value) or "cut off" in str(e.value)
 
 
 def test_mcap_layout_is_plain_json_with_jsonschema(tmp_path, sample):

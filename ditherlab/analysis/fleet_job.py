@@ -18,10 +18,11 @@ from ditherlab.analysis.detection import AXES, NoPushesError, analyse
 from ditherlab.analysis.diagnosis import Diagnosis, diagnose
 from ditherlab.analysis.estimation import available_variants, replay
 from ditherlab.analysis.identification import identify
+from ditherlab.core.errors import DitherlabError, one_line
 from ditherlab.data.torque_model import Band, TorqueModel
 from ditherlab.io import read
 
-__all__ = ["COLUMNS", "analyse_recording"]
+__all__ = ["COLUMNS", "analyse_recording", "robot_identity"]
 
 #: the fleet table's columns, in order (units in the names' suffixes: N·m, N, s)
 COLUMNS = [
@@ -84,31 +85,37 @@ def analyse_recording(path: str, info: dict[str, Any], options: dict[str, Any]) 
     Parameters
     ----------
     path : the recording (any format :func:`ditherlab.io.read` knows)
-    info : ``robot`` (id), ``date`` (ISO text or None), ``notes`` from the manifest
+    info : ``robot`` (id), ``date`` (ISO text or None), ``notes`` from the manifest, and the
+        recording's own settings: ``read`` (reader options over the fleet's) and
+        ``assume_no_force`` (None: the fleet's)
     options : ``read`` (read options), ``base`` (a model's TOML text or None),
         ``assume_no_force``, ``n_boot``, ``seed``, ``thresholds`` (bool), ``thresholds_boot``
 
     Returns
     -------
     ``{"rows": [dict per regime and joint, keys :data:`COLUMNS`], "model": TOML text,
-    "suggested": [{"effect", "joints", "explained_fraction"}], "verdict": text or None}``
+    "suggested": [{"effect", "joints", "explained_fraction"}], "verdict": text or None,
+    "robot_from": "manifest", "metadata" or "file name" (where the robot's identity came from),
+    "skipped": [{"step", "error"}] (optional steps that failed: the rows hold NaN for them)}``
     """
-    rec = read(path, **options.get("read", {}))
-    model = _identify(rec, options)
+    rec = read(path, **{**options.get("read", {}), **(info.get("read") or {})})
+    own = info.get("assume_no_force")
+    model = _identify(rec, {**options, **({} if own is None else {"assume_no_force": own})})
     d = diagnose([rec], model)
     suggested = [
         {"effect": c.effect, "joints": list(c.joints), "explained_fraction": c.explained_fraction}
         for c in d.suggested
     ]
-    thr = (
-        _thresholds(
-            rec, model, int(options.get("thresholds_boot", 50)), int(options.get("seed", 0))
-        )
-        if options.get("thresholds", True)
-        else {}
-    )
-    verdict = d.verdict["text"] if d.verdict else None
-    common = _common_columns(path, info, rec, d, suggested, thr)
+    thr: dict[str, float] = {}
+    skipped: list[dict[str, str]] = []
+    if options.get("thresholds", True):
+        try:
+            boot = int(options.get("thresholds_boot", 50))
+            thr = _thresholds(rec, model, boot, int(options.get("seed", 0)))
+        except DitherlabError as exc:  # an optional step: the recording's rows stand without it
+            skipped.append({"step": "thresholds", "error": one_line(exc)})
+    robot, robot_from = robot_identity(path, info, rec.meta)
+    common = _common_columns(path, {**info, "robot": robot}, rec, d, suggested, thr)
     rows = [
         {**common, **_joint_columns(model, d, suggested, regime, band, j)}
         for regime, band in model.regimes.items()
@@ -118,8 +125,21 @@ def analyse_recording(path: str, info: dict[str, Any], options: dict[str, Any]) 
         "rows": [{k: r[k] for k in COLUMNS} for r in rows],
         "model": model.dumps(),
         "suggested": suggested,
-        "verdict": verdict,
+        "verdict": d.verdict["text"] if d.verdict else None,
+        "robot_from": robot_from,
+        "skipped": skipped,
     }
+
+
+def robot_identity(path: str, info: dict[str, Any], meta: dict[str, Any]) -> tuple[str, str]:
+    """Which robot a recording is of, and where that came from: the manifest's ``robot``, else
+    the recording's metadata ``robot_id`` (a serial number, a cell name), else the file's stem
+    (each such file its own robot)."""
+    if info.get("robot"):
+        return str(info["robot"]), "manifest"
+    if meta.get("robot_id"):
+        return str(meta["robot_id"]), "metadata"
+    return Path(path).stem, "file name"
 
 
 def _identify(rec: Any, options: dict[str, Any]) -> TorqueModel:
@@ -152,7 +172,7 @@ def _common_columns(
     force = d.force["rms"] if d.force is not None else [np.nan] * 6
     t = rec.t
     return {
-        "robot": str(info.get("robot") or Path(path).stem),
+        "robot": str(info["robot"]),
         "file": str(path),
         "date": info.get("date"),
         "notes": info.get("notes") or "",

@@ -161,12 +161,24 @@ def outliers(table: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def summarise(table: pd.DataFrame, failures: list[dict[str, str]]) -> dict[str, Any]:
-    """The fleet report as JSON-ready data (see the module docstring for each part)."""
+def summarise(
+    table: pd.DataFrame,
+    failures: list[dict[str, str]],
+    skipped: list[dict[str, str]] | None = None,
+    named_by_file: list[str] | None = None,
+) -> dict[str, Any]:
+    """The fleet report as JSON-ready data (see the module docstring for each part).
+
+    ``failures``: ``{file, error}`` of the recordings that failed; ``skipped``: ``{file, step,
+    error}`` of an optional step that failed on a recording whose rows stand; ``named_by_file``:
+    the recordings whose robot is named by their file (no manifest ``robot``, no metadata
+    ``robot_id``)."""
     return {
         "recordings": int(table["file"].nunique()) if len(table) else 0,
         "robots": sorted(map(str, table["robot"].unique())) if len(table) else [],
         "failures": failures,
+        "skipped": list(skipped or []),
+        "named_by_file": list(named_by_file or []),
         "per_robot": per_robot(table).to_dict("records") if len(table) else [],
         "drift": drift(table).to_dict("records") if len(table) else [],
         "effects": effects_needed(table) if len(table) else {},
@@ -193,6 +205,23 @@ def _md_table(rows: list[dict[str, Any]], cols: list[str]) -> list[str]:
     return out
 
 
+def _md_partial(s: dict[str, Any]) -> list[str]:
+    """The optional steps that failed, and the robots named by their file, as sections."""
+    lines: list[str] = []
+    if s.get("skipped"):
+        lines += ["## Optional steps not done", ""]
+        lines += [f"- `{k['file']}`: {k['step']}: {k['error']}" for k in s["skipped"]]
+        lines.append("")
+    if s.get("named_by_file"):
+        lines += ["## Robots named by their file", ""]
+        lines.append(
+            "No manifest `robot` and no metadata `robot_id`: each of these recordings is its "
+            "own robot, named by its file."
+        )
+        lines += ["", *(f"- `{f}`" for f in s["named_by_file"]), ""]
+    return lines
+
+
 def to_markdown(s: dict[str, Any]) -> str:
     """``fleet.md``: the summary in words and tables."""
     lines = [
@@ -211,6 +240,7 @@ def to_markdown(s: dict[str, Any]) -> str:
             for f in s["failures"]
         ]
         lines.append("")
+    lines += _md_partial(s)
     lines += ["## Which robots need which effect", ""]
     if s["effects"]:
         for e, robots in s["effects"].items():

@@ -1,16 +1,19 @@
 """Many recordings of many robots at once, on Dask distributed (``ditherlab fleet``).
 
 :func:`run` resolves the inputs (files, folders, glob patterns, or a manifest CSV with
-``file, robot, date, notes``), runs :func:`ditherlab.analysis.fleet_job.analyse_recording` on each as one
-Dask task (:func:`ditherlab.core.tasks.run_tasks`: a LocalCluster in this process by default),
-and writes, atomically, into the output folder:
+``file, robot, date, notes`` and each recording's own settings: :func:`read_manifest`), runs
+:func:`ditherlab.analysis.fleet_job.analyse_recording` on each as one Dask task
+(:func:`ditherlab.core.tasks.run_tasks`: a LocalCluster in this process by default), and writes,
+atomically, into the output folder:
 
 - ``fleet.parquet``: one row per recording, regime and joint (:data:`ditherlab.analysis.fleet_job.COLUMNS`);
 - ``fleet.json`` and ``fleet.md``: the fleet report (:mod:`ditherlab.analysis.fleet_summary`), failures
   included;
 - ``models/<robot>__<file stem>.toml``: each recording's identified model.
 
-One recording's failure is reported in the summary; the others go on.
+One recording's failure is reported in the summary and the others go on (:attr:`Fleet.failed`
+then says so: the CLI exits with status 1); an optional step that fails on a recording (the
+thresholds) is reported and its rows stand.
 """
 
 from __future__ import annotations
@@ -62,11 +65,34 @@ def _from_folder(folder: Path) -> list[Path]:
     return out
 
 
+#: the manifest's columns: the recording, its identity, and its own read and identify settings
+MANIFEST_COLUMNS = (
+    "file",
+    "robot",
+    "date",
+    "notes",
+    "mapping",
+    "description",
+    "sensor",
+    "joint_topic",
+    "wrench_topic",
+)
+#: a ``sensor`` cell: yes (an F/T sensor, f_x..m_z) or no (``--assume-no-force``)
+_SENSOR = {"yes": False, "true": False, "1": False, "no": True, "false": True, "0": True}
+
+
 def read_manifest(path: str | Path) -> list[tuple[Path, dict[str, Any]]]:
-    """``(file, {"robot", "date", "notes"})`` per row of a manifest CSV.
+    """``(file, info)`` per row of a manifest CSV (:data:`MANIFEST_COLUMNS`).
 
     Columns: ``file`` (required; relative paths are taken from the manifest's folder),
-    ``robot``, ``date`` (any date pandas parses; stored as ``YYYY-MM-DD``), ``notes``.
+    ``robot`` (the robot's identity: a serial number, a cell name), ``date`` (any date pandas
+    parses; stored as ``YYYY-MM-DD``), ``notes``, and the recording's own settings, an empty
+    cell leaving the command's option: ``mapping`` (``--mapping``), ``description``
+    (``--robot``: a built-in name or a URDF path), ``sensor`` (``yes``: an F/T sensor; ``no``:
+    ``--assume-no-force``), ``joint_topic`` and ``wrench_topic`` (a ROS 2 bag's topics;
+    ``wrench_topic`` ``none`` reads no wrench). A relative path of a mapping or URDF file is
+    taken from the manifest's folder. ``info`` holds ``robot``, ``date``, ``notes``, ``read``
+    (reader options) and ``assume_no_force`` (None: the command's).
     """
     p = Path(path)
     if not p.is_file():
@@ -78,31 +104,62 @@ def read_manifest(path: str | Path) -> list[tuple[Path, dict[str, Any]]]:
     if "file" not in m.columns:
         raise ConfigError(
             f"{p}: column 'file' is missing (found {', '.join(m.columns) or 'none'}); expected "
-            "file, and optionally robot, date, notes"
+            f"file, and optionally {', '.join(MANIFEST_COLUMNS[1:])}"
         )
-    out = []
-    for i, r in m.iterrows():
-        f = Path(r["file"])
-        f = f if f.is_absolute() else p.parent / f
-        if not f.exists():
+    unknown = [c for c in m.columns if c not in MANIFEST_COLUMNS]
+    if unknown:
+        raise ConfigError(
+            f"{p}: unknown column {unknown[0]!r}; expected {', '.join(MANIFEST_COLUMNS)}"
+        )
+    return [_manifest_row(p, i + 2, r) for i, r in m.iterrows()]
+
+
+def _manifest_row(p: Path, line: int, r: pd.Series) -> tuple[Path, dict[str, Any]]:
+    """One manifest row (file line ``line``) as ``(file, info)`` (:func:`read_manifest`)."""
+    f = Path(r["file"])
+    f = f if f.is_absolute() else p.parent / f
+    if not f.exists():
+        raise ConfigError(
+            f"{p}: row {line}, column 'file' is {r['file']!r}: no such file or folder"
+            + (f" ({f})" if str(f) != r["file"] else "")
+            + "; expected a recording"
+        )
+    date = r.get("date", "") or None
+    if date is not None:
+        try:
+            date = pd.Timestamp(date).date().isoformat()
+        except ValueError:
             raise ConfigError(
-                f"{p}: row {i + 2}, column 'file' is {r['file']!r}: no such file or folder"
-                + (f" ({f})" if str(f) != r["file"] else "")
-                + "; expected a recording"
-            )
-        date = r.get("date", "") or None
-        if date is not None:
-            try:
-                date = pd.Timestamp(date).date().isoformat()
-            except ValueError:
-                raise ConfigError(
-                    f"{p}: row {i + 2}, column 'date' is {r['date']!r}; expected a date such "
-                    "as 2026-11-24"
-                ) from None
-        out.append(
-            (f, {"robot": r.get("robot", "") or None, "date": date, "notes": r.get("notes", "")})
+                f"{p}: row {line}, column 'date' is {r['date']!r}; expected a date such "
+                "as 2026-11-24"
+            ) from None
+    sensor = str(r.get("sensor", "")).strip().lower()
+    if sensor and sensor not in _SENSOR:
+        raise ConfigError(
+            f"{p}: row {line}, column 'sensor' is {r['sensor']!r}; expected yes (an F/T sensor) "
+            "or no (no sensor and no external force, as --assume-no-force), or empty"
         )
-    return out
+    read: dict[str, str] = {}
+    for col, opt in (("mapping", "mapping"), ("description", "robot")):
+        if r.get(col, ""):
+            near = p.parent / r[col]
+            read[opt] = str(near) if not Path(r[col]).is_absolute() and near.is_file() else r[col]
+    if r.get("joint_topic", ""):
+        read["joint_topic"] = r["joint_topic"]
+    if r.get("wrench_topic", ""):  # none: the bag's wrench is not read
+        read["wrench_topic"] = "" if r["wrench_topic"].lower() == "none" else r["wrench_topic"]
+    info = {"robot": r.get("robot", "") or None, "date": date, "notes": r.get("notes", "")}
+    return f, {**info, "read": read, "assume_no_force": _SENSOR.get(sensor)}
+
+
+#: the info of a recording given without a manifest: the command's settings
+_NO_INFO: dict[str, Any] = {
+    "robot": None,
+    "date": None,
+    "notes": "",
+    "read": {},
+    "assume_no_force": None,
+}
 
 
 def collect_inputs(
@@ -130,7 +187,7 @@ def collect_inputs(
                     f"{p}: a folder without recordings (expected {', '.join(SUFFIXES)} files or "
                     "ROS 2 bag folders)"
                 )
-        found.extend((q, {"robot": None, "date": None, "notes": ""}) for q in paths)
+        found.extend((q, dict(_NO_INFO)) for q in paths)
     seen: set[Path] = set()
     out = []
     for p, info in found:
@@ -148,14 +205,15 @@ def _check_robots(
 ) -> None:
     """One model for the whole fleet: every recording must be of its robot. Checked before any
     task runs, on the recordings whose metadata is read without their samples (Parquet, CSV,
-    ditherlab MCAP); bags, mapped logs and unreadable files are checked (or reported) in their
-    task."""
-    for p, _ in items:
+    ditherlab MCAP), with their own reader options (``read`` updated by the manifest's); bags,
+    mapped logs and unreadable files are checked (or reported) in their task."""
+    for p, info in items:
+        own = {**read, **info.get("read", {})}
         suffix = p.suffix.lower()
-        if "mapping" in read or _is_bag(p) or suffix not in (".parquet", ".csv", ".mcap"):
+        if "mapping" in own or _is_bag(p) or suffix not in (".parquet", ".csv", ".mcap"):
             continue
         try:  # a CSV's sidecar alone (a Source would read its `t` column too)
-            meta = csv_io.read_meta(p, read) if suffix == ".csv" else Source(p, **read).meta
+            meta = csv_io.read_meta(p, own) if suffix == ".csv" else Source(p, **own).meta
             spec = meta.get("robot")
         except DitherlabError:
             continue  # its task reports what is wrong with it
@@ -165,6 +223,11 @@ def _check_robots(
                 f"{model.source or ''} is for {robot_label(model.robot)}; one model serves one "
                 "robot: run the fleet once per robot, or without --model".replace("  ", " ")
             )
+
+
+def _setting_files(items: list[tuple[Path, dict[str, Any]]]) -> list[Path]:
+    """The mapping files the manifest's rows name, which no output may overwrite."""
+    return [f for _, info in items for f in ReadOptions(info["read"].get("mapping")).files()]
 
 
 def _model_name(robot: str, path: Path) -> str:
@@ -227,6 +290,14 @@ class Fleet:
         for f in s["failures"]:
             msg = f["error"] if f["error"].startswith(f["file"]) else f"{f['file']}: {f['error']}"
             lines.append(f"  failed: {msg}")
+        for k in s.get("skipped", []):
+            lines.append(f"  {k['step']} not computed: {k['file']}: {k['error']}")
+        if s.get("named_by_file"):
+            n = len(s["named_by_file"])
+            lines.append(
+                f"  {n} recording{'s' if n > 1 else ''} named by {'their' if n > 1 else 'its'} "
+                "file (no manifest robot, no metadata robot_id): each its own robot"
+            )
         for e, robots in s["effects"].items():
             lines.append(f"  {e}: {', '.join(robots)}")
         for d in (d for d in s["drift"] if d["growing"]):
@@ -245,6 +316,19 @@ class Fleet:
     def to_dict(self) -> dict[str, Any]:
         """The fleet report."""
         return self.summary
+
+    @property
+    def failed(self) -> str | None:
+        """None when every recording was analysed; else the line that says how many failed
+        (the command then exits with status 1, its outputs holding the others)."""
+        s = self.summary
+        n = len(s["failures"])
+        if not n:
+            return None
+        done = s["given"] - n
+        return f"fleet: {n} of {s['given']} recordings failed (listed above); " + (
+            f"{self.out} holds the other {done}" if done else "no recording was analysed"
+        )
 
 
 def run(
@@ -267,7 +351,7 @@ def run(
     """
     o = options
     items = collect_inputs(o.recordings, o.manifest)
-    extra = [Path(o.manifest)] if o.manifest else []
+    extra = [Path(o.manifest), *_setting_files(items)] if o.manifest else []
     if o.model is not None:
         extra.append(Path(o.model))
     out = guard(o.out, [p for p, _ in items] + extra, read=o.read, folder=True, force=o.force)
@@ -304,7 +388,7 @@ def _write(
 ) -> dict[str, Any]:
     """Write each recording's model, the table and the report; returns the report."""
     rows: list[dict[str, Any]] = []
-    failures = []
+    failures, skipped, by_file = [], [], []
     out.mkdir(parents=True, exist_ok=True)
     (out / "models").mkdir(exist_ok=True)
     for r, (p, _) in zip(results, items, strict=True):
@@ -312,12 +396,15 @@ def _write(
             failures.append({"file": str(p), "error": r.error})
             continue
         rows.extend(r.value["rows"])
+        skipped += [{"file": str(p), **k} for k in r.value.get("skipped", [])]
+        if r.value.get("robot_from") == "file name":
+            by_file.append(str(p))
         robot = r.value["rows"][0]["robot"] if r.value["rows"] else p.stem
         atomic_write_text(out / "models" / _model_name(robot, p), r.value["model"])
     table = pd.DataFrame(rows, columns=COLUMNS)
     with atomic_path(out / "fleet.parquet") as tmp:
         table.to_parquet(tmp, index=False)
-    s = summarise(table, failures)
+    s = summarise(table, failures, skipped, by_file)
     atomic_write_json(out / "fleet.json", s)
     atomic_write_text(out / "fleet.md", to_markdown(s))
-    return {**s, "table": str(out / "fleet.parquet")}
+    return {**s, "table": str(out / "fleet.parquet"), "given": len(items)}

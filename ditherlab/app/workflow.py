@@ -30,21 +30,29 @@ RECORDING_FILE = FileKind(
 
 @dataclass(frozen=True)
 class ReadOptions:
-    """How to read a log without ditherlab metadata (``--mapping``, ``--robot``).
+    """How to read a log without ditherlab metadata (``--mapping``, ``--robot``) and which
+    topics of a ROS 2 bag (``--joint-topic``, ``--wrench-topic``).
 
     Attributes
     ----------
     mapping : a TOML mapping file, or the name of a built-in mapping (``ur10e``), describing a
         foreign log's columns and units (:mod:`ditherlab.io.mapping`)
     robot : the robot of a file without metadata: a built-in name (``irb140``) or a URDF path
+    joint_topic : a bag's ``sensor_msgs/msg/JointState`` topic (needed when it has several)
+    wrench_topic : a bag's ``geometry_msgs/msg/WrenchStamped`` topic; ``""`` reads no wrench
     """
 
     mapping: str | None = None
     robot: str | None = None
+    joint_topic: str | None = None
+    wrench_topic: str | None = None
 
     def kwargs(self) -> dict[str, str]:
-        """The options of :func:`ditherlab.io.read` and :func:`ditherlab.io.stream.open_source`."""
-        return {k: v for k, v in (("mapping", self.mapping), ("robot", self.robot)) if v}
+        """The options of :func:`ditherlab.io.read` and :func:`ditherlab.io.stream.open_source`
+        (the topics only when given: other formats refuse them)."""
+        out = {k: v for k, v in (("mapping", self.mapping), ("robot", self.robot)) if v}
+        topics = (("joint_topic", self.joint_topic), ("wrench_topic", self.wrench_topic))
+        return out | {k: v for k, v in topics if v is not None}
 
     def files(self) -> list[Path]:
         """The files these options read (the mapping file), which no output may overwrite."""

@@ -6,10 +6,11 @@ A crash never leaves half a file, and no command may write over one of its input
 from __future__ import annotations
 
 import contextlib
-import glob
+import fcntl
 import json
 import os
 import re
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -205,65 +206,105 @@ def current_umask() -> int:
     return mask
 
 
+#: the temporary file of :func:`atomic_path` for a target ``NAME.SUF``: ``.NAME.SUF.XXXXXXXX.SUF``
+#: (mkstemp's eight characters)
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+(?P<suffix>\.[A-Za-z0-9]+))\.[a-z0-9_]{8}(?P=suffix)$")
+
+
+def try_lock(fd: int) -> bool:
+    """Take the exclusive lock of the open file ``fd`` without waiting; False when another
+    process holds it."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
+def clear_stale_temporaries(folder: str | Path) -> list[Path]:
+    """Remove the temporary files that :func:`atomic_path` left in ``folder`` when its process
+    died before renaming them (``kill -9``, a power cut); returns the paths removed.
+
+    Only names of :func:`atomic_path`'s pattern (``.NAME.SUF.XXXXXXXX.SUF``) are considered,
+    and only those whose lock no process holds: a writer holds its temporary file's lock from
+    its creation to its rename, and the system releases it when the process ends, however it
+    ends. Each is removed while holding its lock, so no writer can take it meanwhile.
+    """
+    removed: list[Path] = []
+    try:
+        names = [n for n in os.listdir(folder) if _TEMP_NAME.match(n)]
+    except OSError:
+        return removed
+    for n in names:
+        p = Path(folder) / n
+        try:
+            fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW)
+        except OSError:
+            continue  # gone meanwhile, or not ours to open
+        try:
+            if stat.S_ISREG(os.fstat(fd).st_mode) and try_lock(fd):
+                p.unlink()
+                removed.append(p)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return removed
+
+
+def _locked_temp(target: Path, suffix: str) -> tuple[int, Path]:
+    """A new temporary file beside ``target`` (:data:`_TEMP_NAME`), open and locked; made again
+    when a :func:`clear_stale_temporaries` removed it between its creation and its lock."""
+    while True:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix, dir=target.parent)
+        with contextlib.suppress(OSError):  # no locks on this file system: none clears it either
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        if os.fstat(fd).st_nlink > 0:
+            return fd, Path(tmp)
+        os.close(fd)
+
+
+def locked_temp_dir(parent: Path, prefix: str) -> tuple[int, Path]:
+    """A new temporary folder in ``parent`` (``PREFIX`` and eight characters), with an open
+    descriptor of it holding its lock while the caller writes it (closing the descriptor, or
+    the process ending, releases it): a clearing of stale folders leaves it alone. Made again
+    when such a clearing removed it between its creation and its lock."""
+    while True:
+        tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=parent))
+        fd = os.open(tmp, os.O_RDONLY)
+        with contextlib.suppress(OSError):  # no locks on this file system: none clears it either
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        if os.fstat(fd).st_nlink > 0:
+            return fd, tmp
+        os.close(fd)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; on success rename it to ``path``.
 
-    The temporary file keeps the target's suffix (writers dispatch on it). On an exception the
-    temporary file is removed and ``path`` is untouched. Its name holds the writing process's
-    id (``.NAME.PID.XXXXXXXX.SUFFIX``): a process killed outright (``kill -9``) cannot remove
-    its own, and the next write of the same target clears those whose process has ended
-    on this machine (:func:`clear_stale_temporaries`).
+    The temporary file keeps the target's suffix (writers dispatch on it) and stays locked
+    while it is written; the temporary files that a killed process left in the folder are
+    removed first (:func:`clear_stale_temporaries`). On an exception the temporary file is
+    removed and ``path`` is untouched.
     """
     target = Path(path)
-    suffix = suffix if suffix is not None else target.suffix
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        clear_stale_temporaries(target, suffix)
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{target.name}.{os.getpid()}.", suffix=suffix, dir=target.parent
-        )
+        clear_stale_temporaries(target.parent)
+        fd, tmp_path = _locked_temp(target, suffix if suffix is not None else target.suffix)
     except OSError as exc:  # a file in the way, no permission, read-only: one line
         raise DitherlabError(f"{target}: cannot write ({exc.strerror or exc})") from None
-    os.close(fd)
-    os.chmod(tmp, 0o666 & ~current_umask())  # mkstemp makes 0600; give the file the usual mode
-    tmp_path = Path(tmp)
     try:
+        os.chmod(tmp_path, 0o666 & ~current_umask())  # mkstemp makes 0600: the usual mode
         yield tmp_path
         os.replace(tmp_path, target)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
-
-
-def clear_stale_temporaries(target: Path, suffix: str) -> list[Path]:
-    """Remove the temporary files :func:`atomic_path` left beside ``target`` in processes that
-    have ended (a ``kill -9``, a power cut): only names of exactly its pattern, and only when
-    the process id in the name is not a live process here. Returns the paths removed."""
-    pattern = re.compile(
-        re.escape(f".{target.name}.") + r"(\d+)\.[a-z0-9_]{8}" + re.escape(suffix) + r"\Z"
-    )
-    removed = []
-    for p in target.parent.glob(f".{glob.escape(target.name)}.*"):
-        m = pattern.match(p.name)
-        if m is None or _process_runs(int(m.group(1))) or not p.is_file():
-            continue
-        with contextlib.suppress(FileNotFoundError):
-            p.unlink()
-            removed.append(p)
-    return removed
-
-
-def _process_runs(pid: int) -> bool:
-    """Whether process ``pid`` runs on this machine (a process of another user counts)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError):
-        return True
-    return True
+    finally:
+        os.close(fd)  # the lock goes with it
 
 
 @contextlib.contextmanager

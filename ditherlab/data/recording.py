@@ -99,6 +99,7 @@ META_SCHEMA = Table(
         "known_load": PAYLOAD_NODE,
         "sample_rate_hz": Number(0.0, MAX_RATE_HZ, "Hz", lo_open=True),
         "source": Text(),
+        "robot_id": Text(),
         "notes": Text(),
         "dither": _DITHER_NODE,
         "sim": Table(keys={"dither": _DITHER_NODE}, open=True),

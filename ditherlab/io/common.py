@@ -118,11 +118,21 @@ def meta_from_options(
     return out
 
 
+#: the reader options that only ROS 2 bags take (:mod:`ditherlab.io.rosbag`)
+BAG_OPTIONS = ("joint_topic", "wrench_topic")
+
+
 def check_options(
     options: Mapping[str, Any], allowed: tuple[str, ...], fmt: str, where: str
 ) -> None:
-    """Raise ConfigError for an option the reader of ``fmt`` does not know."""
+    """Raise ConfigError for an option the reader of ``fmt`` does not know (a bag's topic
+    option given for another format is named as the CLI spells it)."""
     for key in options:
+        if key in BAG_OPTIONS and key not in allowed:
+            raise ConfigError(
+                f"{where}: --{key.replace('_', '-')} ({key}=) chooses a topic of a ROS 2 bag, "
+                f"and this is a {fmt} file; expected no topic option for it"
+            )
         if key not in allowed:
             raise ConfigError(
                 f"{where}: unknown option {key!r} for {fmt} files (expected one of "

@@ -9,7 +9,7 @@ block by block (:func:`write_frames`): :data:`FORMAT`.
 
 from __future__ import annotations
 
-import csv as csv_module
+import csv as pycsv
 import json
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -98,28 +98,27 @@ def header(path: Path) -> list[str]:
                 f"(fields {first[c] + 1} and {i + 1}); expected unique column names"
             )
         first[c] = i
-    fields = _second_line_fields(path)
-    if fields is not None and fields > len(names):
-        raise FormatError(
-            f"{path}: line 2 has {fields} fields but the header line has {len(names)}; "
-            "expected one field per column name on every line"
-        )
+    _check_first_line(path, len(names))
     return names
 
 
-def _second_line_fields(path: Path) -> int | None:
-    """The number of fields on the file's second line (None without one, or when it cannot be
-    decoded: the reader says so). Counted before pandas reads the file: given more fields on
-    its first data line than names, pandas builds an index of the extra leading fields, which
-    takes minutes for a line of 10^5 fields; :func:`check_fields` names the case after it."""
+def _check_first_line(path: Path, n: int) -> None:
+    """FormatError when the first data line has more fields than the ``n`` names of the header
+    line, counted before pandas parses the file: given such a line pandas builds an index of
+    every extra field, which for a line of 200 000 fields takes minutes. A file this check
+    cannot read (not UTF-8, a field beyond the csv module's limit) is left to pandas."""
     try:
-        with open(path, newline="", encoding="utf-8") as f:
-            rows = csv_module.reader(f, skipinitialspace=True)
-            next(rows, None)
-            line = next(rows, None)
-    except (UnicodeDecodeError, csv_module.Error):
-        return None
-    return None if line is None else len(line)
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = pycsv.reader(fh, skipinitialspace=True)
+            next(reader, None)  # the header line
+            row = next((r for r in reader if r), None)  # pandas skips blank lines
+    except (UnicodeDecodeError, pycsv.Error, OSError):
+        return
+    if row is not None and len(row) > n:
+        raise FormatError(
+            f"{path}: line {reader.line_num} has {len(row)} fields but the header line has {n}; "
+            "expected one field per column name on every line"
+        )
 
 
 def read_meta(path: Path, options: dict[str, Any]) -> dict[str, Any]:

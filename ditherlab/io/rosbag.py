@@ -36,19 +36,21 @@ Writing
 ``storage="mcap"`` or ``"sqlite3"``) with ``/joint_states`` (JointState, names = the robot's
 joint names), ``/wrench`` (WrenchStamped, frame ``base``) when F/T columns exist,
 ``/robot_description`` (the URDF) and the recording metadata as JSON under ``custom_data``
-key ``ditherlab``. Columns other than q, dq, tau and the wrench are not stored. A path without
-a suffix is written as a bag (:data:`FORMAT`).
+key ``ditherlab`` (base64 of the JSON: :func:`custom_meta`). Columns other than q, dq, tau and
+the wrench are not stored, and :func:`write` says which in a DitherlabWarning. A path without a
+suffix is written as a bag (:data:`FORMAT`).
 """
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import heapq
 import os
+import re
 import shutil
 import sqlite3
 import struct
-import tempfile
 import warnings
 from array import array
 from collections.abc import Iterable, Iterator
@@ -64,7 +66,7 @@ from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from ditherlab.core.errors import ConfigError, DitherlabWarning, FormatError, one_line
-from ditherlab.core.files import current_umask
+from ditherlab.core.files import current_umask, locked_temp_dir, try_lock
 from ditherlab.core.names import WRENCH_COLUMNS
 from ditherlab.data.recording import Recording
 from ditherlab.io.common import (
@@ -95,6 +97,11 @@ def _topic_list(topics: dict[str, str]) -> str:
     return ", ".join(f"{k} [{v}]" for k, v in sorted(topics.items())) or "none"
 
 
+def _cli_option(option: str) -> str:
+    """A reader option as the CLI spells it, with its API name: ``--joint-topic (joint_topic=)``."""
+    return f"--{option.replace('_', '-')} ({option}=)"
+
+
 def _pick(
     topics: dict[str, str],
     wanted: str | None,
@@ -103,21 +110,26 @@ def _pick(
     path: Path,
     required: bool,
 ) -> str | None:
+    """The topic of type ``msgtype`` to read: ``wanted`` (the reader option ``option``) when
+    given, else the bag's only one; FormatError naming the option and the topics found when
+    ``wanted`` is not a topic of that type or the choice is not unique."""
     if wanted:
         if wanted not in topics:
             raise FormatError(
-                f"{path}: topic {wanted} ({option}) is not in the bag; topics "
-                f"found: {_topic_list(topics)}"
+                f"{path}: {_cli_option(option)} names topic {wanted}, which is not in the bag; "
+                f"topics found: {_topic_list(topics)}"
             )
         if topics[wanted] != msgtype:
             raise FormatError(
-                f"{path}: topic {wanted} has type {topics[wanted]}, expected {msgtype}"
+                f"{path}: {_cli_option(option)} names topic {wanted} of type {topics[wanted]}; "
+                f"expected a {msgtype} topic; topics found: {_topic_list(topics)}"
             )
         return wanted
     found = sorted(k for k, v in topics.items() if v == msgtype)
     if len(found) > 1:
         raise FormatError(
-            f"{path}: several {msgtype} topics ({', '.join(found)}); choose one with {option}="
+            f"{path}: several {msgtype} topics ({', '.join(found)}); choose one with "
+            f"{_cli_option(option)}"
         )
     if not found:
         if required:
@@ -127,6 +139,39 @@ def _pick(
             )
         return None
     return found[0]
+
+
+def check_sqlite_size(db: Path, bag: Path) -> None:
+    """FormatError when the SQLite file ``db`` (a storage file of ``bag``) is shorter than its
+    header says: a bag cut off in a copy or a download. SQLite then reads the pages that remain
+    without a word, and the messages on the missing pages are lost. The header gives the page
+    size (bytes 16-17) and, when its change counter (bytes 24-27) equals its version-valid-for
+    number (bytes 92-95), the page count (bytes 28-31); without a valid page count a file is
+    cut when its size is not a whole number of pages. Files that are not SQLite are left to the
+    reader."""
+    try:
+        size = db.stat().st_size
+        with open(db, "rb") as fh:
+            head = fh.read(100)
+    except OSError:
+        return  # the reader says what is wrong with it
+    if not head.startswith(_SQLITE[: len(head)]) or (len(head) < len(_SQLITE)):
+        return
+    if len(head) < 100:
+        raise FormatError(
+            f"{bag}: the SQLite file {db.name} is cut off ({size} bytes, shorter than its "
+            "100-byte header); expected a whole bag (copy it again)"
+        )
+    (page,) = struct.unpack(">H", head[16:18])
+    page = 65536 if page == 1 else page
+    counter, pages, valid_for = struct.unpack(">I", head[24:28]), head[28:32], head[92:96]
+    n_pages = struct.unpack(">I", pages)[0] if counter == struct.unpack(">I", valid_for) else 0
+    expected = n_pages * page if n_pages else -(-size // page) * page if page else size
+    if page and size < expected:
+        raise FormatError(
+            f"{bag}: the SQLite file {db.name} is cut off ({size} bytes of the {expected} its "
+            f"header states, {page}-byte pages); expected a whole bag (copy it again)"
+        )
 
 
 _JOINT, _WRENCH, _URDF = 0, 1, 2
@@ -162,6 +207,8 @@ class _Bag:
 
     def __iter__(self) -> Iterator[tuple[int, int, Any]]:
         path, options = self.path, self.options
+        for db in [path] if path.is_file() else sorted(path.glob("*.db3")):
+            check_sqlite_size(db, path)
         try:
             with AnyReader([path], default_typestore=get_typestore(TYPESTORE)) as reader:
                 topics = {c.topic: c.msgtype for c in reader.connections}
@@ -182,18 +229,36 @@ class _Bag:
                     if c.topic in (jtopic, wtopic)
                     or (c.topic == "/robot_description" and c.msgtype == STRING)
                 ]
+                seen = dict.fromkeys({c.topic for c in conns}, 0)
                 for conn, stamp, raw in reader.messages(connections=conns):
                     msg = reader.deserialize(raw, conn.msgtype)
+                    seen[conn.topic] += 1
                     if conn.topic == jtopic:
                         yield _JOINT, _stamp(msg.header) or stamp, msg
                     elif conn.topic == wtopic:
                         yield _WRENCH, _stamp(msg.header) or stamp, msg
                     else:
                         yield _URDF, stamp, msg
+                _check_counts(path, conns, seen)
         except FormatError:
             raise
         except _DAMAGE as exc:
             raise FormatError(f"{path}: not a readable ROS 2 bag ({one_line(exc)})") from None
+
+
+def _check_counts(path: Path, conns: list[Any], seen: dict[str, int]) -> None:
+    """FormatError when a topic gave fewer messages than the bag's index counts (its
+    metadata.yaml, or the MCAP summary's statistics): a damaged storage file whose reader
+    skipped what it could not parse. A bag without counts (0) is not checked."""
+    listed: dict[str, int] = {}
+    for c in conns:
+        listed[c.topic] = listed.get(c.topic, 0) + int(getattr(c, "msgcount", 0) or 0)
+    for topic, n in sorted(listed.items()):
+        if n and seen.get(topic, 0) < n:
+            raise FormatError(
+                f"{path}: topic {topic} gave {seen.get(topic, 0)} of the {n} messages the bag's "
+                "index counts; the bag is cut off or damaged (expected a whole bag; copy it again)"
+            )
 
 
 @dataclass
@@ -338,7 +403,11 @@ def _bag_meta(bag: _Bag, urdf_text: str | None, options: dict[str, Any]) -> dict
     ``/robot_description``, then the reader options; ``source`` names a bag that ditherlab did
     not write."""
     path = bag.path
-    stored = loads_meta(bag.custom["ditherlab"], str(path)) if "ditherlab" in bag.custom else None
+    stored = (
+        loads_meta(custom_meta_text(bag.custom["ditherlab"]), str(path))
+        if "ditherlab" in bag.custom
+        else None
+    )
     if stored is None and urdf_text and options.get("robot") is None:
         robot = urdf_spec(urdf_text, options.get("tool_frame"), where=f"{path}: /robot_description")
         stored = {"robot": robot}
@@ -625,6 +694,29 @@ def merge_onto(
 
 
 # ------------------------------------------------------------------------------ write
+#: the prefix of the metadata stored in a bag's ``custom_data`` (:func:`custom_meta`)
+CUSTOM_PREFIX = "base64:"
+
+
+def custom_meta(meta: dict[str, Any]) -> str:
+    """The metadata as a bag's ``custom_data`` value: its JSON (:func:`dumps_meta`) in base64,
+    after :data:`CUSTOM_PREFIX`. metadata.yaml is written by ruamel.yaml, whose folding of a
+    long double-quoted string loses or adds characters where an escape (a quote, a backslash, a
+    non-ASCII character such as the ``·`` of ``N·m``) meets a space; base64 text has neither."""
+    return CUSTOM_PREFIX + base64.b64encode(dumps_meta(meta).encode("utf-8")).decode("ascii")
+
+
+def custom_meta_text(value: str) -> str:
+    """The metadata JSON text of a bag's ``custom_data`` value: :func:`custom_meta`'s decoded,
+    or the value itself (JSON stored as it is)."""
+    if not value.startswith(CUSTOM_PREFIX):
+        return value
+    try:
+        return base64.b64decode(value[len(CUSTOM_PREFIX) :], validate=True).decode("utf-8")
+    except (ValueError, UnicodeDecodeError):
+        return value  # loads_meta says that it is not JSON
+
+
 def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
     """Write ``rec`` as a ROS 2 bag folder at ``path`` (atomically: built beside it, renamed).
 
@@ -640,8 +732,17 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
         raise ConfigError(f"{path}: option storage is {storage!r}, expected 'mcap' or 'sqlite3'")
     robot = rec.robot()
     ns = np.round(rec.t * 1e9).astype(np.int64)  # [ns]
+    dropped = not_stored(list(rec.data.columns))
+    if dropped:
+        warnings.warn(
+            f"{path}: not stored: {column_list(dropped)}; a ROS 2 bag holds the joint states "
+            "(q, dq, tau) and the wrench only (.parquet, .csv or .mcap keep every column)",
+            DitherlabWarning,
+            stacklevel=2,
+        )
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    clear_stale_bag_folders(path.parent)
+    fd, tmpdir = locked_temp_dir(path.parent, f".{path.name}.")
     try:
         bag = tmpdir / path.name
         _write_bag(bag, plugins[storage], rec, robot, ns)
@@ -656,7 +757,82 @@ def write(rec: Recording, path: Path, storage: str = "mcap") -> Path:
     finally:
         with contextlib.suppress(OSError):
             shutil.rmtree(tmpdir)
+        os.close(fd)
     return path
+
+
+#: the temporary folder of :func:`write` for a bag ``NAME``: ``.NAME.XXXXXXXX`` (mkdtemp's eight
+#: characters) holding the bag folder ``NAME`` as it is written
+_TEMP_BAG = re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}$")
+#: what a bag folder being written holds (rosbags' storage files and their SQLite journals)
+_BAG_FILES = (".mcap", ".db3", ".yaml", ".db3-journal", ".db3-wal", ".db3-shm")
+
+
+def clear_stale_bag_folders(parent: Path) -> list[Path]:
+    """Remove the temporary folders that :func:`write` left in ``parent`` when its process died
+    before renaming the bag (``kill -9``); returns those removed. Only a folder of the pattern
+    ``.NAME.XXXXXXXX`` that holds nothing but a bag folder ``NAME`` of storage files, and whose
+    lock no process holds (:func:`ditherlab.core.files.locked_temp_dir`); one that holds a
+    replaced bag (``.old``, a process killed between its two renames) is left for the user."""
+    removed: list[Path] = []
+    try:
+        found = [(parent / n, m["name"]) for n in os.listdir(parent) if (m := _TEMP_BAG.match(n))]
+    except OSError:
+        return removed
+    for d, name in found:
+        try:
+            fd = os.open(d, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+        except OSError:
+            continue  # not a folder, or gone meanwhile
+        try:
+            if _only_a_bag_being_written(d, name) and try_lock(fd):
+                shutil.rmtree(d)
+                removed.append(d)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return removed
+
+
+def _only_a_bag_being_written(d: Path, name: str) -> bool:
+    """Whether the folder ``d`` holds nothing but the folder ``name`` of a bag's files."""
+    entries = os.listdir(d)
+    if any(e != name for e in entries):
+        return False
+    inner = d / name
+    if not entries:
+        return True
+    return inner.is_dir() and all(
+        f.is_file() and f.name.endswith(_BAG_FILES) for f in inner.iterdir()
+    )
+
+
+def not_stored(columns: list[str]) -> list[str]:
+    """The columns of a recording that a bag written by :func:`write` does not hold: all but
+    ``t``, ``q_j``, ``dq_j``, ``tau_j`` and the wrench."""
+    stored = re.compile(r"^(t|(q|dq|tau)_\d+)$")
+    return [c for c in columns if not stored.match(c) and c not in WRENCH_COLUMNS]
+
+
+def column_list(columns: list[str]) -> str:
+    """Column names for a message, each numbered family as one range: ``dither, tau_ffw_1..6``."""
+    fams: dict[str, list[int]] = {}
+    out: list[str] = []
+    for c in columns:
+        m = re.match(r"^(.*)_(\d+)$", c)
+        if m is None:
+            out.append(c)
+            continue
+        if m.group(1) not in fams:
+            fams[m.group(1)] = []
+            out.append(m.group(1))
+        fams[m.group(1)].append(int(m.group(2)))
+    return ", ".join(
+        f"{c}_{min(fams[c])}..{max(fams[c])}" if c in fams and len(fams[c]) > 1
+        else f"{c}_{fams[c][0]}" if c in fams else c
+        for c in out
+    )  # fmt: skip
 
 
 def _write_bag(
@@ -670,7 +846,7 @@ def _write_bag(
     log = ns - min(0, int(ns[0]))
     wrench = rec.wrench
     with Writer(bag, version=9, storage_plugin=plugin) as w:
-        w.set_custom_data("ditherlab", dumps_meta(rec.meta))
+        w.set_custom_data("ditherlab", custom_meta(rec.meta))
         c_desc = w.add_connection("/robot_description", STRING, typestore=ts)
         c_js = w.add_connection("/joint_states", JOINT_STATE, typestore=ts)
         c_w = (
