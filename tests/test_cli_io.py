@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 import ditherlab.io as dio
-from ditherlab.core.errors import DitherlabWarning
 from ditherlab.data.recording import Recording, RecordingArrays
 
 REPO = Path(__file__).resolve().parents[1]
@@ -111,19 +110,17 @@ def test_a_vendor_log_without_a_header_is_sent_to_a_mapping(cli):
     assert cli("info", log, "--mapping", "ur10e").code == 0
 
 
-def test_info_warns_about_degrees(cli, tmp_path):
-    """Joint angles in degrees raise the unit warning (main prints it as one stderr line)."""
+def test_info_refuses_degrees(cli, tmp_path):
+    """Joint angles in degrees are refused in one line that says so, naming the joint."""
     t = np.arange(100) * 0.004
     q = np.tile([10.0, 80.0, -120.0, 170.0, 95.0, 300.0], (100, 1))
     p = tmp_path / "deg.parquet"
     dio.write(
         Recording.from_arrays(RecordingArrays(t, q, np.zeros_like(q)), {"robot": "irb140"}), p
     )
-    with pytest.warns(
-        DitherlabWarning, match=r"deg\.parquet: q_6 reaches 300, .* as if in degrees"
-    ):
-        res = cli("info", p)
-    assert res.code == 0 and "q min..max" in res.out
+    assert_user_error(
+        cli("info", p), r"deg\.parquet: the joint log looks like degrees: q_6 reaches 300"
+    )
 
 
 @pytest.mark.parametrize("out", ["out.mcap", "out.csv", "out.parquet", "out_bag"])

@@ -16,7 +16,13 @@ from rosbags.typesys import Stores, get_typestore
 
 import ditherlab
 import ditherlab.io as dio
-from ditherlab.core.errors import ConfigError, DitherlabWarning, FormatError, RobotError
+from ditherlab.core.errors import (
+    ConfigError,
+    DitherlabWarning,
+    FormatError,
+    RecordingError,
+    RobotError,
+)
 from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.io.mapping import builtin_mappings, load_mapping
 from ditherlab.io.rosbag import merge_onto
@@ -274,14 +280,14 @@ def test_unknown_option_is_refused(tmp_path, sample):
         dio.read(p, robto="irb140")
 
 
-def test_degrees_give_a_unit_warning(tmp_path):
-    """Joint angles logged in degrees trigger the DitherlabWarning about units."""
+def test_degrees_are_refused(tmp_path):
+    """Joint angles logged in degrees are a RecordingError that says degrees."""
     t = np.arange(50) * 0.004
     q = np.tile(np.array([10.0, 80.0, -120.0, 170.0, 95.0, 300.0]), (50, 1))
     rec = Recording.from_arrays(RecordingArrays(t, q, np.zeros_like(q)), {"robot": "irb140"})
     p = tmp_path / "deg.parquet"
     dio.write(rec, p)
-    with pytest.warns(DitherlabWarning, match=r"as if in degrees"):
+    with pytest.raises(RecordingError, match=r"deg\.parquet: the joint log looks like degrees"):
         dio.read(p)
 
 

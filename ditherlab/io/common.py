@@ -23,6 +23,7 @@ from ditherlab.data.recording import (
     Recording,
 )
 from ditherlab.data.recording import _check_increasing as check_increasing
+from ditherlab.io.units import degrees_evidence
 from ditherlab.robot import RobotModel, resolve_spec
 
 #: the recording columns that hold numbers (besides the wrench)
@@ -141,12 +142,20 @@ def check_options(
 
 
 def check_units(rec: Recording) -> None:
-    """Warn (DitherlabWarning) when joint positions lie far beyond the robot's limits, as if
-    logged in degrees (:meth:`ditherlab.robot.RobotModel.check_units`).
+    """Refuse (RecordingError) a joint log in degrees (:func:`ditherlab.io.units.degrees_evidence`:
+    its range against the robot's limits, its derivative against the logged velocity); warn
+    (DitherlabWarning) when joint positions lie far beyond the robot's limits for another reason
+    (:meth:`ditherlab.robot.RobotModel.check_units`).
 
     Raises RobotError for an unknown robot, a URDF that does not parse, or a joint count that
     does not match the recording's.
     """
+    evidence = degrees_evidence(rec)
+    if evidence is not None:
+        raise RecordingError(
+            f"{rec.name}: the joint log looks like degrees: {evidence}; expected q in rad and dq "
+            'in rad/s (a mapping\'s unit = "deg" or "deg/s" converts them, or convert the log)'
+        )
     rec.robot().check_units(rec.q, rec.name)
 
 
