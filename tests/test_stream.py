@@ -111,6 +111,26 @@ def test_pieces_tile_the_recording_and_see_its_whole_time_base(campaign):
     )
 
 
+def test_default_chunk_holds_four_contexts_at_5_khz(tmp_path):
+    """At 5 kHz four 12 s contexts (diagnose's) are 240 004 rows, more than the default chunk:
+    the default grows to them and the pieces still tile the log; a smaller chunk asked for is
+    refused."""
+    from ditherlab.core.errors import ConfigError
+    from ditherlab.data.recording import RecordingArrays
+    from ditherlab.io.format import CHUNK_ROWS
+
+    n = 300_000  # 60 s at 5 kHz
+    t = np.arange(n) / 5000.0
+    q = np.tile([0.0, 0.3, 0.2, 0.0, 1.0, 0.0], (n, 1))
+    rec = Recording.from_arrays(RecordingArrays(t, q, np.zeros((n, 6))), {"robot": "irb140"})
+    src = open_source(write(rec, tmp_path / "fast.parquet"))
+    pieces = list(src.pieces(halo_s=12.0))
+    assert len(pieces) == 2 and pieces[0].owned == (0, 240_004)
+    assert np.array_equal(np.concatenate([p.rec.t[p.keep] for p in pieces]), t)
+    with pytest.raises(ConfigError, match="chunk size 65537 rows is below four times"):
+        next(src.pieces(CHUNK_ROWS + 1, halo_s=12.0))
+
+
 @pytest.mark.parametrize("where", ["push", "dither", "stick"])
 def test_cli_replay_in_pieces_equals_the_whole(campaign, cli, where):
     d, path, model = campaign

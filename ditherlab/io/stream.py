@@ -238,8 +238,10 @@ class Source:
     def pieces(self, rows: int = CHUNK_ROWS, halo_s: float = HALO_S) -> Iterator[Piece]:
         """The recording as overlapping pieces of ``rows`` owned rows (module docstring).
 
-        Raises ConfigError for ``rows`` below four halos (a piece must be longer than its
-        context) and the Recording's own errors for a piece that breaks the contract.
+        A piece must hold four halos (its context on both sides and as much again of its own):
+        the default ``rows`` (:data:`CHUNK_ROWS`) grows to that at a sample rate where it falls
+        short (12 s halos at 5 kHz: 240 004 rows); a smaller ``rows`` given on purpose raises
+        ConfigError. The Recording's own errors are raised for a piece that breaks the contract.
         """
         tb = self.timebase()
         # a median step of 0 or less (t repeats or goes back): one row, and the first piece's
@@ -247,6 +249,8 @@ class Source:
         ok = math.isfinite(tb.dt) and tb.dt > 0
         halo = max(int(math.ceil(halo_s / tb.dt)), 1) if ok else 1
         rows = int(rows)
+        if rows < 4 * halo and rows == CHUNK_ROWS:
+            rows = 4 * halo  # the default holds four contexts at any sample rate
         if rows < 4 * halo:
             raise ConfigError(
                 f"chunk size {rows} rows is below four times the {halo}-row context "
