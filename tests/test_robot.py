@@ -517,7 +517,7 @@ def test_urdf_path_is_embedded_with_guessed_tool_frame(tmp_path):
     path = tmp_path / "planar.urdf"
     path.write_text(PLANAR)
     spec = resolve_spec(str(path))
-    assert spec == {"urdf": PLANAR, "tool_frame": "tip", "name": "planar2"}
+    assert spec == {"urdf": PLANAR, "tool_frame": "tip", "name": "planar2", "path": str(path)}
     robot = RobotModel.from_spec(str(path))
     assert robot.tool_frame == "tip" and robot.n == 2
     assert resolve_spec("irb140") == "irb140"
