@@ -42,8 +42,10 @@ from ditherlab.cli_options import (
     MappingOpt,
     ModelIn,
     Quiet,
+    RobotArgOpt,
     RobotOpt,
     Seed,
+    ToolFrameOpt,
     _format_warning,
     echo,
     held_warnings,
@@ -181,11 +183,17 @@ def _show(result: Any, json_out: bool = False) -> None:
         echo(result.text())
 
 
-def _read(mapping: str | None, robot: str | None) -> Any:
-    """:class:`ditherlab.app.workflow.ReadOptions` of ``--mapping`` and ``--robot``."""
+def _read(
+    mapping: str | None,
+    robot: str | None,
+    tool_frame: str | None = None,
+    robot_arg: list[str] | None = None,
+) -> Any:
+    """:class:`ditherlab.app.workflow.ReadOptions` of ``--mapping``, ``--robot``,
+    ``--tool-frame`` and ``--robot-arg``."""
     from ditherlab.app.workflow import ReadOptions
 
-    return ReadOptions(mapping, robot)
+    return ReadOptions(mapping, robot, tool_frame, tuple(robot_arg or ()))
 
 
 def _chunk(chunk: int | None) -> dict[str, int]:
@@ -201,6 +209,8 @@ def info(
     ],
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     json_out: JsonFlag = False,
     chunk: Chunk = None,
 ) -> None:
@@ -210,7 +220,9 @@ def info(
     """
     from ditherlab.app import info as cmd
 
-    opts = cmd.InfoOptions(file=file, read=_read(mapping, robot), **_chunk(chunk))
+    opts = cmd.InfoOptions(
+        file=file, read=_read(mapping, robot, tool_frame, robot_arg), **_chunk(chunk)
+    )
     _show(cmd.run(opts), json_out)
 
 
@@ -225,6 +237,8 @@ def convert(
     ],
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     known_load: Annotated[
@@ -246,7 +260,7 @@ def convert(
     opts = cmd.ConvertOptions(
         src=src,
         dst=dst,
-        read=_read(mapping, robot),
+        read=_read(mapping, robot, tool_frame, robot_arg),
         force=force,
         known_load=known_load,
         **_chunk(chunk),
@@ -297,11 +311,13 @@ def simulate(
         str,
         typer.Option(
             "--robot",
-            metavar="NAME|URDF",
-            help="The simulated arm (built-in name or URDF) with six joints; the IRB140's "
+            metavar="NAME|URDF|XACRO",
+            help="The simulated arm (as for --robot elsewhere) with six joints; the IRB140's "
             "drive, friction and servo parameters unless --config sets them.",
         ),
     ] = "irb140",
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -314,7 +330,8 @@ def simulate(
     opts = cmd.SimulateOptions(
         scenario=scenario, out=out, seed=seed, dither=dither, config=config,
         hidden=tuple(hidden or ()), pushes_per_direction=pushes_per_direction,
-        log_temperature=log_temperature, force=force, robot=sim_robot,
+        log_temperature=log_temperature, force=force, robot=sim_robot, tool_frame=tool_frame,
+        robot_args=tuple(robot_arg or ()),
     )  # fmt: skip
     with _progress(f"simulate {scenario}", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -359,6 +376,8 @@ def identify(
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -373,7 +392,7 @@ def identify(
     opts = cmd.IdentifyOptions(
         recordings=tuple(recordings), out=out, model=model, add=tuple(add or ()),
         assume_no_force=assume_no_force, n_boot=bootstrap, seed=seed,
-        read=_read(mapping, robot), force=force, **_chunk(chunk),
+        read=_read(mapping, robot, tool_frame, robot_arg), force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("identify", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -407,6 +426,8 @@ def replay(
     ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -421,7 +442,7 @@ def replay(
     opts = cmd.ReplayOptions(
         recording=recording, model=model, out=out, level=level, interval=interval,
         components=components, variants=tuple(variants.split(",")) if variants else None,
-        read=_read(mapping, robot), force=force, **_chunk(chunk),
+        read=_read(mapping, robot, tool_frame, robot_arg), force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("replay", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -490,6 +511,8 @@ def diagnose(
     ] = None,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     no_history: Annotated[
         bool,
         typer.Option(
@@ -517,7 +540,7 @@ def diagnose(
 
     opts = cmd.DiagnoseOptions(
         recordings=tuple(recordings), model=model, out=out, history=not no_history,
-        regimes=tuple(regime) if regime else None, read=_read(mapping, robot), force=force,
+        regimes=tuple(regime) if regime else None, read=_read(mapping, robot, tool_frame, robot_arg), force=force,
         **_chunk(chunk),
     )  # fmt: skip
     with _progress("diagnose", quiet or json_out) as progress:
@@ -548,6 +571,8 @@ def view(
     serve: Annotated[bool, typer.Option("--serve", help="Serve to a web viewer.")] = False,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -560,7 +585,7 @@ def view(
 
     opts = cmd.ViewOptions(
         recording=recording, estimates=estimates, model=model, diagnosis=diagnosis, save=save,
-        mode=cmd.view_mode(spawn, serve), read=_read(mapping, robot), force=force,
+        mode=cmd.view_mode(spawn, serve), read=_read(mapping, robot, tool_frame, robot_arg), force=force,
         **_chunk(chunk),
     )  # fmt: skip
     with _progress("view", quiet) as progress:
@@ -574,24 +599,25 @@ def view(
 @app.command()
 def robot(
     spec: Annotated[
-        str,
+        str | None,
         typer.Argument(
-            metavar="ROBOT", help="Built-in robot name (irb140, panda, ur10e) or a URDF path."
+            metavar="[ROBOT]",
+            help="Built-in robot name (irb140, panda, ur10e), an arm of --list (ur5), or a "
+            ".urdf or .xacro path; none: the list.",
         ),
-    ],
+    ] = None,
+    list_robots: Annotated[
+        bool,
+        typer.Option("--list", help="List the robots by name, with their joint counts."),
+    ] = False,
     q: Annotated[
         str | None,
         typer.Option(
             "--q", help="Pose: 'zero', 'paper' (IRB140) or n angles in rad, comma-separated."
         ),
     ] = None,
-    tool_frame: Annotated[
-        str | None,
-        typer.Option(
-            "--tool-frame",
-            help="Tool frame of a URDF (default: tool0, flange, ... or the last link).",
-        ),
-    ] = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     sensitivity: Annotated[
         bool, typer.Option("--sensitivity", help="Predicted F50/F90 per push direction.")
     ] = False,
@@ -632,7 +658,7 @@ def robot(
     quiet: Quiet = False,
     json_out: JsonFlag = False,
 ) -> None:
-    """Describe a robot at a pose, or predict its thresholds.
+    """Describe a robot at a pose, or predict its thresholds; list the robots.
 
     Joints, limits and masses; tool point, gravity and lever arms at a pose; with --sensitivity
     the predicted detection thresholds per push direction (--map: over a grid of poses).
@@ -640,7 +666,8 @@ def robot(
     from ditherlab.app import robot as cmd
 
     opts = cmd.RobotOptions(
-        spec=spec, q=q, tool_frame=tool_frame, sensitivity=sensitivity, model=model,
+        spec=spec, list_robots=list_robots, robot_args=tuple(robot_arg or ()), q=q,
+        tool_frame=tool_frame, sensitivity=sensitivity, model=model,
         dither=dither, map_out=map_out, grid=grid, force_range=force_range,
         noise_level=noise_level, report=report, seed=seed, force=force,
     )  # fmt: skip
@@ -703,6 +730,8 @@ def fleet(
     seed: Seed = 0,
     mapping: MappingOpt = None,
     robot: RobotOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -715,7 +744,7 @@ def fleet(
     opts = cmd.FleetOptions(
         recordings=tuple(recordings or ()), out=out, manifest=manifest, scheduler=scheduler,
         workers=workers, model=model, assume_no_force=assume_no_force, n_boot=bootstrap,
-        thresholds=thresholds, seed=seed, read=_read(mapping, robot), force=force,
+        thresholds=thresholds, seed=seed, read=_read(mapping, robot, tool_frame, robot_arg), force=force,
     )  # fmt: skip
     _show(cmd.run(opts, progress=not quiet))
 

@@ -81,7 +81,8 @@ def resolve_spec(
     if not isinstance(spec, str | os.PathLike):
         raise RobotError(unknown_name(spec, w))
     d = read_description(spec, robot_args, w)
-    robot = RobotModel(d.urdf, tool_frame or d.tool_frame, name=d.name, where=d.path or where)
+    label = f"robot {d.name!r}" if d.name else d.path  # an arm by name, else its file
+    robot = RobotModel(d.urdf, tool_frame or d.tool_frame, name=d.name, where=label or where)
     out = {"urdf": d.urdf, "tool_frame": robot.tool_frame, "name": robot.name}
     return out if d.path is None else {**out, "path": d.path}
 
