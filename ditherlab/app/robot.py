@@ -159,9 +159,7 @@ def _list(o: RobotOptions) -> RobotResult:
         if v
     ]  # fmt: skip
     if given:
-        raise ConfigError(
-            f"robot --list lists every robot; expected no {', '.join(given)} with it"
-        )
+        raise ConfigError(f"robot --list lists every robot; expected no {', '.join(given)} with it")
     catalog = available_robots()
     return RobotResult(format_catalog(catalog), catalog)
 
