@@ -658,10 +658,11 @@ def robot(
     quiet: Quiet = False,
     json_out: JsonFlag = False,
 ) -> None:
-    """Describe a robot at a pose, or predict its thresholds; list the robots.
+    """Describe a robot at a pose, or predict its thresholds.
 
     Joints, limits and masses; tool point, gravity and lever arms at a pose; with --sensitivity
-    the predicted detection thresholds per push direction (--map: over a grid of poses).
+    the predicted detection thresholds per push direction (--map: over a grid of poses). No
+    ROBOT, or --list: the robots --robot takes by name, with their joint counts.
     """
     from ditherlab.app import robot as cmd
 
