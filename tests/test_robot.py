@@ -687,7 +687,10 @@ def test_cli_robot_errors(cli):
     """An unknown robot and a pose of the wrong length give one line on stderr and exit 2."""
     r = cli("robot", "irb14")
     assert r.code == 2 and r.out == ""
-    assert r.err.startswith("error: robot 'irb14' is not a built-in robot (expected one of: ")
+    assert r.err.startswith(
+        "error: robot 'irb14' is not a built-in robot or an example-robot-data arm "
+        "(close names: irb140); expected one of: "
+    )
     r = cli("robot", "ur10e", "--q", "1,2")
     assert r.code == 2
     assert (
