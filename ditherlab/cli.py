@@ -43,8 +43,10 @@ from ditherlab.cli_options import (
     MappingOpt,
     ModelIn,
     Quiet,
+    RobotArgOpt,
     RobotOpt,
     Seed,
+    ToolFrameOpt,
     WrenchTopicOpt,
     _format_warning,
     echo,
@@ -188,12 +190,16 @@ def _read(
     robot: str | None,
     joint_topic: str | None = None,
     wrench_topic: str | None = None,
+    tool_frame: str | None = None,
+    robot_arg: list[str] | None = None,
 ) -> Any:
     """:class:`ditherlab.app.workflow.ReadOptions` of ``--mapping``, ``--robot``,
-    ``--joint-topic`` and ``--wrench-topic``."""
+    ``--joint-topic``, ``--wrench-topic``, ``--tool-frame`` and ``--robot-arg``."""
     from ditherlab.app.workflow import ReadOptions
 
-    return ReadOptions(mapping, robot, joint_topic, wrench_topic)
+    return ReadOptions(
+        mapping, robot, joint_topic, wrench_topic, tool_frame, tuple(robot_arg or ())
+    )
 
 
 def _chunk(chunk: int | None) -> dict[str, int]:
@@ -211,6 +217,8 @@ def info(
     robot: RobotOpt = None,
     joint_topic: JointTopicOpt = None,
     wrench_topic: WrenchTopicOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     json_out: JsonFlag = False,
     chunk: Chunk = None,
 ) -> None:
@@ -220,8 +228,11 @@ def info(
     """
     from ditherlab.app import info as cmd
 
-    read = _read(mapping, robot, joint_topic, wrench_topic)
-    opts = cmd.InfoOptions(file=file, read=read, **_chunk(chunk))
+    opts = cmd.InfoOptions(
+        file=file,
+        read=_read(mapping, robot, joint_topic, wrench_topic, tool_frame, robot_arg),
+        **_chunk(chunk),
+    )
     _show(cmd.run(opts), json_out)
 
 
@@ -238,6 +249,8 @@ def convert(
     robot: RobotOpt = None,
     joint_topic: JointTopicOpt = None,
     wrench_topic: WrenchTopicOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     known_load: Annotated[
@@ -259,7 +272,7 @@ def convert(
     opts = cmd.ConvertOptions(
         src=src,
         dst=dst,
-        read=_read(mapping, robot, joint_topic, wrench_topic),
+        read=_read(mapping, robot, joint_topic, wrench_topic, tool_frame, robot_arg),
         force=force,
         known_load=known_load,
         **_chunk(chunk),
@@ -310,11 +323,13 @@ def simulate(
         str,
         typer.Option(
             "--robot",
-            metavar="NAME|URDF",
-            help="The simulated arm (built-in name or URDF) with six joints; the IRB140's "
+            metavar="NAME|URDF|XACRO",
+            help="The simulated arm (as for --robot elsewhere) with six joints; the IRB140's "
             "drive, friction and servo parameters unless --config sets them.",
         ),
     ] = "irb140",
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -327,7 +342,8 @@ def simulate(
     opts = cmd.SimulateOptions(
         scenario=scenario, out=out, seed=seed, dither=dither, config=config,
         hidden=tuple(hidden or ()), pushes_per_direction=pushes_per_direction,
-        log_temperature=log_temperature, force=force, robot=sim_robot,
+        log_temperature=log_temperature, force=force, robot=sim_robot, tool_frame=tool_frame,
+        robot_args=tuple(robot_arg or ()),
     )  # fmt: skip
     with _progress(f"simulate {scenario}", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -374,6 +390,8 @@ def identify(
     robot: RobotOpt = None,
     joint_topic: JointTopicOpt = None,
     wrench_topic: WrenchTopicOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -385,11 +403,11 @@ def identify(
     """
     from ditherlab.app import identify as cmd
 
+    read = _read(mapping, robot, joint_topic, wrench_topic, tool_frame, robot_arg)
     opts = cmd.IdentifyOptions(
         recordings=tuple(recordings), out=out, model=model, add=tuple(add or ()),
         assume_no_force=assume_no_force, n_boot=bootstrap, seed=seed,
-        read=_read(mapping, robot, joint_topic, wrench_topic),
-        force=force, **_chunk(chunk),
+        read=read, force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("identify", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -425,6 +443,8 @@ def replay(
     robot: RobotOpt = None,
     joint_topic: JointTopicOpt = None,
     wrench_topic: WrenchTopicOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -436,11 +456,11 @@ def replay(
     """
     from ditherlab.app import replay as cmd
 
+    read = _read(mapping, robot, joint_topic, wrench_topic, tool_frame, robot_arg)
     opts = cmd.ReplayOptions(
         recording=recording, model=model, out=out, level=level, interval=interval,
         components=components, variants=tuple(variants.split(",")) if variants else None,
-        read=_read(mapping, robot, joint_topic, wrench_topic),
-        force=force, **_chunk(chunk),
+        read=read, force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("replay", quiet) as progress:
         _show(cmd.run(opts, progress))
@@ -511,6 +531,8 @@ def diagnose(
     robot: RobotOpt = None,
     joint_topic: JointTopicOpt = None,
     wrench_topic: WrenchTopicOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     no_history: Annotated[
         bool,
         typer.Option(
@@ -536,10 +558,10 @@ def diagnose(
     """
     from ditherlab.app import diagnose as cmd
 
+    read = _read(mapping, robot, joint_topic, wrench_topic, tool_frame, robot_arg)
     opts = cmd.DiagnoseOptions(
         recordings=tuple(recordings), model=model, out=out, history=not no_history,
-        regimes=tuple(regime) if regime else None, force=force,
-        read=_read(mapping, robot, joint_topic, wrench_topic),
+        regimes=tuple(regime) if regime else None, read=read, force=force,
         **_chunk(chunk),
     )  # fmt: skip
     with _progress("diagnose", quiet or json_out) as progress:
@@ -572,6 +594,8 @@ def view(
     robot: RobotOpt = None,
     joint_topic: JointTopicOpt = None,
     wrench_topic: WrenchTopicOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
     force: Force = False,
     quiet: Quiet = False,
@@ -582,10 +606,10 @@ def view(
     """
     from ditherlab.app import view as cmd
 
+    read = _read(mapping, robot, joint_topic, wrench_topic, tool_frame, robot_arg)
     opts = cmd.ViewOptions(
         recording=recording, estimates=estimates, model=model, diagnosis=diagnosis, save=save,
-        mode=cmd.view_mode(spawn, serve), force=force,
-        read=_read(mapping, robot, joint_topic, wrench_topic),
+        mode=cmd.view_mode(spawn, serve), read=read, force=force,
         **_chunk(chunk),
     )  # fmt: skip
     with _progress("view", quiet) as progress:
@@ -599,24 +623,25 @@ def view(
 @app.command()
 def robot(
     spec: Annotated[
-        str,
+        str | None,
         typer.Argument(
-            metavar="ROBOT", help="Built-in robot name (irb140, panda, ur10e) or a URDF path."
+            metavar="[ROBOT]",
+            help="Built-in robot name (irb140, panda, ur10e), an arm of --list (ur5), or a "
+            ".urdf or .xacro path; none: the list.",
         ),
-    ],
+    ] = None,
+    list_robots: Annotated[
+        bool,
+        typer.Option("--list", help="List the robots by name, with their joint counts."),
+    ] = False,
     q: Annotated[
         str | None,
         typer.Option(
             "--q", help="Pose: 'zero', 'paper' (IRB140) or n angles in rad, comma-separated."
         ),
     ] = None,
-    tool_frame: Annotated[
-        str | None,
-        typer.Option(
-            "--tool-frame",
-            help="Tool frame of a URDF (default: tool0, flange, ... or the last link).",
-        ),
-    ] = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     sensitivity: Annotated[
         bool, typer.Option("--sensitivity", help="Predicted F50/F90 per push direction.")
     ] = False,
@@ -660,12 +685,14 @@ def robot(
     """Describe a robot at a pose, or predict its thresholds.
 
     Joints, limits and masses; tool point, gravity and lever arms at a pose; with --sensitivity
-    the predicted detection thresholds per push direction (--map: over a grid of poses).
+    the predicted detection thresholds per push direction (--map: over a grid of poses). No
+    ROBOT, or --list: the robots --robot takes by name, with their joint counts.
     """
     from ditherlab.app import robot as cmd
 
     opts = cmd.RobotOptions(
-        spec=spec, q=q, tool_frame=tool_frame, sensitivity=sensitivity, model=model,
+        spec=spec, list_robots=list_robots, robot_args=tuple(robot_arg or ()), q=q,
+        tool_frame=tool_frame, sensitivity=sensitivity, model=model,
         dither=dither, map_out=map_out, grid=grid, force_range=force_range,
         noise_level=noise_level, report=report, seed=seed, force=force,
     )  # fmt: skip
@@ -733,6 +760,8 @@ def fleet(
     robot: RobotOpt = None,
     joint_topic: JointTopicOpt = None,
     wrench_topic: WrenchTopicOpt = None,
+    tool_frame: ToolFrameOpt = None,
+    robot_arg: RobotArgOpt = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -743,11 +772,11 @@ def fleet(
     """
     from ditherlab.app import fleet as cmd
 
+    read = _read(mapping, robot, joint_topic, wrench_topic, tool_frame, robot_arg)
     opts = cmd.FleetOptions(
         recordings=tuple(recordings or ()), out=out, manifest=manifest, scheduler=scheduler,
         workers=workers, model=model, assume_no_force=assume_no_force, n_boot=bootstrap,
-        thresholds=thresholds, seed=seed, force=force,
-        read=_read(mapping, robot, joint_topic, wrench_topic),
+        thresholds=thresholds, seed=seed, read=read, force=force,
     )  # fmt: skip
     res = cmd.run(opts, progress=not quiet)
     _show(res)

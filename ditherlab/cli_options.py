@@ -32,8 +32,27 @@ RobotOpt = Annotated[
     str | None,
     typer.Option(
         "--robot",
-        metavar="NAME|URDF",
-        help="Robot for files without metadata: a built-in name (irb140) or a URDF path.",
+        metavar="NAME|URDF|XACRO",
+        help="Robot for files without metadata: a built-in name (irb140), an arm of "
+        "`ditherlab robot --list` (ur5), or a .urdf or .xacro path.",
+    ),
+]
+ToolFrameOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--tool-frame",
+        metavar="LINK",
+        help="The robot's tool frame, where it is not the description's own (default: "
+        "tool0, flange, ... or the last link).",
+    ),
+]
+RobotArgOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--robot-arg",
+        metavar="NAME:=VALUE",
+        help="An argument of a .xacro --robot, repeatable; package://PKG:=DIR says where a ROS "
+        "package is.",
     ),
 ]
 JointTopicOpt = Annotated[

@@ -93,7 +93,7 @@ def test_info_unknown_robot(cli, tmp_path):
     p = tmp_path / "a.csv"
     rec.data[["t", *[f"{f}_{j}" for f in ("q", "tau") for j in range(1, 7)]]].to_csv(p, index=False)
     assert_user_error(cli("info", p), r"a\.csv: no robot given")
-    assert_user_error(cli("info", p, "--robot", "ur3"), r"robot 'ur3' is not a built-in robot")
+    assert_user_error(cli("info", p, "--robot", "ur33"), r"robot 'ur33' is not a built-in robot")
     assert cli("info", p, "--robot", "irb140").code == 0
 
 

@@ -517,7 +517,7 @@ def test_urdf_path_is_embedded_with_guessed_tool_frame(tmp_path):
     path = tmp_path / "planar.urdf"
     path.write_text(PLANAR)
     spec = resolve_spec(str(path))
-    assert spec == {"urdf": PLANAR, "tool_frame": "tip", "name": "planar2"}
+    assert spec == {"urdf": PLANAR, "tool_frame": "tip", "name": "planar2", "path": str(path)}
     robot = RobotModel.from_spec(str(path))
     assert robot.tool_frame == "tip" and robot.n == 2
     assert resolve_spec("irb140") == "irb140"
@@ -687,7 +687,10 @@ def test_cli_robot_errors(cli):
     """An unknown robot and a pose of the wrong length give one line on stderr and exit 2."""
     r = cli("robot", "irb14")
     assert r.code == 2 and r.out == ""
-    assert r.err.startswith("error: robot 'irb14' is not a built-in robot (expected one of: ")
+    assert r.err.startswith(
+        "error: robot 'irb14' is not a built-in robot or an example-robot-data arm "
+        "(close names: irb140); expected one of: "
+    )
     r = cli("robot", "ur10e", "--q", "1,2")
     assert r.code == 2
     assert (

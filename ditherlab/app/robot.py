@@ -30,6 +30,7 @@ from ditherlab.core.errors import ConfigError, ModelError
 from ditherlab.core.files import FileKind, atomic_path, plain
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.robot import RobotModel, format_description, resolve_spec
+from ditherlab.robot.catalog import available_robots, format_catalog
 
 __all__ = ["MAP_FILE", "RobotOptions", "RobotResult", "run"]
 
@@ -43,7 +44,10 @@ class RobotOptions:
 
     Attributes
     ----------
-    spec : a built-in robot name (``irb140``, ``panda``, ``ur10e``) or a URDF path
+    spec : a built-in robot name (``irb140``, ``panda``, ``ur10e``), an example-robot-data arm
+        (``ur5``), or a URDF or xacro path; None: list the robots
+    list_robots : list the robots by name with their joint counts (``--list``)
+    robot_args : a xacro robot's ``NAME:=VALUE`` arguments
     q : the pose: ``zero``, ``paper`` (IRB140) or n angles [rad], comma-separated; None: zero
     tool_frame : the tool frame of a URDF (default: ``tool0``, ``flange``, ... or the last link)
     sensitivity : predict the detection thresholds F50 / F90 per push direction
@@ -58,7 +62,9 @@ class RobotOptions:
     force : replace an existing map table and PNG
     """
 
-    spec: str
+    spec: str | None = None
+    list_robots: bool = False
+    robot_args: tuple[str, ...] = ()
     q: str | None = None
     tool_frame: str | None = None
     sensitivity: bool = False
@@ -113,7 +119,9 @@ def run(options: RobotOptions, progress: Progress | None = None) -> RobotResult:
         raise ConfigError(
             "robot: --map, --grid, --model, --dither, --noise-level and --report need --sensitivity"
         )
-    spec = resolve_spec(o.spec, tool_frame=o.tool_frame)
+    if o.spec is None or o.list_robots:
+        return _list(o)
+    spec = resolve_spec(o.spec, o.tool_frame, robot_args=o.robot_args)
     if not o.sensitivity:
         rm = RobotModel.from_spec(spec)
         summary = rm.describe(rm.parse_pose(o.q))
@@ -138,6 +146,22 @@ def run(options: RobotOptions, progress: Progress | None = None) -> RobotResult:
     if o.grid is None:
         raise ConfigError("--map needs --grid qJ=START:STOP:COUNT[,qK=...] (the poses)")
     return _write_map(o, rm, pose, bands, fr, progress)
+
+
+def _list(o: RobotOptions) -> RobotResult:
+    """The robots by name (:func:`ditherlab.robot.catalog.available_robots`); ConfigError for
+    a robot or pose option given with it."""
+    given = [
+        opt
+        for opt, v in (("ROBOT", o.spec if o.list_robots else None), ("--q", o.q),
+                       ("--tool-frame", o.tool_frame), ("--robot-arg", o.robot_args),
+                       ("--sensitivity", o.sensitivity))
+        if v
+    ]  # fmt: skip
+    if given:
+        raise ConfigError(f"robot --list lists every robot; expected no {', '.join(given)} with it")
+    catalog = available_robots()
+    return RobotResult(format_catalog(catalog), catalog)
 
 
 def _load_model(path: Path | None, spec: str | dict) -> TorqueModel | None:

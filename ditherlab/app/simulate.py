@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ditherlab.app.workflow import Progress, guard_recording
 from ditherlab.io import write
+from ditherlab.robot import resolve_spec
 from ditherlab.sim import simulate
 
 __all__ = ["SimulateOptions", "Simulated", "run"]
@@ -28,7 +29,10 @@ class SimulateOptions:
     pushes_per_direction : pushes per axis and sign (push-campaign); None: the config's
     log_temperature : with ``temperature_friction`` hidden, write the ``temp_j`` columns
     force : replace an existing output
-    robot : the simulated arm (a built-in name or a URDF path) with the parameters' joint count
+    robot : the simulated arm (a built-in name, an example-robot-data arm, a URDF or xacro
+        path) with the parameters' joint count
+    tool_frame : its tool frame, where it is not the description's own
+    robot_args : a xacro robot's ``NAME:=VALUE`` arguments
     """
 
     scenario: str
@@ -41,6 +45,8 @@ class SimulateOptions:
     log_temperature: bool = True
     force: bool = False
     robot: str = "irb140"
+    tool_frame: str | None = None
+    robot_args: tuple[str, ...] = ()
 
 
 @dataclass
@@ -68,7 +74,9 @@ def run(options: SimulateOptions, progress: Progress | None = None) -> Simulated
     Simulated
     """
     o = options
-    out = guard_recording(o.out, [o.config], force=o.force)
+    robot_file = Path(o.robot) if Path(o.robot).is_file() else None
+    out = guard_recording(o.out, [o.config, robot_file], force=o.force)
+    robot = resolve_spec(o.robot, o.tool_frame, "--robot", o.robot_args)
     rec = simulate(
         o.scenario,
         seed=o.seed,
@@ -78,6 +86,6 @@ def run(options: SimulateOptions, progress: Progress | None = None) -> Simulated
         progress=progress,
         pushes_per_direction=o.pushes_per_direction,
         log_temperature=None if o.log_temperature else False,
-        robot=o.robot,
+        robot=robot,
     )
     return Simulated(write(rec, out), rec.duration)

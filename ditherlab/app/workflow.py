@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.files import FileKind, check_output
@@ -37,31 +38,43 @@ class ReadOptions:
     ----------
     mapping : a TOML mapping file, or the name of a built-in mapping (``ur10e``), describing a
         foreign log's columns and units (:mod:`ditherlab.io.mapping`)
-    robot : the robot of a file without metadata: a built-in name (``irb140``) or a URDF path
+    robot : the robot of a file without metadata: a built-in name (``irb140``), an
+        example-robot-data arm (``ur5``), or a URDF or xacro path
     joint_topic : a bag's ``sensor_msgs/msg/JointState`` topic (needed when it has several)
     wrench_topic : a bag's ``geometry_msgs/msg/WrenchStamped`` topic; ``""`` reads no wrench
+    tool_frame : the robot's tool frame, where it is not the description's own
+    robot_args : a xacro robot's ``NAME:=VALUE`` arguments
     """
 
     mapping: str | None = None
     robot: str | None = None
     joint_topic: str | None = None
     wrench_topic: str | None = None
+    tool_frame: str | None = None
+    robot_args: tuple[str, ...] = ()
 
-    def kwargs(self) -> dict[str, str]:
+    def kwargs(self) -> dict[str, Any]:
         """The options of :func:`ditherlab.io.read` and :func:`ditherlab.io.stream.open_source`
         (the topics only when given: other formats refuse them)."""
-        out = {k: v for k, v in (("mapping", self.mapping), ("robot", self.robot)) if v}
+        given = (
+            ("mapping", self.mapping),
+            ("robot", self.robot),
+            ("tool_frame", self.tool_frame),
+            ("robot_args", list(self.robot_args)),
+        )
         topics = (("joint_topic", self.joint_topic), ("wrench_topic", self.wrench_topic))
-        return out | {k: v for k, v in topics if v is not None}
+        return {k: v for k, v in given if v} | {k: v for k, v in topics if v is not None}
 
     def files(self) -> list[Path]:
-        """The files these options read (the mapping file), which no output may overwrite."""
+        """The files these options read (the mapping file, a URDF or xacro file), which no
+        output may overwrite."""
+        robot = [Path(self.robot)] if self.robot and Path(self.robot).is_file() else []
         if self.mapping is None:
-            return []
+            return robot
         try:
-            return [mapping_path(self.mapping)]
+            return [mapping_path(self.mapping), *robot]
         except ConfigError:  # the reader says what is wrong with it, in its own words
-            return []
+            return robot
 
 
 def guard(

@@ -60,6 +60,8 @@ ROBOT_NODE = Either(
                 "urdf": Text(nonempty=True, what="URDF text"),
                 "tool_frame": Text(nonempty=True, what="the name of a URDF link"),
                 "name": Text(),
+                # the description file it came from: `view` finds its meshes from there
+                "path": Text(),
             },
             required=("urdf", "tool_frame"),
         ),

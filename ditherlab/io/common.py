@@ -6,7 +6,7 @@ from __future__ import annotations
 import copy
 import json
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from ditherlab.core.errors import ConfigError, FormatError, RecordingError
-from ditherlab.core.schema import MapOf, Table, Text, check
+from ditherlab.core.schema import ListOf, MapOf, Table, Text, check
 from ditherlab.data.recording import (
     PAYLOAD_NODE,
     SCHEMA,
@@ -29,11 +29,20 @@ from ditherlab.robot import RobotModel, resolve_spec
 #: the recording columns that hold numbers (besides the wrench)
 NUMERIC = re.compile(r"^(t|(q|dq|tau|tau_ffw|temp|tau_ext_vendor)_\d+)$")
 #: Options every reader accepts: they fill in or override the recording's metadata.
-META_OPTIONS = ("robot", "tool_frame", "tool_offset", "payload", "source", "notes")
+META_OPTIONS = (
+    "robot",
+    "tool_frame",
+    "robot_args",
+    "tool_offset",
+    "payload",
+    "source",
+    "notes",
+)
 #: Their values (``robot`` is checked where it is resolved); other options are the readers'.
 _OPTIONS_SCHEMA = Table(
     keys={
         "tool_frame": Text(nonempty=True, what="the name of a URDF link"),
+        "robot_args": ListOf(item=Text(nonempty=True, what="NAME:=VALUE")),
         "tool_offset": TOOL_OFFSET_NODE,
         "payload": PAYLOAD_NODE,
         "source": Text(),
@@ -45,7 +54,12 @@ _OPTIONS_SCHEMA = Table(
 
 
 def robot_spec(
-    value: Any, *, base_dir: Path | None = None, tool_frame: str | None = None, where: str = "robot"
+    value: Any,
+    *,
+    base_dir: Path | None = None,
+    tool_frame: str | None = None,
+    where: str = "robot",
+    robot_args: Sequence[str] | None = None,
 ) -> str | dict[str, str]:
     """The metadata ``robot`` entry for a ``robot=`` option
     (:func:`ditherlab.robot.resolve_spec`, with relative URDF paths taken from ``base_dir``).
@@ -53,23 +67,29 @@ def robot_spec(
     Parameters
     ----------
     value : str | Path | dict
-        A built-in robot name (``"irb140"``), a path to a URDF file, or an already formed
-        ``{"urdf": ..., "tool_frame": ...}``.
+        A built-in robot name (``"irb140"``), an example-robot-data arm (``"ur5"``), a path to
+        a URDF or xacro file, or an already formed ``{"urdf": ..., "tool_frame": ...}``.
     base_dir : folder that relative URDF paths are relative to (e.g. the mapping file's).
     tool_frame : frame of the tool for a URDF file; default: the robot model's guess
         (``tool0``, ``flange``, ... else the last link).
     where : the file or option named in error messages.
+    robot_args : a xacro file's ``NAME:=VALUE`` arguments (:func:`ditherlab.robot.resolve_spec`).
 
     Returns
     -------
     str (built-in name) or dict with ``urdf`` (text), ``tool_frame`` and ``name``.
     """
     if isinstance(value, Mapping):
-        return resolve_spec(value, where=where)
+        return resolve_spec(value, tool_frame=tool_frame, where=where)
     p = Path(str(value)).expanduser()
     if base_dir is not None and not p.is_absolute() and (base_dir / p).is_file():
         p = base_dir / p
-    return resolve_spec(str(p) if p.is_file() else str(value), tool_frame=tool_frame, where=where)
+    return resolve_spec(
+        str(p) if p.is_file() else str(value),
+        tool_frame=tool_frame,
+        where=where,
+        robot_args=robot_args,
+    )
 
 
 def urdf_spec(urdf: str, tool_frame: str | None = None, where: str = "URDF") -> dict[str, str]:
@@ -102,9 +122,17 @@ def meta_from_options(
             base_dir=base_dir,
             tool_frame=options.get("tool_frame"),
             where=where or "robot",
+            robot_args=options.get("robot_args"),
         )
-    elif options.get("tool_frame") and isinstance(out.get("robot"), dict):
-        out["robot"]["tool_frame"] = options["tool_frame"]
+    elif options.get("robot_args"):
+        raise ConfigError(
+            f"{where or 'options'}: --robot-arg {', '.join(options['robot_args'])} needs --robot "
+            "with a .xacro file (the arguments expand it)"
+        )
+    elif options.get("tool_frame") and out.get("robot") is not None:
+        out["robot"] = robot_spec(
+            out["robot"], tool_frame=options["tool_frame"], where=where or "robot"
+        )
     if options.get("tool_offset") is not None:
         out["tool_offset"] = [float(x) for x in options["tool_offset"]]
     for key in ("payload", "source", "notes"):

@@ -40,7 +40,7 @@ def quantity_kernels(
     tool_placement = m.frames[fid].placement
     z = np.zeros(n)
     cols = slice(10 * (parent - 1), 10 * parent)
-    link_ids = [m.getFrameId(name) for name in link_names]
+    link_ids = [m.getFrameId(name, pin.FrameType.BODY) for name in link_names]
     oMi, oMf = d.oMi, d.oMf
 
     def gravity(qs: np.ndarray, out: np.ndarray) -> None:

@@ -15,6 +15,7 @@ import pinocchio as pin
 
 from ditherlab.robot.dedup import unique_configurations
 from ditherlab.robot.model import TOOL_POINT_FRAME
+from ditherlab.robot.urdf import frame_id
 
 __all__ = ["PointMotion", "tool_point_motion"]
 
@@ -53,7 +54,7 @@ def tool_point_motion(
     PointMotion
     """
     m = pin.Model(robot.model)
-    tf_id = m.getFrameId(robot.tool_frame)
+    tf_id = frame_id(m, robot.tool_frame)
     tf = m.frames[tf_id]
     placement = tf.placement * pin.SE3(np.eye(3), np.asarray(point, dtype=float))
     fid = m.addFrame(

@@ -8,8 +8,7 @@ import hashlib
 import os
 import threading
 from collections import OrderedDict
-from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -20,16 +19,17 @@ from ditherlab.robot.batch import compiled_kernels, quantity_kernels, tool_to_jo
 from ditherlab.robot.dedup import unique_configurations
 from ditherlab.robot.describe import describe_robot
 from ditherlab.robot.poses import PAPER_POSE, check_units, parse_pose
+from ditherlab.robot.sources import read_description, unknown_name
 from ditherlab.robot.urdf import (
     BUILTIN,
     build_model,
     builtin_robots,
     builtin_urdf,
+    frame_id,
     guess_tool_frame,
     parse_payload,
     robot_name,
     short_repr,
-    unknown_robot,
 )
 
 __all__ = ["PAPER_POSE", "TOOL_POINT_FRAME", "RobotModel", "resolve_spec"]
@@ -39,44 +39,52 @@ TOOL_POINT_FRAME = "ditherlab_tool_point"
 
 
 def resolve_spec(
-    spec: str | Mapping[str, Any], tool_frame: str | None = None, where: str | None = None
+    spec: str | Mapping[str, Any],
+    tool_frame: str | None = None,
+    where: str | None = None,
+    robot_args: Iterable[str] | Mapping[str, str] | None = None,
 ) -> str | dict[str, Any]:
     """Turn a user's robot choice into a recording's ``meta["robot"]`` entry.
 
     Parameters
     ----------
     spec : str or dict
-        A built-in name (returned as is), a path to a ``.urdf`` file (read and embedded, so the
-        recording is self-describing), or ``{"urdf": text, "tool_frame": name}`` (checked).
+        A built-in name (returned as is), an arm of example-robot-data by name (``ur5``,
+        ``erd:panda``), a path to a ``.urdf`` file or a ``.xacro`` file (read, expanded and
+        embedded, so the recording is self-describing), or ``{"urdf": text, "tool_frame":
+        name}`` (checked).
     tool_frame : str, optional
-        Tool frame for a URDF file; default: the first of ``tool0``, ``flange``, ``ee_link``,
-        ``tool``, ``end_effector`` that exists, else the last link of the chain.
+        The tool frame, when it is not the description's own: a built-in's ``tool0``, an
+        example-robot-data arm's flange, or for a URDF the first of ``tool0``, ``flange``,
+        ``ee_link``, ``tool``, ``end_effector`` that exists, else the last link of the chain.
     where : str, optional
         File or option name for error messages.
+    robot_args : ``NAME:=VALUE`` texts, optional
+        A xacro file's arguments; ``package://PKG:=DIR`` says where a ROS package is
+        (:func:`~ditherlab.robot.xacro_file.parse_robot_args`).
 
     Returns
     -------
-    str or {"urdf": text, "tool_frame": name, "name": robot name}
+    str or {"urdf": text, "tool_frame": name, "name": robot name[, "path": source file]}
     """
     w = where_prefix(where)
     if isinstance(spec, Mapping):
+        if tool_frame is not None:
+            spec = {**spec, "tool_frame": tool_frame}
         RobotModel.from_spec(spec, where=where)  # validates
         return dict(spec)
-    if isinstance(spec, str) and spec in BUILTIN:
-        return spec
-    if isinstance(spec, str | os.PathLike) and (
-        str(spec).lower().endswith(".urdf") or Path(spec).is_file()
-    ):
-        path = Path(spec)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise RobotError(f"{w}robot URDF file '{path}' does not exist") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise RobotError(f"{w}robot URDF file '{path}' cannot be read ({e})") from None
-        robot = RobotModel(text, tool_frame, where=str(path))
-        return {"urdf": text, "tool_frame": robot.tool_frame, "name": robot.name}
-    raise RobotError(unknown_robot(spec, w))
+    if isinstance(spec, str) and spec in BUILTIN and not robot_args:
+        if tool_frame is None or tool_frame == BUILTIN[spec][1]:
+            return spec
+        robot = RobotModel(builtin_urdf(spec), tool_frame, name=spec, where=where)
+        return {"urdf": robot.urdf, "tool_frame": robot.tool_frame, "name": spec}
+    if not isinstance(spec, str | os.PathLike):
+        raise RobotError(unknown_name(spec, w))
+    d = read_description(spec, robot_args, w)
+    label = f"robot {d.name!r}" if d.name else d.path  # an arm by name, else its file
+    robot = RobotModel(d.urdf, tool_frame or d.tool_frame, name=d.name, where=label or where)
+    out = {"urdf": d.urdf, "tool_frame": robot.tool_frame, "name": robot.name}
+    return out if d.path is None else {**out, "path": d.path}
 
 
 def _tool_frame(model: pin.Model, tool_frame: str | None, w: str) -> str:
@@ -169,7 +177,7 @@ class RobotModel:
         model = build_model(urdf, w)
         tool_frame = _tool_frame(model, tool_frame, w)
         offset = _tool_offset(tool_offset, w)
-        tf_id = model.getFrameId(tool_frame)
+        tf_id = frame_id(model, tool_frame)
         if payload is not None:
             payload = _add_payload(model, tf_id, payload, w)
         self._tool_point_id = _add_tool_point(model, tf_id, offset)
@@ -282,7 +290,7 @@ class RobotModel:
                 payload=payload,
                 where=where,
             )
-        raise RobotError(unknown_robot(spec, w))
+        raise RobotError(unknown_name(spec, w))
 
     @classmethod
     def from_recording_meta(

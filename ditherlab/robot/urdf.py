@@ -24,6 +24,7 @@ __all__ = [
     "build_model",
     "builtin_robots",
     "builtin_urdf",
+    "frame_id",
     "guess_tool_frame",
     "parse_payload",
     "robot_name",
@@ -161,6 +162,16 @@ def _check_inertials(root: ET.Element, where: str) -> None:
                     f"{where}robot URDF link {link.get('name', '?')!r} {key}: got "
                     f"{short_repr(text)}; expected a number in [{lo:g}, {hi:g}] [{unit}]"
                 )
+
+
+def frame_id(model: pin.Model, name: str) -> int:
+    """The id of the frame ``name``: its link (BODY frame) when it is a link, else the first
+    frame of that name. A URDF may name a link and a joint alike (pinocchio then has two frames
+    of that name)."""
+    for i, f in enumerate(model.frames):
+        if f.name == name and f.type == pin.FrameType.BODY:
+            return i
+    return int(model.getFrameId(name))
 
 
 def guess_tool_frame(model: pin.Model) -> str:

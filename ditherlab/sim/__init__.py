@@ -36,7 +36,7 @@ def simulate(
     config: str | Path | Mapping[str, Any] | None = None,
     hidden: Iterable[Any] = (),
     progress: Callable[[int, int], None] | None = None,
-    robot: str = "irb140",
+    robot: str | Mapping[str, Any] = "irb140",
     **options: Any,
 ) -> Recording:
     """Simulate a scenario and return its Recording (250 Hz, 6 joints of the built-in IRB140).
@@ -51,7 +51,8 @@ def simulate(
     hidden : effects to inject, ``"NAME[:SIZE]"`` strings or ``(name, size)`` pairs
         (names: :data:`EFFECTS`)
     progress : ``progress(done, total)`` callback
-    robot : the simulated arm: a built-in name or a URDF path, with as many joints as the
+    robot : the simulated arm: a built-in name, a URDF path or a resolved ``{"urdf",
+        "tool_frame", "name"}`` (:func:`ditherlab.robot.resolve_spec`), with as many joints as the
         parameters' per-joint lists (6 in ``irb140.toml``); the IRB140's drive, friction and
         servo parameters apply to it unless ``config`` sets its own
     options : any key of the scenario's table in ``irb140.toml`` (e.g.
@@ -92,7 +93,9 @@ def simulate(
         robot=robot,
     )
     meta = _meta(scenario, seed, dither, options, params, robot.n, sim_meta)
-    if robot_spec != "irb140":  # a built-in by its name, any other arm by its URDF text
+    if isinstance(robot_spec, Mapping):  # resolved: kept as it is (its source path too)
+        meta["robot"] = dict(robot_spec)
+    elif robot_spec != "irb140":  # a built-in by its name, any other arm by its URDF text
         builtin = robot.name == robot_spec
         meta["robot"] = (
             robot_spec
@@ -129,14 +132,15 @@ def _overrides(scenario: str, options: Mapping[str, Any]) -> dict[str, Any]:
     return overrides
 
 
-def _robot(spec: str, params: Mapping[str, Any]) -> RobotModel:
+def _robot(spec: str | Mapping[str, Any], params: Mapping[str, Any]) -> RobotModel:
     """The simulated arm ``spec``; ConfigError when its joints are not as many as the
     parameters' per-joint lists."""
     robot = RobotModel.from_spec(spec)
     n = len(params["friction"]["static"])
     if robot.n != n:
+        label = spec if isinstance(spec, str) else robot.name
         raise ConfigError(
-            f"--robot {spec}: {robot.n} joints, the simulator's parameters give {n} per joint; "
+            f"--robot {label}: {robot.n} joints, the simulator's parameters give {n} per joint; "
             f"expected a robot with {n} joints"
         )
     return robot

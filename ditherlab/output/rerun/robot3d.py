@@ -1,8 +1,11 @@
-"""The robot in 3D: link transforms, the skeleton through the link origins, and force arrows and
-interval boxes at the tool point (``robot/...``), at the 3D rate."""
+"""The robot in 3D: link transforms, the skeleton through the link origins, the links' meshes
+where the robot's description has them on this machine, and force arrows and interval boxes at
+the tool point (``robot/...``), at the 3D rate."""
 
 from __future__ import annotations
 
+from functools import lru_cache
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,6 +16,7 @@ from ditherlab.core.names import FORCE_AXES
 from ditherlab.data.estimates import Estimates
 from ditherlab.data.recording import Recording
 from ditherlab.output.rerun.columns import SENSOR_COLOR, VARIANT_COLORS, ColumnLogger
+from ditherlab.robot.visuals import MESH_TYPES, MeshVisual, mesh_visuals
 
 
 def log_robot(
@@ -41,6 +45,7 @@ def log_robot(
             t3,
             rr.Transform3D.columns(translation=T[:, :3, 3], quaternion=_quat_xyzw(T[:, :3, :3])),
         )
+    _log_meshes(log, rec)
     # Skeleton through the link origins in kinematic order; coincident origins (wrist) collapse.
     origins = np.stack([T[:, :3, 3] for T in poses.values()], axis=1)  # (M, L, 3) [m]
     log.static("robot/skeleton", rr.LineStrips3D([], radii=0.02, colors=[160, 160, 170]))
@@ -76,6 +81,31 @@ def log_robot(
                         half_sizes=force_scale * (hi - lo) / 2,
                     ),
                 )
+
+
+@lru_cache(maxsize=8)
+def _visuals(urdf: str, path: str | None) -> tuple[MeshVisual, ...]:
+    """The meshes of a URDF (described at ``path``, or None) found here, parsed once."""
+    return tuple(mesh_visuals(urdf, Path(path).parent if path else None))
+
+
+def _log_meshes(log: ColumnLogger, rec: Recording) -> None:
+    """Each link's meshes (:func:`ditherlab.robot.visuals.mesh_visuals`), static, under the
+    link's entity: they move with its transform. Links without one keep their axes alone."""
+    spec = rec.meta.get("robot")
+    path = spec.get("path") if isinstance(spec, dict) else None
+    counts: dict[str, int] = {}
+    for v in _visuals(rec.robot().urdf, path):
+        k = counts[v.link] = counts.get(v.link, -1) + 1
+        entity = f"robot/links/{rr.escape_entity_path_part(v.link)}/mesh_{k}"
+        rot = Rotation.from_euler("xyz", v.rpy).as_quat()  # URDF rpy: fixed axes x, y, z
+        asset = rr.Asset3D(
+            path=v.path,
+            media_type=MESH_TYPES[v.path.suffix.lower()],
+            albedo_factor=None if v.rgba is None else [float(c) for c in v.rgba],
+        )
+        log.static(entity, rr.Transform3D(translation=v.xyz, quaternion=rot, scale=v.scale))
+        log.static(f"{entity}/asset", asset)
 
 
 def _interval_columns(v: str) -> tuple[list[str], list[str]]:
