@@ -327,7 +327,8 @@ def identify(
         list[Path],
         typer.Argument(
             metavar="RECORDING",
-            help="Recordings with an F/T sensor (f_x..m_z), or any log with --assume-no-force.",
+            help="Joint logs: with an F/T sensor (f_x..m_z), or without one with "
+            "--assume-no-force.",
         ),
     ],
     out: Annotated[str, out_file("Torque model file, .toml")],
@@ -349,10 +350,26 @@ def identify(
         bool,
         typer.Option(
             "--assume-no-force",
-            help="No F/T sensor: you state that no external force acts; bands from every regime "
-            "the log holds.",
+            help="No F/T sensor: the force is taken as zero at rest; departures from rest "
+            "(pushes) are found, left out and listed.",
         ),
     ] = False,
+    window: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--window",
+            metavar="START:END",
+            help="Fit only this stretch [s, the log's time], repeatable.",
+        ),
+    ] = None,
+    exclude: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--exclude",
+            metavar="START:END",
+            help="Leave this stretch out [s, the log's time], repeatable.",
+        ),
+    ] = None,
     bootstrap: Annotated[
         int, typer.Option("--bootstrap", help="Bootstrap replicates for the standard errors.")
     ] = 30,
@@ -372,7 +389,8 @@ def identify(
 
     opts = cmd.IdentifyOptions(
         recordings=tuple(recordings), out=out, model=model, add=tuple(add or ()),
-        assume_no_force=assume_no_force, n_boot=bootstrap, seed=seed,
+        assume_no_force=assume_no_force, windows=tuple(window or ()),
+        excludes=tuple(exclude or ()), n_boot=bootstrap, seed=seed,
         read=_read(mapping, robot), force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("identify", quiet) as progress:
