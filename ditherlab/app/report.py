@@ -10,9 +10,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ditherlab.analysis.detection import NoPushesError, analyse
 from ditherlab.analysis.known_load import known_load_analysis
-from ditherlab.app.workflow import Progress, guard
+from ditherlab.analysis.no_sensor import no_sensor_analysis
+from ditherlab.app.workflow import Progress, as_recording, guard
 from ditherlab.core.files import all_or_nothing, check_not_input
 from ditherlab.data.estimates import Estimates, EstimatesSource
 from ditherlab.data.recording import Recording
@@ -22,6 +25,7 @@ from ditherlab.output.known_load_page import (
     known_load_lines,
     write_known_load_pages,
 )
+from ditherlab.output.no_sensor_page import no_sensor_lines, write_no_sensor_pages
 from ditherlab.output.report_page import open_logs, summary_text, write_pages
 
 __all__ = ["ReportOptions", "Reported", "make_report", "run"]
@@ -62,6 +66,8 @@ class Reported:
 
     def text(self) -> str:
         """What the CLI prints: the paper's table, the known load's comparison, the folder."""
+        if "no_sensor" in self.analysis:
+            return "\n".join([*no_sensor_lines(self.analysis["no_sensor"]), f"wrote {self.out}"])
         known = self.analysis.get("known_load")
         lines = known_load_lines(known) if known else []
         if "recordings" not in self.analysis:  # a known load's report without pushes
@@ -163,6 +169,8 @@ def make_report(
         if progress:
             progress(done, steps)
 
+    if ests and not any(e.has_wrench for e in ests):  # no sensor: the estimator on its own terms
+        return _no_sensor_report(ests, recordings, out)
     known = known_load_analysis(ests, chunk_rows)
     try:
         analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
@@ -179,6 +187,21 @@ def make_report(
         ests, analysis, logs, out, figures=figures, chunk_rows=chunk_rows, tick=tick, extra=extra
     )
     return analysis
+
+
+def _no_sensor_report(
+    ests: Sequence[EstimatesSource], recordings: Sequence[Recording | str | Path], out: Path
+) -> dict[str, Any]:
+    """The report of estimates without F/T columns (:mod:`ditherlab.analysis.no_sensor`): with
+    the recordings behind them, the thresholds predicted at their rest pose too."""
+    open_logs(recordings, ests)  # each recording must be behind one of the estimates
+    robots = []
+    for r in recordings:
+        rec = as_recording(r)
+        robots.append((rec.robot(), np.median(rec.q, axis=0)))
+    analysis = no_sensor_analysis(ests, robots=robots)
+    write_no_sensor_pages(ests, analysis, _level_text(ests), out)
+    return {"no_sensor": analysis}
 
 
 def _level_text(ests: Sequence[EstimatesSource]) -> str:
