@@ -450,7 +450,8 @@ def report(
     estimates: Annotated[
         list[Path],
         typer.Argument(
-            metavar="ESTIMATES", help="Estimates files from `ditherlab replay` (with F/T columns)."
+            metavar="ESTIMATES",
+            help="Estimates files from `ditherlab replay` (with or without F/T columns).",
         ),
     ],
     out: Annotated[
@@ -467,6 +468,12 @@ def report(
     bootstrap: Annotated[
         int, typer.Option("--bootstrap", help="Bootstrap replicates of the detection curves.")
     ] = 200,
+    paper: Annotated[
+        bool,
+        typer.Option(
+            "--paper", help="Show the paper's IRB140 table for any robot (always for the IRB140)."
+        ),
+    ] = False,
     seed: Seed = 0,
     chunk: Chunk = None,
     json_out: JsonFlag = False,
@@ -475,14 +482,16 @@ def report(
 ) -> None:
     """Report the detection thresholds of estimates.
 
-    F50 / F90 per push direction beside the paper's §VI-C numbers, detection curves, interval
-    coverage and figures.
+    With an F/T sensor: F50 / F90 per push direction (beside the paper's §VI-C numbers for the
+    IRB140 or with --paper, else estimator against estimator), detection curves, interval
+    coverage and figures. Without one: the estimator's events, the noise level at rest and
+    (with --recording) the thresholds predicted at the rest pose.
     """
     from ditherlab.app import report as cmd
 
     opts = cmd.ReportOptions(
         estimates=tuple(estimates), out=out, recordings=tuple(recording or ()),
-        n_boot=bootstrap, seed=seed, force=force, **_chunk(chunk),
+        n_boot=bootstrap, seed=seed, force=force, paper=paper, **_chunk(chunk),
     )  # fmt: skip
     with _progress("report", quiet or json_out) as progress:
         _show(cmd.run(opts, progress), json_out)

@@ -46,6 +46,8 @@ class ReportOptions:
     seed : the bootstrap's seed
     chunk_rows : rows read at a time from a file
     force : write into an existing non-empty folder
+    paper : show the paper's IRB140 table for any robot (it is shown for the IRB140 always;
+        otherwise the user's own variants are compared)
     """
 
     estimates: tuple[str | Path | Estimates, ...]
@@ -55,6 +57,7 @@ class ReportOptions:
     seed: int = 0
     chunk_rows: int = CHUNK_ROWS
     force: bool = False
+    paper: bool = False
 
 
 @dataclass
@@ -107,6 +110,7 @@ def run(options: ReportOptions, progress: Progress | None = None) -> Reported:
             seed=o.seed,
             chunk_rows=o.chunk_rows,
             progress=progress,
+            paper=o.paper,
         )
     return Reported(analysis, out)
 
@@ -121,6 +125,7 @@ def make_report(
     figures: bool = True,
     chunk_rows: int = CHUNK_ROWS,
     progress: Progress | None = None,
+    paper: bool = False,
 ) -> dict[str, Any]:
     """Analyse estimates and write the report folder.
 
@@ -140,6 +145,8 @@ def make_report(
     figures : draw the PNG figures
     chunk_rows : rows read at a time from a file (:data:`ditherlab.io.stream.CHUNK_ROWS`)
     progress : ``progress(done, total)``
+    paper : the paper's IRB140 table for any robot (always for the IRB140; otherwise the
+        estimates' own variants are compared)
 
     Returns
     -------
@@ -179,6 +186,7 @@ def make_report(
             raise
         return _known_load_report(ests, known, out)  # a run with a known load and no pushes
     tick()
+    analysis["paper_comparison"] = paper or _robot_name(ests) == "irb140"
     extra = []
     if known is not None:
         analysis["known_load"] = known
@@ -202,6 +210,14 @@ def _no_sensor_report(
     analysis = no_sensor_analysis(ests, robots=robots)
     write_no_sensor_pages(ests, analysis, _level_text(ests), out)
     return {"no_sensor": analysis}
+
+
+def _robot_name(ests: Sequence[EstimatesSource]) -> str | None:
+    """The robot's name in the first estimates file's recording metadata, or None."""
+    robot = (ests[0].meta.get("recording") or {}).get("robot") if ests else None
+    if isinstance(robot, dict):
+        return robot.get("name")
+    return robot if isinstance(robot, str) else None
 
 
 def _level_text(ests: Sequence[EstimatesSource]) -> str:
