@@ -134,9 +134,9 @@ class RestScan:
         head = f"{self.name}: {self.rest_s:.1f} s at rest tested"
         if not self.rest_s:
             return [
-                f"{self.name}: not {MIN_BLOCKS * BLOCK:.0f} s at rest (some joint moves in the "
-                f"other {BLOCK} s blocks), no push test: a force during motion cannot be told "
-                "from friction without a sensor, and the bands hold whatever force acted"
+                f"{self.name}: less than {MIN_BLOCKS * BLOCK:.0f} s at rest in the stretches "
+                "considered, no push test: a force there, or during motion, cannot be told from "
+                "friction without a sensor, and the bands hold whatever force acted"
             ]
         rule = (
             f"(levels between steps of the {BLOCK} s block means departing from the rest "
