@@ -89,3 +89,23 @@ def test_events_of_the_estimate():
     assert mask.sum() == 140
     assert variant_label("nodither_band") == "without dither"
     assert "ignores the dither" in variant_label("nodither_band", True)
+
+
+def test_ur10e_hand_pushes_are_found_and_left_out(cli, data, tmp_path):
+    """The UR10e standing and pushed by hand four times (no sensor): identify lists the four
+    pushes (their starts within 0.5 s of where the residual leaves rest) and leaves them out;
+    a window outside the log is one line, exit 2, nothing written."""
+    rec = data / "ur10e" / "ur-static.csv"
+    m = tmp_path / "m.toml"
+    r = cli("identify", rec, "--mapping", "ur10e", "--assume-no-force", "-o", m,
+            "--bootstrap", "0", "-q")  # fmt: skip
+    assert r.code == 0, r.err
+    starts = [float(x.split("-")[0]) for x in r.out.splitlines() if x.startswith("  3")]
+    for push in (336.85, 345.3, 358.9, 371.8):  # where the residual leaves rest, by eye
+        assert min(abs(s - push) for s in starts) < 0.5, r.out
+    assert "departures from rest left out" in m.read_text()
+    bad = tmp_path / "bad.toml"
+    r = cli("identify", rec, "--mapping", "ur10e", "--assume-no-force", "-o", bad,
+            "--window", "1:5", "-q")  # fmt: skip
+    assert r.code == 2 and r.err.count("\n") == 1 and "--window 1:5 lies outside" in r.err
+    assert not bad.exists()
