@@ -91,11 +91,11 @@ def test_events_of_the_estimate():
     assert "ignores the dither" in variant_label("nodither_band", True)
 
 
-def test_ur10e_hand_pushes_are_found_and_left_out(cli, data, tmp_path):
+def test_ur10e_hand_pushes_are_found_and_left_out(cli, shared_data, tmp_path):
     """The UR10e standing and pushed by hand four times (no sensor): identify lists the four
     pushes (their starts within 0.5 s of where the residual leaves rest) and leaves them out;
     a window outside the log is one line, exit 2, nothing written."""
-    rec = data / "ur10e" / "ur-static.csv"
+    rec = shared_data / "ur10e" / "ur-static.csv"
     m = tmp_path / "m.toml"
     r = cli("identify", rec, "--mapping", "ur10e", "--assume-no-force", "-o", m,
             "--bootstrap", "0", "-q")  # fmt: skip
