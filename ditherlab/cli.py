@@ -356,7 +356,8 @@ def identify(
         list[Path],
         typer.Argument(
             metavar="RECORDING",
-            help="Recordings with an F/T sensor (f_x..m_z), or any log with --assume-no-force.",
+            help="Joint logs: with an F/T sensor (f_x..m_z), or without one with "
+            "--assume-no-force.",
         ),
     ],
     out: Annotated[str, out_file("Torque model file, .toml")],
@@ -378,10 +379,26 @@ def identify(
         bool,
         typer.Option(
             "--assume-no-force",
-            help="No F/T sensor: you state that no external force acts; bands from every regime "
-            "the log holds.",
+            help="No F/T sensor: the force is taken as zero at rest; departures from rest "
+            "(pushes) are found, left out and listed.",
         ),
     ] = False,
+    window: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--window",
+            metavar="START:END",
+            help="Fit only this stretch [s, the log's time], repeatable.",
+        ),
+    ] = None,
+    exclude: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--exclude",
+            metavar="START:END",
+            help="Leave this stretch out [s, the log's time], repeatable.",
+        ),
+    ] = None,
     bootstrap: Annotated[
         int, typer.Option("--bootstrap", help="Bootstrap replicates for the standard errors.")
     ] = 30,
@@ -406,7 +423,8 @@ def identify(
     read = _read(mapping, robot, joint_topic, wrench_topic, tool_frame, robot_arg)
     opts = cmd.IdentifyOptions(
         recordings=tuple(recordings), out=out, model=model, add=tuple(add or ()),
-        assume_no_force=assume_no_force, n_boot=bootstrap, seed=seed,
+        assume_no_force=assume_no_force, windows=tuple(window or ()),
+        excludes=tuple(exclude or ()), n_boot=bootstrap, seed=seed,
         read=read, force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("identify", quiet) as progress:
@@ -471,7 +489,8 @@ def report(
     estimates: Annotated[
         list[Path],
         typer.Argument(
-            metavar="ESTIMATES", help="Estimates files from `ditherlab replay` (with F/T columns)."
+            metavar="ESTIMATES",
+            help="Estimates files from `ditherlab replay` (with or without F/T columns).",
         ),
     ],
     out: Annotated[
@@ -488,6 +507,12 @@ def report(
     bootstrap: Annotated[
         int, typer.Option("--bootstrap", help="Bootstrap replicates of the detection curves.")
     ] = 200,
+    paper: Annotated[
+        bool,
+        typer.Option(
+            "--paper", help="Show the paper's IRB140 table for any robot (always for the IRB140)."
+        ),
+    ] = False,
     seed: Seed = 0,
     chunk: Chunk = None,
     json_out: JsonFlag = False,
@@ -496,14 +521,16 @@ def report(
 ) -> None:
     """Report the detection thresholds of estimates.
 
-    F50 / F90 per push direction beside the paper's §VI-C numbers, detection curves, interval
-    coverage and figures.
+    With an F/T sensor: F50 / F90 per push direction (beside the paper's §VI-C numbers for the
+    IRB140 or with --paper, else estimator against estimator), detection curves, interval
+    coverage and figures. Without one: the estimator's events, the noise level at rest and
+    (with --recording) the thresholds predicted at the rest pose.
     """
     from ditherlab.app import report as cmd
 
     opts = cmd.ReportOptions(
         estimates=tuple(estimates), out=out, recordings=tuple(recording or ()),
-        n_boot=bootstrap, seed=seed, force=force, **_chunk(chunk),
+        n_boot=bootstrap, seed=seed, force=force, paper=paper, **_chunk(chunk),
     )  # fmt: skip
     with _progress("report", quiet or json_out) as progress:
         _show(cmd.run(opts, progress), json_out)

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ditherlab.analysis.rest import kept_rows
 from ditherlab.core.errors import ConfigError, RecordingError
 from ditherlab.core.names import DITHER, MOVING, STILL
 from ditherlab.core.spill import SPILL_BYTES, Spill
@@ -172,6 +173,7 @@ def identify(
     chunk_rows: int = CHUNK_ROWS,
     spill_bytes: int = SPILL_BYTES,
     executor: Executor | None = None,
+    drop: Sequence[Sequence[tuple[float, float]]] = (),
 ) -> TorqueModel:
     """Fit the bands, noise and sliding friction of every joint and regime.
 
@@ -212,6 +214,9 @@ def identify(
         moving sample): memory then stays bounded however long the recordings are
     executor : runs the joint-regimes' fits (e.g. a process pool; :func:`~ditherlab.physics.band_fit.
         fit_regimes`): the same model, bit for bit, every joint-regime's samples held at once
+    drop : per recording (in the order of ``recs``; missing: none), time spans ``(start, end)``
+        [s] of its own time whose samples no regime is fitted on (pushes found without a sensor,
+        :func:`ditherlab.analysis.rest.scan_rest`, and the user's ``--exclude``; ends included)
 
     Returns
     -------
@@ -224,7 +229,9 @@ def identify(
         No F/T columns (and not ``assume_no_force``), recordings of different robots, or no
         joint with enough samples in any regime.
     """
-    o = IdentifyOptions(assume_no_force, n_boot, block, min_samples, dither_band, max_accel, seed)
+    o = IdentifyOptions(
+        assume_no_force, n_boot, block, min_samples, dither_band, max_accel, seed, tuple(drop)
+    )
     if dither_band not in ("shrunk", "ml"):
         raise ConfigError(f"dither_band is {dither_band!r}, expected 'shrunk' or 'ml'")
     recs = list(recs)
@@ -269,6 +276,7 @@ class IdentifyOptions:
     dither_band: str
     max_accel: float
     seed: int
+    drop: tuple[Sequence[tuple[float, float]], ...] = ()
 
 
 def _gather(
@@ -283,7 +291,8 @@ def _gather(
     residual's samples to ``samples``; returns the first recording's first piece (the robot,
     its joints and metadata). Once its joints are known, ``tick`` gets 3 fits per joint more."""
     first: Recording | None = None
-    for r in recs:
+    for i, r in enumerate(recs):
+        spans = o.drop[i] if i < len(o.drop) else ()
         for k, piece in enumerate(pieces_of(r, chunk_rows)):
             if k == 0:
                 _check_input(piece.rec, first, o.assume_no_force)
@@ -302,6 +311,7 @@ def _gather(
                     assume_no_force=o.assume_no_force,
                     block=o.block,
                     max_accel=o.max_accel,
+                    drop=spans,
                 )
             if piece.count > 1:  # a piece of a long log: its robot quantities go now
                 release(piece.rec)
@@ -447,10 +457,13 @@ class _Samples:
         assume_no_force: bool,
         block: float,
         max_accel: float,
+        drop: Sequence[tuple[float, float]] = (),
     ) -> None:
         """Add the residual samples of the rows ``keep`` of ``rec`` (a piece of the recording
-        begun by :meth:`start`, with context around them), every regime (see :func:`identify`)."""
+        begun by :meth:`start`, with context around them), every regime (see :func:`identify`),
+        except those inside the time spans ``drop`` [s]."""
         reg = regimes(rec)
+        out = ~kept_rows(rec.t, (), drop)[:, None] if drop else None
         # rho = (tau - gravity - effects) - external, the parts kept for the dither regime
         rho = _tau_minus_model(rec.tau, rec, model)
         ext = None
@@ -486,6 +499,8 @@ class _Samples:
         # a piece without dithered samples still continues the dither regime's runs
         sources.append(dith or (DITHER, rho, np.zeros_like(reg, dtype=bool)))
         for code, r, mask in sources:
+            if out is not None:
+                mask = mask & ~out
             for j in range(self.n):
                 m = mask[keep, j]
                 if not len(m):

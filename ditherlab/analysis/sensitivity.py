@@ -581,7 +581,22 @@ def predict(
         "transmission": st.table[3] if st.table is not None else None,
         "force_range": list(force_range),
         "components": components,
+        "borrowed": borrowed_values(robot.name, bands, st.table is not None),
     }
+
+
+def borrowed_values(robot_name: str, bands: Bands, plant: bool) -> list[str]:
+    """The values a prediction for ``robot_name`` takes from the simulator's IRB140 (none for
+    the IRB140 itself): the dither amplitude that shrinks a model's still band (a model without
+    a dither band) and the push transmission through the simulator's plant (``plant``)."""
+    if robot_name == SIM_ROBOT:
+        return []
+    out = []
+    if "simulator's dither amplitude" in bands.source:
+        out.append("dither amplitude")
+    if plant:
+        out.append("push transmission")
+    return out
 
 
 @dataclass(frozen=True)

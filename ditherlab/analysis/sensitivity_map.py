@@ -290,6 +290,9 @@ def format_prediction(pred: Mapping[str, Any]) -> str:
             for a in AXES
         )
     )
+    if pred.get("borrowed"):  # every line says what it takes from another robot
+        tag = f"  [IRB140 simulator's {' and '.join(pred['borrowed'])}]"
+        lines = [line + tag for line in lines]
     return "\n".join(lines)
 
 

@@ -12,12 +12,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ditherlab.analysis.diagnosis import Diagnosis, diagnose
+from ditherlab.analysis.rest import kept_rows, scan_rest
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.files import all_or_nothing
+from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
-from ditherlab.io.stream import CHUNK_ROWS, open_source
+from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.output.diagnosis_report import write_report
+
+#: the shortest stretch between departures from rest that diagnose scores [s]
+MIN_STRETCH_S = 2.0
 
 __all__ = ["HISTORY_MODEL", "DiagnoseOptions", "Diagnosed", "run", "with_history_row"]
 
@@ -100,10 +107,46 @@ def run(options: DiagnoseOptions, progress: Progress | None = None) -> Diagnosed
 
 def _diagnose(o: DiagnoseOptions, progress: Progress | None) -> Diagnosis:
     model = TorqueModel.load(o.model)
-    recs = [open_source(p, **o.read.kwargs()) for p in o.recordings]
-    return diagnose(
-        recs, model, regimes=o.regimes or None, progress=progress, chunk_rows=o.chunk_rows
+    recs: list[Recording | Source] = []
+    notes: list[str] = []
+    for p in o.recordings:
+        src = open_source(p, **o.read.kwargs())
+        parts, note = _without_departures(src, model)
+        recs += parts
+        notes += note
+    d = diagnose(recs, model, regimes=o.regimes or None, progress=progress, chunk_rows=o.chunk_rows)
+    # a log cut in stretches: named and noted once
+    d.notes[:] = list(dict.fromkeys([*notes, *d.notes]))
+    d.recordings[:] = list(dict.fromkeys(d.recordings))
+    return d
+
+
+def _without_departures(
+    src: Source, model: TorqueModel
+) -> tuple[list[Recording | Source], list[str]]:
+    """A log without an F/T sensor as the stretches between its departures from rest
+    (:func:`ditherlab.analysis.rest.scan_rest`, the pushes identify leaves out too: forces, not
+    a model error), each at least :data:`MIN_STRETCH_S` long, with a note; any other log as it
+    is."""
+    if "f_x" in src.columns:
+        return [src], []
+    rec = src.read()
+    found = scan_rest(rec, model)
+    if not found.events:
+        return [rec], []
+    keep = kept_rows(rec.t, (), found.spans())
+    edges = np.flatnonzero(np.diff(np.r_[0, keep.astype(np.int8), 0]))
+    parts = [
+        rec.slice(rec.t[a], rec.t[b - 1] + 1e-9)
+        for a, b in zip(edges[::2], edges[1::2], strict=True)
+        if rec.t[b - 1] - rec.t[a] >= MIN_STRETCH_S
+    ]
+    spans = ", ".join(f"{e.start:.1f}-{e.end:.1f} s" for e in found.events)
+    note = (
+        f"{src.name}: no F/T sensor: {len(found.events)} departures from rest (pushes: {spans}) "
+        f"not scored, as identify leaves them out"
     )
+    return parts, [note]
 
 
 def with_history_row(model: TorqueModel, entry: dict[str, Any]) -> TorqueModel:

@@ -13,13 +13,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import Executor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from ditherlab.analysis.identification import identify, summary
+from ditherlab.analysis.rest import RestScan, kept_rows, parse_span, quiet_majority, scan_rest
 from ditherlab.analysis.scoring import select_joints
 from ditherlab.app.workflow import Progress, ReadOptions, guard
-from ditherlab.core.errors import ModelError
+from ditherlab.core.errors import ConfigError, ModelError, RecordingError
 from ditherlab.core.files import FileKind
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
@@ -41,11 +44,17 @@ class IdentifyOptions:
 
     Attributes
     ----------
-    recordings : push recordings with an F/T sensor (``f_x..m_z``), any readable format
+    recordings : recordings with an F/T sensor (``f_x..m_z``), or without one with
+        ``assume_no_force``; any readable format
     out : the model file to write (``.toml``; as text, a trailing ``/`` names a folder: refused)
     model : a model file to start from: its prior and effects are kept, its bands re-fitted
     add : effects to fit after the bands, in order (names of :data:`ditherlab.physics.effects.EFFECTS`)
-    assume_no_force : no F/T sensor: the user states that no external force acts
+    assume_no_force : no F/T sensor: the external force is taken as zero where the log rests
+        and does not depart from rest (:func:`ditherlab.analysis.rest.scan_rest` finds the
+        departures, and identify leaves them out and says so)
+    windows : ``"START:END"`` or ``(start, end)`` [s] in the logs' time: only these stretches
+        are fitted on (none: the whole logs)
+    excludes : ``"START:END"`` or ``(start, end)`` [s]: stretches left out
     n_boot : bootstrap replicates for the standard errors
     seed : the bootstrap's seed
     read : how to read a foreign log (``--mapping``, ``--robot``)
@@ -58,6 +67,8 @@ class IdentifyOptions:
     model: Path | None = None
     add: tuple[str, ...] = ()
     assume_no_force: bool = False
+    windows: tuple[str | tuple[float, float], ...] = ()
+    excludes: tuple[str | tuple[float, float], ...] = ()
     n_boot: int = 30
     seed: int = 0
     read: ReadOptions = ReadOptions()
@@ -67,14 +78,18 @@ class IdentifyOptions:
 
 @dataclass
 class Identified:
-    """What :func:`run` wrote: the model and its file."""
+    """What :func:`run` wrote: the model and its file, and without a sensor what the rest scan
+    of each recording found (:class:`~ditherlab.analysis.rest.RestScan`)."""
 
     model: TorqueModel
     path: Path
+    scans: list[RestScan] = field(default_factory=list)
 
     def text(self) -> str:
-        """The bands per regime and joint, and where the model went (what the CLI prints)."""
-        return f"{summary(self.model)}\nwrote {self.path}"
+        """The rest scans, the bands per regime and joint, and where the model went (what the
+        CLI prints)."""
+        scans = [line for s in self.scans for line in s.lines()]
+        return "\n".join([*scans, summary(self.model), f"wrote {self.path}"])
 
 
 def run(options: IdentifyOptions, progress: Progress | None = None) -> Identified:
@@ -95,6 +110,13 @@ def run(options: IdentifyOptions, progress: Progress | None = None) -> Identifie
     out = guard(o.out, [*o.recordings, o.model], read=o.read, kind=MODEL_FILE, force=o.force)
     sources = [open_source(p, **o.read.kwargs()) for p in o.recordings]
     base = TorqueModel.load(o.model) if o.model is not None else None
+    windows = [as_span(w, "--window") for w in o.windows]
+    excludes = [as_span(w, "--exclude") for w in o.excludes]
+    drop, scans = [], []
+    for src in sources:
+        spans, scan = rest_spans(src, base, windows, excludes, scan=o.assume_no_force)
+        drop.append(spans)
+        scans += [scan] if scan is not None else []
     model = identify_model(
         sources,
         model=base,
@@ -104,10 +126,74 @@ def run(options: IdentifyOptions, progress: Progress | None = None) -> Identifie
         seed=o.seed,
         progress=progress,
         chunk_rows=o.chunk_rows,
+        drop=drop,
     )
     model.source = None
+    left = [f"{s.name} {a:.2f}-{b:.2f} s" for s in scans for a, b in s.spans()]
+    if left:  # the model file says which stretches its bands do not hold
+        note = "departures from rest left out (no sensor): " + ", ".join(left)
+        model.notes = "; ".join(x for x in (model.notes, note) if x)
     model.save(out)
-    return Identified(model, out)
+    return Identified(model, out, scans)
+
+
+def as_span(value: str | tuple[float, float], option: str) -> tuple[float, float]:
+    """A ``--window`` / ``--exclude`` value as ``(start, end)`` [s]."""
+    if isinstance(value, str):
+        return parse_span(value, option)
+    return parse_span(f"{value[0]}:{value[1]}", option)
+
+
+def rest_spans(
+    src: Source,
+    base: TorqueModel | None,
+    windows: Sequence[tuple[float, float]],
+    excludes: Sequence[tuple[float, float]],
+    *,
+    scan: bool,
+) -> tuple[list[tuple[float, float]], RestScan | None]:
+    """The time spans [s] of ``src`` that identify leaves out: outside ``windows``, inside
+    ``excludes`` and, with ``scan`` (no sensor), the departures from rest that
+    :func:`~ditherlab.analysis.rest.scan_rest` finds in the rest. ConfigError when a window or
+    exclusion lies outside the log; RecordingError when the departures cover half the rest
+    time or more (the rule's quiet majority fails: the user names the rest with ``--window``)."""
+    t = src.times()
+    t0, t1 = float(t[0]), float(t[-1])
+    for opt, spans in (("--window", windows), ("--exclude", excludes)):
+        for a, b in spans:
+            if b < t0 or a > t1:
+                raise ConfigError(
+                    f"{src.name}: {opt} {a:g}:{b:g} lies outside the log's time "
+                    f"{t0:.2f}..{t1:.2f} s; expected START:END in the log's own seconds"
+                )
+    drop = _outside(windows, t0, t1) + list(excludes)
+    if not scan:
+        return drop, None
+    found = scan_rest(src.read(), base, kept_rows(t, windows, excludes))
+    if found.rest_s and not quiet_majority(found):
+        raise RecordingError(
+            f"{src.name}: departures from rest cover {found.event_s:.1f} of the "
+            f"{found.rest_s:.1f} s at rest, so the rest cannot be told from the pushes; name the "
+            "stretches where no force acts with --window START:END (or leave pushes out with "
+            "--exclude START:END)"
+        )
+    return drop + found.spans(), found
+
+
+def _outside(
+    windows: Sequence[tuple[float, float]], t0: float, t1: float
+) -> list[tuple[float, float]]:
+    """The spans [s] of ``[t0, t1]`` outside every window (none when there are no windows)."""
+    if not windows:
+        return []
+    out, at = [], t0 - 1.0
+    for a, b in sorted(windows):
+        if a > at:
+            out.append((at, float(np.nextafter(a, -np.inf))))
+        at = max(at, float(np.nextafter(b, np.inf)))
+    if at <= t1:
+        out.append((at, t1 + 1.0))
+    return out
 
 
 def identify_model(
@@ -120,6 +206,7 @@ def identify_model(
     seed: int = 0,
     progress: Progress | None = None,
     chunk_rows: int = CHUNK_ROWS,
+    drop: Sequence[Sequence[tuple[float, float]]] = (),
 ) -> TorqueModel:
     """:func:`~ditherlab.analysis.identification.identify` the bands, then :func:`add_effect`
     each of ``add`` in order (recordings read in pieces are read whole for these).
@@ -129,8 +216,9 @@ def identify_model(
     recordings : in memory or :class:`~ditherlab.io.stream.Source` s read in pieces
     model : the model to start from (its prior and effects kept), or None
     add : effect names
-    assume_no_force, n_boot, seed, progress, chunk_rows : as
-        :func:`~ditherlab.analysis.identification.identify`
+    assume_no_force, n_boot, seed, progress, chunk_rows, drop : as
+        :func:`~ditherlab.analysis.identification.identify` (``drop``: the spans [s] left out
+        per recording, also in the re-fit after each effect)
 
     Returns
     -------
@@ -144,11 +232,12 @@ def identify_model(
         seed=seed,
         progress=progress,
         chunk_rows=chunk_rows,
+        drop=drop,
     )
     if add:
         recs = [r.read() if isinstance(r, Source) else r for r in recordings]
         for name in add:
-            new = add_effect(recs, new, name, assume_no_force=assume_no_force)
+            new = add_effect(recs, new, name, assume_no_force=assume_no_force, drop=drop)
     return new
 
 
@@ -161,6 +250,7 @@ def add_effect(
     refit: bool = True,
     assume_no_force: bool = False,
     executor: Executor | None = None,
+    drop: Sequence[Sequence[tuple[float, float]]] = (),
 ) -> TorqueModel:
     """Fit one more effect on the current residual and return the new model (version + 1).
 
@@ -180,6 +270,7 @@ def add_effect(
         identify): the re-fit treats the external force as zero
     executor : runs the re-fit's band fits (:func:`ditherlab.analysis.identification.identify`'s
         ``executor``; the same model)
+    drop : per recording, time spans ``(start, end)`` [s] the re-fit leaves out (its ``drop``)
 
     Returns
     -------
@@ -220,7 +311,7 @@ def add_effect(
     new.effects.append(spec)
     new.version = model.version + 1
     if refit:
-        new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor)
+        new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor, drop=drop)
     if weak:
         new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
     return new
@@ -256,13 +347,20 @@ def _refit(
     *,
     assume_no_force: bool = False,
     executor: Executor | None = None,
+    drop: Sequence[Sequence[tuple[float, float]]] = (),
 ) -> TorqueModel:
-    """Re-fit bands and noise with the effects in place (identify), keeping version/history.
-    Without a sensor the bands are re-fitted only when the user stated that no force acts."""
+    """Re-fit bands and noise with the effects in place (identify), keeping version/history,
+    without the spans ``drop`` [s] per recording. Without a sensor the bands are re-fitted only
+    when the user stated that no force acts."""
     if not assume_no_force and not all(r.has_wrench for r in recs):
         return model
     out = identify(
-        list(recs), base=model, n_boot=n_boot, assume_no_force=assume_no_force, executor=executor
+        list(recs),
+        base=model,
+        n_boot=n_boot,
+        assume_no_force=assume_no_force,
+        executor=executor,
+        drop=drop,
     )
     out.effects = list(model.effects)
     out.version = model.version

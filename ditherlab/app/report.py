@@ -10,10 +10,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ditherlab.analysis.detection import NoPushesError, analyse
 from ditherlab.analysis.known_load import known_load_analysis
+from ditherlab.analysis.no_sensor import no_sensor_analysis
 from ditherlab.analysis.vendor import compare
-from ditherlab.app.workflow import Progress, guard
+from ditherlab.app.workflow import Progress, as_recording, guard
 from ditherlab.core.files import all_or_nothing, check_not_input
 from ditherlab.data.estimates import Estimates, EstimatesSource
 from ditherlab.data.recording import Recording
@@ -23,6 +26,7 @@ from ditherlab.output.known_load_page import (
     known_load_lines,
     write_known_load_pages,
 )
+from ditherlab.output.no_sensor_page import no_sensor_lines, write_no_sensor_pages
 from ditherlab.output.report_page import open_logs, summary_text, write_pages
 from ditherlab.output.vendor_page import vendor_text
 
@@ -44,6 +48,8 @@ class ReportOptions:
     seed : the bootstrap's seed
     chunk_rows : rows read at a time from a file
     force : write into an existing non-empty folder
+    paper : show the paper's IRB140 table for any robot (it is shown for the IRB140 always;
+        otherwise the user's own variants are compared)
     """
 
     estimates: tuple[str | Path | Estimates, ...]
@@ -53,6 +59,7 @@ class ReportOptions:
     seed: int = 0
     chunk_rows: int = CHUNK_ROWS
     force: bool = False
+    paper: bool = False
 
 
 @dataclass
@@ -64,6 +71,8 @@ class Reported:
 
     def text(self) -> str:
         """What the CLI prints: the paper's table, the known load's comparison, the folder."""
+        if "no_sensor" in self.analysis:
+            return "\n".join([*no_sensor_lines(self.analysis["no_sensor"]), f"wrote {self.out}"])
         known = self.analysis.get("known_load")
         lines = known_load_lines(known) if known else []
         if "recordings" not in self.analysis:  # a known load's report without pushes
@@ -108,6 +117,7 @@ def run(options: ReportOptions, progress: Progress | None = None) -> Reported:
             seed=o.seed,
             chunk_rows=o.chunk_rows,
             progress=progress,
+            paper=o.paper,
         )
     return Reported(analysis, out)
 
@@ -122,6 +132,7 @@ def make_report(
     figures: bool = True,
     chunk_rows: int = CHUNK_ROWS,
     progress: Progress | None = None,
+    paper: bool = False,
 ) -> dict[str, Any]:
     """Analyse estimates and write the report folder.
 
@@ -141,6 +152,8 @@ def make_report(
     figures : draw the PNG figures
     chunk_rows : rows read at a time from a file (:data:`ditherlab.io.stream.CHUNK_ROWS`)
     progress : ``progress(done, total)``
+    paper : the paper's IRB140 table for any robot (always for the IRB140; otherwise the
+        estimates' own variants are compared)
 
     Returns
     -------
@@ -171,6 +184,8 @@ def make_report(
             progress(done, steps)
 
     known = known_load_analysis(ests, chunk_rows)
+    if known is None and ests and not any(e.has_wrench for e in ests):
+        return _no_sensor_report(ests, recordings, out)  # the estimator on its own terms
     try:
         analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
     except NoPushesError:
@@ -181,6 +196,7 @@ def make_report(
     if vendor is not None:
         analysis["vendor"] = vendor
     tick()
+    analysis["paper_comparison"] = paper or _robot_name(ests) == "irb140"
     extra = []
     if known is not None:
         analysis["known_load"] = known
@@ -189,6 +205,29 @@ def make_report(
         ests, analysis, logs, out, figures=figures, chunk_rows=chunk_rows, tick=tick, extra=extra
     )
     return analysis
+
+
+def _no_sensor_report(
+    ests: Sequence[EstimatesSource], recordings: Sequence[Recording | str | Path], out: Path
+) -> dict[str, Any]:
+    """The report of estimates without F/T columns (:mod:`ditherlab.analysis.no_sensor`): with
+    the recordings behind them, the thresholds predicted at their rest pose too."""
+    open_logs(recordings, ests)  # each recording must be behind one of the estimates
+    robots = []
+    for r in recordings:
+        rec = as_recording(r)
+        robots.append((rec.robot(), np.median(rec.q, axis=0)))
+    analysis = no_sensor_analysis(ests, robots=robots)
+    write_no_sensor_pages(ests, analysis, _level_text(ests), out)
+    return {"no_sensor": analysis}
+
+
+def _robot_name(ests: Sequence[EstimatesSource]) -> str | None:
+    """The robot's name in the first estimates file's recording metadata, or None."""
+    robot = (ests[0].meta.get("recording") or {}).get("robot") if ests else None
+    if isinstance(robot, dict):
+        return robot.get("name")
+    return robot if isinstance(robot, str) else None
 
 
 def _level_text(ests: Sequence[EstimatesSource]) -> str:

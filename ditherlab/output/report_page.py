@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ditherlab.analysis.detection import AXES, PAPER, find_pushes_in_blocks
+from ditherlab.analysis.no_sensor import variant_label
 from ditherlab.core.errors import RecordingError
 from ditherlab.core.files import atomic_write_json, atomic_write_text, plain
 from ditherlab.core.names import DITHER, STILL
@@ -77,6 +78,43 @@ def paper_table(analysis: dict) -> tuple[list[str], list[list[str]]]:
         row.append(_ours(d))
         rows.append(row)
     return head, rows
+
+
+def own_table(analysis: dict) -> tuple[list[str], list[list[str]]]:
+    """Rows: direction; columns: the user's own estimator variants, named for people
+    (:func:`ditherlab.analysis.no_sensor.variant_label`), each cell as in :func:`paper_table`."""
+    conds = sorted(analysis["conditions"])
+    head = ["direction"] + [_condition_label(c) for c in conds]
+    rows = []
+    for a in AXES:
+        rows.append([a] + [_ours(analysis["conditions"][c]["directions"].get(a)) for c in conds])
+    return head, rows
+
+
+def _condition_label(condition: str) -> str:
+    """``nodither_band (dither on)`` -> ``without dither (estimator ignores ...)``."""
+    return variant_label(condition.split(" ")[0], condition.endswith("(dither on)"))
+
+
+def comparison(analysis: dict) -> tuple[str, str, tuple[list[str], list[list[str]]]]:
+    """The report's main table: the paper's IRB140 numbers beside ours when
+    ``analysis["paper_comparison"]`` (the IRB140, or ``report --paper``), else the user's own
+    variants side by side; as (heading, caption, table)."""
+    if analysis.get("paper_comparison", True):
+        return (
+            "The paper's §VI-C statistics beside ours",
+            "Each cell: smallest applied force whose estimate rose above the noise "
+            "level / smallest applied force beyond which every estimate exceeded 10 N. "
+            "Paper: Stolt et al., ABB IRB140, about 50 pushes per direction.",
+            paper_table(analysis),
+        )
+    return (
+        "Detection per push direction, estimator against estimator",
+        "Each cell: smallest applied force whose estimate rose above the noise level / smallest "
+        "applied force beyond which every estimate exceeded 10 N. The paper's IRB140 numbers "
+        "are not shown for this robot (report --paper adds them).",
+        own_table(analysis),
+    )
 
 
 def _ours(d: dict | None) -> str:
@@ -277,17 +315,8 @@ def _blocks(ests: Sequence[EstimatesSource], analysis: dict, level_txt: str) -> 
     blocks.append(
         ("p", "Estimates: " + ", ".join(f for _, f in files) + ". Intervals: " + level_txt + ".")
     )
-    blocks.append(("h2", "The paper's §VI-C statistics beside ours"))
-    blocks.append(
-        (
-            "p",
-            "Each cell: smallest applied force whose estimate rose above the noise "
-            "level / smallest applied force beyond which every estimate exceeded 10 N. "
-            "Paper: Stolt et al., ABB IRB140, about 50 pushes per direction.",
-        )
-    )
-    h, r = paper_table(analysis)
-    blocks.append(("table", h, r))
+    title, caption, (h, r) = comparison(analysis)
+    blocks += [("h2", title), ("p", caption), ("table", h, r)]
     blocks.append(("h2", "Definitions"))
     for k, v in analysis["definitions"].items():
         blocks.append(("p", f"{k}: {v}."))
@@ -731,8 +760,8 @@ def _step(t: np.ndarray) -> float:
 
 
 def summary_text(analysis: dict) -> str:
-    """The paper's table as plain text (what the CLI and the demo print)."""
-    head, rows = paper_table(analysis)
+    """The main table (:func:`comparison`) as plain text (what the CLI and the demo print)."""
+    head, rows = comparison(analysis)[2]
     widths = [max(len(head[i]), *(len(r[i]) for r in rows)) for i in range(len(head))]
     line = "  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True))
     out = [line, "-" * len(line)]
