@@ -151,6 +151,8 @@ def identify(
     model: ModelLike | None = None,
     add: Sequence[str] = (),
     assume_no_force: bool = False,
+    windows: Sequence[tuple[float, float]] = (),
+    excludes: Sequence[tuple[float, float]] = (),
     n_boot: int = 30,
     seed: int = 0,
     progress: Progress | None = None,
@@ -160,10 +162,15 @@ def identify(
 
     Parameters
     ----------
-    recordings : push recordings with an F/T sensor (``f_x..m_z``, (N, 6) [N, N·m])
+    recordings : recordings with an F/T sensor (``f_x..m_z``, (N, 6) [N, N·m]), or without one
+        with ``assume_no_force``
     model : a model to start from: its prior and effects kept, its bands re-fitted
     add : effects to fit after the bands, in order (:func:`add_effect`)
-    assume_no_force : no F/T sensor: no external force acts (bands from rest periods)
+    assume_no_force : no F/T sensor: no external force acts but where the torque departs from
+        rest (pushes: :func:`ditherlab.analysis.rest.scan_rest`), which is left out and listed
+        in the model's notes
+    windows : ``(start, end)`` [s] of the logs' time: only those samples are used (none: all)
+    excludes : ``(start, end)`` [s] left out
     n_boot : bootstrap replicates for the standard errors
     seed : the bootstrap's seed
     progress : ``progress(done, total)``
@@ -173,18 +180,24 @@ def identify(
     TorqueModel
         Bands ``tau_min, tau_max (n,) [N·m]``, noise ``sigma (n,) [N·m]`` per regime.
     """
-    from ditherlab.app.identify import identify_model
+    from ditherlab.app.identify import identify_model, left_out, note_left_out
     from ditherlab.app.workflow import as_model, as_recordings
 
-    return identify_model(
-        as_recordings(recordings),
-        model=as_model(model) if model is not None else None,
+    recs = as_recordings(recordings)
+    base = as_model(model) if model is not None else None
+    drop, scans = left_out(recs, base, windows, excludes, scan=assume_no_force)
+    out = identify_model(
+        recs,
+        model=base,
         add=add,
         assume_no_force=assume_no_force,
         n_boot=n_boot,
         seed=seed,
         progress=progress,
+        drop=drop,
     )
+    note_left_out(out, scans)
+    return out
 
 
 def replay(

@@ -44,3 +44,12 @@ def shared_data() -> Path:
     if not DATA.is_dir():
         pytest.skip(f"test data not found at {DATA}")
     return DATA
+
+
+def one_error(r: CliResult) -> str:
+    """The one stderr line of a refused command (exit 2, nothing on stdout, no traceback)."""
+    assert r.code == 2, (r.code, r.out, r.err)
+    assert r.out == "" and "Traceback" not in r.err
+    lines = r.err.splitlines()
+    assert len(lines) == 1, r.err
+    return lines[0]

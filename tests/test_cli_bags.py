@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_error
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
@@ -65,15 +66,6 @@ def write_two_topic_bag(path: Path) -> dict[str, np.ndarray]:
 def two_topic_bag(tmp_path_factory) -> tuple[Path, dict[str, np.ndarray]]:
     path = tmp_path_factory.mktemp("bags") / "two_topics"
     return path, write_two_topic_bag(path)
-
-
-def one_error(r) -> str:
-    """The one stderr line of a refused command (exit 2, nothing on stdout, no traceback)."""
-    assert r.code == 2, (r.code, r.out, r.err)
-    assert r.out == "" and "Traceback" not in r.err
-    lines = r.err.splitlines()
-    assert len(lines) == 1, r.err
-    return lines[0]
 
 
 @pytest.mark.parametrize("command", ["info", "convert", "replay", "identify", "diagnose"])

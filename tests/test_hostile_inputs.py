@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_error
 
 import ditherlab.io as dio
 from ditherlab.core.errors import DitherlabWarning, FormatError
@@ -50,15 +51,6 @@ def model(rec, tmp_path_factory) -> Path:
     p = tmp_path_factory.mktemp("model") / "m.toml"
     identify([rec], n_boot=0).save(p)
     return p
-
-
-def one_error(r) -> str:
-    """Exit 2, nothing on stdout, one stderr line and no traceback; returns the line."""
-    assert r.code == 2, (r.code, r.out, r.err)
-    assert r.out == "" and "Traceback" not in r.err
-    lines = r.err.splitlines()
-    assert len(lines) == 1, r.err
-    return lines[0]
 
 
 # ------------------------------------------------------------------ a wide first data line

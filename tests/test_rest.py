@@ -124,3 +124,17 @@ def test_ur10e_hand_pushes_are_found_and_left_out(cli, shared_data, tmp_path):
             "--window", "1:5", "-q")  # fmt: skip
     assert r.code == 2 and r.err.count("\n") == 1 and "--window 1:5 lies outside" in r.err
     assert not bad.exists()
+
+
+def test_the_python_api_leaves_the_pushes_out_too(shared_data):
+    """dl.identify(..., assume_no_force=True) leaves the same four pushes out as the CLI and
+    notes them; without that the still band of joint 2 spans the pushes (-30 .. +19 N·m)."""
+    import ditherlab as dl
+
+    rec = dl.read(shared_data / "ur10e" / "ur-static.csv", mapping="ur10e")
+    m = dl.identify(rec, assume_no_force=True, n_boot=0)
+    assert m.notes.count("ur-static.csv 3") == 4
+    band = m.regimes["still"]
+    assert band.tau_max[1] - band.tau_min[1] < 10.0
+    w = dl.identify(rec, assume_no_force=True, n_boot=0, windows=[(333.0, 336.0)])
+    assert w.regimes["still"].tau_max[1] - w.regimes["still"].tau_min[1] < 3.0

@@ -112,11 +112,7 @@ def run(options: IdentifyOptions, progress: Progress | None = None) -> Identifie
     base = TorqueModel.load(o.model) if o.model is not None else None
     windows = [as_span(w, "--window") for w in o.windows]
     excludes = [as_span(w, "--exclude") for w in o.excludes]
-    drop, scans = [], []
-    for src in sources:
-        spans, scan = rest_spans(src, base, windows, excludes, scan=o.assume_no_force)
-        drop.append(spans)
-        scans += [scan] if scan is not None else []
+    drop, scans = left_out(sources, base, windows, excludes, scan=o.assume_no_force)
     model = identify_model(
         sources,
         model=base,
@@ -129,12 +125,35 @@ def run(options: IdentifyOptions, progress: Progress | None = None) -> Identifie
         drop=drop,
     )
     model.source = None
-    left = [f"{s.name} {a:.2f}-{b:.2f} s" for s in scans for a, b in s.spans()]
-    if left:  # the model file says which stretches its bands do not hold
-        note = "departures from rest left out (no sensor): " + ", ".join(left)
-        model.notes = "; ".join(x for x in (model.notes, note) if x)
+    note_left_out(model, scans)
     model.save(out)
     return Identified(model, out, scans)
+
+
+def left_out(
+    recordings: Sequence[Recording | Source],
+    base: TorqueModel | None,
+    windows: Sequence[tuple[float, float]] = (),
+    excludes: Sequence[tuple[float, float]] = (),
+    *,
+    scan: bool,
+) -> tuple[list[list[tuple[float, float]]], list[RestScan]]:
+    """Per recording the spans [s] identify leaves out (:func:`rest_spans`), and the rest scans
+    of those without a sensor when ``scan`` (``assume_no_force``)."""
+    drop, scans = [], []
+    for r in recordings:
+        spans, found = rest_spans(r, base, windows, excludes, scan=scan)
+        drop.append(spans)
+        scans += [found] if found is not None else []
+    return drop, scans
+
+
+def note_left_out(model: TorqueModel, scans: Sequence[RestScan]) -> None:
+    """Add to ``model``'s notes the stretches its bands do not hold (the departures from rest)."""
+    left = [f"{s.name} {a:.2f}-{b:.2f} s" for s in scans for a, b in s.spans()]
+    if left:
+        note = "departures from rest left out (no sensor): " + ", ".join(left)
+        model.notes = "; ".join(x for x in (model.notes, note) if x)
 
 
 def as_span(value: str | tuple[float, float], option: str) -> tuple[float, float]:
@@ -145,7 +164,7 @@ def as_span(value: str | tuple[float, float], option: str) -> tuple[float, float
 
 
 def rest_spans(
-    src: Source,
+    src: Source | Recording,
     base: TorqueModel | None,
     windows: Sequence[tuple[float, float]],
     excludes: Sequence[tuple[float, float]],
@@ -157,7 +176,7 @@ def rest_spans(
     :func:`~ditherlab.analysis.rest.scan_rest` finds in the rest. ConfigError when a window or
     exclusion lies outside the log; RecordingError when the departures cover half the rest
     time or more (the rule's quiet majority fails: the user names the rest with ``--window``)."""
-    t = src.times()
+    t = src.t if isinstance(src, Recording) else src.times()
     t0, t1 = float(t[0]), float(t[-1])
     for opt, spans in (("--window", windows), ("--exclude", excludes)):
         for a, b in spans:
@@ -169,7 +188,8 @@ def rest_spans(
     drop = _outside(windows, t0, t1) + list(excludes)
     if not scan:
         return drop, None
-    found = scan_rest(src.read(), base, kept_rows(t, windows, excludes))
+    rec = src if isinstance(src, Recording) else src.read()
+    found = scan_rest(rec, base, kept_rows(t, windows, excludes))
     if found.rest_s and not quiet_majority(found):
         raise RecordingError(
             f"{src.name}: departures from rest cover {found.event_s:.1f} of the "
