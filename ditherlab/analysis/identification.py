@@ -52,6 +52,7 @@ from ditherlab.physics.band_fit import (
     fit_band,
     fit_regimes,
     fit_sliding,
+    noise_lag,
 )
 from ditherlab.physics.dither import extract_dither
 from ditherlab.physics.effect_fit import pooled_lines
@@ -493,6 +494,8 @@ class _Samples:
             (MOVING, rho_logged, (reg == MOVING) & slow),
             (ALL_MOVING, rho_logged, reg == MOVING),
         ]
+        for code in (STILL, MOVING, ALL_MOVING):  # the raw torque's noise, NOISE_LAG_S apart
+            self.lags[code] = max(self.lags[code], noise_lag(rec.sample_rate))
         dith = (
             self._dither_source(rec, rho, ext, model, reg, keep) if (reg == DITHER).any() else None
         )

@@ -241,7 +241,8 @@ class Source:
         A piece must hold four halos (its context on both sides and as much again of its own):
         the default ``rows`` (:data:`CHUNK_ROWS`) grows to that at a sample rate where it falls
         short (12 s halos at 5 kHz: 240 004 rows); a smaller ``rows`` given on purpose raises
-        ConfigError. The Recording's own errors are raised for a piece that breaks the contract.
+        ConfigError, unless the whole recording fits in one piece. The Recording's own errors are
+        raised for a piece that breaks the contract.
         """
         tb = self.timebase()
         # a median step of 0 or less (t repeats or goes back): one row, and the first piece's
@@ -251,11 +252,12 @@ class Source:
         rows = int(rows)
         if rows < 4 * halo and rows == CHUNK_ROWS:
             rows = 4 * halo  # the default holds four contexts at any sample rate
-        if rows < 4 * halo:
+        if rows < 4 * halo and rows < self.n_rows:  # a log within one piece needs no context
             raise ConfigError(
-                f"chunk size {rows} rows is below four times the {halo}-row context "
-                f"({halo_s:g} s at {1 / tb.dt if ok else math.nan:.4g} Hz); expected at least "
-                f"{4 * halo} rows"
+                f"{self.name}: chunk size {rows} rows is below four times the {halo}-row context "
+                f"({halo_s:g} s at {1 / tb.dt if ok else math.nan:.4g} Hz, carried on either side "
+                f"of every piece); expected at least {4 * halo} rows ({4 * halo_s:g} s of this "
+                "recording), or no --chunk: the default holds four contexts at any sample rate"
             )
         N = self.n_rows
         count = max(1, math.ceil(N / rows))

@@ -40,7 +40,9 @@ __all__ = [
     "band_noise_logpdf",
     "block_members",
     "fit_band",
+    "NOISE_LAG_S",
     "fit_sliding",
+    "noise_lag",
     "sigma_from_differences",
 ]
 
@@ -164,13 +166,30 @@ def block_members(inv: np.ndarray, nb: int) -> list[np.ndarray]:
     return np.split(order, ends[:-1])
 
 
+#: [s] the spacing of the differences that estimate a raw torque's noise: one sample step of the
+#: paper's 250 Hz. A log sampled faster than its noise's bandwidth (a filtered torque, a current
+#: loop of 1 kHz logged at 5 kHz) has noise correlated over a few samples, which one-sample
+#: differences cancel; differences this far apart see it whole, and for white noise any spacing
+#: gives the same sigma
+NOISE_LAG_S = 0.004
+
+
+def noise_lag(rate: float) -> int:
+    """The lag [samples] of :func:`sigma_from_differences` for a raw torque logged at ``rate``
+    [Hz]: :data:`NOISE_LAG_S` in samples, at least 1 (1 at 250 Hz and below, 20 at 5 kHz)."""
+    if not (np.isfinite(rate) and rate > 0):
+        return 1
+    return max(1, int(round(NOISE_LAG_S * rate)))
+
+
 def sigma_from_differences(x: np.ndarray, lag: int = 1, blocks: np.ndarray | None = None) -> float:
     """Noise level from lagged differences: ``MAD(x[k + lag] - x[k]) / 0.6745 / sqrt(2)``.
 
     The friction part of a residual at rest is piecewise constant (it changes only while a push
     moves it), so it cancels in differences and what remains is the Gaussian noise. ``lag`` is the
-    correlation length of that noise: 1 for a raw torque, one dither period for an extracted
-    signal (a one-period running mean). Differences across ``blocks`` boundaries are skipped.
+    correlation length of that noise: :func:`noise_lag` for a raw torque, one dither period for an
+    extracted signal (a one-period running mean). Differences across ``blocks`` boundaries are
+    skipped.
 
     Parameters
     ----------

@@ -20,6 +20,7 @@ from ditherlab.core.spill import Spill
 from ditherlab.core.timeseries import REVERSAL_V, STICK_SETTLE_S, smooth_wrench, stick_transitions
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
+from ditherlab.physics.band_fit import noise_lag
 from ditherlab.physics.dither import AMPLITUDE_UP_FRACTION, band_amplitude, extract_dither
 from ditherlab.physics.effects import (
     Signals,
@@ -295,16 +296,18 @@ class StatsBuilder:
                         v = (loc.rho - loc.cen + centre)[lo:hi][mj, j] - centre[j]
                         self.off_sum[j] += float(np.sum(v))
                         self.off_n[j] += int(mj.sum())
-        # white noise: first differences of consecutive scored samples of one regime, for the
-        # pairs ending in an own row (the row before the first is the piece's context)
+        # white noise: differences of scored samples of one regime L = noise_lag rows apart (one
+        # row up to 250 Hz), for the pairs ending in an own row (the rows before the first are
+        # the piece's context)
         known = np.isin(reg, [c for c in Regime if c.label in self.model.regimes])
         u = use & known & (reg != DITHER)
-        a = max(lo, 1)
+        L = noise_lag(loc.sig.sample_rate)
+        a = max(lo, L)
         if hi <= a:
             return
-        e0 = loc.rho[a - 1 : hi] - loc.cen[a - 1 : hi]
-        d = np.diff(e0, axis=0)
-        ok = u[a:hi] & u[a - 1 : hi - 1] & (reg[a:hi] == reg[a - 1 : hi - 1])
+        e0 = loc.rho[a - L : hi] - loc.cen[a - L : hi]
+        d = e0[L:] - e0[:-L]
+        ok = u[a:hi] & u[a - L : hi - L] & (reg[a:hi] == reg[a - L : hi - L])
         r2 = reg[a:hi]
         for j in range(reg.shape[1]):
             for code in (c for c in Regime if c != DITHER):
