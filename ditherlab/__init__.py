@@ -183,9 +183,10 @@ def identify(
     from ditherlab.app.identify import identify_model, left_out, note_left_out
     from ditherlab.app.workflow import as_model, as_recordings
 
-    recs = as_recordings(recordings)
     base = as_model(model) if model is not None else None
-    drop, scans = left_out(recs, base, windows, excludes, scan=assume_no_force)
+    recs, drop, scans = left_out(
+        as_recordings(recordings), base, windows, excludes, scan=assume_no_force
+    )
     out = identify_model(
         recs,
         model=base,

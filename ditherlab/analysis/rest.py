@@ -60,6 +60,7 @@ __all__ = [
     "Event",
     "RestScan",
     "kept_rows",
+    "kept_stretches",
     "parse_span",
     "quiet_majority",
     "scan_rest",
@@ -185,6 +186,27 @@ def kept_rows(
     return keep
 
 
+#: the shortest stretch between departures that diagnose and an added effect's fit use [s]
+MIN_STRETCH_S = 2.0
+
+
+def kept_stretches(
+    rec: Recording, spans: Sequence[tuple[float, float]], min_s: float = MIN_STRETCH_S
+) -> list[Recording]:
+    """``rec`` without the rows in ``spans`` ``(start, end)`` [s] (:func:`kept_rows`): its
+    stretches between them at least ``min_s`` [s] long (a shorter one has too little context
+    for its derivatives), each a Recording; ``[rec]`` without spans."""
+    if not spans:
+        return [rec]
+    keep = kept_rows(rec.t, (), spans)
+    edges = np.flatnonzero(np.diff(np.r_[0, keep.astype(np.int8), 0]))
+    return [
+        rec.slice(rec.t[a], rec.t[b - 1] + 1e-9)
+        for a, b in zip(edges[::2], edges[1::2], strict=True)
+        if rec.t[b - 1] - rec.t[a] >= min_s
+    ]
+
+
 def scan_rest(
     rec: Recording,
     model: TorqueModel | None = None,
@@ -269,24 +291,20 @@ def _flag(means: np.ndarray, z: float, passes: int) -> tuple[np.ndarray, np.ndar
     """Steps 2 and 3 for one regime: which blocks ``(K, n)`` depart, every block's departure
     ``(K, n) [N·m]`` from the rest median, and the rest scale ``(n,) [N·m]``."""
     flagged = np.zeros(means.shape, dtype=bool)
-    dev, scale = np.zeros(means.shape), np.full(means.shape[1], np.inf)
-    for _ in range(passes):
+    for k in range(passes):
         keep = ~flagged.any(axis=1)
-        rest = means[keep]
-        med = np.median(rest, axis=0)
-        s = MAD_SD * np.median(np.abs(rest - med), axis=0)
+        med = np.median(means[keep], axis=0)
+        s = MAD_SD * np.median(np.abs(means[keep] - med), axis=0)
         s = np.where(s > 0, s, np.inf)  # a constant joint: nothing departs
         now = np.abs(means - med) > z * s
+        if k == 0:
+            dev, scale = means - med, s
         if not (now.any(axis=1) & keep).any():
             break
         if flagged.any() and (flagged | now).any(axis=1).mean() > 0.5:
             break  # a later pass that leaves no quiet majority is not taken
         flagged |= now
         dev, scale = means - med, s
-    if not flagged.any():
-        med = np.median(means, axis=0)
-        dev = means - med
-        scale = np.where(s > 0, s, np.inf)
     return flagged, dev, scale
 
 

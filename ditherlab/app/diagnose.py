@@ -12,19 +12,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ditherlab.analysis.diagnosis import Diagnosis, diagnose
-from ditherlab.analysis.rest import kept_rows, scan_rest
+from ditherlab.analysis.rest import kept_stretches, scan_rest
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.files import all_or_nothing
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.output.diagnosis_report import write_report
-
-#: the shortest stretch between departures from rest that diagnose scores [s]
-MIN_STRETCH_S = 2.0
 
 __all__ = ["HISTORY_MODEL", "DiagnoseOptions", "Diagnosed", "run", "with_history_row"]
 
@@ -126,21 +121,15 @@ def _without_departures(
 ) -> tuple[list[Recording | Source], list[str]]:
     """A log without an F/T sensor as the stretches between its departures from rest
     (:func:`ditherlab.analysis.rest.scan_rest`, the pushes identify leaves out too: forces, not
-    a model error), each at least :data:`MIN_STRETCH_S` long, with a note; any other log as it
-    is."""
+    a model error), each at least :data:`~ditherlab.analysis.rest.MIN_STRETCH_S` long, with a
+    note; any other log as it is."""
     if "f_x" in src.columns:
         return [src], []
     rec = src.read()
     found = scan_rest(rec, model)
     if not found.events:
         return [rec], []
-    keep = kept_rows(rec.t, (), found.spans())
-    edges = np.flatnonzero(np.diff(np.r_[0, keep.astype(np.int8), 0]))
-    parts = [
-        rec.slice(rec.t[a], rec.t[b - 1] + 1e-9)
-        for a, b in zip(edges[::2], edges[1::2], strict=True)
-        if rec.t[b - 1] - rec.t[a] >= MIN_STRETCH_S
-    ]
+    parts: list[Recording | Source] = list(kept_stretches(rec, found.spans()))
     spans = ", ".join(f"{e.start:.1f}-{e.end:.1f} s" for e in found.events)
     note = (
         f"{src.name}: no F/T sensor: {len(found.events)} departures from rest (pushes: {spans}) "

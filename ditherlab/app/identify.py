@@ -19,7 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from ditherlab.analysis.identification import identify, summary
-from ditherlab.analysis.rest import RestScan, kept_rows, parse_span, quiet_majority, scan_rest
+from ditherlab.analysis.rest import (
+    RestScan,
+    kept_rows,
+    kept_stretches,
+    parse_span,
+    quiet_majority,
+    scan_rest,
+)
 from ditherlab.analysis.scoring import select_joints
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.errors import ConfigError, ModelError, RecordingError
@@ -112,9 +119,9 @@ def run(options: IdentifyOptions, progress: Progress | None = None) -> Identifie
     base = TorqueModel.load(o.model) if o.model is not None else None
     windows = [as_span(w, "--window") for w in o.windows]
     excludes = [as_span(w, "--exclude") for w in o.excludes]
-    drop, scans = left_out(sources, base, windows, excludes, scan=o.assume_no_force)
+    recs, drop, scans = left_out(sources, base, windows, excludes, scan=o.assume_no_force)
     model = identify_model(
-        sources,
+        recs,
         model=base,
         add=o.add,
         assume_no_force=o.assume_no_force,
@@ -137,15 +144,18 @@ def left_out(
     excludes: Sequence[tuple[float, float]] = (),
     *,
     scan: bool,
-) -> tuple[list[list[tuple[float, float]]], list[RestScan]]:
-    """Per recording the spans [s] identify leaves out (:func:`rest_spans`), and the rest scans
-    of those without a sensor when ``scan`` (``assume_no_force``)."""
-    drop, scans = [], []
+) -> tuple[list[Recording | Source], list[list[tuple[float, float]]], list[RestScan]]:
+    """The recordings to identify on, per recording the spans [s] identify leaves out
+    (:func:`rest_spans`), and the rest scans of those without a sensor when ``scan``
+    (``assume_no_force``). A recording the scan read whole is handed on in memory, not read a
+    second time."""
+    recs, drop, scans = [], [], []
     for r in recordings:
-        spans, found = rest_spans(r, base, windows, excludes, scan=scan)
+        spans, found, rec = rest_spans(r, base, windows, excludes, scan=scan)
+        recs.append(rec)
         drop.append(spans)
         scans += [found] if found is not None else []
-    return drop, scans
+    return recs, drop, scans
 
 
 def note_left_out(model: TorqueModel, scans: Sequence[RestScan]) -> None:
@@ -170,12 +180,13 @@ def rest_spans(
     excludes: Sequence[tuple[float, float]],
     *,
     scan: bool,
-) -> tuple[list[tuple[float, float]], RestScan | None]:
+) -> tuple[list[tuple[float, float]], RestScan | None, Recording | Source]:
     """The time spans [s] of ``src`` that identify leaves out: outside ``windows``, inside
     ``excludes`` and, with ``scan`` (no sensor), the departures from rest that
     :func:`~ditherlab.analysis.rest.scan_rest` finds in the rest. ConfigError when a window or
     exclusion lies outside the log; RecordingError when the departures cover half the rest
-    time or more (the rule's quiet majority fails: the user names the rest with ``--window``)."""
+    time or more (the rule's quiet majority fails: the user names the rest with ``--window``).
+    Also returns what to identify on: the recording the scan read whole, or ``src``."""
     t = src.t if isinstance(src, Recording) else src.times()
     t0, t1 = float(t[0]), float(t[-1])
     for opt, spans in (("--window", windows), ("--exclude", excludes)):
@@ -187,7 +198,7 @@ def rest_spans(
                 )
     drop = _outside(windows, t0, t1) + list(excludes)
     if not scan:
-        return drop, None
+        return drop, None, src
     rec = src if isinstance(src, Recording) else src.read()
     found = scan_rest(rec, base, kept_rows(t, windows, excludes))
     if found.rest_s and not quiet_majority(found):
@@ -197,7 +208,7 @@ def rest_spans(
             "stretches where no force acts with --window START:END (or leave pushes out with "
             "--exclude START:END)"
         )
-    return drop + found.spans(), found
+    return drop + found.spans(), found, rec
 
 
 def _outside(
@@ -238,7 +249,8 @@ def identify_model(
     add : effect names
     assume_no_force, n_boot, seed, progress, chunk_rows, drop : as
         :func:`~ditherlab.analysis.identification.identify` (``drop``: the spans [s] left out
-        per recording, also in the re-fit after each effect)
+        per recording; the effects are fitted, and the bands re-fitted after each, on the
+        stretches between them, :func:`~ditherlab.analysis.rest.kept_stretches`)
 
     Returns
     -------
@@ -256,8 +268,10 @@ def identify_model(
     )
     if add:
         recs = [r.read() if isinstance(r, Source) else r for r in recordings]
+        if any(drop):  # the effects are fitted, and the bands re-fitted, between the spans
+            recs = [x for r, sp in zip(recs, drop, strict=True) for x in kept_stretches(r, sp)]
         for name in add:
-            new = add_effect(recs, new, name, assume_no_force=assume_no_force, drop=drop)
+            new = add_effect(recs, new, name, assume_no_force=assume_no_force)
     return new
 
 
@@ -270,7 +284,6 @@ def add_effect(
     refit: bool = True,
     assume_no_force: bool = False,
     executor: Executor | None = None,
-    drop: Sequence[Sequence[tuple[float, float]]] = (),
 ) -> TorqueModel:
     """Fit one more effect on the current residual and return the new model (version + 1).
 
@@ -290,7 +303,6 @@ def add_effect(
         identify): the re-fit treats the external force as zero
     executor : runs the re-fit's band fits (:func:`ditherlab.analysis.identification.identify`'s
         ``executor``; the same model)
-    drop : per recording, time spans ``(start, end)`` [s] the re-fit leaves out (its ``drop``)
 
     Returns
     -------
@@ -331,7 +343,7 @@ def add_effect(
     new.effects.append(spec)
     new.version = model.version + 1
     if refit:
-        new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor, drop=drop)
+        new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor)
     if weak:
         new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
     return new
@@ -367,11 +379,9 @@ def _refit(
     *,
     assume_no_force: bool = False,
     executor: Executor | None = None,
-    drop: Sequence[Sequence[tuple[float, float]]] = (),
 ) -> TorqueModel:
-    """Re-fit bands and noise with the effects in place (identify), keeping version/history,
-    without the spans ``drop`` [s] per recording. Without a sensor the bands are re-fitted only
-    when the user stated that no force acts."""
+    """Re-fit bands and noise with the effects in place (identify), keeping version/history.
+    Without a sensor the bands are re-fitted only when the user stated that no force acts."""
     if not assume_no_force and not all(r.has_wrench for r in recs):
         return model
     out = identify(
@@ -380,7 +390,6 @@ def _refit(
         n_boot=n_boot,
         assume_no_force=assume_no_force,
         executor=executor,
-        drop=drop,
     )
     out.effects = list(model.effects)
     out.version = model.version
