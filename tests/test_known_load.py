@@ -109,6 +109,47 @@ def test_reference_sums_give_rms_bias_and_coverage():
     assert ReferenceSums("x/").result() is None
 
 
+def test_the_known_reference_adds_the_sensor_where_the_log_has_one():
+    """With F/T columns beside the known load's, the reference is their sum (a push beside the
+    load): an estimate equal to load + push has no error, one equal to the load alone has the
+    push as its error."""
+    n, names = 50, ["f_x", "f_y", "f_z", "m_x", "m_y", "m_z"]
+    load, push = np.tile([0, 0, 19.6, 0, 0, 0.0], (n, 1)), np.zeros((n, 6))
+    push[10:30, 0] = 30.0
+    cols = {f"{KNOWN_PREFIX}{c}": load[:, k] for k, c in enumerate(names)}
+    cols.update({c: push[:, k] for k, c in enumerate(names)})
+    for v, F in (("both", load + push), ("load", load)):
+        for k, c in enumerate(names):
+            cols[f"{v}/{c}"] = F[:, k]
+            cols[f"{v}/{c}_lo"], cols[f"{v}/{c}_hi"] = F[:, k] - 1, F[:, k] + 1
+    plus = ReferenceSums(KNOWN_PREFIX, plus_sensor=True)
+    plus.add(cols, ["both", "load"])
+    res = plus.result()["variants"]
+    assert np.allclose(res["both"]["rms"], 0.0) and np.allclose(res["both"]["coverage"], 1.0)
+    assert np.isclose(res["load"]["bias"][0], -30.0 * 20 / n)
+    alone = ReferenceSums(KNOWN_PREFIX)
+    alone.add(cols, ["both", "load"])
+    assert np.allclose(alone.result()["variants"]["load"]["rms"], 0.0)
+
+
+def test_report_of_a_known_load_without_rest_shows_the_load_and_says_why(cli, tmp_path):
+    """A loaded run whose pushes leave no rest (the robot always moves): report shows the
+    estimate against the known load and says why there is no detection table, exit 0."""
+    rec, _ = push_recording(2, magnitudes=(20.0, 40.0))
+    model = identify([rec], n_boot=0)
+    moving = rec.data.copy()
+    moving["q_1"] = moving["q_1"] + 0.2 * np.sin(2 * np.pi * 0.5 * moving["t"])
+    moving["dq_1"] = 0.2 * np.pi * np.cos(2 * np.pi * 0.5 * moving["t"])
+    loaded = Recording(moving, {**rec.meta, "known_load": LOAD}, name="loaded")
+    est = replay(loaded, model, variants=["nodither_band"])
+    path = est.save(tmp_path / "est.parquet")
+    r = cli("report", path, "-o", tmp_path / "rep", "-q")
+    assert r.code == 0, r.err
+    assert "known load 2 kg" in r.out
+    assert "no detection table: the log has pushes but no rest" in r.out
+    assert "No detection table: the log has pushes" in (tmp_path / "rep" / "report.md").read_text()
+
+
 def test_reference_sums_count_the_vendor_estimate_without_an_interval():
     """The vendor's own estimate is compared with the reference like a variant: its error RMS
     and bias, and no coverage (it has no interval), in the table and in the printed lines."""

@@ -61,6 +61,10 @@ class NoPushesError(DitherlabError):
     """Estimates without pushes (or without the F/T columns to find them)."""
 
 
+class NoRestError(RecordingError):
+    """Estimates with pushes but no rest to measure the noise level they are judged against."""
+
+
 @dataclass
 class Push:
     """One push found in the F/T sensor.
@@ -398,7 +402,7 @@ def analyse(
     ------
     NoPushesError
         An estimates file without the F/T columns, or no pushes in any file.
-    RecordingError
+    NoRestError
         A file with pushes but no rest (the robot always moves): no noise level to judge them.
     """
     groups: dict[str, Group] = {}
@@ -410,7 +414,7 @@ def analyse(
         recs_out.append(rec_out)
         total_pushes += len(pushes)
         if pushes and not rest.any():
-            raise RecordingError(
+            raise NoRestError(
                 f"{src.name or 'estimates'}: {len(pushes)} pushes but no rest (the robot never "
                 f"stands still more than {rest_margin:g} s from a push); the noise level that "
                 "every detection is judged against is measured at rest; for the force error "

@@ -133,11 +133,14 @@ class ReferenceSums:
     share of samples whose interval holds the reference.
 
     ``prefix`` names the reference columns: ``""`` the F/T sensor's ``f_x .. m_z``,
-    :data:`KNOWN_PREFIX` the known load's.
+    :data:`KNOWN_PREFIX` the known load's. ``plus_sensor``: the reference is the known load's
+    wrench plus the F/T sensor's where the columns hold one (the contact the sensor measures
+    beside the load, which it does not).
     """
 
-    def __init__(self, prefix: str = "") -> None:
+    def __init__(self, prefix: str = "", plus_sensor: bool = False) -> None:
         self.prefix = prefix
+        self.plus_sensor = plus_sensor
         self.n = 0
         self.variants: list[str] = []
         self.sum: dict[str, np.ndarray] = {}
@@ -158,6 +161,8 @@ class ReferenceSums:
             return np.stack([np.asarray(cols[c], dtype=float) for c in names], axis=1)
 
         R = stack([self.prefix + c for c in WRENCH_COLUMNS])
+        if self.plus_sensor and "f_x" in cols:
+            R = R + np.nan_to_num(stack(list(WRENCH_COLUMNS)))
         self.n += len(R)
         self.ref_sum += R.sum(axis=0)
         for v in self.variants:
@@ -191,7 +196,8 @@ class ReferenceSums:
 
 
 def known_load_analysis(ests: Sequence[Any], chunk_rows: int) -> dict[str, Any] | None:
-    """The estimate against the known load in each estimates file that holds its wrench.
+    """The estimate against the known load in each estimates file that holds its wrench: the
+    load's wrench, plus the F/T sensor's where the file has one (a push beside the load).
 
     Parameters
     ----------
@@ -210,7 +216,7 @@ def known_load_analysis(ests: Sequence[Any], chunk_rows: int) -> dict[str, Any] 
         load = known_load_of(e.meta.get("recording"))
         if load is None or cols[0] not in e.columns:
             continue
-        sums = ReferenceSums(KNOWN_PREFIX)
+        sums = ReferenceSums(KNOWN_PREFIX, plus_sensor=True)
         for block in e.blocks(chunk_rows):
             sums.add(block, e.variants)
         res = sums.result()

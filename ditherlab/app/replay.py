@@ -132,7 +132,7 @@ def replay_stream(
     spans: list[list[float]] = []
     meta: dict[str, Any] | None = None
     last = None
-    tally, known = Tally(), ReferenceSums(KNOWN_PREFIX)
+    tally, known = Tally(), ReferenceSums(KNOWN_PREFIX, plus_sensor=True)
     with EstimatesWriter(out) as writer:
         for piece in src.pieces(chunk_rows):
             cols, pmeta = replay_columns(piece.rec, model, **options)
@@ -208,7 +208,7 @@ def describe(est: Estimates | Replayed) -> str:
     if isinstance(est, Replayed):
         tally, known = est.tally, est.known
     else:
-        tally, known = Tally(), ReferenceSums(KNOWN_PREFIX)
+        tally, known = Tally(), ReferenceSums(KNOWN_PREFIX, plus_sensor=True)
         tally.add_estimates(est)
         known.add(est.data, est.variants)
     lines = [

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ditherlab.analysis.detection import NoPushesError, analyse
+from ditherlab.analysis.detection import NoPushesError, NoRestError, analyse
 from ditherlab.analysis.known_load import known_load_analysis
 from ditherlab.analysis.no_sensor import no_sensor_analysis
 from ditherlab.analysis.vendor import compare
@@ -188,10 +188,16 @@ def make_report(
         return _no_sensor_report(ests, recordings, out)  # the estimator on its own terms
     try:
         analysis = analyse(ests, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
-    except NoPushesError:
+    except (NoPushesError, NoRestError) as err:
         if known is None:
             raise
-        return _known_load_report(ests, known, out)  # a run with a known load and no pushes
+        # a run with a known load and no pushes to judge: the estimate against the load alone
+        if isinstance(err, NoRestError):
+            known["no_table"] = (
+                "the log has pushes but no rest: the noise level every detection is judged "
+                "against is measured at rest"
+            )
+        return _known_load_report(ests, known, out)
     vendor = compare(ests, analysis, n_boot=n_boot, seed=seed, chunk_rows=chunk_rows)
     if vendor is not None:
         analysis["vendor"] = vendor

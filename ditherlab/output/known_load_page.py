@@ -55,7 +55,8 @@ def known_load_blocks(known: dict[str, Any], level_txt: str) -> list[tuple]:
         (
             "p",
             "The wrench the arm exerts on the declared load (its weight, and its inertia while "
-            "the arm moves) is the reference: error = estimate - known, over every sample; "
+            "the arm moves), plus the F/T sensor's reading where the log has one (a contact "
+            "beside the load), is the reference: error = estimate - known, over every sample; "
             f"coverage = share of samples whose {level_txt} interval holds the known force.",
         )
     )
@@ -83,6 +84,8 @@ def known_load_lines(known: dict[str, Any]) -> list[str]:
                 f"{rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f} N, coverage "
                 f"{_share(r['coverage'], None)}"
             )
+    if "no_table" in known:
+        out.append(f"no detection table: {known['no_table']}")
     return out
 
 
@@ -93,7 +96,8 @@ def write_known_load_pages(
     ``report.md``, ``report.html`` and ``report.json`` (the analysis, with ``files``) in
     ``out``; returns the files' names."""
     blocks: list[tuple] = [("h1", "ditherlab report: the estimate against a known load")]
-    blocks.append(("p", "Estimates: " + ", ".join(names) + ". No pushes: no detection table."))
+    why = analysis["known_load"].get("no_table", "no pushes")
+    blocks.append(("p", "Estimates: " + ", ".join(names) + f". No detection table: {why}."))
     blocks += known_load_blocks(analysis["known_load"], level_txt)
     analysis["files"] = ["report.md", "report.html", "report.json"]
     out.mkdir(parents=True, exist_ok=True)
