@@ -464,6 +464,13 @@ def replay(
     tool_frame: ToolFrameOpt = None,
     robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
+    causal: Annotated[
+        bool,
+        typer.Option(
+            "--causal",
+            help="Estimate every sample from the past alone, as `ditherlab live` does.",
+        ),
+    ] = False,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -478,7 +485,7 @@ def replay(
     opts = cmd.ReplayOptions(
         recording=recording, model=model, out=out, level=level, interval=interval,
         components=components, variants=tuple(variants.split(",")) if variants else None,
-        read=read, force=force, **_chunk(chunk),
+        read=read, force=force, causal=causal, **_chunk(chunk),
     )  # fmt: skip
     with _progress("replay", quiet) as progress:
         _show(cmd.run(opts, progress))
