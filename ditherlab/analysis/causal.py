@@ -52,7 +52,13 @@ from ditherlab.core.stamps import wire_time
 from ditherlab.core.ticker import Ticker
 from ditherlab.core.timeseries import causal_mean, time_spans
 from ditherlab.data.estimates import COMPONENTS, SCHEMA, VARIANTS
-from ditherlab.data.recording import Recording, RecordingArrays, TimeBase
+from ditherlab.data.recording import (
+    GAP_MIN_S,
+    GAP_STEPS,
+    Recording,
+    RecordingArrays,
+    TimeBase,
+)
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.dither import (
     Extraction,
@@ -177,6 +183,8 @@ class CausalEstimator:
         self.gain = force_gain(model)
         #: ``[[t_start, t_end], ...]`` [s]: where any joint moved (causal regimes), so far
         self.moving_spans: list[list[float]] = []
+        #: gaps in the stream so far (each starts the estimate afresh)
+        self.gaps = 0
         self._moved = False
 
     def update(self, block: CausalBlock) -> dict[str, np.ndarray]:
@@ -184,9 +192,32 @@ class CausalEstimator:
         ``t``, the sensor's wrench and ``dither`` when given, per variant ``V/f_x .. V/m_z``,
         ``_lo``, ``_hi``, ``V/active``, the extraction's columns with dither).
 
+        A step longer than :data:`GAP_STEPS` sample steps and :data:`GAP_MIN_S` (the offline
+        derivative's gap) starts the estimate afresh: no window reaches across it (counted in
+        :attr:`gaps`).
+
         Raises ConfigError when a time is not after the previous one or a value is not finite.
         """
         b = self._checked(block)
+        every = b.t if self.context is None else np.r_[self.context["t"][-1], b.t]
+        gap = max(GAP_MIN_S, GAP_STEPS * self.settings.dt)
+        # the rows of b that start afresh (step k of `every` ends at row k + 1 - off of b)
+        off = 0 if self.context is None else 1
+        cuts = np.flatnonzero(np.diff(every) > gap) + 1 - off
+        if not len(cuts):
+            return self._update(b)
+        parts = []
+        for a, e in zip(np.r_[0, cuts], np.r_[cuts, len(b.t)], strict=True):
+            if a == e:
+                continue
+            if a in cuts:
+                self.gaps += 1
+                self.context = None
+            parts.append(self._update(_rows(b, slice(a, e))))
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+    def _update(self, b: CausalBlock) -> dict[str, np.ndarray]:
+        """:meth:`update` of rows without a gap."""
         X = self._joined(b)
         N = len(b.t)
         feats = self._features(X, N)
@@ -368,6 +399,11 @@ class CausalEstimator:
         for key in ("dq_in", "on_in", "ffw"):
             ctx.setdefault(key, None)
         self.context = ctx
+
+
+def _rows(b: CausalBlock, rows: slice) -> CausalBlock:
+    """Rows of a block."""
+    return CausalBlock(*(None if v is None else v[rows] for v in b))
 
 
 def _check(model: TorqueModel, s: CausalSettings) -> None:
