@@ -507,6 +507,19 @@ DitherTopic = Annotated[
 ]
 
 
+def _needs_dds(command: str) -> None:
+    """ConfigError when cyclonedds (the extra ``live``) is not installed."""
+    import importlib.util
+
+    from ditherlab.core.errors import ConfigError
+
+    if importlib.util.find_spec("cyclonedds") is None:
+        raise ConfigError(
+            f"{command} needs the DDS library cyclonedds; expected it installed: "
+            "pip install 'ditherlab[live]'"
+        )
+
+
 @app.command()
 def live(
     model: ModelIn,
@@ -567,6 +580,7 @@ def live(
     played at its rate, to Parquet, a ROS 2 topic or Rerun. Ends on Ctrl-C, when the publisher
     stops (--timeout) or at the end of a file; the files are closed whole.
     """
+    _needs_dds("live")
     from ditherlab.app import live as cmd
 
     opts = cmd.LiveOptions(
@@ -606,6 +620,7 @@ def publish(
     sensor_msgs/JointState with the robot's joint names, and ditherlab_msgs/DitherState with
     the same stamps when the recording has dither: a robot for `ditherlab live` on one machine.
     """
+    _needs_dds("publish")
     from ditherlab.app import publish as cmd
 
     opts = cmd.PublishOptions(

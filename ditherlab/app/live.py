@@ -149,10 +149,15 @@ def run(options: LiveOptions, echo: Callable[[str], None] | None = None) -> Live
     model = TorqueModel.load(o.model)
     feed, meta, settings_of = _open_feed(kind, where, model, o)
     try:
-        first = _first_samples(feed, o.wait, where)
+        label = o.source if kind == "file" else f"{o.source} (DDS topic {feed.topic})"
+        first = _first_samples(feed, o.wait, label)
         settings = settings_of(first)
         est = CausalEstimator(model, meta, settings)
         variant = _variant(o.variant, settings)
+        say(
+            f"estimating {', '.join(settings.variants)} from {o.source} at "
+            f"{1 / settings.dt:.4g} Hz; Ctrl-C stops"
+        )
         return _estimate(feed, est, first, _Sinks(sinks, outs, variant, est, o), o, say)
     finally:
         feed.close()
