@@ -493,7 +493,12 @@ def replay(
 
 
 # ================================================================ live
-Topic = Annotated[str, typer.Option("--topic", metavar="TOPIC", help="The JointState topic.")]
+Topic = Annotated[
+    str,
+    typer.Option(
+        "--topic", metavar="TOPIC", help="The JointState topic (relative: in --namespace)."
+    ),
+]
 Namespace = Annotated[
     str, typer.Option("--namespace", metavar="NS", help="ROS 2 namespace of relative topics.")
 ]
@@ -503,7 +508,11 @@ Domain = Annotated[
 ]
 DitherTopic = Annotated[
     str,
-    typer.Option("--dither-topic", metavar="TOPIC", help="The ditherlab_msgs/DitherState topic."),
+    typer.Option(
+        "--dither-topic",
+        metavar="TOPIC",
+        help="The ditherlab_msgs/DitherState topic (relative: in --namespace).",
+    ),
 ]
 
 
@@ -528,7 +537,8 @@ def live(
         typer.Option(
             "--source",
             metavar="SRC",
-            help="ros2:TOPIC (JointState over DDS, e.g. ros2:/joint_states) or file:RECORDING.",
+            help="ros2:TOPIC (JointState over DDS, e.g. ros2:joint_states, in --namespace) or "
+            "file:RECORDING.",
         ),
     ],
     sink: Annotated[
@@ -551,7 +561,7 @@ def live(
             "--wrench-topic", metavar="TOPIC", help="ros2: a sensor's WrenchStamped, kept beside."
         ),
     ] = None,
-    dither_topic: DitherTopic = "/ditherlab/dither",
+    dither_topic: DitherTopic = "ditherlab/dither",
     timeout: Annotated[
         float, typer.Option("--timeout", help="[s] without a sample: the estimate stops.")
     ] = 1.0,
@@ -597,10 +607,10 @@ def publish(
     recording: Annotated[
         Path, typer.Argument(metavar="RECORDING", help="Recording to publish (any format).")
     ],
-    topic: Topic = "/joint_states",
+    topic: Topic = "joint_states",
     namespace: Namespace = "",
     domain: Domain = None,
-    dither_topic: DitherTopic = "/ditherlab/dither",
+    dither_topic: DitherTopic = "ditherlab/dither",
     wrench_topic: Annotated[
         str | None,
         typer.Option(

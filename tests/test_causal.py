@@ -183,3 +183,18 @@ def test_cli_replay_causal(tmp_path, rec, model, cli):
         np.testing.assert_array_equal(b.column(k).to_numpy(), direct[k])
     meta = Estimates.load(cau).meta
     assert meta["causal"]["ddq_span"] == DDQ_SPAN
+
+
+def test_a_gap_starts_afresh(rec, model):
+    """After a 5 s gap the estimate equals a fresh estimator's on the samples after it: no
+    window reaches across the gap, and the gap is counted."""
+    data = rec.data.iloc[:400].copy()
+    data.loc[200:, "t"] += 5.0
+    gapped = rec.with_data(data.reset_index(drop=True))
+    est = CausalEstimator(model, rec.meta, settings_for(rec))
+    whole = est.update(block_of(gapped))
+    assert est.gaps == 1
+    fresh = CausalEstimator(model, rec.meta, settings_for(rec))
+    after = fresh.update(block_of(gapped, slice(200, 400)))
+    for k, v in after.items():
+        np.testing.assert_array_equal(whole[k][200:], v, err_msg=k)

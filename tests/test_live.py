@@ -104,16 +104,16 @@ def test_topic_names():
 
 
 def test_live_over_dds_equals_replay_causal(files, tmp_path, cli):
-    """A recording published over DDS (another process, with its F/T sensor) and estimated
-    live gives replay --causal's estimates file: the same columns, rows and floats; the
+    """A recording published over DDS (another process, in a namespace, with its F/T sensor)
+    and estimated live gives replay --causal's estimates file: the same columns, rows and floats; the
     estimate then stops when the publisher does."""
     rc, lv = tmp_path / "rc.parquet", tmp_path / "live.parquet"
     r = cli("replay", files["rec"], "--model", files["model"], "-o", rc, "--causal", "-q")
     assert r.code == 0, r.err
-    pub = _publish(str(files["rec"]), "--rate", "2", "--wrench-topic", "/ft")
+    pub = _publish(str(files["rec"]), "--rate", "2", "--wrench-topic", "ft", "--namespace", "/arm")
     res = cli(
-        "live", "--model", files["model"], "--source", "ros2:/joint_states", "--wrench-topic",
-        "/ft", "--sink", f"parquet:{lv}", "--sink", "ros2:/ditherlab/wrench",
+        "live", "--model", files["model"], "--source", "ros2:joint_states", "--namespace", "/arm",
+        "--wrench-topic", "ft", "--sink", f"parquet:{lv}", "--sink", "ros2:/ditherlab/wrench",
         "--domain", DOMAIN, "--timeout", "1",
     )  # fmt: skip
     assert pub.wait(60) == 0, pub.stderr.read()

@@ -74,7 +74,7 @@ class LiveOptions:
     namespace: str = ""
     domain: int | None = None
     wrench_topic: str | None = None
-    dither_topic: str = "/ditherlab/dither"
+    dither_topic: str = "ditherlab/dither"
     timeout: float = 1.0
     wait: float = 10.0
     duration: float | None = None

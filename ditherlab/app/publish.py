@@ -51,10 +51,10 @@ class PublishOptions:
 
     recording: Path
     read: ReadOptions = ReadOptions()
-    topic: str = "/joint_states"
+    topic: str = "joint_states"
     namespace: str = ""
     domain: int | None = None
-    dither_topic: str = "/ditherlab/dither"
+    dither_topic: str = "ditherlab/dither"
     wrench_topic: str | None = None
     rate: float = 1.0
     wait: float = 10.0

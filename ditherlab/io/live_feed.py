@@ -166,11 +166,11 @@ class DdsFeed:
     def __init__(
         self,
         names: Sequence[str],
-        topic: str = "/joint_states",
+        topic: str = "joint_states",
         *,
         namespace: str = "",
         wrench_topic: str | None = None,
-        dither_topic: str = "/ditherlab/dither",
+        dither_topic: str = "ditherlab/dither",
         domain: int | None = None,
         queue: int = 4096,
     ) -> None:
