@@ -25,9 +25,10 @@ of past samples (no running sums), so the result of a sample does not depend on 
 was cut into blocks: ``replay --causal`` (blocks of a file) and ``live`` (whatever arrived) give
 the same floats for the same samples.
 
-Model effects are applied per sample (their ``ddq`` and regime the causal ones above); an
+Model effects are applied per sample (their ``ddq`` and regime the causal ones above); a torque
 effect that is a filter in time (:attr:`ditherlab.physics.effects.base.Effect.pointwise` False)
-has no causal form here and is refused.
+and the dither extraction's lag (``dither_extraction``, whose lead reads the torque of half a
+period before) have no causal form here and are refused.
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ from ditherlab.physics.dither import (
     has_dither,
 )
 from ditherlab.physics.effects import effects_torque, force_gain, get_effect, signals
+from ditherlab.physics.effects.extraction import extraction_gain
 from ditherlab.robot import RobotModel
 
 __all__ = [
@@ -421,7 +423,10 @@ def _check(model: TorqueModel, s: CausalSettings) -> None:
         if v.startswith("dither") and s.period is None:
             raise ConfigError(f"variant {v} needs the dither period; none is known")
     for spec in model.effects:
-        if not get_effect(spec.name).pointwise:
+        e = get_effect(spec.name)
+        # the dither extraction's lead reads the torque half a period back (extraction_lead)
+        lead = extraction_gain([spec], model.n) is not None
+        if (e.kind == "torque" and not e.pointwise) or lead:
             raise ConfigError(
                 f"the model's effect {spec.name} is a filter in time, which the causal estimate "
                 "does not apply; expected a model of pointwise effects (identify without it)"
