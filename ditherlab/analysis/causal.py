@@ -340,7 +340,8 @@ class CausalEstimator:
 
     def _inputs(self, b: CausalBlock, f: dict[str, Any]) -> ReplayInputs:
         """The estimator's inputs of the new rows: gravity, Jacobians, effects, bands."""
-        g, J = self.robot.gravity_jacobian(b.q)
+        # every pose of a live robot is new: no deduplication and no cache to grow
+        g, J = self.robot.gravity_jacobian(b.q, dedup=False)
         J *= self.gain[None, None, :]
         eff = self._effects(b, f)
         base = (b.tau - g - eff, *self.model.sample_bands(f["reg"], f["dq"]))

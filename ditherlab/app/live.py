@@ -39,7 +39,7 @@ from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io import read
 from ditherlab.io.dds import WrenchStamped, Writer, dds_topic, participant, wrench_stamped
 from ditherlab.io.live_feed import DdsFeed, FileFeed, Sample
-from ditherlab.output.rerun.live import LiveView
+from ditherlab.output.rerun.live_view import LiveView
 from ditherlab.robot import RobotModel
 
 __all__ = ["LiveOptions", "LiveResult", "run"]
