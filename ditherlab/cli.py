@@ -577,6 +577,16 @@ def live(
         typer.Option("--variant", help="Variant published and shown (default: dither_band)."),
     ] = None,
     level: Annotated[float, typer.Option("--level", help="Interval confidence level.")] = 0.95,
+    components: Annotated[
+        str,
+        typer.Option(
+            "--components", help="Estimated components: all, fxyz, or a list like f_x,f_z."
+        ),
+    ] = "all",
+    variants: Annotated[
+        str | None,
+        typer.Option("--variants", help="Comma list of variants (default: all the stream allows)."),
+    ] = None,
     frame: Annotated[
         str | None, typer.Option("--frame", help="WrenchStamped frame (default: the tool frame).")
     ] = None,
@@ -597,6 +607,7 @@ def live(
         model=model, source=source, sinks=tuple(sink), rate=rate, namespace=namespace,
         domain=domain, wrench_topic=wrench_topic, dither_topic=dither_topic, timeout=timeout,
         wait=wait, duration=duration, queue=queue, variant=variant, level=level, frame=frame,
+        components=components, variants=tuple(variants.split(",")) if variants else None,
         read=_read(mapping, robot, None, None, None, None), force=force,
     )  # fmt: skip
     _show(cmd.run(opts, echo=lambda line: typer.echo(f"live: {line}", err=True)))

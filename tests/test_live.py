@@ -23,7 +23,9 @@ from ditherlab.io import read, write
 from ditherlab.io.dds import (
     Header,
     JointState,
+    Reader,
     Time,
+    WrenchStamped,
     Writer,
     dds_topic,
     participant,
@@ -110,6 +112,9 @@ def test_live_over_dds_equals_replay_causal(files, tmp_path, cli):
     rc, lv = tmp_path / "rc.parquet", tmp_path / "live.parquet"
     r = cli("replay", files["rec"], "--model", files["model"], "-o", rc, "--causal", "-q")
     assert r.code == 0, r.err
+    dp = participant(DOMAIN)
+    topics = ("rt/ditherlab/wrench", "rt/ditherlab/wrench/lower", "rt/ditherlab/wrench/upper")
+    readers = [Reader(dp, t, WrenchStamped) for t in topics]
     pub = _publish(str(files["rec"]), "--rate", "2", "--wrench-topic", "ft", "--namespace", "/arm")
     res = cli(
         "live", "--model", files["model"], "--source", "ros2:joint_states", "--namespace", "/arm",
@@ -123,6 +128,16 @@ def test_live_over_dds_equals_replay_causal(files, tmp_path, cli):
     assert list(a) == list(b) and len(b["t"]) == files["n"]
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    # the ros2 sink: dither_band's estimate and its bounds, one WrenchStamped per sample each
+    for reader, suffix in zip(readers, ("", "_lo", "_hi"), strict=True):
+        got = [m for m in reader.take(10_000) if isinstance(m, WrenchStamped)]
+        assert len(got) == files["n"]
+        fx = np.array([m.wrench.force.x for m in got])
+        mz = np.array([m.wrench.torque.z for m in got])
+        np.testing.assert_array_equal(fx, b[f"dither_band/f_x{suffix}"])
+        np.testing.assert_array_equal(mz, b[f"dither_band/m_z{suffix}"])
+        stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in got])
+        np.testing.assert_array_equal(stamps, b["t"])
 
 
 def _crafted(names: list[str]) -> list[tuple[str, JointState]]:
@@ -258,3 +273,26 @@ def test_ctrl_c_closes_the_file(files, tmp_path):
     want = _columns(rc)
     for k in got:
         np.testing.assert_array_equal(got[k], want[k][: len(got["t"])], err_msg=k)
+
+
+def test_file_source_and_duration(files, tmp_path, cli):
+    """A file played at once is replay --causal's estimate; --duration stops after that much
+    of the stream, the file closed whole with the rows up to then."""
+    rc, a, b = tmp_path / "rc.parquet", tmp_path / "a.parquet", tmp_path / "b.parquet"
+    assert cli("replay", files["rec"], "--model", files["model"], "-o", rc, "--causal").code == 0
+    src = f"file:{files['rec']}"
+    r = cli(
+        "live", "--model", files["model"], "--source", src, "--rate", "0", "--sink", f"parquet:{a}"
+    )
+    assert r.code == 0 and "stopped: the end of the recording" in r.out, r.err
+    want, got = _columns(rc), _columns(a)
+    for k in want:
+        np.testing.assert_array_equal(got[k], want[k], err_msg=k)
+    r = cli(
+        "live", "--model", files["model"], "--source", src, "--rate", "0", "--duration", "0.5",
+        "--sink", f"parquet:{b}",
+    )  # fmt: skip
+    assert r.code == 0 and "0.5 s of stream estimated (--duration)" in r.out, r.err
+    t = _columns(b)["t"]
+    assert t[-1] - t[0] >= 0.5 and len(t) < files["n"]
+    np.testing.assert_array_equal(t, want["t"][: len(t)])

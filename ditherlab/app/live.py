@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.causal import CausalBlock, CausalEstimator, CausalSettings, settings_for
-from ditherlab.app.replay import ESTIMATES_FILE
+from ditherlab.app.replay import ESTIMATES_FILE, Tally, error_lines
 from ditherlab.app.view import RRD_FILE
 from ditherlab.app.workflow import ReadOptions, guard
 from ditherlab.core.errors import ConfigError
@@ -102,6 +102,7 @@ class LiveResult:
     gaps: int
     compute: list[float] = field(default_factory=list)
     wrote: list[Path] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
 
     def text(self) -> str:
         """A few lines: the stream, why it ended, what was dropped, compute time, files."""
@@ -116,6 +117,7 @@ class LiveResult:
             f"{self.samples} samples estimated, t = {self.t_first:.3f} .. {self.t_last:.3f} s{per}",
             f"stopped: {self.stopped}",
             f"dropped: {self.faults}; gaps: {self.gaps}",
+            *self.errors,
         ]
         lines += [f"wrote {p}" for p in self.wrote]
         return "\n".join(lines)
@@ -376,7 +378,7 @@ def _estimate(
 ) -> LiveResult:
     """The live loop: estimate what arrived, send it on, until the stream ends (module
     docstring)."""
-    n, compute = 0, []
+    n, compute, tally = 0, [], Tally()
     t_first = batch[0].t
     t_last = t_first
     last_at = time.monotonic()
@@ -389,6 +391,7 @@ def _estimate(
                     rows = est.update(_block(batch))
                     compute.append(time.perf_counter() - c0)
                     sinks.write(rows)
+                    tally.add(rows, est.settings.variants)
                     n, t_last, last_at = n + len(batch), batch[-1].t, time.monotonic()
                 for line in feed.faults.news():
                     say(line)
@@ -405,7 +408,8 @@ def _estimate(
         }
         extra["gaps"] = est.gaps
         wrote = sinks.close(extra, ok)
-    return LiveResult(n, t_first, t_last, why, feed.faults.text(), est.gaps, compute, wrote)
+    errors = error_lines(tally.result(), "")
+    return LiveResult(n, t_first, t_last, why, feed.faults.text(), est.gaps, compute, wrote, errors)
 
 
 def _why_stop(

@@ -32,6 +32,7 @@ __all__ = [
     "Replayed",
     "Tally",
     "describe",
+    "error_lines",
     "replay_causal",
     "replay_stream",
     "run",
@@ -266,7 +267,7 @@ def describe(est: Estimates | Replayed) -> str:
         f"{tally.rows} samples, variants: {', '.join(est.variants)}; intervals "
         f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
     ]
-    lines += _error_lines(tally.result(), "")
+    lines += error_lines(tally.result(), "")
     load = known_load_of(est.meta.get("recording"))
     res = known.result() if known is not None else None
     if load is not None and res is not None:
@@ -275,11 +276,11 @@ def describe(est: Estimates | Replayed) -> str:
             f"  known load {known_load_text(load)}: mean wrench "
             f"{mean[0]:.1f}/{mean[1]:.1f}/{mean[2]:.1f} N; the estimate against it:"
         )
-        lines += _error_lines(res, "  ")
+        lines += error_lines(res, "  ")
     return "\n".join(lines)
 
 
-def _error_lines(res: dict[str, Any] | None, indent: str) -> list[str]:
+def error_lines(res: dict[str, Any] | None, indent: str) -> list[str]:
     """Per variant (and the vendor's own estimate): the force error RMS and bias x/y/z [N] and
     the interval coverage of the force axes, of a :meth:`ReferenceSums.result` (none for None)."""
     if res is None:
