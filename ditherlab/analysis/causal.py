@@ -274,7 +274,7 @@ class CausalEstimator:
             None if b.dither is None else np.asarray(b.dither, dtype=bool).reshape(len(t)),
             arr(b.tau_ffw, self.n), arr(b.wrench, 6),
         )  # fmt: skip
-        for k, v in zip(CausalBlock._fields, out, strict=True):
+        for k, v in zip(CausalBlock._fields[:-1], out[:-1], strict=True):  # a sensor: as it is
             if v is not None and v.dtype == float and not np.isfinite(v).all():
                 raise ConfigError(f"{k} at t = {t[0]:.6f} s is not finite; expected numbers")
         return out

@@ -32,7 +32,7 @@ from ditherlab.analysis.causal import CausalBlock, CausalEstimator, CausalSettin
 from ditherlab.app.replay import ESTIMATES_FILE, Tally, error_lines
 from ditherlab.app.view import RRD_FILE
 from ditherlab.app.workflow import ReadOptions, guard
-from ditherlab.core.errors import ConfigError
+from ditherlab.core.errors import ConfigError, DitherlabError
 from ditherlab.core.files import plain
 from ditherlab.data.estimates import VARIANTS, EstimatesWriter
 from ditherlab.data.torque_model import TorqueModel
@@ -149,10 +149,25 @@ def run(options: LiveOptions, echo: Callable[[str], None] | None = None) -> Live
     inputs = [o.model, where if kind == "file" else None]
     outs = _guard_sinks(sinks, inputs, o)
     model = TorqueModel.load(o.model)
+    with _interrupt() as stop:
+        return _run(kind, where, model, sinks, outs, o, say, stop)
+
+
+def _run(
+    kind: str,
+    where: str,
+    model: TorqueModel,
+    sinks: list[tuple[str, str]],
+    outs: list[Path | None],
+    o: LiveOptions,
+    say: Callable[[str], None],
+    stop: threading.Event,
+) -> LiveResult:
+    """:func:`run` once the options are checked, with Ctrl-C setting ``stop``."""
     feed, meta, settings_of = _open_feed(kind, where, model, o)
     try:
         label = o.source if kind == "file" else f"{o.source} (DDS topic {feed.topic})"
-        first = _first_samples(feed, o.wait, label)
+        first = _first_samples(feed, o.wait, label, stop)
         settings = settings_of(first)
         est = CausalEstimator(model, meta, settings)
         variant = _variant(o.variant, settings)
@@ -160,7 +175,7 @@ def run(options: LiveOptions, echo: Callable[[str], None] | None = None) -> Live
             f"estimating {', '.join(settings.variants)} from {o.source} at "
             f"{1 / settings.dt:.4g} Hz; Ctrl-C stops"
         )
-        return _estimate(feed, est, first, _Sinks(sinks, outs, variant, est, o), o, say)
+        return _estimate(feed, est, first, _Sinks(sinks, outs, variant, est, o), o, say, stop)
     finally:
         feed.close()
 
@@ -232,13 +247,16 @@ def _open_feed(kind: str, where: str, model: TorqueModel, o: LiveOptions):
     return feed, meta, settings_of
 
 
-def _first_samples(feed: Any, wait: float, where: str) -> list[Sample]:
+def _first_samples(feed: Any, wait: float, where: str, stop: threading.Event) -> list[Sample]:
     """The first samples (at least 16, or all that came within half a second of the first), or
-    a ConfigError when none came within ``wait`` seconds (with the faults seen)."""
+    a ConfigError when none came within ``wait`` seconds (with the faults seen); a
+    DitherlabError when Ctrl-C comes first."""
     start = time.monotonic()
     got: list[Sample] = []
     first_at = None
     while True:
+        if stop.is_set():
+            raise DitherlabError(f"{where}: interrupted (Ctrl-C) before the first sample")
         batch = feed.poll(0.05)
         if batch is None:
             if got:
@@ -375,6 +393,7 @@ def _estimate(
     sinks: _Sinks,
     o: LiveOptions,
     say: Callable[[str], None],
+    stop: threading.Event,
 ) -> LiveResult:
     """The live loop: estimate what arrived, send it on, until the stream ends (module
     docstring)."""
@@ -383,46 +402,46 @@ def _estimate(
     t_last = t_first
     last_at = time.monotonic()
     ok = False
+    ends = isinstance(feed, FileFeed)  # a file ends by itself; its own gaps are no timeout
+    why = "error"
     try:
-        with _interrupt() as stop:
-            while True:
-                if batch:
-                    c0 = time.perf_counter()
-                    rows = est.update(_block(batch))
-                    compute.append(time.perf_counter() - c0)
-                    sinks.write(rows)
-                    tally.add(rows, est.settings.variants)
-                    n, t_last, last_at = n + len(batch), batch[-1].t, time.monotonic()
-                for line in feed.faults.news():
-                    say(line)
-                why = _why_stop(stop.is_set(), batch, t_last - t_first, last_at, o)
-                if why:
-                    break
-                batch = feed.poll(min(0.05, o.timeout))
+        while True:
+            if batch:
+                c0 = time.perf_counter()
+                rows = est.update(_block(batch))
+                compute.append(time.perf_counter() - c0)
+                sinks.write(rows)
+                tally.add(rows, est.settings.variants)
+                n, t_last, last_at = n + len(batch), batch[-1].t, time.monotonic()
+            for line in feed.faults.news():
+                say(line)
+            why = _why_stop(stop.is_set(), batch, t_last - t_first, None if ends else last_at, o)
+            if why:
+                break
+            batch = feed.poll(min(0.05, o.timeout))
         ok = True
     finally:
-        extra = {
-            "source": o.source,
-            "stopped": why if ok else "error",
-            "faults": feed.faults.text(),
-        }
-        extra["gaps"] = est.gaps
+        extra = {"source": o.source, "stopped": why, "faults": feed.faults.text(), "gaps": est.gaps}
         wrote = sinks.close(extra, ok)
     errors = error_lines(tally.result(), "")
     return LiveResult(n, t_first, t_last, why, feed.faults.text(), est.gaps, compute, wrote, errors)
 
 
 def _why_stop(
-    interrupted: bool, batch: list[Sample] | None, span: float, last_at: float, o: LiveOptions
+    interrupted: bool,
+    batch: list[Sample] | None,
+    span: float,
+    last_at: float | None,
+    o: LiveOptions,
 ) -> str:
-    """Why the loop ends now ("" while it goes on)."""
+    """Why the loop ends now ("" while it goes on); ``last_at`` None: no timeout (a file)."""
     if interrupted:
         return "interrupted (Ctrl-C)"
     if batch is None:
         return "the end of the recording"
     if o.duration is not None and span >= o.duration:
         return f"{o.duration:g} s of stream estimated (--duration)"
-    if not batch and time.monotonic() - last_at > o.timeout:
+    if not batch and last_at is not None and time.monotonic() - last_at > o.timeout:
         return f"no sample for {o.timeout:g} s: the publisher stopped"
     return ""
 
