@@ -594,7 +594,7 @@ def live(
     robot: RobotOpt = None,
     force: Force = False,
 ) -> None:
-    """Estimate the force of a running robot from its joint states, sample by sample.
+    """Estimate a running robot's force, sample by sample.
 
     The estimate of `replay --causal` (the past alone), from ROS 2 over DDS or a recording
     played at its rate, to Parquet, a ROS 2 topic or Rerun. Ends on Ctrl-C, when the publisher
@@ -636,7 +636,7 @@ def publish(
     robot: RobotOpt = None,
     quiet: Quiet = False,
 ) -> None:
-    """Publish a recording's joint states over ROS 2 (DDS) in real time.
+    """Publish a recording as a ROS 2 robot, in real time.
 
     sensor_msgs/JointState with the robot's joint names, and ditherlab_msgs/DitherState with
     the same stamps when the recording has dither: a robot for `ditherlab live` on one machine.
