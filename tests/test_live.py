@@ -21,6 +21,7 @@ from test_causal import irb140_model
 from ditherlab.core.errors import ConfigError
 from ditherlab.io import read, write
 from ditherlab.io.dds import (
+    DitherState,
     Header,
     JointState,
     Reader,
@@ -296,3 +297,51 @@ def test_file_source_and_duration(files, tmp_path, cli):
     t = _columns(b)["t"]
     assert t[-1] - t[0] >= 0.5 and len(t) < files["n"]
     np.testing.assert_array_equal(t, want["t"][: len(t)])
+
+
+def _send_with_dither(skip: int) -> None:
+    """40 joint states at 250 Hz, each after its DitherState (dither off) but for number
+    ``skip``."""
+    dp = participant(DOMAIN)
+    js = Writer(dp, "rt/joint_states", JointState)
+    ds = Writer(dp, "rt/ditherlab/dither", DitherState)
+    end = time.monotonic() + 20
+    while js.matched() == 0 and time.monotonic() < end:
+        time.sleep(0.02)
+    time.sleep(0.2)
+    names = list(RobotModel.from_spec("irb140").joint_names)
+    for k in range(40):
+        h = Header(Time(0, 4_000_000 * k), "")
+        if k != skip:
+            ds.write(DitherState(h, False, 0.08, names, []))
+        q, tau = [0.0, -0.3, 0.4, 0.0, 0.5, 0.0], [0.0, 20.0, 5.0, 0.0, 1.0, 0.0]
+        js.write(JointState(h, names, q, [0.0] * 6, tau))
+        time.sleep(0.004)
+    time.sleep(0.5)
+
+
+def test_a_missing_dither_state_is_one_line(files, tmp_path, cli):
+    """With the dither topic in use, a joint state whose DitherState never comes is dropped
+    with one line; the dither variants run with the period the DitherState gives."""
+    sender = threading.Thread(target=_send_with_dither, args=(20,))
+    sender.start()
+    out = tmp_path / "d.parquet"
+    res = cli(
+        "live", "--model", files["model"], "--source", "ros2:/joint_states",
+        "--sink", f"parquet:{out}", "--domain", DOMAIN, "--timeout", "0.5",
+    )  # fmt: skip
+    sender.join()
+    assert res.code == 0, res.err
+    lines = [ln for ln in res.err.splitlines() if not ln.startswith("live: estimating")]
+    assert len(lines) == 1 and "no DitherState with its stamp" in lines[0], res.err
+    cols = _columns(out)
+    assert len(cols["t"]) == 39 and "dither_band/f_x" in cols
+    assert not cols["dither"].any()
+
+
+def test_publish_without_subscriber_is_one_line(files, cli):
+    """publish waits --wait seconds for a subscriber, then says so in one line, exit 2."""
+    res = cli("publish", files["rec"], "--topic", "/nobody_listens", "--domain", DOMAIN,
+              "--wait", "0.3", "-q")  # fmt: skip
+    assert res.code == 2 and res.out == "" and len(res.err.splitlines()) == 1, res.err
+    assert "no subscriber on rt/nobody_listens within 0.3 s" in res.err
