@@ -170,12 +170,12 @@ def _run(
         first = _first_samples(feed, o.wait, label, stop)
         settings = settings_of(first)
         est = CausalEstimator(model, meta, settings)
-        variant = _variant(o.variant, settings)
+        out = _Sinks(sinks, outs, _variant(o.variant, settings), est, o)
         say(
             f"estimating {', '.join(settings.variants)} from {o.source} at "
             f"{1 / settings.dt:.4g} Hz; Ctrl-C stops"
         )
-        return _estimate(feed, est, first, _Sinks(sinks, outs, variant, est, o), o, say, stop)
+        return _estimate(feed, est, first, out, o, say, stop)
     finally:
         feed.close()
 
@@ -309,7 +309,10 @@ class _Sinks:
         self._dp = None
         frame = o.frame or est.robot.tool_frame or "tool0"
         self.frame = str(frame)
-        for (kind, arg), out in zip(sinks, outs, strict=True):
+        # viewers and topics first: one that cannot start fails before a file is opened
+        rank = {"rerun": 0, "ros2": 1, "parquet": 2}
+        order = sorted(zip(sinks, outs, strict=True), key=lambda s: rank[s[0][0]])
+        for (kind, arg), out in order:
             if kind == "parquet":
                 w = EstimatesWriter(out)  # type: ignore[arg-type]
                 w.__enter__()

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
+from ditherlab.core.errors import DitherlabError
 from ditherlab.core.files import atomic_path
 from ditherlab.data.estimates import COMPONENTS
 
@@ -30,7 +31,14 @@ class LiveView:
         self._stack = contextlib.ExitStack()
         self.stream = rr.RecordingStream("ditherlab_live")
         if path is None:
-            rr.spawn(recording=self.stream)
+            try:
+                rr.spawn(recording=self.stream)
+            except RuntimeError as exc:  # no viewer binary: rerun prints how to install one
+                first = str(exc).strip().splitlines()[0] if str(exc).strip() else "no viewer"
+                raise DitherlabError(
+                    f"--sink rerun: the Rerun viewer did not start ({first}); expected the "
+                    "rerun viewer installed, or --sink rerun:FILE.rrd"
+                ) from None
         else:
             self._tmp = self._stack.enter_context(atomic_path(path))
             self.stream.save(self._tmp)
