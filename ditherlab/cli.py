@@ -62,6 +62,7 @@ HELP = """Sensorless force estimation with dithering (Stolt et al., ABB IRB140).
 
 Recordings: info, convert, simulate. The estimator: identify, replay, report, diagnose, view.
 A robot's predicted thresholds: robot. Many runs: fleet, sweep, leadthrough.
+A running robot over ROS 2 (DDS): live, publish.
 
 Outputs: an existing output file or non-empty folder needs --force; a file output is named
 with its suffix (model .toml, estimates .parquet, view .rrd), never as a folder (DIR/); no
@@ -464,6 +465,13 @@ def replay(
     tool_frame: ToolFrameOpt = None,
     robot_arg: RobotArgOpt = None,
     chunk: Chunk = None,
+    causal: Annotated[
+        bool,
+        typer.Option(
+            "--causal",
+            help="Estimate every sample from the past alone, as `ditherlab live` does.",
+        ),
+    ] = False,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
@@ -478,9 +486,170 @@ def replay(
     opts = cmd.ReplayOptions(
         recording=recording, model=model, out=out, level=level, interval=interval,
         components=components, variants=tuple(variants.split(",")) if variants else None,
-        read=read, force=force, **_chunk(chunk),
+        read=read, force=force, causal=causal, **_chunk(chunk),
     )  # fmt: skip
     with _progress("replay", quiet) as progress:
+        _show(cmd.run(opts, progress))
+
+
+# ================================================================ live
+Topic = Annotated[
+    str,
+    typer.Option(
+        "--topic", metavar="TOPIC", help="The JointState topic (relative: in --namespace)."
+    ),
+]
+Namespace = Annotated[
+    str, typer.Option("--namespace", metavar="NS", help="ROS 2 namespace of relative topics.")
+]
+Domain = Annotated[
+    int | None,
+    typer.Option("--domain", help="DDS domain (default: ROS_DOMAIN_ID, else 0).", min=0, max=232),
+]
+DitherTopic = Annotated[
+    str,
+    typer.Option(
+        "--dither-topic",
+        metavar="TOPIC",
+        help="The ditherlab_msgs/DitherState topic (relative: in --namespace).",
+    ),
+]
+
+
+def _needs_dds(command: str) -> None:
+    """ConfigError when cyclonedds (the extra ``live``) is not installed."""
+    import importlib.util
+
+    from ditherlab.core.errors import ConfigError
+
+    if importlib.util.find_spec("cyclonedds") is None:
+        raise ConfigError(
+            f"{command} needs the DDS library cyclonedds; expected it installed: "
+            "pip install 'ditherlab[live]'"
+        )
+
+
+@app.command()
+def live(
+    model: ModelIn,
+    source: Annotated[
+        str,
+        typer.Option(
+            "--source",
+            metavar="SRC",
+            help="ros2:TOPIC (JointState over DDS, e.g. ros2:joint_states, in --namespace) or "
+            "file:RECORDING.",
+        ),
+    ],
+    sink: Annotated[
+        list[str],
+        typer.Option(
+            "--sink",
+            metavar="SINK",
+            help="parquet:OUT.parquet, ros2:TOPIC (WrenchStamped; bounds on TOPIC/lower, "
+            "TOPIC/upper), rerun, or rerun:FILE.rrd; repeatable.",
+        ),
+    ],
+    rate: Annotated[
+        float, typer.Option("--rate", help="file: playback speed (1: real time, 0: at once).")
+    ] = 1.0,
+    namespace: Namespace = "",
+    domain: Domain = None,
+    wrench_topic: Annotated[
+        str | None,
+        typer.Option(
+            "--wrench-topic", metavar="TOPIC", help="ros2: a sensor's WrenchStamped, kept beside."
+        ),
+    ] = None,
+    dither_topic: DitherTopic = "ditherlab/dither",
+    timeout: Annotated[
+        float, typer.Option("--timeout", help="[s] without a sample: the estimate stops.")
+    ] = 1.0,
+    wait: Annotated[float, typer.Option("--wait", help="[s] to wait for the first sample.")] = 10.0,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="[s] of stream to estimate, then stop.")
+    ] = None,
+    queue: Annotated[
+        int, typer.Option("--queue", help="Samples waiting for the estimate at most.", min=1)
+    ] = 4096,
+    variant: Annotated[
+        str | None,
+        typer.Option("--variant", help="Variant published and shown (default: dither_band)."),
+    ] = None,
+    level: Annotated[float, typer.Option("--level", help="Interval confidence level.")] = 0.95,
+    components: Annotated[
+        str,
+        typer.Option(
+            "--components", help="Estimated components: all, fxyz, or a list like f_x,f_z."
+        ),
+    ] = "all",
+    variants: Annotated[
+        str | None,
+        typer.Option("--variants", help="Comma list of variants (default: all the stream allows)."),
+    ] = None,
+    frame: Annotated[
+        str | None, typer.Option("--frame", help="WrenchStamped frame (default: the tool frame).")
+    ] = None,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    force: Force = False,
+) -> None:
+    """Estimate a running robot's force, sample by sample.
+
+    The estimate of `replay --causal` (the past alone), from ROS 2 over DDS or a recording
+    played at its rate, to Parquet, a ROS 2 topic or Rerun. Ends on Ctrl-C, when the publisher
+    stops (--timeout) or at the end of a file; the files are closed whole.
+    """
+    _needs_dds("live")
+    from ditherlab.app import live as cmd
+
+    opts = cmd.LiveOptions(
+        model=model, source=source, sinks=tuple(sink), rate=rate, namespace=namespace,
+        domain=domain, wrench_topic=wrench_topic, dither_topic=dither_topic, timeout=timeout,
+        wait=wait, duration=duration, queue=queue, variant=variant, level=level, frame=frame,
+        components=components, variants=tuple(variants.split(",")) if variants else None,
+        read=_read(mapping, robot, None, None, None, None), force=force,
+    )  # fmt: skip
+    _show(cmd.run(opts, echo=lambda line: typer.echo(f"live: {line}", err=True)))
+
+
+@app.command()
+def publish(
+    recording: Annotated[
+        Path, typer.Argument(metavar="RECORDING", help="Recording to publish (any format).")
+    ],
+    topic: Topic = "joint_states",
+    namespace: Namespace = "",
+    domain: Domain = None,
+    dither_topic: DitherTopic = "ditherlab/dither",
+    wrench_topic: Annotated[
+        str | None,
+        typer.Option(
+            "--wrench-topic", metavar="TOPIC", help="Also publish the F/T sensor as WrenchStamped."
+        ),
+    ] = None,
+    rate: Annotated[float, typer.Option("--rate", help="Playback speed (1: real time).")] = 1.0,
+    wait: Annotated[
+        float, typer.Option("--wait", help="[s] to wait for a subscriber (0: do not wait).")
+    ] = 10.0,
+    mapping: MappingOpt = None,
+    robot: RobotOpt = None,
+    quiet: Quiet = False,
+) -> None:
+    """Publish a recording as a ROS 2 robot, in real time.
+
+    sensor_msgs/JointState with the robot's joint names, and ditherlab_msgs/DitherState with
+    the same stamps when the recording has dither: a robot for `ditherlab live` on one machine.
+    """
+    _needs_dds("publish")
+    from ditherlab.app import publish as cmd
+
+    opts = cmd.PublishOptions(
+        recording=recording, read=_read(mapping, robot, None, None, None, None), topic=topic,
+        namespace=namespace, domain=domain, dither_topic=dither_topic, wrench_topic=wrench_topic,
+        rate=rate, wait=wait,
+    )  # fmt: skip
+    with _progress("publish", quiet) as progress:
         _show(cmd.run(opts, progress))
 
 

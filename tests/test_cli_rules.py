@@ -40,6 +40,8 @@ COMMANDS = (
     "fleet",
     "sweep",
     "leadthrough",
+    "live",
+    "publish",
 )
 
 
@@ -78,6 +80,8 @@ def writing_commands(f: dict[str, Path], out: Path | str) -> dict[str, list]:
         "simulate": ["simulate", "push-campaign", "--pushes-per-direction", "1", "-o", out, "-q"],
         "convert": ["convert", f["rec"], out],
         "view": ["view", f["rec"], "--model", f["model"], "--save", out, "-q"],
+        "live": ["live", "--model", f["model"], "--source", f"file:{f['rec']}", "--rate", "0",
+                 "--sink", f"parquet:{out}"],
         "robot": ["robot", "irb140", "--sensitivity", "--no-dither", "--map", out,
                   "--grid", "q2=-0.2:0.2:2", "-q"],
     }  # fmt: skip
@@ -90,6 +94,7 @@ SUFFIX = {
     "convert": ".csv",
     "view": ".rrd",
     "robot": ".csv",
+    "live": ".parquet",
 }
 
 
@@ -127,6 +132,7 @@ DEFAULT_NAME = {
     "replay": "estimates.parquet",
     "view": "view.rrd",
     "robot": "map.csv",
+    "live": "estimates.parquet",
 }
 
 
@@ -159,6 +165,7 @@ def test_a_file_output_named_as_a_folder(inputs, tmp_path, command):
         ("convert", "rec.json", r"\.parquet, \.pq, \.csv or \.mcap \(a recording; .*\), not \.json"),
         ("view", "view.png", r"\.rrd \(a Rerun recording\), not \.png"),
         ("robot", "map.txt", r"\.csv or \.parquet \(a sensitivity map table\), not \.txt"),
+        ("live", "est.csv", r"\.parquet \(estimates\), not \.csv"),
     ],
 )  # fmt: skip
 def test_a_suffix_that_does_not_match_the_output(inputs, tmp_path, command, name, expected):
@@ -239,5 +246,5 @@ def test_command_help_reads_well(command):
     assert "<bool>" not in res.stdout and "╭" not in res.stdout
     summary = res.stdout.split("\n\n")[1].strip()
     assert summary.endswith(".") and len(summary) <= 60, summary
-    if command != "info":
+    if command not in ("info", "publish"):  # publish writes no file
         assert "--force" in res.stdout

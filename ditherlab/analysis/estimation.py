@@ -188,14 +188,14 @@ def replay_columns(
     variants = _check_options(rec, variants, interval, level)
     tick = Ticker(2 + 2 * len(variants), progress)
     inp = _replay_inputs(rec, model, variants, q_tol, tick)
-    how = _How(level, interval, backend, comps)
+    how = ReplayHow(level, interval, backend, comps)
     cols = _recording_columns(rec)
     cols.update(known_columns(rec))  # the known load's wrench, when the recording declares one
     vendor_cols, vendor_meta = vendor_columns(rec)
     cols.update(vendor_cols)
     bits = (1 << np.arange(rec.n)).astype(np.int64)
     for v in variants:
-        F, active, ilo, ihi = _variant_estimate(v, inp, model, how, tick)
+        F, active, ilo, ihi = variant_estimate(v, inp, model, how, tick)
         for suffix, X in (("", F), ("_lo", ilo), ("_hi", ihi)):
             Xc = _columns(X)
             for k, c in enumerate(COMPONENTS):
@@ -221,7 +221,7 @@ def replay_columns(
     return cols, meta
 
 
-class _How(NamedTuple):
+class ReplayHow(NamedTuple):
     """How every variant of one replay is estimated: the intervals' ``level`` and method
     (``interval``), the solver ``backend``, the estimated components ``comps``."""
 
@@ -231,7 +231,7 @@ class _How(NamedTuple):
     comps: list[str]
 
 
-class _Inputs(NamedTuple):
+class ReplayInputs(NamedTuple):
     """What every variant of one replay reads.
 
     Attributes
@@ -258,7 +258,7 @@ class _Inputs(NamedTuple):
 
 def _replay_inputs(
     rec: Recording, model: TorqueModel, variants: Sequence[str], q_tol: float, tick: Ticker
-) -> _Inputs:
+) -> ReplayInputs:
     """The robot's quantities, the model's effects and bands per sample (one ``tick``), and the
     dither extraction when a dither variant runs (one more)."""
     robot = rec.robot()
@@ -275,7 +275,7 @@ def _replay_inputs(
     w_ext = max(int(round(ext.period * rec.sample_rate)), 1) if ext is not None else 1
     dq_mean = causal_mean(rec.dq, w_ext) if ext is not None else None
     tick()
-    return _Inputs(g, J, eff, reg, base, ext, w_ext, dq_mean)
+    return ReplayInputs(g, J, eff, reg, base, ext, w_ext, dq_mean)
 
 
 def _columns(X: np.ndarray) -> np.ndarray:
@@ -295,8 +295,8 @@ def _recording_columns(rec: Recording) -> dict[str, np.ndarray]:
     return cols
 
 
-def _variant_estimate(
-    v: str, inp: _Inputs, model: TorqueModel, how: _How, tick: Ticker
+def variant_estimate(
+    v: str, inp: ReplayInputs, model: TorqueModel, how: ReplayHow, tick: Ticker
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Variant ``v``'s estimate ``F`` (N, 6) [N, N·m], active joints (N, n) and interval
     ``lo``, ``hi`` (N, 6) (two ``tick``)."""

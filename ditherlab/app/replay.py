@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ditherlab.analysis.causal import CausalEstimator, block_of, settings_for
 from ditherlab.analysis.estimation import replay_columns
 from ditherlab.analysis.known_load import (
     KNOWN_PREFIX,
@@ -31,6 +32,8 @@ __all__ = [
     "Replayed",
     "Tally",
     "describe",
+    "error_lines",
+    "replay_causal",
     "replay_stream",
     "run",
 ]
@@ -56,6 +59,8 @@ class ReplayOptions:
     read : how to read a foreign log (``--mapping``, ``--robot``)
     chunk_rows : rows read and processed at a time
     force : replace an existing estimates file
+    causal : estimate every sample from the past alone (:mod:`ditherlab.analysis.causal`),
+        as ``ditherlab live`` does
     """
 
     recording: Path
@@ -68,6 +73,7 @@ class ReplayOptions:
     read: ReadOptions = ReadOptions()
     chunk_rows: int = CHUNK_ROWS
     force: bool = False
+    causal: bool = False
 
 
 def run(options: ReplayOptions, progress: Progress | None = None) -> Replayed:
@@ -87,7 +93,8 @@ def run(options: ReplayOptions, progress: Progress | None = None) -> Replayed:
     out = guard(o.out, [o.recording, o.model], read=o.read, kind=ESTIMATES_FILE, force=o.force)
     model = TorqueModel.load(o.model)
     src = open_source(o.recording, **o.read.kwargs())
-    return replay_stream(
+    stream = replay_causal if o.causal else replay_stream
+    return stream(
         src,
         model,
         out,
@@ -163,6 +170,51 @@ def replay_stream(
     return Replayed(Path(out), meta, tally, known)
 
 
+def replay_causal(
+    src: Source,
+    model: TorqueModel,
+    out: str | Path,
+    *,
+    chunk_rows: int = CHUNK_ROWS,
+    progress: Progress | None = None,
+    variants: Sequence[str] | None = None,
+    **options: Any,
+) -> Replayed:
+    """The causal estimate (:class:`ditherlab.analysis.causal.CausalEstimator`) of every sample
+    of a recording read in pieces, written as the estimates file: what ``ditherlab live`` writes
+    for the same recording streamed over DDS (times in whole nanoseconds,
+    :func:`ditherlab.analysis.causal.block_of`).
+
+    Parameters
+    ----------
+    src, model, out, chunk_rows, progress : as for :func:`replay_stream`
+    variants : the estimator variants (default: all the recording allows)
+    **options : ``level``, ``interval``, ``components`` (:class:`CausalSettings`)
+
+    Returns
+    -------
+    Replayed
+    """
+    est: CausalEstimator | None = None
+    tally, known = Tally(), ReferenceSums(KNOWN_PREFIX)
+    with EstimatesWriter(out) as writer:
+        for piece in src.pieces(chunk_rows, halo_s=0.0):
+            if est is None:
+                model.check_robot(piece.rec)
+                settings = settings_for(piece.rec, variants=variants, **options)
+                est = CausalEstimator(model, plain(src.meta), settings, piece.rec.robot())
+            rows = est.update(block_of(piece.rec, piece.keep))
+            writer.write(rows)
+            tally.add(rows, est.settings.variants)
+            known.add(rows, est.settings.variants)
+            if progress:
+                progress(piece.index + 1, piece.count)
+        assert est is not None
+        meta = plain(est.metadata(src.name))
+        writer.meta = meta
+    return Replayed(Path(out), meta, tally, known)
+
+
 @dataclass
 class Replayed:
     """What :func:`replay_stream` wrote: the estimates file, its metadata, and the running
@@ -215,7 +267,7 @@ def describe(est: Estimates | Replayed) -> str:
         f"{tally.rows} samples, variants: {', '.join(est.variants)}; intervals "
         f"{est.meta['interval']['method']} at {est.meta['interval']['level']:.0%}"
     ]
-    lines += _error_lines(tally.result(), "")
+    lines += error_lines(tally.result(), "")
     load = known_load_of(est.meta.get("recording"))
     res = known.result() if known is not None else None
     if load is not None and res is not None:
@@ -224,11 +276,11 @@ def describe(est: Estimates | Replayed) -> str:
             f"  known load {known_load_text(load)}: mean wrench "
             f"{mean[0]:.1f}/{mean[1]:.1f}/{mean[2]:.1f} N; the estimate against it:"
         )
-        lines += _error_lines(res, "  ")
+        lines += error_lines(res, "  ")
     return "\n".join(lines)
 
 
-def _error_lines(res: dict[str, Any] | None, indent: str) -> list[str]:
+def error_lines(res: dict[str, Any] | None, indent: str) -> list[str]:
     """Per variant (and the vendor's own estimate): the force error RMS and bias x/y/z [N] and
     the interval coverage of the force axes, of a :meth:`ReferenceSums.result` (none for None)."""
     if res is None:

@@ -1,0 +1,200 @@
+"""Tests of ditherlab.analysis.causal: the per-sample causal estimate behind ``replay --causal``
+and ``live``, against a slow reference written from its definition, and its independence of the
+future and of how the stream is cut into blocks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from ditherlab.analysis.causal import (
+    DDQ_SPAN,
+    MOVING_THRESHOLD,
+    CausalEstimator,
+    block_of,
+    settings_for,
+)
+from ditherlab.analysis.estimation import ReplayHow, ReplayInputs, variant_estimate
+from ditherlab.core.errors import ConfigError
+from ditherlab.core.names import DITHER, MOVING, STILL
+from ditherlab.core.stamps import wire_time
+from ditherlab.core.ticker import Ticker
+from ditherlab.data.estimates import COMPONENTS, Estimates
+from ditherlab.data.recording import regimes
+from ditherlab.data.torque_model import Band, TorqueModel
+from ditherlab.io import read, write
+from ditherlab.physics.dither import Extraction
+from ditherlab.physics.effects import force_gain
+
+REC = Path(__file__).resolve().parents[1] / "recordings" / "sim-push-dither.parquet"
+ROWS = slice(900, 1500)  # the excitation's end (moving), the dither's start, a push
+
+
+def irb140_model() -> TorqueModel:
+    """A model of the simulated IRB140's still, dither and moving bands (round values)."""
+    half = np.array([8.0, 8.0, 8.0, 2.0, 2.0, 1.0])
+    sigma = np.array([0.5, 0.5, 0.5, 0.1, 0.1, 0.05])
+    return TorqueModel(
+        "irb140",
+        6,
+        regimes={
+            "still": Band(-half, half, sigma),
+            "dither": Band(-0.3 * half, 0.3 * half, sigma / 4),
+            "moving": Band(-0.2 * half, 0.2 * half, sigma, coulomb=0.9 * half, viscous=half / 8),
+        },
+    )
+
+
+@pytest.fixture(scope="module")
+def rec():
+    whole = read(REC)
+    return whole.with_data(whole.data.iloc[ROWS].reset_index(drop=True))
+
+
+@pytest.fixture(scope="module")
+def model():
+    return irb140_model()
+
+
+def run_blocks(rec, model, size: int, rows: int | None = None) -> dict[str, np.ndarray]:
+    """The causal estimate of the first ``rows`` samples, fed in blocks of ``size``."""
+    est = CausalEstimator(model, rec.meta, settings_for(rec))
+    N = len(rec) if rows is None else rows
+    out = [est.update(block_of(rec, slice(a, min(a + size, N)))) for a in range(0, N, size)]
+    return {k: np.concatenate([o[k] for o in out]) for k in out[0]}
+
+
+def reference(rec, model) -> dict[str, np.ndarray]:
+    """Every sample's estimate from its own past, written from the definitions one sample at a
+    time: backward differences, trailing means, the dither's period means by comparison."""
+    s = settings_for(rec)
+    W = s.windows()
+    t, dq, tau, on = wire_time(rec.t), rec.dq, rec.tau, rec.dither
+    Wx = max(2, int(round(s.period / s.dt)))
+    robot, gain = rec.robot(), force_gain(model)
+    how = ReplayHow(s.level, s.interval, "exact", list(COMPONENTS))
+    out: dict[str, list] = {}
+    for i in range(len(t)):
+        moving = np.abs(dq[max(0, i - W["move"] + 1) : i + 1].mean(axis=0)) > MOVING_THRESHOLD
+        reg = np.where(moving, MOVING, DITHER if on[i] else STILL).astype(np.int8)[None, :]
+        win = tau[max(0, i - Wx + 1) : i + 1]
+        c = win.mean(axis=0)
+        up = np.array([_mean_or(win[win[:, j] > c[j], j], c[j]) for j in range(6)])
+        low = np.array([_mean_or(win[win[:, j] < c[j], j], c[j]) for j in range(6)])
+        p = W["period"]
+        valid = i >= p - 1 and bool(on[max(0, i - p + 1) : i + 1].all())
+        ext = Extraction(
+            up[None], low[None], (0.5 * (up + low))[None], c[None], (0.5 * (up - low))[None],
+            on[i : i + 1], np.array([valid]), s.period,
+        )  # fmt: skip
+        g, J = robot.gravity_jacobian(rec.q[i : i + 1])
+        J = J * gain[None, None, :]
+        base = (tau[i : i + 1] - g, *model.sample_bands(reg, dq[i : i + 1]))
+        dq_mean = dq[max(0, i - p + 1) : i + 1].mean(axis=0)[None]
+        inp = ReplayInputs(g, J, np.zeros_like(g), reg, base, ext, p, dq_mean)
+        for v in s.variants:
+            F, _, lo, hi = variant_estimate(v, inp, model, how, Ticker(2, None))
+            for name, M in ((v, F), (v + "_lo", lo), (v + "_hi", hi)):
+                out.setdefault(name, []).append(M[0])
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def _mean_or(x: np.ndarray, empty: float) -> float:
+    """The mean of ``x``, or ``empty`` when it holds nothing."""
+    return float(x.mean()) if len(x) else empty
+
+
+def test_causal_matches_the_slow_reference(rec, model):
+    """Every variant's estimate and interval at every sample equals the reference computed from
+    that sample's past alone (over a motion's end, the dither's start and a push)."""
+    got = run_blocks(rec, model, 256)
+    ref = reference(rec, model)
+    assert len(got["t"]) == len(rec)
+    for name, R in ref.items():
+        v, suffix = (name[:-3], name[-3:]) if name[-3:] in ("_lo", "_hi") else (name, "")
+        G = np.column_stack([got[f"{v}/{c}{suffix}"] for c in COMPONENTS])
+        np.testing.assert_allclose(G, R, atol=1e-6, rtol=1e-9, err_msg=name)
+
+
+def test_the_past_does_not_see_the_future(rec, model):
+    """The estimate of the first 300 samples alone equals the first 300 rows of the estimate of
+    all 600, bit for bit: no sample reads a later one."""
+    whole = run_blocks(rec, model, 600)
+    head = run_blocks(rec, model, 300, rows=300)
+    for k, v in head.items():
+        np.testing.assert_array_equal(v, whole[k][:300], err_msg=k)
+
+
+def test_blocks_do_not_change_the_estimate(rec, model):
+    """Fed one sample at a time or in blocks of 97, every column is the same bit for bit."""
+    a = run_blocks(rec, model, 97, rows=200)
+    b = run_blocks(rec, model, 1, rows=200)
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_regime_and_acceleration_lag_the_offline_ones(rec, model):
+    """The causal ddq is the backward difference over DDQ_SPAN, and a joint counts as moving
+    until the trailing mean falls below the threshold (after the offline centred mean does)."""
+    est = CausalEstimator(model, rec.meta, settings_for(rec))
+    b = block_of(rec)
+    X = est._joined(b)
+    f = est._features(X, len(b.t))
+    k = int(round(DDQ_SPAN / rec.dt))
+    i = 400
+    want = (rec.dq[i] - rec.dq[i - k]) / (b.t[i] - b.t[i - k])
+    np.testing.assert_allclose(f["ddq"][i], want, rtol=1e-12)
+    off_last = np.flatnonzero((regimes(rec) == MOVING).any(axis=1))[-1]
+    causal_last = np.flatnonzero((f["reg"] == MOVING).any(axis=1))[-1]
+    assert causal_last > off_last
+
+
+def test_bad_samples_are_refused(rec, model):
+    """A time not after the last one, or a NaN, is one ConfigError naming it."""
+    est = CausalEstimator(model, rec.meta, settings_for(rec))
+    est.update(block_of(rec, slice(0, 10)))
+    with pytest.raises(ConfigError, match="is not after the previous one"):
+        est.update(block_of(rec, slice(5, 12)))
+    b = block_of(rec, slice(10, 12))
+    q = b.q.copy()
+    q[1, 2] = np.nan
+    with pytest.raises(ConfigError, match="q at t = .* is not finite"):
+        est.update(b._replace(q=q))
+
+
+def test_cli_replay_causal(tmp_path, rec, model, cli):
+    """``replay --causal`` writes the offline replay's columns, the causal settings in its
+    metadata, and estimates equal to the estimator fed directly."""
+    r, m = tmp_path / "r.parquet", tmp_path / "m.toml"
+    write(rec.with_data(rec.data.iloc[:300].reset_index(drop=True)), r)
+    model.save(m)
+    off, cau = tmp_path / "off.parquet", tmp_path / "cau.parquet"
+    assert cli("replay", r, "--model", m, "-o", off, "--quiet").code == 0
+    res = cli("replay", r, "--model", m, "-o", cau, "--causal", "--quiet")
+    assert res.code == 0, res.err
+    a, b = pq.read_table(off), pq.read_table(cau)
+    assert a.column_names == b.column_names
+    direct = run_blocks(rec, model, 300, rows=300)
+    for k in ("dither_band/f_x", "nodither_noband/m_z_hi", "t"):
+        np.testing.assert_array_equal(b.column(k).to_numpy(), direct[k])
+    meta = Estimates.load(cau).meta
+    assert meta["causal"]["ddq_span"] == DDQ_SPAN
+
+
+def test_a_gap_starts_afresh(rec, model):
+    """After a 5 s gap the estimate equals a fresh estimator's on the samples after it: no
+    window reaches across the gap, and the gap is counted."""
+    data = rec.data.iloc[:400].copy()
+    data.loc[200:, "t"] += 5.0
+    gapped = rec.with_data(data.reset_index(drop=True))
+    est = CausalEstimator(model, rec.meta, settings_for(rec))
+    whole = est.update(block_of(gapped))
+    assert est.gaps == 1
+    fresh = CausalEstimator(model, rec.meta, settings_for(rec))
+    after = fresh.update(block_of(gapped, slice(200, 400)))
+    for k, v in after.items():
+        np.testing.assert_array_equal(whole[k][200:], v, err_msg=k)
