@@ -22,8 +22,13 @@ from ditherlab.data.recording import Recording, RecordingArrays
 from ditherlab.robot import RobotModel
 from ditherlab.sim_lugre.lugre_effects import EFFECTS, parse_planted, plant
 from ditherlab.sim_lugre.lugre_loads import LOADS, build_loads
-from ditherlab.sim_lugre.lugre_log import LogStreams, friction_scale, noise_floor, temperatures
-from ditherlab.sim_lugre.lugre_log import to_arrays
+from ditherlab.sim_lugre.lugre_log import (
+    LogStreams,
+    friction_scale,
+    noise_floor,
+    temperatures,
+    to_arrays,
+)
 from ditherlab.sim_lugre.lugre_params import OMEGA, SAMPLE_RATE, SUBSTEPS, draw_params, home_pose
 from ditherlab.sim_lugre.lugre_run import RunInputs, run_plant
 from ditherlab.sim_lugre.lugre_scenarios import SCENARIOS, build_scenario
@@ -45,6 +50,7 @@ class LugreOptions:
     loads: tuple[str, ...]
     log_temperature: bool
     pushes_per_direction: int | None
+    duration: float | None = None
 
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
@@ -66,7 +72,7 @@ def _setup(o: LugreOptions, robot: RobotModel) -> _Setup:
     home = home_pose(robot)
     sc = build_scenario(o.scenario, robot, home, rng["scenario"], {
         "dt_log": 1 / SAMPLE_RATE, "nsub": SUBSTEPS,
-        "pushes_per_direction": o.pushes_per_direction})  # fmt: skip
+        "pushes_per_direction": o.pushes_per_direction, "duration": o.duration})  # fmt: skip
     t = (np.arange(sc.n_samples) + 1) * sc.dt_log
     p_home = robot.tool_pose(home[None])[0, :3, 3]
     return _Setup(robot, params, sc, build_loads(o.loads, t, p_home, rng["loads"]))
@@ -111,6 +117,7 @@ def simulate_lugre(
     robot: str | Mapping[str, Any] = "irb140",
     log_temperature: bool = True,
     pushes_per_direction: int | None = None,
+    duration: float | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Recording:
     """Simulate ``scenario`` on the LuGre plant and return its Recording (250 Hz).
@@ -125,6 +132,7 @@ def simulate_lugre(
     robot : the arm: a built-in name, a URDF path or a resolved spec
     log_temperature : write ``temp_j`` when ``temperature_friction`` is planted
     pushes_per_direction : push-campaign's pushes per axis and sign (default 3)
+    duration : [s] only the scenario's first ``duration`` seconds (None: all of it)
     progress : ``progress(done, total)`` over the logged samples
 
     Returns
@@ -137,13 +145,15 @@ def simulate_lugre(
     """
     if int(seed) < 0:
         raise ConfigError(f"--seed {seed}: negative; expected an integer >= 0")
+    if duration is not None and not duration > 1.0:
+        raise ConfigError(f"duration {duration}: expected more than 1 s")
     if pushes_per_direction is not None and pushes_per_direction < 1:
         raise ConfigError(
             f"--pushes-per-direction {pushes_per_direction}: expected an integer >= 1"
         )
     arm = RobotModel.from_spec(robot)
     o = LugreOptions(scenario, int(seed), bool(dither), tuple(hidden), tuple(external_loads),
-                     bool(log_temperature), pushes_per_direction)  # fmt: skip
+                     bool(log_temperature), pushes_per_direction, duration)  # fmt: skip
     specs = parse_planted(o.hidden, arm.n)
     s = _setup(o, arm)
     arrays, planted = _run(o, s, specs, progress)

@@ -48,7 +48,7 @@ EFFECTS: dict[str, tuple[str, float]] = {
     "payload": ("kg", 2.0),
     "attenuation_lag": ("share", 0.3),
     "ft_bias": ("N", 3.0),
-    "inertia": ("kg m²", 0.5),
+    "inertia": ("kg m²", 1.0),
     "drive_gain": ("logged / true torque", 1.1),
     "ft_frame": ("deg", 5.0),
     "dynamics": ("share of the link's mass", 0.3),
@@ -162,7 +162,12 @@ class Planted:
     def __post_init__(self) -> None:
         z = np.zeros(self.n)
         self.sigma2_add, self.hump_add, self.k_load = z.copy(), z.copy(), z.copy()
-        self.warm, self.warm_alpha, self.jm_add, self.offset = z.copy(), z.copy(), z.copy(), z.copy()
+        self.warm, self.warm_alpha, self.jm_add, self.offset = (
+            z.copy(),
+            z.copy(),
+            z.copy(),
+            z.copy(),
+        )
         self.ripple = np.zeros((3, self.n))
         self.log_gain, self.dither_pass = np.ones(self.n), np.ones(self.n)
 

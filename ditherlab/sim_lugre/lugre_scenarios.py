@@ -142,7 +142,8 @@ def _by_hand(rng: np.random.Generator) -> tuple[list, float]:
 
 def build_scenario(name: str, robot: RobotModel, home: np.ndarray, rng, options) -> Scenario:
     """The scenario ``name`` for ``robot`` about the pose ``home`` (n,) [rad], drawn from
-    ``rng``; ``options``: ``dt_log`` [s], ``nsub``, ``pushes_per_direction``."""
+    ``rng``; ``options``: ``dt_log`` [s], ``nsub``, ``pushes_per_direction``, ``duration`` [s]
+    (None: the scenario's own; shorter: its first part)."""
     if name not in SCENARIOS:
         raise ConfigError(f"scenario '{name}' is unknown for --plant lugre; expected one of "
                           f"{', '.join(SCENARIOS)}")  # fmt: skip
@@ -154,6 +155,8 @@ def build_scenario(name: str, robot: RobotModel, home: np.ndarray, rng, options)
     else:
         pushes, duration = _by_hand(rng)
     dt, nsub = options["dt_log"], options["nsub"]
+    duration = min(duration, options.get("duration") or duration)
+    pushes = [p for p in pushes if p["t0"] < duration]
     n_log = int(round(duration / dt))
     t_sub = np.arange(n_log * nsub) * (dt / nsub)
     q_ref, dq_ref = _min_jerk(t_sub, segments)
