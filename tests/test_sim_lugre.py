@@ -273,3 +273,33 @@ def test_the_plant_imports_nothing_of_sim_or_physics():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, cwd=PKG.parent).stdout  # fmt: skip
     assert out.strip() == "[]"
+
+
+def test_dither_feedforward_and_the_controllers_own_gravity():
+    """--dither: while standing, the feedforward carries a square wave of the drawn amplitude
+    per joint at 78.54 rad/s; --no-dither: none. With a planted payload the feedforward is
+    still the description's gravity at the encoder angles (the controller's model lacks the
+    payload) while the torque carries it."""
+    on = simulate_lugre("push-campaign", seed=3, duration=4.0)
+    off = simulate_lugre("push-campaign", seed=3, duration=4.0, dither=False)
+    heavy = simulate_lugre("push-campaign", seed=3, duration=4.0, dither=False, hidden=["payload"])
+    amp = np.asarray(on.meta["sim"]["params"]["dither_amp"])
+    d = on.data["dither"].to_numpy(bool)
+    assert d[-1] and not d[0] and not off.data["dither"].any()
+    wave = on.tau_ffw[d] - off.tau_ffw[d]
+    assert np.allclose(np.abs(wave), amp, rtol=0.02)
+    assert on.meta["dither"]["omega"] == pytest.approx(2 * np.pi / 0.08)
+    # the feedforward of each 4 ms step: the description's gravity at the encoder angles logged
+    # at the end of the step before
+    ctrl = RobotModel.from_spec("irb140").gravity(heavy.q[:-1])
+    assert np.allclose(heavy.tau_ffw[1:], ctrl, atol=1e-9)
+    assert np.median(np.abs(heavy.tau - off.tau)[:, 1]) > 5.0
+
+
+def test_time_stamps_jitter_about_the_250_hz_grid():
+    rec = simulate_lugre("standing", seed=4, duration=8.0)
+    step = np.diff(rec.t)
+    jitter = rec.meta["sim"]["params"]["jitter"]
+    assert np.all(step > 0)
+    assert np.std(step) == pytest.approx(np.sqrt(2) * jitter, rel=0.1)
+    assert np.mean(step) == pytest.approx(0.004, abs=1e-5)
