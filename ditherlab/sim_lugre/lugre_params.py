@@ -14,7 +14,7 @@ where they come from:
 - **Viscous** ``sigma2 = (0.15..0.45) Fs`` [N·m·s/rad] around the notes' ``Fv = 0.3 Fs``.
 - **Bristle stiffness** ``sigma0 = Fs / x_b``, ``x_b`` the presliding displacement scale
   1e-5..1e-4 rad arm side: LuGre moves a joint by ``x_b ln((1 + a) / (1 - a))`` peak to peak
-  under a dither of ``a Fs`` (0.7..0.9), at most about 2e-4 rad, the order of the paper's
+  under a dither of ``a Fs`` (below 0.81), at most about 2e-4 rad, the order of the paper's
   measured vibration (1e-4 arm rad, SIMULATOR-NOTES.md); **bristle damping** ``sigma1 = 2 zeta sqrt(sigma0 J)``, zeta 0.3..1
   (Canudas de Wit, Olsson, Åström, Lischinsky, IEEE TAC 40(3) 1995: sigma1 near critical damping
   of the presliding resonance).
@@ -27,7 +27,9 @@ where they come from:
   ``Ki = Kp wc / (5..10)``, J the joint's motor plus link inertia at the home pose; the integral
   is clamped to 30 % of the rated torque. Gravity feedforward from the controller's model.
 - **Dither**: a square wave at 78.54 rad/s (20 samples a period at 250 Hz) of amplitude
-  0.7..0.9 Fs per joint, the paper's 50-90 % of the band (§III-B).
+  0.5..0.9 Fc per joint: the paper's 50-90 % (§III-B) of the level the joint holds under a
+  vibration. Above Fc a LuGre joint slides under the dither (no band holds a torque between Fc
+  and Fs for long), vibrating far beyond the paper's 1e-4 rad.
 - **Logged torque**: AR(1) current noise of std (0.01..0.04) Fs (the notes' 0.03 Fs) and lag-1
   coefficient 0.3..0.9 at 250 Hz; a current LSB of 2 effort / 2^b, b in {12, 13, 14} (12-14
   bit current measurement over the drive's range); time-stamp jitter of std 20..200 µs.
@@ -146,7 +148,7 @@ def draw_params(robot: RobotModel, rng: np.random.Generator) -> LugreParams:
     return LugreParams(
         fs=fs, fc=fc, vs=vs, sigma0=sigma0, sigma1=sigma1, sigma2=sigma2, jm=jm,
         kp=kp, kd=kd, ki=ki, tau_max=effort.copy(),
-        dither_amp=fs * rng.uniform(0.7, 0.9, n),
+        dither_amp=fc * rng.uniform(0.5, 0.9, n),
         noise_std=fs * rng.uniform(0.01, 0.04, n),
         noise_ar=rng.uniform(0.3, 0.9, n),
         lsb=2 * effort / 2.0 ** rng.integers(12, 15, n),
