@@ -8,29 +8,17 @@ fold), and by BIC with an effective sample size (the number of scored samples ou
 divided by the integrated autocorrelation time of the fitted residual: samples at 250 Hz are
 not independent).
 
-**Decision rule.** Each effect on each joint (once over all joints for a shared effect) is a
-hypothesis test at a stated family-wise error rate. Its statistic is the held-out gain ``G``
-(held-out loss without the effect minus with it, in noise-floor units). Its null comes from
-**surrogates**: the same effect fitted to its own design circularly shifted in time, by up to
-:data:`SURROGATES` lags spread over the recording where the design is least correlated with
-itself. A shift keeps the autocorrelation of both the residual and the driver and breaks only
-their alignment. A surrogate is fitted on all samples (the same search of its nonlinear
-parameter, its parameters free of their signs) and its **fit gain** counted: a driver unrelated
-to the residual gains less on held-out samples than on those it was fitted to, so the
-surrogates' fit gains bound the null of ``G`` from above, and a flexible effect that fits any
-structured residual has large ones. The p-value (:func:`surrogate_p_value`) is the upper tail of
-a normal fitted to the fourth roots of the surrogates' gains (a power of a chi-square is close
-to normal), ``G`` taken as one more draw (Student's t); a ``G`` that a surrogate matches keeps
-at least its rank p-value. Holm's step-down procedure over every effect × joint tried in one
-run (:func:`holm`) holds the chance of naming any effect on any joint where it does not act to
-:data:`ALPHA`.
-
-Two screens come first, and only remove tests (a screened test counts in Holm's family with
-p = 1, so they never raise the error rate): the effect must explain at least ``min_fraction``
-(default 0.05, a relevance floor: what is worth adding to a model) of the joint's held-out
-residual, and lower the held-out loss in at least ``K - 1`` of the ``K`` folds. ΔBIC with an
-effective sample size is reported beside the test. Candidates are ranked by the share of the
-residual (all joints, in noise-floor units) they explain on held-out data.
+**Decision rule.** An effect is suggested on joint j when all four hold: held-out explained
+fraction ``>= min_fraction`` (default 0.05), the held-out loss falls in at least ``K - 1`` of the
+``K`` folds, ``ΔBIC <= -10`` (strong evidence on the Kass–Raftery scale), and the effect beats
+its surrogates: fitted and scored the same way (same folds, same search of its nonlinear
+parameter) to its own design circularly shifted in time — the lags where the design is least
+correlated with itself, so the shifted driver carries no information about the residual — its
+held-out gain is at least :data:`SURROGATE_RATIO` times the best surrogate's. A flexible effect
+that fits any structured residual (a ripple whose period is searched, a drift) explains as much
+with a shifted driver and is not suggested. Shared-parameter effects (``payload``,
+``ft_bias``) are tested once over all joints. Candidates are ranked by the share of the residual
+(all joints, in noise-floor units) they explain on held-out data.
 
 """
 
@@ -42,7 +30,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.stats import t as student_t
 
 from ditherlab.core.errors import ModelError
 from ditherlab.data.recording import Recording
@@ -60,35 +47,30 @@ from ditherlab.physics.effects import (
 from ditherlab.physics.residual import Scored, scored
 
 __all__ = [
-    "ALPHA",
+    "BIC_THRESHOLD",
     "MIN_FRACTION",
-    "SURROGATES",
+    "SURROGATE_RATIO",
     "ACTS_SNR",
     "Candidate",
     "acting_joints",
     "JointScore",
     "candidates",
-    "holm",
     "select_joints",
-    "surrogate_p_value",
 ]
 
 MIN_FRACTION = 0.05
-#: family-wise error rate of one diagnosis: the chance of naming any effect on any joint where
-#: it does not act, over every effect × joint tried (Holm's step-down procedure)
-ALPHA = 0.01
-#: surrogates per candidate joint (lags of the design, each fitted and scored like the effect)
-SURROGATES = 19
-#: surrogate counts after which the test may stop early, its p-value already small enough
-CHECKS = (5, 10)
+BIC_THRESHOLD = -10.0
+#: an effect's held-out gain must be at least this times its best surrogate's
+SURROGATE_RATIO = 2.0
+#: surrogates per candidate joint (lags of the design, each fitted like the effect)
+SURROGATES = 3
 #: relative difference of held-out losses below which a fold is a tie (rounding), not better
 TIE = 1e-9
 
 
 @dataclass
 class JointScore:
-    """Held-out evidence and the surrogate test for one effect on one joint (or the shared fit,
-    joint=None)."""
+    """Held-out and BIC evidence for one effect on one joint (or the shared fit, joint=None)."""
 
     joint: int | None
     loss0: float  # baseline held-out loss [floor units]
@@ -98,16 +80,8 @@ class JointScore:
     delta_bic: float
     n_eff: float
     fit: FitResult
-    #: fitted parameters (the design's acting columns and the searched ones)
-    k_par: int = 1
-    #: integrated autocorrelation time of the fitted residual [samples]
-    tau: float = 1.0
-    #: fit gains of the surrogates scored (None: not tested, a screen failed)
-    surrogates: list[float] | None = None
-    #: the surrogate test's p-value (1: not tested)
-    p_value: float = 1.0
-    #: rejected by Holm's procedure over the diagnosis's family of tests
-    significant: bool = False
+    #: held-out gain of the best surrogate (None: not computed, the other criteria failed)
+    surrogate: float | None = None
 
     @property
     def gain(self) -> float:
@@ -118,25 +92,24 @@ class JointScore:
         return self.gain / self.loss0 if self.loss0 > 0 else 0.0
 
     @property
-    def surrogate(self) -> float | None:
-        """The best surrogate's fit gain (None: not tested)."""
-        return max(self.surrogates) if self.surrogates else None
-
-    @property
-    def surrogate_share(self) -> float | None:
-        """The best surrogate's fit gain as a share of the effect's held-out gain (None: not
-        tested)."""
+    def surrogate_fraction(self) -> float | None:
+        """The best surrogate's held-out explained fraction (None: not computed)."""
         if self.surrogate is None:
             return None
-        return self.surrogate / self.gain if self.gain > 0 else 1.0
+        return self.surrogate / self.loss0 if self.loss0 > 0 else 0.0
 
     def passes(self, min_fraction: float) -> bool:
-        """Both screens, and the surrogate test rejected within the diagnosis's family."""
-        return self.evidence(min_fraction) and self.significant
+        return self.evidence(min_fraction) and (
+            self.surrogate is None or self.gain >= SURROGATE_RATIO * self.surrogate
+        )
 
     def evidence(self, min_fraction: float) -> bool:
-        """The two screens: the relevance floor and the folds (the test runs only after them)."""
-        return self.fraction >= min_fraction and self.folds_better >= self.folds - 1
+        """The held-out, fold and BIC criteria (the surrogates are tested only after these)."""
+        return (
+            self.fraction >= min_fraction
+            and self.folds_better >= self.folds - 1
+            and self.delta_bic <= BIC_THRESHOLD
+        )
 
 
 @dataclass
@@ -170,12 +143,11 @@ class Candidate:
                     "folds": s.folds,
                     "delta_bic": round(float(s.delta_bic), 3),
                     "n_eff": round(float(s.n_eff), 1),
-                    "surrogate_share": (
-                        None if s.surrogate_share is None else round(float(s.surrogate_share), 6)
+                    "surrogate_fraction": (
+                        None
+                        if s.surrogate_fraction is None
+                        else round(float(s.surrogate_fraction), 6)
                     ),
-                    "surrogates": None if s.surrogates is None else len(s.surrogates),
-                    "p_value": float(f"{s.p_value:.3g}"),
-                    "significant": s.significant,
                 }
                 for s in self.scores
             ],
@@ -194,10 +166,7 @@ class Candidate:
             + ("s " if len(self.joints) > 1 else " ")
             + ", ".join(map(str, self.joints))
         )
-        p = max((s.p_value for s in self.scores if s.significant), default=None)
-        verdict = "not suggested"
-        if self.suggested:
-            verdict = "suggested" + ("" if p is None else f", p ≤ {p:.2g} per joint")
+        verdict = "suggested" if self.suggested else "not suggested"
         if self.not_identifiable:
             verdict = (
                 "not identifiable on these recordings: " + self.not_identifiable.split(": ", 1)[-1]
@@ -264,55 +233,16 @@ def _score(
 ) -> JointScore:
     """Held-out and BIC evidence of effect e on joint j (None: shared fit over all joints);
     ``lags`` (one per recording): of the surrogate whose design is shifted by that much."""
-    pb = _problem(e, scs, j, K, guard_s, lags)
-    allowed = _shortlist(pb) if j is not None and len(pb.grid) > 1 else None
-    grid_idx = sorted(allowed) if allowed is not None else list(range(len(pb.grid)))
-    return _joint_score(pb, _search(pb, grid_idx, allowed))
-
-
-def _problem(
-    e: Effect,
-    scs: Sequence[Scored],
-    j: int | None,
-    K: int,
-    guard_s: float,
-    lags: Sequence[int] | None,
-) -> _Scoring:
-    """The scoring problem of effect e on joint j (the guard in samples, the grid, the
-    reference), its design shifted by ``lags`` for a surrogate."""
     sigs = [s.sig for s in scs]
+    ref = e.reference(sigs, j)
     total = sum(s.sig.length for s in scs)
     fs = scs[0].sig.rec.sample_rate
     guard = int(round(guard_s * fs)) if np.isfinite(fs) else 0
-    return _Scoring(e, scs, j, K, guard, total, e.reference(sigs, j), e.grid(sigs, j), lags)
-
-
-def _fit_gain(
-    e: Effect,
-    scs: Sequence[Scored],
-    j: int | None,
-    K: int,
-    guard_s: float,
-    lags: Sequence[int] | None,
-) -> float:
-    """A surrogate's fit gain: the loss of the effect-free model on all samples minus the
-    effect's fitted on all samples to its design shifted by ``lags``, its parameters free of
-    their physical signs (a fit held at 0 on the wrong side would be a point mass no smooth
-    null describes), its nonlinear parameter searched as in the full fit [floor units]. A
-    driver unrelated to the residual gains less on held-out samples than on the samples it was
-    fitted to, so these gains bound the null of the held-out gain from above."""
-    pb = _problem(e, scs, j, K, guard_s, lags)
-    allowed = _shortlist(pb) if j is not None and len(pb.grid) > 1 else None
-    best, L0 = math.inf, None
-    for gi, h in enumerate(pb.grid):
-        if allowed is not None and K not in allowed.get(gi, ()):
-            continue
-        st = pb.stack(h)
-        if L0 is None:
-            L0 = _baseline_loss(st)
-        _, L = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, (0,) * st.C.shape[1])
-        best = min(best, L)
-    return 0.0 if L0 is None else L0 - best
+    grid = e.grid(sigs, j)
+    pb = _Scoring(e, scs, j, K, guard, total, ref, grid, lags)
+    allowed = _shortlist(pb) if j is not None and len(grid) > 1 else None
+    grid_idx = sorted(allowed) if allowed is not None else list(range(len(grid)))
+    return _joint_score(pb, _search(pb, grid_idx, allowed))
 
 
 @dataclass(frozen=True)
@@ -429,89 +359,26 @@ def _joint_score(pb: _Scoring, sr: _Searched) -> JointScore:
     # a fold counts as better only beyond rounding: an effect that changes nothing on a fold
     # (equal losses, summed in another order when the log is read in pieces) is not better there
     better = sum(1 for a, b in zip(test_l0, sr.test_l1, strict=True) if b < a - TIE * abs(a))
-    return JointScore(
-        pb.j, sum(test_l0), sum(sr.test_l1), better, pb.K, dbic, n_eff, full, k_par, tau
-    )
+    return JointScore(pb.j, sum(test_l0), sum(sr.test_l1), better, pb.K, dbic, n_eff, full)
 
 
 def _judged(
-    e: Effect,
-    scs: Sequence[Scored],
-    j: int | None,
-    K: int,
-    guard_s: float,
-    min_fraction: float,
-    p_enough: float = 0.0,
+    e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: float, min_fraction: float
 ) -> JointScore:
-    """:func:`_score`, and where both screens pass, the surrogate test's p-value.
-
-    Surrogates are scored one by one; the test stops at the first that gains as much as the
-    effect (its rank p-value is then at least ``2 / (S + 1)``, far above any level Holm's
-    procedure accepts), and after 5 and 10 surrogates when the p-value is already at most
-    ``p_enough`` (the smallest level Holm's procedure may ask for, ``alpha / m``)."""
+    """:func:`_score`, and where its evidence passes, the best surrogate's gain beside it."""
     s = _score(e, scs, j, K, guard_s)
-    if not s.evidence(min_fraction):
-        return s
-    gains: list[float] = []
-    for lags in _surrogate_lags(e, scs, j, s.fit):
-        gains.append(_fit_gain(e, scs, j, K, guard_s, lags))
-        if gains[-1] >= s.gain:
-            break
-        if len(gains) in CHECKS and surrogate_p_value(s.gain, gains) <= p_enough:
-            break
-    s.surrogates = gains
-    s.p_value = surrogate_p_value(s.gain, gains)
+    if s.evidence(min_fraction):
+        s.surrogate = _surrogate_gain(e, scs, j, K, guard_s, s.fit)
     return s
-
-
-def surrogate_p_value(gain: float, null: Sequence[float]) -> float:
-    """One-sided p-value of a held-out ``gain`` [floor units] against its surrogates' fit
-    gains ``null`` (S,).
-
-    A fit gain is a sum of squares (the residual's projection on the effect's design, a scaled
-    chi-square), and a power of a chi-square is close to normal: the cube root (Wilson and
-    Hilferty) for three or more degrees of freedom; the fourth root, used here, errs on the
-    safe side for one or more (the normal tail of its fourth root does not understate the
-    chi-square's upper tail). The p-value is the upper tail of a normal fitted to the
-    surrogates' fourth roots, ``gain`` taken as one more draw from it: Student's t with
-    ``S - 1`` degrees of freedom at ``(gain^(1/4) - mean) / (sd sqrt(1 + 1/S))``. A gain that a
-    surrogate matches has at least its rank p-value ``(1 + #{g >= gain}) / (1 + S)``. 1 without
-    surrogates or without a gain."""
-    g = np.asarray(null, dtype=float)
-    S = len(g)
-    if S == 0 or gain <= 0:
-        return 1.0
-    rank = (1.0 + float(np.sum(g >= gain))) / (1.0 + S)
-    if S < 2:
-        return rank if rank > 1.0 / (1.0 + S) else 1.0
-    r = np.maximum(g, 0.0) ** 0.25
-    sd = max(float(np.std(r, ddof=1)), 1e-12 * gain**0.25)
-    z = (gain**0.25 - float(r.mean())) / (sd * math.sqrt(1.0 + 1.0 / S))
-    p = float(student_t.sf(z, S - 1))
-    return max(rank, p) if rank > 1.0 / (1.0 + S) else p
-
-
-def holm(p: Sequence[float], alpha: float = ALPHA) -> list[bool]:
-    """Holm's step-down procedure: which of the hypotheses with p-values ``p`` (m,) are
-    rejected at family-wise error rate ``alpha``."""
-    order = np.argsort(np.asarray(p, dtype=float), kind="stable")
-    m = len(order)
-    out = [False] * m
-    for i, k in enumerate(order):
-        if p[k] > alpha / (m - i):
-            break
-        out[int(k)] = True
-    return out
 
 
 def _surrogate_lags(
     e: Effect, scs: Sequence[Scored], j: int | None, fit: FitResult
 ) -> list[list[int]]:
-    """:data:`SURROGATES` lag vectors (one lag per recording, samples): the span from 15 % to
-    85 % of each recording cut into :data:`SURROGATES` equal windows, and in each the lag at
-    which the effect's fitted design is least correlated with itself (circular
-    autocorrelation of its mean-removed, unit-norm columns over the scored samples, summed in
-    absolute value)."""
+    """:data:`SURROGATES` lag vectors (one lag per recording, samples) at which the effect's
+    fitted design is least correlated with itself (circular autocorrelation of its
+    mean-removed, unit-norm columns over the scored samples, summed in absolute value), between
+    15 % and 85 % of each recording and at least 10 % of it apart."""
     per_rec: list[list[int]] = []
     for s in scs:
         d = design_at(e, s.sig, j, fit.h, fit.ref)
@@ -522,34 +389,41 @@ def _surrogate_lags(
         X = np.where(use[:, None], X - X[use].mean(axis=0) if use.any() else X, 0.0)
         nrm = np.linalg.norm(X, axis=0)
         X = X[:, nrm > 0] / nrm[nrm > 0]
-        edges = np.linspace(0.15 * N, 0.85 * N, SURROGATES + 1).astype(int)
-        if X.shape[1] == 0 or edges[-1] - edges[0] < SURROGATES:
-            per_rec.append([int(m) for m in (edges[:-1] + edges[1:]) // 2])
+        lo, hi, gap = int(0.15 * N), int(0.85 * N), max(int(0.1 * N), 1)
+        if X.shape[1] == 0 or hi <= lo:
+            per_rec.append([int(N * f) for f in np.linspace(0.3, 0.7, SURROGATES)])
             continue
         F = np.fft.rfft(X, axis=0)
         acf = np.abs(np.fft.irfft(np.abs(F) ** 2, n=N, axis=0)).sum(axis=1)
-        per_rec.append(
-            [
-                int(lo + np.argmin(acf[lo:hi]))
-                for lo, hi in zip(edges[:-1], edges[1:], strict=True)
-                if hi > lo
-            ]
-        )
+        cand = np.arange(lo, hi)
+        score = acf[cand]
+        picked: list[int] = []
+        for _ in range(SURROGATES):
+            ok = np.ones(len(cand), dtype=bool)
+            for p in picked:
+                ok &= np.abs(cand - p) >= gap
+            if not ok.any():
+                break
+            picked.append(int(cand[ok][np.argmin(score[ok])]))
+        per_rec.append(picked)
     k = min(len(p) for p in per_rec)
     return [[p[i] for p in per_rec] for i in range(k)]
+
+
+def _surrogate_gain(
+    e: Effect, scs: Sequence[Scored], j: int | None, K: int, guard_s: float, fit: FitResult
+) -> float:
+    """The largest held-out gain of the effect fitted to its own shifted design."""
+    return max(
+        (_score(e, scs, j, K, guard_s, lags).gain for lags in _surrogate_lags(e, scs, j, fit)),
+        default=0.0,
+    )
 
 
 def _loss(st: Stack, m: np.ndarray, w: np.ndarray) -> float:
     """Band-aware loss of the stacked samples ``m`` for the full parameter vector w."""
     x = st.e[m] - st.o[m] - st.C[m] @ w
     return float(np.sum((np.maximum(np.abs(x) - st.h[m] - st.W[m] @ w, 0) / st.s[m]) ** 2))
-
-
-def _baseline_loss(st: Stack) -> float:
-    """The effect-free model's (intercepts only) loss on all samples [floor units]."""
-    Cn, Wn = st.C[:, st.k :], st.W[:, st.k :]
-    zero = np.zeros(len(st.e))
-    return solve_signed(st.e, st.h, st.s, Cn, Wn, zero, (0,) * Cn.shape[1])[1]
 
 
 def _baseline(st: Stack, folds: list) -> tuple[list[float], float, np.ndarray]:
@@ -583,45 +457,35 @@ def _baseline_total(scs: Sequence[Scored], n: int, K: int, guard_s: float) -> fl
     return out
 
 
-def _scores(
-    e: Effect,
-    scs: Sequence[Scored],
-    n: int,
-    K: int,
-    guard_s: float,
-    min_fraction: float,
-    p_enough: float,
-) -> list[JointScore]:
-    """The judged scores of effect ``e``: one over all joints for a shared effect, else one
-    per joint of ``n``."""
-    if e.shared:
-        return [_judged(e, scs, None, K, guard_s, min_fraction, p_enough)]
-    return [_judged(e, scs, j, K, guard_s, min_fraction, p_enough) for j in range(n)]
-
-
-def _candidate(
+def _evaluate(
     model: TorqueModel,
     scs: Sequence[Scored],
     name: str,
-    scores: list[JointScore],
-    total_loss: float,
+    K: int,
+    guard_s: float,
     min_fraction: float,
+    total_loss: float,
 ) -> Candidate:
-    """The candidate of effect ``name`` from its judged scores (Holm's verdicts set): the
-    joints where its own test is rejected, its share of the whole held-out residual."""
     e = get_effect(name)
     if e.shared:
-        s = scores[0]
+        s = _judged(e, scs, None, K, guard_s, min_fraction)
         ok = s.passes(min_fraction)
         # the shared fit covers every joint: its own held-out baseline is the whole residual
-        why = not_identifiable(e, scs, None, s.fit) if ok else None
-        joints = list(range(1, model.n + 1)) if ok else []
+        frac = s.fraction
         spec = make_spec(e, {-1: s.fit})
+        why = not_identifiable(e, scs, None, s.fit) if ok else None
         return Candidate(
-            name, joints, s.fraction, ok and why is None, scores, spec.params, not_identifiable=why
+            name,
+            list(range(1, model.n + 1)) if ok else [],
+            frac,
+            ok and why is None,
+            [s],
+            spec.params,
+            not_identifiable=why,
         )
-    # joints by each joint's own test; the candidate by its share of the whole residual (the
-    # >= min_fraction rule holds for what is suggested, not only per joint)
+    scores = [_judged(e, scs, j, K, guard_s, min_fraction) for j in range(model.n)]
+    # joints by each joint's own held-out evidence; the candidate by its share of the whole
+    # residual (the >= min_fraction rule holds for what is suggested, not only per joint)
     sel = [s for s in scores if s.passes(min_fraction)]
     gain = sum(s.gain for s in sel) if sel else max((s.gain for s in scores), default=0.0)
     frac = gain / total_loss if total_loss > 0 else 0.0
@@ -666,7 +530,6 @@ def candidates(
     scored_recs: Sequence[Scored] | None = None,
     max_samples: int = 4000,
     progress: Callable[[int, int], None] | None = None,
-    alpha: float = ALPHA,
 ) -> tuple[list[Candidate], dict[str, str]]:
     """Fit and score every library effect not yet in the model; best first.
 
@@ -678,7 +541,6 @@ def candidates(
     folds : number of time-blocked folds K
     guard : [s] removed from the training side of every fold boundary
     min_fraction : smallest held-out explained fraction that may be suggested
-    alpha : family-wise error rate of the surrogate tests over every effect × joint tried
     max_samples : longer recordings are scored on every k-th sample (k = ceil(N / max_samples))
 
     Returns
@@ -697,22 +559,15 @@ def candidates(
     for n in names:
         get_effect(n)
     total = _baseline_total(scs, model.n, folds, guard)
-    m = sum(1 if get_effect(n).shared else model.n for n in names)  # the family's size at most
-    judged: list[tuple[str, list[JointScore]]] = []
-    skipped: dict[str, str] = {}
+    out, skipped = [], {}
     for i, n in enumerate(names):
         why = _applicable(n, scs)
         if why is not None:
             skipped[n] = why
         else:
-            e = get_effect(n)
-            judged.append((n, _scores(e, scs, model.n, folds, guard, min_fraction, alpha / m)))
+            out.append(_evaluate(model, scs, n, folds, guard, min_fraction, total))
         if progress is not None:
             progress(i + 1, len(names))
-    tests = [s for _, ss in judged for s in ss]
-    for s, ok in zip(tests, holm([s.p_value for s in tests], alpha), strict=True):
-        s.significant = ok
-    out = [_candidate(model, scs, n, ss, total, min_fraction) for n, ss in judged]
     out.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
     return out, skipped
 

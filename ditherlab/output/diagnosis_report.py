@@ -227,15 +227,14 @@ def _candidates_section(d: Diagnosis, figs: list[Candidate]) -> list[str]:
     md = [
         "## Candidate effects (held-out explained fraction, best first)",
         "",
-        "| effect | joints | explained | suggested | p (best joint) | ΔBIC (best joint) |",
-        "|---|---|---|---|---|---|",
+        "| effect | joints | explained | suggested | ΔBIC (best joint) |",
+        "|---|---|---|---|---|",
     ]
     for c in d.candidates:
         bic = min((s.delta_bic for s in c.scores), default=float("nan"))
-        p = min((s.p_value for s in c.scores), default=1.0)
         md.append(
             f"| {c.effect} | {', '.join(map(str, c.joints))} | {100 * c.explained_fraction:.1f} % | "
-            f"{'yes' if c.suggested else 'no'} | {p:.2g} | {bic:.1f} |"
+            f"{'yes' if c.suggested else 'no'} | {bic:.1f} |"
         )
     md.append("")
     for c in figs:
