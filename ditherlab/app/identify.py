@@ -35,7 +35,13 @@ from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.physics.dither import has_dither
-from ditherlab.physics.effect_fit import fit_effect, not_identifiable, pool_weak_joints, pooled_note
+from ditherlab.physics.effect_fit import (
+    fit_effect,
+    not_identifiable,
+    out_of_range,
+    pool_weak_joints,
+    pooled_note,
+)
 from ditherlab.physics.effects import clean_none, get_effect, make_spec, signals
 from ditherlab.physics.residual import scored
 
@@ -333,10 +339,11 @@ def add_effect(
         why = not_identifiable(e, sc, None if j == -1 else j, f)
         if why is not None:
             raise ModelError(why)
-    spec = clean_none(make_spec(e, fits))
-    why = e.outside_range(spec.params, [x.sig for x in sc]) if e.shared else None
-    if why is not None:
+    bad = out_of_range(e, sc, fits)
+    if bad:
+        why = "; ".join(b.text() for b in bad.values())
         raise ModelError(f"identify --add {effect}: {why}; the model is not written")
+    spec = clean_none(make_spec(e, fits))
     if weak:  # the model file says which joints took the shared values
         spec.params["pooled"] = [1.0 if j - 1 in weak else 0.0 for j in spec.joints]
     new = base.copy()

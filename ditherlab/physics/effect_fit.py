@@ -21,7 +21,8 @@ from scipy.optimize import minimize_scalar
 from ditherlab.core.linalg import spd_solve
 from ditherlab.core.names import MOVING
 from ditherlab.core.timeseries import tmm
-from ditherlab.physics.effects import Effect, FitResult, design_at
+from ditherlab.physics.effects import Effect, FitResult, design_at, make_spec
+from ditherlab.physics.effects.ranges import OutOfRange
 from ditherlab.physics.residual import Scored
 
 __all__ = [
@@ -31,6 +32,7 @@ __all__ = [
     "identifiability",
     "linear_stderr",
     "not_identifiable",
+    "out_of_range",
     "pool_weak_joints",
     "pooled_lines",
     "pooled_note",
@@ -573,6 +575,24 @@ def not_identifiable(e: Effect, sc: Sequence[Scored], j: int | None, fit: FitRes
     )
 
 
+def out_of_range(
+    e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]
+) -> dict[int, OutOfRange]:
+    """The fits of ``e`` (0-based joint -> :class:`FitResult`; -1 for a shared effect) with a
+    value outside its physical range (:meth:`Effect.outside_range` on these scored
+    recordings), by joint: the one rule behind ``identify --add`` (which refuses them) and
+    diagnosis (which does not suggest the effect there and lists them)."""
+    sigs = [s.sig for s in sc]
+    out = {}
+    for j, f in fits.items():
+        spec = make_spec(e, {j: f})
+        p = spec.params if e.shared else {k: v[0] for k, v in spec.params.items()}
+        why = e.outside_range(p, sigs, None if j < 0 else j)
+        if why is not None:
+            out[j] = why
+    return out
+
+
 #: block length for the standard errors of :func:`linear_stderr` [s]: the residual of one push
 #: (0.5-2 s) and its extraction's lag are correlated; blocks of 2 s hold one each (identify's
 #: bootstrap uses the same length)
@@ -635,19 +655,20 @@ def linear_stderr(
 def _weak_reason(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> str | None:
     """Why a per-joint fit of ``e`` rests on too little evidence (``e.evidence_rules``), or
     None: a linear parameter whose standard error (:func:`linear_stderr`) exceeds its
-    ``stderr_max``, or that lies more than two standard errors outside its physical ``range``."""
+    ``stderr_max``, or that lies outside its physical range (``e.bounds``: a fit there is never
+    written, the joint takes the shared values instead)."""
     rules = e.evidence_rules or {}
     se = linear_stderr(e, sc, j, fit)
+    sigs = [s.sig for s in sc]
+    ranges = {b.param: b.limits(sigs, j) for b in e.bounds}
     for i, name in enumerate(e.linear):
         v, s = float(fit.w[i]), float(se[i])
         top = rules.get("stderr_max", {}).get(name)
         if top is not None and not s <= top:
             return f"{name} {v:.3g} ± {s:.2g} (standard error above {top:g})"
-        lo, hi = rules.get("range", {}).get(name, (-np.inf, np.inf))
-        if v - 2 * s > hi or v + 2 * s < lo:
-            return (
-                f"{name} {v:.3g} ± {s:.2g} (outside {lo:g}..{hi:g} by more than 2 standard errors)"
-            )
+        lo, hi = ranges.get(name, (-np.inf, np.inf))
+        if not lo <= v <= hi:
+            return f"{name} {v:.3g} ± {s:.2g} (outside its physical range {lo:g}..{hi:g})"
     return None
 
 
@@ -657,7 +678,7 @@ def pool_weak_joints(
     """Per-joint fits where the joints with too little evidence take shared parameters.
 
     For an effect with ``evidence_rules`` (``dither_extraction``): a joint whose fit fails them
-    (:func:`_weak_reason`: its own standard error, or a value beyond the physical range) takes
+    (:func:`_weak_reason`: its own standard error, or a value outside the physical range) takes
     the median of each parameter (linear ones and the searched one, e.g. the lag) over the
     joints whose fits pass, or the effect's ``prior`` when none passes. Other effects are
     returned unchanged.
