@@ -3,9 +3,9 @@ inertial parameters as identified base parameters (``dynamics``)."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from collections.abc import Sequence
+
+import numpy as np
 
 from ditherlab.physics.effects.base import Design, Effect, fmt
 from ditherlab.physics.effects.ranges import Bound, effort_scale, payload_limit
