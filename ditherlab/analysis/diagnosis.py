@@ -239,7 +239,7 @@ class Diagnosis:
                 + (f" (best: {best.effect}, {100 * best.explained_fraction:.1f} %)" if best else "")
             )
         for c in self.candidates:
-            if c.not_identifiable and c.explained_fraction >= MIN_FRACTION:
+            if (c.not_identifiable or c.unphysical) and not c.suggested:
                 lines.append("  " + c.text())
         for n, why in self.skipped.items():
             lines.append(f"  skipped {n}: {why}")

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.diagnosis import AXES, Diagnosis, nanmean
-from ditherlab.analysis.scoring import Candidate, JointScore
+from ditherlab.analysis.scoring import Candidate, JointScore, unphysical_text
 from ditherlab.core.errors import FormatError
 from ditherlab.core.files import atomic_path, atomic_write_json, atomic_write_text, plain
 from ditherlab.core.names import MOVING
@@ -237,6 +237,11 @@ def _candidates_section(d: Diagnosis, figs: list[Candidate]) -> list[str]:
             f"{'yes' if c.suggested else 'no'} | {bic:.1f} |"
         )
     md.append("")
+    for c in d.candidates:
+        if c.unphysical:
+            md.append(f"- {c.effect}{unphysical_text(c.unphysical)}")
+    if any(c.unphysical for c in d.candidates):
+        md.append("")
     for c in figs:
         md += [f"### {c.effect}", "", c.text(), "", f"![{c.effect}]({c.figure})", ""]
     for n, why in d.skipped.items():
