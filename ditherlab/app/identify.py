@@ -15,9 +15,11 @@ from collections.abc import Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from ditherlab.analysis.delivery import delivery, force_change, promised
 from ditherlab.analysis.identification import identify, summary
 from ditherlab.analysis.rest import (
     RestScan,
@@ -27,7 +29,7 @@ from ditherlab.analysis.rest import (
     quiet_majority,
     scan_rest,
 )
-from ditherlab.analysis.scoring import select_joints
+from ditherlab.analysis.scoring import Candidate, candidates, select_joints
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.errors import ConfigError, ModelError, RecordingError
 from ditherlab.core.files import FileKind
@@ -43,7 +45,7 @@ from ditherlab.physics.effect_fit import (
     pooled_note,
 )
 from ditherlab.physics.effects import clean_none, get_effect, make_spec, signals
-from ditherlab.physics.residual import scored
+from ditherlab.physics.residual import Scored, scored
 
 __all__ = ["MODEL_FILE", "IdentifyOptions", "Identified", "add_effect", "identify_model", "run"]
 
@@ -97,6 +99,9 @@ class Identified:
     model: TorqueModel
     path: Path
     scans: list[RestScan] = field(default_factory=list)
+    #: one line each: what the added effects did that the user must know (a force error that
+    #: grew), also in the model's history rows
+    warnings: list[str] = field(default_factory=list)
 
     def text(self) -> str:
         """The rest scans, the bands per regime and joint, and where the model went (what the
@@ -140,7 +145,9 @@ def run(options: IdentifyOptions, progress: Progress | None = None) -> Identifie
     model.source = None
     note_left_out(model, scans)
     model.save(out)
-    return Identified(model, out, scans)
+    known = len(base.history) if base is not None else 0
+    warnings = [h["warning"] for h in model.history[known:] if h.get("warning")]
+    return Identified(model, out, scans, warnings)
 
 
 def left_out(
@@ -325,13 +332,16 @@ def add_effect(
     base = model.copy()
     base.effects = [s for s in base.effects if s.name != effect]
     sc = [scored(base, r) for r in recs]
+    cand = _candidate(base, recs, effect, sc)
     if e.shared:
         fits = {-1: fit_effect(e, sc, None)}
     else:
-        if joints is None:
+        if joints is not None:
+            js = [int(j) - 1 for j in joints]
+        elif e.on_every_joint:
             js = select_joints(base, recs, effect, scored_recs=sc)
         else:
-            js = [int(j) - 1 for j in joints]
+            js = [j - 1 for j in cand.joints]
         fits = {j: fit_effect(e, sc, j) for j in js}
     # joints with too little evidence take values shared over the others (dither_extraction)
     fits, weak = pool_weak_joints(e, sc, fits) if not e.shared else (fits, {})
@@ -349,11 +359,52 @@ def add_effect(
     new = base.copy()
     new.effects.append(spec)
     new.version = model.version + 1
+    fitted = new
     if refit:
         new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor)
+    new.history = [*new.history, _delivered(base, (fitted, new), cand, sorted(fits), recs, sc)]
     if weak:
         new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
     return new
+
+
+def _candidate(
+    base: TorqueModel, recs: Sequence[Recording], effect: str, sc: Sequence[Scored]
+) -> Candidate:
+    """Diagnosis's evidence for ``effect`` on the model ``base`` (its joints and the held-out
+    share it promises); ModelError when the effect cannot be tried on these recordings."""
+    cands, skipped = candidates(base, recs, effects=[effect], scored_recs=sc)
+    if effect in skipped:
+        raise ModelError(skipped[effect])
+    return cands[0]
+
+
+def _delivered(
+    base: TorqueModel,
+    new: tuple[TorqueModel, TorqueModel],
+    cand: Candidate,
+    fitted: Sequence[int],
+    recs: Sequence[Recording],
+    sc: Sequence[Scored],
+) -> dict[str, Any]:
+    """The history row of an added effect: the model ``new[1]`` (as written; ``new[0]`` with the
+    bands of ``base``) delivers at least half of the held-out share ``cand`` promised on the
+    joints fitted (0-based; -1 shared: all joints), else ModelError saying why; and where the
+    recordings have an F/T sensor, the force error before and after (a ``warning`` line when it
+    grew beyond its sampling uncertainty)."""
+    js = list(range(base.n)) if list(fitted) == [-1] else list(fitted)
+    after = [scored(new[1], r) for r in recs]
+    scs = (sc, [scored(new[0], r) for r in recs], after)
+    d = delivery(cand.effect, promised(cand, None if fitted == [-1] else js), js, scs)
+    if not d.ok:
+        raise ModelError(f"identify --add {cand.effect}: {d.text()}; the model is not written")
+    row: dict[str, Any] = {"version": new[1].version, "added": cand.effect, **d.to_dict()}
+    fc = force_change(base, new[1], sc, after)
+    if fc is not None:
+        row.update(fc.to_dict())
+        if fc.grew:
+            row["warning"] = fc.text(cand.effect)
+    return row
 
 
 def _check_effect_inputs(
