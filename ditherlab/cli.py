@@ -430,7 +430,7 @@ def identify(
     with _progress("identify", quiet) as progress:
         result = cmd.run(opts, progress)
     for line in result.warnings:
-        typer.echo(line, err=True)
+        typer.echo(f"warning: {line}", err=True)
     _show(result)
 
 

@@ -168,7 +168,7 @@ class ForceChange:
             if a in self.grew
         ]
         return (
-            f"warning: adding {effect} makes the force error (estimate - sensor, RMS) grow on "
+            f"adding {effect} makes the force error (estimate - sensor, RMS) grow on "
             + ", ".join(parts)
             + " [N, N·m]: the torque fits better but the force estimate is worse"
         )

@@ -42,6 +42,7 @@ from ditherlab.physics.effect_fit import (
     not_identifiable,
     out_of_range,
     pool_weak_joints,
+    recentre,
     pooled_note,
 )
 from ditherlab.physics.effects import clean_none, get_effect, make_spec, signals
@@ -311,7 +312,9 @@ def add_effect(
         :attr:`~ditherlab.physics.effects.Effect.on_every_joint` every joint where its design acts
         (:func:`ditherlab.analysis.scoring.acting_joints`)
     refit : re-fit the bands and noise with :func:`ditherlab.analysis.identification.identify`
-        afterwards (recordings with an F/T sensor, or without one with ``assume_no_force``)
+        afterwards (recordings with an F/T sensor, or without one with ``assume_no_force``);
+        otherwise the bands and the sliding line move by what the effect's fit moved them
+        (:func:`ditherlab.physics.effect_fit.recentre`)
     assume_no_force : the recordings have no sensor and no external force acts (as stated to
         identify): the re-fit treats the external force as zero
     executor : runs the re-fit's band fits (:func:`ditherlab.analysis.identification.identify`'s
@@ -360,8 +363,10 @@ def add_effect(
     new.effects.append(spec)
     new.version = model.version + 1
     fitted = new
-    if refit:
+    if refit and _can_refit(recs, assume_no_force):
         new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor)
+    else:  # the bands keep their fit: they move by what the effect's fit moved them
+        new = recentre(new, [scored(new, r) for r in recs])
     new.history = [*new.history, _delivered(base, (fitted, new), cand, sorted(fits), recs, sc)]
     if weak:
         new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
@@ -430,6 +435,12 @@ def _check_effect_inputs(
             )
 
 
+def _can_refit(recs: Sequence[Recording], assume_no_force: bool) -> bool:
+    """The bands can be re-identified on these recordings: all have the F/T sensor, or the user
+    stated that no force acts."""
+    return assume_no_force or all(r.has_wrench for r in recs)
+
+
 def _refit(
     recs: Sequence[Recording],
     model: TorqueModel,
@@ -438,10 +449,8 @@ def _refit(
     assume_no_force: bool = False,
     executor: Executor | None = None,
 ) -> TorqueModel:
-    """Re-fit bands and noise with the effects in place (identify), keeping version/history.
-    Without a sensor the bands are re-fitted only when the user stated that no force acts."""
-    if not assume_no_force and not all(r.has_wrench for r in recs):
-        return model
+    """Re-fit bands and noise with the effects in place (identify), keeping version/history
+    (recordings :func:`_can_refit`)."""
     out = identify(
         list(recs),
         base=model,

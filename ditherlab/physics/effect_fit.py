@@ -19,7 +19,8 @@ from numba import njit
 from scipy.optimize import minimize_scalar
 
 from ditherlab.core.linalg import spd_solve
-from ditherlab.core.names import MOVING
+from ditherlab.core.names import MOVING, Regime
+from ditherlab.data.torque_model import TorqueModel
 from ditherlab.core.timeseries import tmm
 from ditherlab.physics.effects import Effect, FitResult, design_at, make_spec
 from ditherlab.physics.effects.ranges import OutOfRange
@@ -33,6 +34,7 @@ __all__ = [
     "linear_stderr",
     "not_identifiable",
     "out_of_range",
+    "recentre",
     "pool_weak_joints",
     "pooled_lines",
     "pooled_note",
@@ -454,6 +456,56 @@ def stack(
     k = C_.shape[1]
     W = np.hstack([W_, np.zeros_like(r.N)])
     return Stack(r.e, r.h, r.s, np.hstack([C_, r.N]), W, o_, r.block, k, r.joint)
+
+
+def recentre(model: TorqueModel, sc: Sequence[Scored]) -> TorqueModel:
+    """A copy of ``model`` with each joint's bands moved and its sliding line changed by what
+    :func:`fit_effect` re-fits beside an effect (the nuisance columns of :func:`stack`: one
+    intercept per regime, ``sign(dq)`` and ``dq`` while moving), fitted to the residuals ``sc``
+    of ``model`` on the recordings (scored under it, its effects in place).
+
+    An effect's fit credits it only with what the bands and the sliding line cannot take; where
+    the bands are not re-identified after adding it (no sensor and no statement that no force
+    acts), they must move by what that fit moved them, or the model applies the effect's mean
+    part on top of bands that already hold it.
+    """
+    out = model.copy()
+    for j in range(model.n):
+        r = stack_rows(sc, j)
+        if not len(r.e) or not r.N.shape[1]:
+            continue
+        free = (0,) * r.N.shape[1]
+        w, _ = solve_signed(r.e, r.h, r.s, r.N, np.zeros_like(r.N), np.zeros(len(r.e)), free)
+        codes = np.unique(np.concatenate([s.sig.regime[s.use[:, j], j] for s in sc]))
+        for c, shift in zip(codes, w, strict=False):
+            band = out.regimes.get(Regime(int(c)).label)
+            if band is not None:
+                band.tau_min[j] += shift
+                band.tau_max[j] += shift
+        _slide(out, sc, j, w[len(codes) :])
+    return out
+
+
+def _slide(model: TorqueModel, sc: Sequence[Scored], j: int, w: np.ndarray) -> None:
+    """Add the fitted ``sign(dq)`` and ``dq`` coefficients ``w`` of joint ``j`` (those of
+    :func:`stack_rows`'s sliding columns that act) to the moving band's Coulomb and viscous."""
+    band = model.regimes.get(Regime.MOVING.label)
+    if band is None or not len(w):
+        return
+    names = [n for n, on in zip(("coulomb", "viscous"), sc[0].sliding, strict=True) if on]
+    acts = []
+    for n in names:
+        col = [
+            (np.sign if n == "coulomb" else np.asarray)(
+                np.where(s.sig.regime[:, j] == MOVING, s.sig.dq[:, j], 0.0)[s.use[:, j]]
+            )
+            for s in sc
+        ]
+        acts.append(bool(np.any(np.concatenate(col) != 0)))
+    for n, v in zip([n for n, a in zip(names, acts, strict=True) if a], w, strict=False):
+        arr = getattr(band, n)
+        if arr is not None:
+            arr[j] += float(v)
 
 
 #: Smallest :func:`identifiability` for which add_effect accepts a fit.
