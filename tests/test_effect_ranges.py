@@ -7,11 +7,10 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import DATA, one_error, run_cli
+
 from ditherlab import read
 from ditherlab.analysis.delivery import DELIVERY_SHARE, Delivery
-from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.effects import EFFECTS, Signals
 
 NO_TORQUE = DATA / "ur10e" / "no_torque.csv"

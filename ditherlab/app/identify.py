@@ -42,8 +42,8 @@ from ditherlab.physics.effect_fit import (
     not_identifiable,
     out_of_range,
     pool_weak_joints,
-    recentre,
     pooled_note,
+    recentre,
 )
 from ditherlab.physics.effects import clean_none, get_effect, make_spec, signals
 from ditherlab.physics.residual import Scored, scored

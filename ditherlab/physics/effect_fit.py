@@ -20,8 +20,8 @@ from scipy.optimize import minimize_scalar
 
 from ditherlab.core.linalg import spd_solve
 from ditherlab.core.names import MOVING, Regime
-from ditherlab.data.torque_model import TorqueModel
 from ditherlab.core.timeseries import tmm
+from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.effects import Effect, FitResult, design_at, make_spec
 from ditherlab.physics.effects.ranges import OutOfRange
 from ditherlab.physics.residual import Scored
