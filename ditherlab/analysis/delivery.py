@@ -8,9 +8,10 @@ both with the noise of the model before (one unit for both), and the share it fe
 effect that lowers it by less than :data:`DELIVERY_SHARE` of its promise is not written.
 
 :func:`force_change` compares the sensorless force estimate's error (estimate minus sensor) of
-the two models per axis where the recordings have an F/T sensor: a growth beyond its own
-sampling uncertainty (the paired difference of the mean squared error over blocks of
-:data:`BLOCK_S` seconds, more than :data:`FORCE_Z` standard errors) is reported.
+the two models per axis where the recordings have an F/T sensor: a growth beyond its sampling
+uncertainty (the paired difference of the mean square over blocks of :data:`BLOCK_S` seconds,
+more than :data:`FORCE_Z` standard errors) and by more than :data:`FORCE_GROWTH` of the RMS is
+reported: a systematic change of a thousandth is no news.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from ditherlab.physics.residual import Scored
 __all__ = [
     "BLOCK_S",
     "DELIVERY_SHARE",
+    "FORCE_GROWTH",
     "FORCE_Z",
     "Delivery",
     "ForceChange",
@@ -45,6 +47,8 @@ DELIVERY_SHARE = 0.5
 BLOCK_S = 2.0
 #: standard errors a force error must grow by to be reported
 FORCE_Z = 2.0
+#: and the share of its RMS [-]
+FORCE_GROWTH = 0.05
 
 
 def promised(cand: Candidate, joints: Sequence[int] | None) -> float:
@@ -150,8 +154,8 @@ def delivery(
 
 @dataclass
 class ForceChange:
-    """The force error RMS per axis [N, N·m] before and after, and the axes where it grew
-    beyond its sampling uncertainty (the paired block difference's standard errors)."""
+    """The force error RMS per axis [N, N·m] before and after, the axes where it grew beyond
+    its sampling uncertainty, and the growth of its mean square in standard errors ``z``."""
 
     before: list[float]
     after: list[float]
@@ -189,9 +193,10 @@ def force_change(
     sa: Sequence[Scored],
 ) -> ForceChange | None:
     """Force error of the sensorless estimate under ``before`` and ``after`` on the recordings
-    with an F/T sensor (scored under each: ``sb``, ``sa``), per axis, and where it grew by more
-    than :data:`FORCE_Z` standard errors of the paired difference of the mean squared error over
-    blocks of :data:`BLOCK_S` seconds; None without a sensor."""
+    with an F/T sensor (scored under each: ``sb``, ``sa``), per axis, and where it grew beyond
+    its sampling uncertainty: the mean square's paired difference by more than :data:`FORCE_Z`
+    standard errors over blocks of :data:`BLOCK_S` seconds, and the RMS by more than
+    :data:`FORCE_GROWTH`; None without a sensor."""
     e2 = [[], []]
     blocks = []
     for b, a in zip(sb, sa, strict=True):
@@ -209,11 +214,15 @@ def force_change(
     _, b = np.unique(blk, return_inverse=True)
     nb = int(b.max()) + 1
     cnt = np.bincount(b, minlength=nb)[:, None]
-    d = np.stack([np.bincount(b, weights=x1[:, c] - x0[:, c], minlength=nb) for c in range(6)], 1)
-    d = d / cnt
-    mean = (x1 - x0).mean(axis=0)
+    dx = x1 - x0
+    d = np.stack([np.bincount(b, weights=dx[:, c], minlength=nb) for c in range(6)], 1) / cnt
+    mean = dx.mean(axis=0)
     se = d.std(axis=0, ddof=1) * np.sqrt(np.sum(cnt**2)) / len(x0) if nb > 1 else np.inf
     z = np.where(se > 0, mean / np.where(se > 0, se, 1.0), np.where(mean > 0, np.inf, 0.0))
-    grew = [a for c, a in enumerate(WRENCH_COLUMNS) if mean[c] > 0 and z[c] > FORCE_Z]
     rms0, rms1 = np.sqrt(x0.mean(axis=0)), np.sqrt(x1.mean(axis=0))
+    grew = [
+        a
+        for c, a in enumerate(WRENCH_COLUMNS)
+        if mean[c] > 0 and z[c] > FORCE_Z and rms1[c] > (1 + FORCE_GROWTH) * rms0[c]
+    ]
     return ForceChange(rms0.tolist(), rms1.tolist(), grew, [float(v) for v in z])

@@ -119,7 +119,7 @@ class AttenuationLag(Effect):
             "gain",
             "-",
             "0 .. 1.1",
-            "the servo shows at most the whole push (the F/T sensor's calibration: ±10 %)",
+            "the servo shows at most the whole push; the F/T sensor's calibration is ±10 %",
             0.0,
             1.1,
         ),
