@@ -403,7 +403,12 @@ def _delivered(
     d = delivery(cand.effect, promised(cand, None if fitted == [-1] else js), js, scs)
     if not d.ok:
         raise ModelError(f"identify --add {cand.effect}: {d.text()}; the model is not written")
-    row: dict[str, Any] = {"version": new[1].version, "added": cand.effect, **d.to_dict()}
+    row: dict[str, Any] = {
+        "version": new[1].version,
+        "effects": [s.name for s in new[1].effects],
+        "added": cand.effect,
+        **d.to_dict(),
+    }
     fc = force_change(base, new[1], sc, after)
     if fc is not None:
         row.update(fc.to_dict())
