@@ -109,10 +109,11 @@ class Inertia(Effect):
         Bound(
             "scale",
             "-",
-            "0.5 .. 2",
-            "a description's link inertias (CAD or datasheet) are right within a factor 2",
-            0.5,
-            2.0,
+            "0.25 .. 4",
+            "a description's link inertias (CAD or datasheet) are right within a factor 4; a "
+            "wrist's small links least so",
+            0.25,
+            4.0,
         ),
         Bound(
             "motor_inertia",
