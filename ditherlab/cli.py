@@ -286,7 +286,8 @@ def simulate(
         str,
         typer.Argument(
             metavar="SCENARIO",
-            help="push-campaign, lead-through or excitation (for identify and diagnose).",
+            help="push-campaign, lead-through or excitation (for identify and diagnose); "
+            "with --plant lugre: excitation, push-campaign or standing (no F/T sensor).",
         ),
     ],
     out: Annotated[str, out_file("Recording: .parquet, .csv, .mcap, or a bag folder")],
@@ -305,7 +306,8 @@ def simulate(
         typer.Option(
             "--hidden",
             metavar="NAME[:SIZE]",
-            help="Inject an effect the base model lacks, repeatable.",
+            help="Inject an effect the base model lacks, repeatable; with --plant lugre "
+            "NAME[:SIZE][@J1,J2] plants it on those joints (default 2,3).",
         ),
     ] = None,
     pushes_per_direction: Annotated[
@@ -330,12 +332,32 @@ def simulate(
     ] = "irb140",
     tool_frame: ToolFrameOpt = None,
     robot_arg: RobotArgOpt = None,
+    plant: Annotated[
+        str,
+        typer.Option(
+            "--plant",
+            metavar="band|lugre",
+            help="band: the built-in plant (stick-slip band); lugre: the second plant (LuGre "
+            "friction, PID servo, coloured noise, drifting F/T sensor), parameters drawn from "
+            "the seed.",
+        ),
+    ] = "band",
+    external_load: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--external-load",
+            metavar="cable|hose|hand",
+            help="A slow load on the tool that the F/T sensor measures (--plant lugre), "
+            "repeatable.",
+        ),
+    ] = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
-    """Simulate the built-in IRB140 to a recording.
+    """Simulate a robot to a recording.
 
-    Gear springs, stick-slip friction, servo and dither, through a scenario.
+    The built-in plant (gear springs, stick-slip friction, servo and dither) or, with --plant
+    lugre, the LuGre plant, through a scenario.
     """
     from ditherlab.app import simulate as cmd
 
@@ -343,7 +365,8 @@ def simulate(
         scenario=scenario, out=out, seed=seed, dither=dither, config=config,
         hidden=tuple(hidden or ()), pushes_per_direction=pushes_per_direction,
         log_temperature=log_temperature, force=force, robot=sim_robot, tool_frame=tool_frame,
-        robot_args=tuple(robot_arg or ()),
+        robot_args=tuple(robot_arg or ()), plant=plant,
+        external_loads=tuple(external_load or ()),
     )  # fmt: skip
     with _progress(f"simulate {scenario}", quiet) as progress:
         _show(cmd.run(opts, progress))

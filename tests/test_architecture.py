@@ -25,6 +25,7 @@ LAYERS: list[str] = [
     "io",  # file formats and vendor mappings -> Recording
     "physics",  # dither, band fits, effects, residual, effect fits
     "sim",  # the built-in simulator
+    "sim_lugre",  # a second plant (LuGre friction), sharing no code with sim or physics
     "analysis",  # identification, estimation, detection, diagnosis, sensitivity
     "output",  # report pages, figures, the Rerun view
     "app",  # the workflows behind the commands
