@@ -107,6 +107,8 @@ def plan(plant: str, n: int, robot: str, master_seed: int = MASTER_SEED) -> list
             joints = sorted(
                 int(j) for j in rng.choice(6, int(rng.integers(1, 3)), replace=False) + 1
             )
+            if plant == "band" and name == "dynamics":
+                joints = joints[:1]  # the built-in plant changes one link
             out.append({"id": len(out), "group": group, "plant": plant, "robot": robot,
                         "seed": seed, "effect": str(name), "size": draw_size(str(name), default, rng),
                         "joints": joints if per_joint else []})  # fmt: skip
