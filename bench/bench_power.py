@@ -85,17 +85,32 @@ def effects_of(plant: str) -> dict[str, tuple[float, bool]]:
     return LUGRE_EFFECTS if plant == "lugre" else BAND_EFFECTS
 
 
-def draw_size(name: str, default: float, rng: np.random.Generator) -> float:
-    """A size of effect ``name`` log-uniform over 0.1..2.5 times its plant's default (for
-    ``drive_gain``, of the default's departure from 1)."""
-    factor = float(np.exp(rng.uniform(np.log(0.1), np.log(2.5))))
+#: per plant and effect: the size in noise floors, on its largest planted joint, of the plant's
+#: default size (``python -m bench.bench_power --calibrate``: one seed at the defaults, median
+#: over the draws); a draw's size is scaled from it so that the largest joint's size is
+#: log-uniform over :data:`FLOOR_RANGE`
+FLOORS_AT_DEFAULT: dict[str, dict[str, float]] = {"band": {}, "lugre": {}}
+#: the span of the largest planted joint's size in noise floors that the draws cover
+FLOOR_RANGE = (0.5, 5.0)
+
+
+def draw_size(plant: str, name: str, default: float, rng: np.random.Generator) -> float:
+    """A size of effect ``name`` whose largest joint's size in noise floors is log-uniform over
+    :data:`FLOOR_RANGE` (scaled from :data:`FLOORS_AT_DEFAULT`, assumed linear in the size; for
+    ``drive_gain``, in the departure from 1), clipped to the plant's largest size."""
+    at_default = FLOORS_AT_DEFAULT[plant].get(name, 1.0)
+    lo, hi = (np.log(f / at_default) for f in FLOOR_RANGE)
+    factor = float(np.exp(rng.uniform(lo, hi)))
     if name == "drive_gain":
         return round(1.0 + (default - 1.0) * factor, 4)
     return round(min(default * factor, MAX_SIZE.get(name, np.inf)), 4)
 
 
-def plan(plant: str, n: int, robot: str, master_seed: int = MASTER_SEED) -> list[dict[str, Any]]:
-    """``n`` draws' settings: groups of one seed with every effect once, in a drawn order."""
+def plan(
+    plant: str, n: int, robot: str, master_seed: int = MASTER_SEED, calibrate: bool = False
+) -> list[dict[str, Any]]:
+    """``n`` draws' settings: groups of one seed with every effect once, in a drawn order
+    (``calibrate``: every effect at its plant's default size)."""
     rng = np.random.default_rng([master_seed, 0 if plant == "band" else 1])
     effects = effects_of(plant)
     out: list[dict[str, Any]] = []
@@ -110,7 +125,7 @@ def plan(plant: str, n: int, robot: str, master_seed: int = MASTER_SEED) -> list
             if plant == "band" and name == "dynamics":
                 joints = joints[:1]  # the built-in plant changes one link
             out.append({"id": len(out), "group": group, "plant": plant, "robot": robot,
-                        "seed": seed, "effect": str(name), "size": draw_size(str(name), default, rng),
+                        "seed": seed, "effect": str(name), "size": default if calibrate else draw_size(plant, str(name), default, rng),
                         "joints": joints if per_joint else []})  # fmt: skip
     return out[:n]
 
@@ -344,11 +359,12 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--seed", type=int, default=MASTER_SEED, help="master seed of every draw")
     ap.add_argument("--out", type=Path, required=True, help="folder for power.csv and the runs")
+    ap.add_argument("--calibrate", action="store_true", help="every effect at its default size")
     ap.add_argument("--only", type=lambda v: {int(x) for x in v.split(",")},
                     help="comma-separated draw ids to run (e.g. 4,6)")  # fmt: skip
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
-    draws = plan(a.plant, max(a.only) + 1 if a.only else a.n, a.robot, a.seed)
+    draws = plan(a.plant, max(a.only) + 1 if a.only else a.n, a.robot, a.seed, a.calibrate)
     draws = [d for d in draws if not a.only or d["id"] in a.only]
     rows, wall = study(draws, a.out, a.jobs)
     write_csv(rows, a.out / "power.csv")
