@@ -7,14 +7,14 @@ simulated and identified once (``identify --add inertia``, on the LuGre plant ``
 on drawn joints in the same seed's recording and ``diagnose --json`` runs on it with the clean
 model. Every setting comes from the master seed (``--seed``).
 
-The **size** of an effect on a joint is the RMS of the torque it adds divided by the joint's
-noise floor:
-
-- LuGre plant: both from the recording's metadata (``meta["sim"]["hidden"][k]["tau_rms"]``, the
-  planted run against the same seed's run without the effect, and ``meta["sim"]["noise_std"]``);
-- built-in plant: the RMS of the logged torque's difference between the planted and the clean
-  recording of the same seed (the noise is the same draw in both), divided by the noise floor
-  that ``diagnose`` reports for the joint (``residual.noise_floor`` of its JSON).
+The **size** of an effect on a joint is the RMS of what it adds to the model's residual, divided
+by the joint's noise floor. What it adds: the planted recording's logged torque minus the clean
+one's (the same seed: the same noise draw), minus ``J(q)^T`` times the change of the F/T reading
+(an effect of the sensor, ``ft_bias`` or ``ft_frame``, changes the reading, not the torque). The
+floor: on the LuGre plant the recording's ``meta["sim"]["noise_std"]``; on the built-in plant
+the noise floor ``diagnose`` reports for the joint (``residual.noise_floor`` of its JSON). On the
+LuGre plant the row also holds the metadata's own ``tau_rms / noise_std`` (``meta_floors``: the
+logged torque only).
 
 Per draw and joint where the effect adds at least a quarter of a floor, a row: the size, whether
 the effect is **suggested on that joint** (``found``), whether it is the **first** suggestion
@@ -74,8 +74,8 @@ LUGRE_EFFECTS: dict[str, tuple[float, bool]] = {
     "dynamics": (0.3, True),
     "joint_offset": (0.02, True),
 }
-#: the largest size each plant accepts, where it has one
-MAX_SIZE = {"joint_offset": 0.1, "attenuation_lag": 0.9}
+#: the largest size drawn: the plant's own limit, and a sensor turned by at most 45°
+MAX_SIZE = {"joint_offset": 0.1, "attenuation_lag": 0.9, "ft_frame": 45.0}
 #: a joint's row is kept when the effect adds at least this many noise floors there
 MIN_FLOORS = 0.25
 
@@ -85,11 +85,28 @@ def effects_of(plant: str) -> dict[str, tuple[float, bool]]:
     return LUGRE_EFFECTS if plant == "lugre" else BAND_EFFECTS
 
 
-#: per plant and effect: the size in noise floors, on its largest planted joint, of the plant's
-#: default size (``python -m bench.bench_power --calibrate``: one seed at the defaults, median
-#: over the draws); a draw's size is scaled from it so that the largest joint's size is
-#: log-uniform over :data:`FLOOR_RANGE`
-FLOORS_AT_DEFAULT: dict[str, dict[str, float]] = {"band": {}, "lugre": {}}
+#: per plant and effect: the size in noise floors (:func:`residual_rms` over the floor) of the
+#: plant's default size on its largest joint, measured on one seed, the IRB140 (built-in plant:
+#: seed 96339, ``--calibrate``, each effect alone; LuGre plant: seed 81991, every effect planted
+#: at its default in one recording, each one's ``tau_rms / noise_std`` from the metadata, the two
+#: sensor effects alone). A draw's size is scaled from it so that the largest joint's size is
+#: log-uniform over :data:`FLOOR_RANGE`.
+FLOORS_AT_DEFAULT: dict[str, dict[str, float]] = {
+    "band": {},
+    "lugre": {
+        "viscous": 2.13,
+        "load_friction": 22.6,
+        "temperature_friction": 13.6,
+        "position_ripple": 2.72,
+        "payload": 28.9,
+        "attenuation_lag": 8.65,
+        "ft_bias": 4.13,
+        "drive_gain": 24.8,
+        "ft_frame": 0.31,
+        "dynamics": 53.6,
+        "joint_offset": 12.0,
+    },
+}
 #: the span of the largest planted joint's size in noise floors that the draws cover
 FLOOR_RANGE = (0.5, 5.0)
 
@@ -193,12 +210,22 @@ class Clean:
         return "identify: " + r.stderr.strip()[-300:]
 
 
-def _tau(path: Path) -> np.ndarray:
-    """(N, 6) [N·m] the logged joint torques of a recording."""
+WRENCH = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
+
+
+def _columns(path: Path) -> dict[str, np.ndarray]:
+    """(N, 6) [rad] ``q``, [N·m] ``tau`` and, where logged, [N, N·m] ``wrench`` of a recording."""
     import pyarrow.parquet as pq
 
-    t = pq.read_table(path, columns=[f"tau_{j}" for j in range(1, 7)])
-    return np.column_stack([t.column(k).to_numpy() for k in t.column_names])
+    t = pq.read_table(path)
+    have = set(t.column_names)
+    out = {
+        k: np.column_stack([t.column(f"{k}_{j}").to_numpy() for j in range(1, 7)])
+        for k in ("q", "tau")
+    }
+    if set(WRENCH) <= have:
+        out["wrench"] = np.column_stack([t.column(c).to_numpy() for c in WRENCH])
+    return out
 
 
 def _meta_sim(path: Path) -> dict[str, Any]:
@@ -207,16 +234,40 @@ def _meta_sim(path: Path) -> dict[str, Any]:
     return json.loads(pq.read_schema(path).metadata[b"ditherlab"])["sim"]
 
 
+def residual_rms(rec: Path, clean: Path, robot: str) -> np.ndarray:
+    """(6,) [N·m] per joint, the RMS of what the effect adds to the model's residual: the logged
+    torque's change minus ``J(q)^T`` times the F/T reading's change (base-frame axes), the
+    planted recording against the clean one of the same seed (the same noise draw)."""
+    a, b = _columns(rec), _columns(clean)
+    m = min(len(a["tau"]), len(b["tau"]))
+    d = a["tau"][:m] - b["tau"][:m]
+    if "wrench" in a and "wrench" in b:
+        dw = a["wrench"][:m] - b["wrench"][:m]
+        if np.abs(dw).max() > 0:
+            from ditherlab.robot import RobotModel
+
+            jac = RobotModel.from_spec(robot).jacobian(b["q"][:m])
+            d = d - np.einsum("tkn,tk->tn", jac, dw)
+    return np.sqrt(np.mean(d**2, axis=0))
+
+
 def sizes(d: dict[str, Any], rec: Path, clean: Path, report: dict) -> tuple[np.ndarray, str]:
-    """(6,) the effect's size per joint in noise floors, and where it comes from."""
+    """(6,) the effect's size per joint in noise floors (:func:`residual_rms` over the floor),
+    and where the floor comes from."""
+    rms = residual_rms(rec, clean, d["robot"])
     if d["plant"] == "lugre":
-        sim = _meta_sim(rec)
-        truth = next(h for h in sim["hidden"] if h["name"] == d["effect"])
-        return np.asarray(truth["tau_rms"]) / np.asarray(sim["noise_std"]), "plant metadata"
-    a, b = _tau(rec), _tau(clean)
-    m = min(len(a), len(b))
-    rms = np.sqrt(np.mean((a[:m] - b[:m]) ** 2, axis=0))
-    return rms / np.asarray(report["residual"]["noise_floor"]), "torque difference / diagnose floor"
+        return rms / np.asarray(_meta_sim(rec)["noise_std"]), "noise_std of the plant's metadata"
+    return rms / np.asarray(report["residual"]["noise_floor"]), "diagnose's noise floor"
+
+
+def metadata_floors(d: dict[str, Any], rec: Path) -> list[float] | None:
+    """LuGre plant: the recording's own ``tau_rms / noise_std`` of the planted effect (the
+    logged torque only, without the F/T reading's change)."""
+    if d["plant"] != "lugre":
+        return None
+    sim = _meta_sim(rec)
+    truth = next(h for h in sim["hidden"] if h["name"] == d["effect"])
+    return [round(float(v), 3) for v in np.asarray(truth["tau_rms"]) / np.asarray(sim["noise_std"])]
 
 
 def _named(c: dict[str, Any], j: int) -> bool:
@@ -273,8 +324,12 @@ def one(d: dict[str, Any], clean: Clean) -> list[dict[str, Any]]:
     report = json.loads(r.stdout)
     (rec.with_suffix(".json")).write_text(r.stdout)
     floors, source = sizes(d, rec, rec_clean, report)
+    meta = metadata_floors(d, rec)
     rec.unlink()  # the recording is regenerated from its settings; its report is kept
-    return rows_of(d, report, floors, source) or [{**fail, "error": "", "joint": ""}]
+    rows = rows_of(d, report, floors, source)
+    for r in rows:
+        r["meta_floors"] = "" if meta is None else meta[r["joint"] - 1]
+    return rows or [{**fail, "error": "", "joint": ""}]
 
 
 def study(draws: list[dict[str, Any]], work: Path, jobs: int = 1) -> tuple[list[dict], float]:
