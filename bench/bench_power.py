@@ -119,8 +119,8 @@ def draw_size(plant: str, name: str, default: float, rng: np.random.Generator) -
     lo, hi = (np.log(f / at_default) for f in FLOOR_RANGE)
     factor = float(np.exp(rng.uniform(lo, hi)))
     if name == "drive_gain":
-        return round(1.0 + (default - 1.0) * factor, 4)
-    return round(min(default * factor, MAX_SIZE.get(name, np.inf)), 4)
+        return round(1.0 + (default - 1.0) * factor, 5)
+    return float(f"{min(default * factor, MAX_SIZE.get(name, np.inf)):.4g}")
 
 
 def plan(
