@@ -58,6 +58,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from itertools import combinations
 from pathlib import Path
 from typing import Any
 
@@ -251,7 +252,7 @@ def one(s: dict[str, Any], work: Path) -> dict[str, Any]:
     # 1.1-1.7 times its Coulomb level Fc), which the base model lacks: its model adds it too.
     known = ["inertia"] + (["stribeck"] if s.get("plant") == "lugre" else [])
     known += ["dither_extraction"] if s["dither"] and not s["no_sensor"] else []
-    sets = [known] + [[e] for e in known if len(known) > 1] + [[]]
+    sets = [list(c) for k in range(len(known), -1, -1) for c in combinations(known, k)]
     for adds in sets:
         flags = [a for e in adds for a in ("--add", e)]
         r = _cli("identify", rec, *flags, "--bootstrap", "0", "-o", model, "-q", *extra)

@@ -36,15 +36,18 @@ PLANT_TEXT = {"band": "built-in plant", "lugre": "LuGre plant"}
 
 
 def read_rows(folders: list[Path], name: str) -> list[dict[str, str]]:
-    """Every row of ``folder/name`` over ``folders`` (a row without a plant: the built-in one)."""
-    rows = []
+    """Every row of ``folder/name`` over ``folders`` (a row without a plant: the built-in one);
+    the rows of a later folder replace an earlier folder's rows of the same plant and id (a
+    rerun of some ids with ``--only``)."""
+    by_key: dict[tuple[str, str], list[dict[str, str]]] = {}
     for folder in folders:
+        mine: dict[tuple[str, str], list[dict[str, str]]] = defaultdict(list)
         with open(folder / name, newline="") as f:
             for r in csv.DictReader(f):
-                r.setdefault("plant", "band")
-                r["plant"] = r["plant"] or "band"
-                rows.append(r)
-    return rows
+                r["plant"] = r.get("plant") or "band"
+                mine[(r["plant"], r["id"])].append(r)
+        by_key.update(mine)
+    return [r for rs in by_key.values() for r in rs]
 
 
 def upper95(k: int, m: int) -> float:
