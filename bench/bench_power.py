@@ -14,7 +14,9 @@ one's (the same seed: the same noise draw), minus ``J(q)^T`` times the change of
 floor: on the LuGre plant the recording's ``meta["sim"]["noise_std"]``; on the built-in plant
 the noise floor ``diagnose`` reports for the joint (``residual.noise_floor`` of its JSON). On the
 LuGre plant the row also holds the metadata's own ``tau_rms / noise_std`` (``meta_floors``: the
-logged torque only).
+logged torque only), and on both what ``diagnose`` sees (``excess_floors``: the growth of the
+joint's residual RMS from the clean recording's report to the planted one's, over the floor;
+the clean recording is diagnosed once per group).
 
 Per draw and joint where the effect adds at least a quarter of a floor, a row: the size, whether
 the effect is **suggested on that joint** (``found``), whether it is the **first** suggestion
@@ -206,8 +208,15 @@ class Clean:
             r = _cli("identify", folder / "clean.parquet", *adds, "--bootstrap", "0",
                      "-o", folder / "model.toml", "-q", "--force")  # fmt: skip
             if r.returncode == 0:
-                return None
-        return "identify: " + r.stderr.strip()[-300:]
+                break
+        if r.returncode != 0:
+            return "identify: " + r.stderr.strip()[-300:]
+        r = _cli("diagnose", folder / "clean.parquet", "--model", folder / "model.toml",
+                 "--json", "--no-history", "-q")  # fmt: skip
+        if r.returncode != 0:
+            return "diagnose clean: " + r.stderr.strip()[-300:]
+        (folder / "clean.json").write_text(r.stdout)
+        return None
 
 
 WRENCH = ("f_x", "f_y", "f_z", "m_x", "m_y", "m_z")
@@ -236,18 +245,21 @@ def _meta_sim(path: Path) -> dict[str, Any]:
 
 def residual_rms(rec: Path, clean: Path, robot: str) -> np.ndarray:
     """(6,) [N·m] per joint, the RMS of what the effect adds to the model's residual: the logged
-    torque's change minus ``J(q)^T`` times the F/T reading's change (base-frame axes), the
-    planted recording against the clean one of the same seed (the same noise draw)."""
+    torque's change minus ``J(q)^T`` times the F/T reading's change (base-frame axes), and minus
+    the change of the gravity torque at the logged angles where they differ by more than 0.1 mrad;
+    the planted recording against the clean one of the same seed (the same noise draw)."""
+    from ditherlab.robot import RobotModel
+
     a, b = _columns(rec), _columns(clean)
     m = min(len(a["tau"]), len(b["tau"]))
     d = a["tau"][:m] - b["tau"][:m]
+    arm = RobotModel.from_spec(robot)
     if "wrench" in a and "wrench" in b:
         dw = a["wrench"][:m] - b["wrench"][:m]
         if np.abs(dw).max() > 0:
-            from ditherlab.robot import RobotModel
-
-            jac = RobotModel.from_spec(robot).jacobian(b["q"][:m])
-            d = d - np.einsum("tkn,tk->tn", jac, dw)
+            d = d - np.einsum("tkn,tk->tn", arm.jacobian(b["q"][:m]), dw)
+    if np.abs(a["q"][:m] - b["q"][:m]).max() > 1e-4:  # a logged angle that is off (encoders)
+        d = d - (arm.gravity(a["q"][:m]) - arm.gravity(b["q"][:m]))
     return np.sqrt(np.mean(d**2, axis=0))
 
 
@@ -268,6 +280,15 @@ def metadata_floors(d: dict[str, Any], rec: Path) -> list[float] | None:
     sim = _meta_sim(rec)
     truth = next(h for h in sim["hidden"] if h["name"] == d["effect"])
     return [round(float(v), 3) for v in np.asarray(truth["tau_rms"]) / np.asarray(sim["noise_std"])]
+
+
+def excess_floors(planted: dict, clean: dict) -> np.ndarray:
+    """(6,) what ``diagnose`` sees of the effect per joint: the growth of its residual's RMS,
+    ``sqrt(max(r_planted² - r_clean², 0))``, over the planted recording's noise floor (both
+    from the reports' ``residual``)."""
+    rp = np.asarray(planted["residual"]["torque_rms"])
+    rc = np.asarray(clean["residual"]["torque_rms"])
+    return np.sqrt(np.maximum(rp**2 - rc**2, 0.0)) / np.asarray(planted["residual"]["noise_floor"])
 
 
 def _named(c: dict[str, Any], j: int) -> bool:
@@ -326,9 +347,11 @@ def one(d: dict[str, Any], clean: Clean) -> list[dict[str, Any]]:
     floors, source = sizes(d, rec, rec_clean, report)
     meta = metadata_floors(d, rec)
     rec.unlink()  # the recording is regenerated from its settings; its report is kept
+    excess = excess_floors(report, json.loads((rec_clean.parent / "clean.json").read_text()))
     rows = rows_of(d, report, floors, source)
     for r in rows:
         r["meta_floors"] = "" if meta is None else meta[r["joint"] - 1]
+        r["excess_floors"] = round(float(excess[r["joint"] - 1]), 3)
     return rows or [{**fail, "error": "", "joint": ""}]
 
 
