@@ -89,12 +89,25 @@ def effects_of(plant: str) -> dict[str, tuple[float, bool]]:
 
 #: per plant and effect: the size in noise floors (:func:`residual_rms` over the floor) of the
 #: plant's default size on its largest joint, measured on one seed, the IRB140 (built-in plant:
-#: seed 96339, ``--calibrate``, each effect alone; LuGre plant: seed 81991, every effect planted
+#: seed 96339, ``--calibrate``, each effect alone, ``dynamics`` on link 5, the sensor effects and
+#: ``joint_offset`` on joints 2 and 3 simulated alone; LuGre plant: seed 81991, every effect planted
 #: at its default in one recording, each one's ``tau_rms / noise_std`` from the metadata, the two
 #: sensor effects alone). A draw's size is scaled from it so that the largest joint's size is
 #: log-uniform over :data:`FLOOR_RANGE`.
 FLOORS_AT_DEFAULT: dict[str, dict[str, float]] = {
-    "band": {},
+    "band": {
+        "load_friction": 44.1,
+        "drive_gain": 2.96,
+        "joint_offset": 12.8,
+        "temperature_friction": 9.28,
+        "position_ripple": 15.0,
+        "payload": 36.2,
+        "attenuation_lag": 10.2,
+        "stribeck": 21.3,
+        "ft_bias": 5.04,
+        "ft_frame": 0.62,
+        "dynamics": 33.1,
+    },
     "lugre": {
         "viscous": 2.13,
         "load_friction": 22.6,
