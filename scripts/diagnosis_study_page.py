@@ -124,7 +124,10 @@ def failures(rows: list[dict[str, str]]) -> list[str]:
             if r["plant"] == "lugre" and r["planted_joints"] != "arm"
             else ""
         )
-        cfg = f" (joints {r['planted_joints']} via the config)" if r["plant"] == "band" else ""
+        cfg = ""
+        if r["plant"] == "band" and r["planted_joints"] != "arm":
+            key = "link" if r["effect"] == "dynamics" else "share"
+            cfg = f" (joints {r['planted_joints']}: `--config` with `[hidden.{r['effect']}]` {key})"
         plant = " --plant lugre" if r["plant"] == "lugre" else ""
         out.append(
             f"- {PLANT_TEXT[r['plant']]}, {r['effect']} size {r['size']}{cfg}, joint {r['joint']} "
@@ -159,7 +162,10 @@ def figure(rows: list[dict[str, str]], path: Path) -> None:
         ax.axvline(2.0, color="0.6", ls="--", lw=1)
         ax.axhline(0.9, color="0.6", ls=":", lw=1)
         ax.set_xscale("log")
-        ax.set_xlabel("effect size on the joint [noise floors] (bin centre)")
+        ax.set_xticks(centres, [_bin_label(k) for k in range(len(centres))], minor=False)
+        ax.set_xticks([], minor=True)
+        ax.set_xlim(0.25, 12.0)
+        ax.set_xlabel("effect size on the joint [noise floors], bins")
         ax.set_title(PLANT_TEXT[plant])
         ax.legend(fontsize=7, ncol=2)
     axes[0][0].set_ylabel("planted joints found")
@@ -174,7 +180,7 @@ def _needs(e) -> str:
     needs = []
     if tuple(e.shows_in) == ("moving",):
         needs.append("motion (it shows only while moving)")
-    if e.kind in ("sensor", "external") or "F/T" in e.driven_by or "J^T F" in e.driven_by:
+    if e.kind in ("sensor", "external"):
         needs.append("an F/T sensor and pushes")
     if e.needs_dither:
         needs.append("dither on, with measured pushes")
@@ -200,7 +206,8 @@ def recordings_section(rows: list[dict[str, str]]) -> list[str]:
         seen = sorted({r["not_identifiable"] for r in rows
                        if r.get("effect") == name and r.get("not_identifiable")})  # fmt: skip
         note = f"{len(seen)} draw(s): {seen[0]}" if seen else ""
-        out.append(f"| `{name}` | {e.driven_by} | {_needs(e)} | {' / '.join(rate)} | {note} |")
+        cells = [f"`{name}`", e.driven_by, _needs(e), " / ".join(rate), note]
+        out.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     out += ["", f"Beyond these, one rule holds for every effect (`not_identifiable`): after the "
             f"bands and the sliding line have taken what they can, the effect's design must keep "
             f"an identifiability of at least {MIN_IDENTIFIABILITY:g}, i.e. its driver must vary "
