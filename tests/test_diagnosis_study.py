@@ -130,5 +130,5 @@ def test_page_counts_are_the_rows(tmp_path):
     cells = [c.strip() for c in row.strip("|").split("|")]
     # bins 0.25-0.5, 0.5-1, 1-2, 2-5, >= 5; then >= 2 found, >= 2 named first
     assert cells[2:] == ["0/1", "0/1", "1/1", "1/2", "1/1", "2/3", "2/3"]
-    assert re.search(r"payload size 1\.0 .*joint 2 at 3\.00 floors.*not suggested", text)
+    assert re.search(r"payload size 1\.0, joint 2 at 3\.00 floors.*not suggested", text)
     assert out.with_suffix(".png").stat().st_size > 1000
