@@ -377,6 +377,7 @@ def study(draws: list[dict[str, Any]], work: Path, jobs: int = 1) -> tuple[list[
         for k, f in enumerate(as_completed(futs), 1):
             got = f.result()
             rows += got
+            write_csv(rows, work / "power.csv")  # the rows so far: a stopped run keeps them
             g = got[0]
             what = g.get("error") or ", ".join(
                 f"j{r['joint']} {r['floors']:.2f} fl {'found' if r['found'] else 'missed'}"
