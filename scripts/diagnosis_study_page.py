@@ -112,6 +112,12 @@ def _joint_rows(rows, plant: str | None = None, effect: str | None = None) -> li
             and (effect is None or r["effect"] == effect)]  # fmt: skip
 
 
+def _excess(r: dict[str, str]) -> str:
+    """What diagnose saw of the effect on the row's joint, where the run recorded it."""
+    v = r.get("excess_floors")
+    return f" (its residual grew by {float(v):.2f} floors)" if v not in (None, "") else ""
+
+
 def failures(rows: list[dict[str, str]]) -> list[str]:
     """Every joint at ≥ 2 floors where the effect was missed or not named first, reproducible."""
     out = []
@@ -131,7 +137,8 @@ def failures(rows: list[dict[str, str]]) -> list[str]:
         plant = " --plant lugre" if r["plant"] == "lugre" else ""
         out.append(
             f"- {PLANT_TEXT[r['plant']]}, {r['effect']} size {r['size']}{cfg}, joint {r['joint']} "
-            f"at {float(r['floors']):.2f} floors, p = {r['p_value'] or '–'}: {why}; suggested: "
+            f"at {float(r['floors']):.2f} floors{_excess(r)}, p = {r['p_value'] or '–'}: {why}; "
+            "suggested: "
             f"{r['suggested'] or 'nothing'}. `ditherlab simulate excitation{plant} --robot "
             f"{r['robot']} --seed {r['seed']} --no-dither --hidden {r['effect']}:{r['size']}{at}` "
             f"(draw {r['id']}{'' if not r['not_identifiable'] else '; ' + r['not_identifiable']})"
@@ -249,7 +256,15 @@ def page(fd: list[dict[str, str]], power: list[dict[str, str]], fig_name: str) -
         "clean model. Size on a joint: the RMS of the torque the effect adds over the joint's "
         "noise floor (LuGre plant: both from the recording's metadata; built-in plant: the "
         "planted minus the clean recording of the same seed, over `diagnose`'s noise floor). "
-        "A cell is *found / planted joints*: the effect suggested on that joint.",
+        "A cell is *found / planted joints*: the effect suggested on that joint. On the built-in "
+        "plant the torque difference holds the servo's answer to the changed motion too; the "
+        "growth of the joint's residual from the clean report to the planted one (in the misses "
+        "below) is what `diagnose` had to work with.",
+        "",
+        "The clean models hold what each plant always has and the base model lacks: `inertia` "
+        "(both), and on the LuGre plant `stribeck` (its friction law has a static level 1.1-1.7 "
+        "times the Coulomb level); these are not planted. The LuGre plant has no family of "
+        "logged but inert temperatures (it logs `temp_j` only with a warming friction planted).",
         "",
         *power_section(power),
         "",
