@@ -367,16 +367,26 @@ def main() -> None:
     if a.only:
         ids = a.only
         specs = [s for s in plan_of(a.plant)(max(ids) + 1) if s["id"] in ids]
-        rows = [one(s, a.out) for s in specs]
+        rows = []
+        for s in specs:  # one at a time, the rows so far written after each
+            rows.append(one(s, a.out))
+            r = rows[-1]
+            print(f"  r{r['id']:03d} {r['family']}: {r.get('suggested') or r.get('error') or '-'}",
+                  file=sys.stderr, flush=True)  # fmt: skip
+            _write(rows, a.out / "study.csv")
     else:
         rows, wall = study(a.n, a.out, a.workers, plant=a.plant)
         print(f"wall time {wall:.0f} s", file=sys.stderr)
+    _write(rows, a.out / "study.csv")
+    print(json.dumps(summary(rows)))
+
+
+def _write(rows: list[dict[str, Any]], path: Path) -> None:
     keys = list(dict.fromkeys(k for r in rows for k in r))  # every column, first-seen order
-    with open(a.out / "study.csv", "w", newline="") as f:
+    with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, keys)
         w.writeheader()
         w.writerows(rows)
-    print(json.dumps(summary(rows)))
 
 
 if __name__ == "__main__":
