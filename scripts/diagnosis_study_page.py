@@ -81,6 +81,11 @@ def fd_section(rows: list[dict[str, str]]) -> list[str]:
         out.append(
             f"| {PLANT_TEXT[plant]} | {m} | {k} | {100 * upper95(k, m):.1f} % | ≤ 1 in 100 |"
         )
+    errors = [r for r in rows if r.get("error")]
+    if errors:
+        out += ["", "Recordings that did not run to a diagnosis:", ""]
+        out += [f"- {PLANT_TEXT[r['plant']]} r{int(r['id']):03d} {r['family']} "
+                f"{r.get('robot') or 'irb140'} seed {r['seed']}: {r['error']}" for r in errors]  # fmt: skip
     return out
 
 
@@ -100,9 +105,17 @@ def power_section(rows: list[dict[str, str]]) -> list[str]:
         found = sum(r["found"] == "True" for r in big)
         first = sum(r["found_first"] == "True" for r in big)
         text = " | ".join(f"{f}/{m}" if m else "–" for f, m in cell)
-        rate = f"{found}/{len(big)}" if big else "–"
-        out.append(f"| {PLANT_TEXT[plant]} | {effect} | {text} | {rate} | "
-                   f"{first}/{len(big) if big else 0} |")  # fmt: skip
+        rate, first_rate = (f"{found}/{len(big)}", f"{first}/{len(big)}") if big else ("–", "–")
+        out.append(f"| {PLANT_TEXT[plant]} | {effect} | {text} | {rate} | {first_rate} |")
+    out += ["", "| plant | draws | joints at ≥ 2 floors | found | named first | target |",
+            "|---|---:|---:|---:|---:|---|"]  # fmt: skip
+    for plant in sorted({r["plant"] for r in rows}):
+        big = [r for r in _joint_rows(rows, plant) if float(r["floors"]) >= 2.0]
+        n = len({r["id"] for r in rows if r["plant"] == plant})
+        found = sum(r["found"] == "True" for r in big)
+        first = sum(r["found_first"] == "True" for r in big)
+        out.append(f"| {PLANT_TEXT[plant]} | {n} | {len(big)} | {found} | {first} | "
+                   "≥ 90 % per effect and joint |")  # fmt: skip
     return out
 
 
@@ -253,9 +266,11 @@ def page(fd: list[dict[str, str]], power: list[dict[str, str]], fig_name: str) -
         "",
         "Each draw plants one effect, with a drawn size on drawn joints, in the recording of a "
         "seed whose clean recording was identified; `diagnose` runs on the planted one with the "
-        "clean model. Size on a joint: the RMS of the torque the effect adds over the joint's "
-        "noise floor (LuGre plant: both from the recording's metadata; built-in plant: the "
-        "planted minus the clean recording of the same seed, over `diagnose`'s noise floor). "
+        "clean model. Size on a joint: the RMS of what the effect adds to the model's residual "
+        "(the planted recording's logged torque minus the clean one's of the same seed, less "
+        "`J(q)^T` times the F/T reading's change and the gravity torque's change where the logged "
+        'angles differ) over the joint\'s noise floor (LuGre plant: `meta["sim"]["noise_std"]`;'
+        " built-in plant: the floor in `diagnose`'s report). "
         "A cell is *found / planted joints*: the effect suggested on that joint. On the built-in "
         "plant the torque difference holds the servo's answer to the changed motion too; the "
         "growth of the joint's residual from the clean report to the planted one (in the misses "
