@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import re
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -85,8 +86,14 @@ def fd_section(rows: list[dict[str, str]]) -> list[str]:
     if errors:
         out += ["", "Recordings that did not run to a diagnosis:", ""]
         out += [f"- {PLANT_TEXT[r['plant']]} r{int(r['id']):03d} {r['family']} "
-                f"{r.get('robot') or 'irb140'} seed {r['seed']}: {r['error']}" for r in errors]  # fmt: skip
+                f"{r.get('robot') or 'irb140'} seed {r['seed']}: {_local(r['error'])}" for r in errors]  # fmt: skip
     return out
+
+
+def _local(text: str) -> str:
+    """An error message with the run's folders left out (``/tmp/x/r006/model.toml`` ->
+    ``r006/model.toml``)."""
+    return re.sub(r"/\S*/([rdg]\d{3}/)", r"\1", text)
 
 
 def _bin_label(k: int) -> str:
