@@ -114,15 +114,15 @@ def power_section(rows: list[dict[str, str]]) -> list[str]:
         text = " | ".join(f"{f}/{m}" if m else "–" for f, m in cell)
         rate, first_rate = (f"{found}/{len(big)}", f"{first}/{len(big)}") if big else ("–", "–")
         out.append(f"| {PLANT_TEXT[plant]} | {effect} | {text} | {rate} | {first_rate} |")
-    out += ["", "| plant | draws | joints at ≥ 2 floors | found | named first | target |",
-            "|---|---:|---:|---:|---:|---|"]  # fmt: skip
+    out += ["", "| plant | draws | size measured as | joints at ≥ 2 floors | found | named first |",
+            "|---|---:|---|---:|---:|---:|"]  # fmt: skip
     for plant in sorted({r["plant"] for r in rows}):
-        big = [r for r in _joint_rows(rows, plant) if float(r["floors"]) >= 2.0]
         n = len({r["id"] for r in rows if r["plant"] == plant})
-        found = sum(r["found"] == "True" for r in big)
-        first = sum(r["found_first"] == "True" for r in big)
-        out.append(f"| {PLANT_TEXT[plant]} | {n} | {len(big)} | {found} | {first} | "
-                   "≥ 90 % per effect and joint |")  # fmt: skip
+        for col, text in (("floors", "what the effect adds"), ("excess_floors", "residual growth")):
+            big = [r for r in _joint_rows(rows, plant) if float(r.get(col) or 0) >= 2.0]
+            found = sum(r["found"] == "True" for r in big)
+            first = sum(r["found_first"] == "True" for r in big)
+            out.append(f"| {PLANT_TEXT[plant]} | {n} | {text} | {len(big)} | {found} | {first} |")
     return out
 
 
