@@ -180,6 +180,7 @@ def figure(rows: list[dict[str, str]], path: Path) -> None:
     centres = [math.sqrt(BINS[k] * (BINS[k + 1] if not math.isinf(BINS[k + 1]) else 10.0))
                for k in range(len(BINS) - 1)]  # fmt: skip
     for ax, plant in zip(axes[0], plants, strict=False):
+        ax.set_prop_cycle(color=plt.cm.tab20.colors[::2] + plt.cm.tab20.colors[1::2])
         for (p, effect), cell in sorted(cells.items()):
             if p != plant:
                 continue
@@ -194,11 +195,11 @@ def figure(rows: list[dict[str, str]], path: Path) -> None:
         ax.set_xlim(0.25, 12.0)
         ax.set_xlabel("effect size on the joint [noise floors], bins")
         ax.set_title(PLANT_TEXT[plant])
-        ax.legend(fontsize=7, ncol=2)
+        ax.legend(fontsize=7, ncol=2, loc="lower right", framealpha=0.6)
     axes[0][0].set_ylabel("planted joints found")
     axes[0][0].set_ylim(-0.03, 1.03)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
