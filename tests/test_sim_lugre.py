@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ditherlab.io import read
 from ditherlab.robot import RobotModel
 from ditherlab.sim_lugre import EFFECTS, simulate_lugre
 from ditherlab.sim_lugre.lugre_effects import SHARED, Planted
@@ -303,3 +304,26 @@ def test_time_stamps_jitter_about_the_250_hz_grid():
     assert np.all(step > 0)
     assert np.std(step) == pytest.approx(np.sqrt(2) * jitter, rel=0.1)
     assert np.mean(step) == pytest.approx(0.004, abs=1e-5)
+
+
+def test_noise_and_jitter_ranges_against_the_real_ur10e_log():
+    """The figures docs/simulator.md quotes from the real UR10e log at rest
+    (``recordings/ur10e-static.parquet``: current × drive gain, 100 Hz): the torque noise of its
+    quietest tenth of 1 s windows, the lag-1 autocorrelation in its quietest window, the spread
+    of its time steps; and the LuGre plant's UR10e noise range (0.01..0.08 Fs, Fs 2..5 % of the
+    rated torque) holds each joint's figure."""
+    rec = read(Path(__file__).resolve().parents[1] / "recordings" / "ur10e-static.parquet")
+    w = 100  # 1 s
+    std, lag1 = [], []
+    for j in range(rec.n):
+        x = rec.tau[:, j]
+        spread = np.array([x[i : i + w].std() for i in range(0, len(x) - w, w)])
+        i = int(np.argmin(spread)) * w
+        seg = x[i : i + w] - x[i : i + w].mean()
+        std.append(np.percentile(spread, 10))
+        lag1.append(np.corrcoef(seg[1:], seg[:-1])[0, 1])
+    assert np.allclose(std, [0.44, 0.42, 0.21, 0.11, 0.10, 0.13], atol=0.006)
+    assert -0.09 < min(lag1) and max(lag1) < 0.14
+    assert np.std(np.diff(rec.t)) == pytest.approx(0.94e-3, abs=0.01e-3)
+    effort = RobotModel.from_spec("ur10e").effort_limit
+    assert np.all(0.01 * 0.02 * effort < std) and np.all(np.array(std) < 0.08 * 0.05 * effort)

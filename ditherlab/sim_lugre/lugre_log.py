@@ -111,7 +111,7 @@ def to_arrays(run: TrueRun, inputs, streams: LogStreams, log_temperature: bool):
     """The run's RecordingArrays (module docstring); ``inputs`` is the run's RunInputs."""
     p, planted, sc = inputs.params, inputs.planted, inputs.scenario
     t_nom = (np.arange(len(run.q)) + 1) * sc.dt_log
-    jitter = np.clip(streams.stamps.normal(0, p.jitter, len(t_nom)), -1e-3, 1e-3)
+    jitter = np.clip(streams.stamps.normal(0, p.jitter, len(t_nom)), -1.5e-3, 1.5e-3)
     tau = logged_torque(run, p, planted, streams.torque)
     wrench = logged_wrench(run, p, planted, t_nom, streams.sensor) if sc.sensor else None
     temp = None
