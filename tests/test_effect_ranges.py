@@ -90,12 +90,12 @@ def test_diagnose_does_not_suggest_unphysical_drive_gain(no_torque_model, tmp_pa
 def test_delivery_rule():
     """An effect that lowers the named joints' loss by less than half of its promise fails
     the rule and says whether the bands' re-fit took it back; one that delivers passes."""
-    d = Delivery("drive_gain", [1], 0.5, [(100.0, 60.0, 99.0)], ([2.0], [2.0]))
+    d = Delivery("drive_gain", [1], 0.5, (100.0, 60.0, 99.0), ([2.0], [2.0]))
     assert not d.ok and "re-fitted bands take back" in d.text()
-    d = Delivery("drive_gain", [1], 0.5, [(100.0, 99.0, 99.0)], ([2.0], [2.0]))
+    d = Delivery("drive_gain", [1], 0.5, (100.0, 99.0, 99.0), ([2.0], [2.0]))
     assert not d.ok and "does not lower the residual" in d.text()
     d = Delivery(
-        "drive_gain", [1], 0.5, [(100.0, 70.0, 100 * (1 - DELIVERY_SHARE * 0.5))], ([2], [1])
+        "drive_gain", [1], 0.5, (100.0, 70.0, 100 * (1 - DELIVERY_SHARE * 0.5)), ([2], [1])
     )
     assert d.ok
     assert np.isclose(d.share(), DELIVERY_SHARE * 0.5)

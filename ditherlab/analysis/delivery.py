@@ -3,11 +3,9 @@
 ``identify --add`` fits an effect, writes it into a new model and re-fits the bands. Diagnosis
 promised a held-out share of the residual for it (:class:`~ditherlab.analysis.scoring.Candidate`,
 per joint ``JointScore.gain / loss0``). :func:`delivery` measures the same band-aware loss
-``sum((excess / sigma)²)`` per named joint under the model before and the model written, both
-with the noise of the model before (one unit for both), and the share it fell by; promise and
-delivery are averaged over the joints weighted by each joint's share of the promised gain (a
-joint promised little weighs little). An effect that delivers less than :data:`DELIVERY_SHARE`
-of its promise is not written.
+``sum((excess / sigma)²)`` on the named joints under the model before and the model written,
+both with the noise of the model before (one unit for both), and the share it fell by; an
+effect that lowers it by less than :data:`DELIVERY_SHARE` of its promise is not written.
 
 :func:`force_change` compares the sensorless force estimate's error (estimate minus sensor) of
 the two models per axis where the recordings have an F/T sensor: a growth beyond its sampling
@@ -53,21 +51,12 @@ FORCE_Z = 2.0
 FORCE_GROWTH = 0.05
 
 
-def promised(cand: Candidate, joints: Sequence[int]) -> tuple[float, list[float] | None]:
-    """The held-out share [-] of the residual on ``joints`` (0-based) that the candidate's scores
-    promise, and the weight of each joint (its share of the promised gain; None for a shared
-    fit, scored once over all joints): per joint ``gain / loss0``, averaged with the weights."""
-    by = {s.joint: s for s in cand.scores}
-    if None in by:
-        s = by[None]
-        return (s.gain / s.loss0 if s.loss0 > 0 else 0.0), None
-    scores = [by[j] for j in joints if j in by]
-    gains = np.array([max(s.gain, 0.0) for s in scores])
-    w = gains / gains.sum() if gains.sum() > 0 else np.full(len(scores), 1.0 / max(len(scores), 1))
-    share = sum(
-        wi * (s.gain / s.loss0 if s.loss0 > 0 else 0.0) for wi, s in zip(w, scores, strict=True)
-    )
-    return float(share), [float(x) for x in w]
+def promised(cand: Candidate, joints: Sequence[int] | None) -> float:
+    """The held-out share [-] of the residual on ``joints`` (0-based; None: the shared fit) that
+    the candidate's scores promise: ``sum(gain) / sum(loss0)`` over those joints' scores."""
+    scores = [s for s in cand.scores if s.joint is None or joints is None or s.joint in joints]
+    loss0 = sum(s.loss0 for s in scores)
+    return sum(s.gain for s in scores) / loss0 if loss0 > 0 else 0.0
 
 
 @dataclass
@@ -78,31 +67,20 @@ class Delivery:
     ----------
     effect, joints : the effect and its joints
     promise : held-out share of the residual diagnosis promised [-]
-    loss : per joint, band-aware loss [σ²] under the model before, the model with the effect
+    loss : band-aware loss [σ²] on the joints under the model before, the model with the effect
         and the bands before, and the model written (bands re-fitted)
     rms : (before, written) residual RMS outside the band per joint [N·m]
-    weights : per joint, its share of the promised gain (None: the losses are summed)
     """
 
     effect: str
     joints: list[int]
     promise: float
-    loss: list[tuple[float, float, float]]
+    loss: tuple[float, float, float]
     rms: tuple[list[float], list[float]]
-    weights: list[float] | None = None
 
     def share(self, k: int = 2) -> float:
-        """The share [-] the loss fell by: with the effect alone (k=1) or as written (k=2),
-        per joint averaged with :attr:`weights` (summed over the joints without)."""
-        if self.weights is None:
-            a, b = sum(x[0] for x in self.loss), sum(x[k] for x in self.loss)
-            return 1.0 - b / a if a > 0 else 0.0
-        return float(
-            sum(
-                w * (1.0 - x[k] / x[0] if x[0] > 0 else 0.0)
-                for w, x in zip(self.weights, self.loss, strict=True)
-            )
-        )
+        """The share [-] the loss fell by: with the effect alone (k=1) or as written (k=2)."""
+        return 1.0 - self.loss[k] / self.loss[0] if self.loss[0] > 0 else 0.0
 
     @property
     def ok(self) -> bool:
@@ -156,18 +134,22 @@ def _loss_rms(
 
 def delivery(
     effect: str,
-    promise: tuple[float, list[float] | None],
+    promise: float,
     joints: Sequence[int],
     scs: tuple[Sequence[Scored], Sequence[Scored], Sequence[Scored]],
 ) -> Delivery:
-    """The :class:`Delivery` of ``effect`` on ``joints`` (0-based) promised ``promise``
-    (:func:`promised`), from the recordings scored under the model before, with the effect and
-    the bands before, and as written (``scs``, three lists over the same recordings)."""
+    """The :class:`Delivery` of ``effect`` on ``joints`` (0-based) promised ``promise`` [-],
+    from the recordings scored under the model before, with the effect and the bands before,
+    and as written (``scs``, three lists over the same recordings)."""
     first = [_loss_rms(scs[0], scs[1], j) for j in joints]
     last = [_loss_rms(scs[0], scs[2], j) for j in joints]
-    loss = [(a[0], a[1], b[1]) for a, b in zip(first, last, strict=True)]
+    loss = (
+        sum(x[0] for x in first),
+        sum(x[1] for x in first),
+        sum(x[1] for x in last),
+    )
     rms = ([x[2] for x in last], [x[3] for x in last])
-    return Delivery(effect, list(joints), promise[0], loss, rms, promise[1])
+    return Delivery(effect, list(joints), promise, loss, rms)
 
 
 @dataclass

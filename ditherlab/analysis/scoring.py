@@ -208,11 +208,8 @@ def physical_joints(
     """The joint scores whose fit lies inside every physical range of ``e`` (``Effect.bounds``,
     :func:`~ditherlab.physics.effect_fit.out_of_range`: the rule ``identify --add`` refuses by),
     and the values outside a range of the others: a candidate is never suggested on a joint it
-    fits only with an unphysical value. A fit the bands could take instead
-    (:func:`~ditherlab.physics.effect_fit.not_identifiable`) has arbitrary values: it is kept
-    here, and said to be not identifiable."""
-    ident = [s for s in passed if not_identifiable(e, scs, s.joint, s.fit) is None]
-    bad = out_of_range(e, scs, {-1 if s.joint is None else s.joint: s.fit for s in ident})
+    fits only with an unphysical value."""
+    bad = out_of_range(e, scs, {-1 if s.joint is None else s.joint: s.fit for s in passed})
     keep = [s for s in passed if (-1 if s.joint is None else s.joint) not in bad]
     return keep, list(bad.values())
 

@@ -400,7 +400,7 @@ def _delivered(
     js = list(range(base.n)) if list(fitted) == [-1] else list(fitted)
     after = [scored(new[1], r) for r in recs]
     scs = (sc, [scored(new[0], r) for r in recs], after)
-    d = delivery(cand.effect, promised(cand, js), js, scs)
+    d = delivery(cand.effect, promised(cand, None if fitted == [-1] else js), js, scs)
     if not d.ok:
         raise ModelError(f"identify --add {cand.effect}: {d.text()}; the model is not written")
     row: dict[str, Any] = {

@@ -109,11 +109,10 @@ class Inertia(Effect):
         Bound(
             "scale",
             "-",
-            "0.25 .. 4",
-            "a description's link inertias (CAD or datasheet) are right within a factor 4; a "
-            "wrist's small links least so",
-            0.25,
-            4.0,
+            "0.5 .. 2",
+            "a description's link inertias (CAD or datasheet) are right within a factor 2",
+            0.5,
+            2.0,
         ),
         Bound(
             "motor_inertia",
