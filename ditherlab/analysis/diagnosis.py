@@ -239,7 +239,7 @@ class Diagnosis:
                 + (f" (best: {best.effect}, {100 * best.explained_fraction:.1f} %)" if best else "")
             )
         for c in self.candidates:
-            if (c.not_identifiable or c.unphysical) and not c.suggested:
+            if c.not_identifiable and c.explained_fraction >= MIN_FRACTION:
                 lines.append("  " + c.text())
         for n, why in self.skipped.items():
             lines.append(f"  skipped {n}: {why}")
@@ -340,7 +340,6 @@ def diagnose(
         progress=lambda i, n: run.tick(),
     )
     _demote_below_floor(cands, summary["ratio"], sums.notes)
-    sums.notes += added_notes(model)
     cands.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
     return Diagnosis(
         model,
@@ -354,16 +353,6 @@ def diagnose(
         sums.thinned,
         verdict(summary, cands, sums.corr),
     )
-
-
-def added_notes(model: TorqueModel) -> list[str]:
-    """What ``identify --add`` recorded in the model's history for its current version that a
-    diagnosis must repeat: a force error that grew when the last effect was added."""
-    return [
-        f"model v{h['version']}: {h['warning']}"
-        for h in model.history
-        if h.get("version") == model.version and h.get("warning")
-    ]
 
 
 def _check_regimes(regimes: Sequence[str] | None) -> None:

@@ -141,15 +141,15 @@ def _without_departures(
 def with_history_row(model: TorqueModel, entry: dict[str, Any]) -> TorqueModel:
     """A copy of ``model`` with a diagnosis row (:meth:`Diagnosis.history_entry`) appended to its
     history; a diagnosis of the same model version on the same recordings replaces the last
-    row instead, and the first diagnosis of a version completes the row ``identify --add``
-    wrote for it (what it added, promised and delivered are kept)."""
+    row instead."""
     m = model.copy()
     hist = list(m.history)
-    last = hist[-1] if hist else {}
-    if last.get("version") == entry["version"] and "torque_rms" not in last:
-        hist[-1] = {**last, **entry}
-    elif last.get("version") == entry["version"] and last.get("recordings") == entry["recordings"]:
-        hist[-1] = {**{k: v for k, v in last.items() if k not in entry}, **entry}
+    if (
+        hist
+        and hist[-1].get("version") == entry["version"]
+        and hist[-1].get("recordings") == entry["recordings"]
+    ):
+        hist[-1] = entry
     else:
         hist.append(entry)
     m.history = [{k: v for k, v in h.items() if v is not None} for h in hist]
