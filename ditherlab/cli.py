@@ -37,9 +37,11 @@ from typer.core import TyperGroup
 
 from ditherlab.cli_options import (
     Chunk,
+    ComponentsOpt,
     Force,
     JointTopicOpt,
     JsonFlag,
+    LevelOpt,
     MappingOpt,
     ModelIn,
     Quiet,
@@ -463,16 +465,11 @@ def replay(
     ],
     model: ModelIn,
     out: Annotated[str, out_file("Estimates file, .parquet")],
-    level: Annotated[float, typer.Option("--level", help="Interval confidence level.")] = 0.95,
+    level: LevelOpt = 0.95,
     interval: Annotated[
         str, typer.Option("--interval", help="Interval method: profile or set_membership.")
     ] = "profile",
-    components: Annotated[
-        str,
-        typer.Option(
-            "--components", help="Estimated components: all, fxyz, or a list like f_x,f_z."
-        ),
-    ] = "all",
+    components: ComponentsOpt = "all",
     variants: Annotated[
         str | None,
         typer.Option(
@@ -599,13 +596,8 @@ def live(
         str | None,
         typer.Option("--variant", help="Variant published and shown (default: dither_band)."),
     ] = None,
-    level: Annotated[float, typer.Option("--level", help="Interval confidence level.")] = 0.95,
-    components: Annotated[
-        str,
-        typer.Option(
-            "--components", help="Estimated components: all, fxyz, or a list like f_x,f_z."
-        ),
-    ] = "all",
+    level: LevelOpt = 0.95,
+    components: ComponentsOpt = "all",
     variants: Annotated[
         str | None,
         typer.Option("--variants", help="Comma list of variants (default: all the stream allows)."),

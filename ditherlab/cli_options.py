@@ -17,6 +17,11 @@ import typer
 
 from ditherlab.core.errors import DitherlabWarning
 
+LevelOpt = Annotated[float, typer.Option("--level", help="Interval confidence level.")]
+ComponentsOpt = Annotated[
+    str,
+    typer.Option("--components", help="Estimated components: all, fxyz, or a list like f_x,f_z."),
+]
 Seed = Annotated[
     int, typer.Option("--seed", help="Random seed; the same seed gives the same output.")
 ]
