@@ -454,7 +454,10 @@ def identify(
         read=read, force=force, **_chunk(chunk),
     )  # fmt: skip
     with _progress("identify", quiet) as progress:
-        _show(cmd.run(opts, progress))
+        result = cmd.run(opts, progress)
+    for line in result.warnings:
+        typer.echo(f"warning: {line}", err=True)
+    _show(result)
 
 
 @app.command()

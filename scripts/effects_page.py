@@ -10,7 +10,8 @@ it is replaced by one row per registered effect, in the order diagnosis tries th
 its physics (the effect's one-line ``physics`` statement, else the first sentence of the
 class docstring), its driving variables (``driven_by``), its parameters (the linear ones, then the searched one) with
 their units where the effect declares them (an optional ``units`` mapping, parameter -> unit),
-whether one parameter set is shared by all joints, and where it acts (``kind``).
+whether one parameter set is shared by all joints, and where it acts (``kind``); then one
+row per physical range of a fitted parameter (``Effect.bounds``): the range and its source.
 """
 
 from __future__ import annotations
@@ -92,6 +93,24 @@ def table(registry: dict) -> str:
     return "\n".join(rows)
 
 
+def ranges_table(registry: dict) -> str:
+    """The Markdown table of every effect's physical ranges (``Effect.bounds``) and sources."""
+    rows = [
+        "| effect | parameter | unit | physical range | source |",
+        "|---|---|---|---|---|",
+    ]
+    for name, e in registry.items():
+        for b in e.bounds:
+            rows.append(
+                "| "
+                + " | ".join(
+                    (f"`{name}`", f"`{b.param}`", cell(b.unit), cell(b.text), cell(b.source))
+                )
+                + " |"
+            )
+    return "\n".join(rows)
+
+
 def render(page: str, module: str, registry: dict) -> str:
     """The page with everything after the marker replaced by the generated table."""
     if MARKER not in page:
@@ -99,7 +118,14 @@ def render(page: str, module: str, registry: dict) -> str:
     head = page.split(MARKER, 1)[0]
     body = (
         f"\n\n{len(registry)} effects, from the registry in `{module}`, in the order "
-        "diagnosis tries them.\n\n" + table(registry) + "\n"
+        "diagnosis tries them.\n\n"
+        + table(registry)
+        + "\n\n### Physical ranges\n\nEvery fitted parameter has a physical range: `identify "
+        "--add` refuses a fit outside it (one line naming the effect, parameter, joint, value and "
+        "range; nothing is written), and diagnosis does not suggest the effect on a joint it "
+        "fits only with an unphysical value, and lists that value.\n\n"
+        + ranges_table(registry)
+        + "\n"
     )
     return head + MARKER + body
 

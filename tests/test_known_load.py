@@ -216,5 +216,5 @@ def test_payload_fit_outside_its_range_is_refused():
     e = EFFECTS["payload"]
     assert e.outside_range({"mass": 2.0, "mass_com": [0.0, 0.0, 0.1]}, sig) is None
     far = e.outside_range({"mass": 2.0, "mass_com": [0.0, 0.0, 20.0]}, sig)
-    assert far is not None and "reach" in far
-    assert "mass" in e.outside_range({"mass": -1.0, "mass_com": [0.0, 0.0, 0.0]}, sig)
+    assert far is not None and "reach" in far.source and far.param == "centre of mass distance"
+    assert e.outside_range({"mass": -1.0, "mass_com": [0.0, 0.0, 0.0]}, sig).param == "mass"

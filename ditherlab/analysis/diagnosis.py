@@ -83,6 +83,7 @@ __all__ = [
     "nanmean",
     "noise_floor_sq",
     "residual_summary",
+    "with_history_row",
 ]
 
 #: A regime with fewer samples than this on every joint needs no band (identify's min_samples).
@@ -183,6 +184,11 @@ class Diagnosis:
             "coverage": None if cov is None else round(cov, 6),
         }
 
+    def recorded(self) -> TorqueModel:
+        """A copy of the diagnosed model with this diagnosis's row in its history
+        (:func:`with_history_row`): what ``ditherlab diagnose`` writes back."""
+        return with_history_row(self.model, self.history_entry())
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "model": model_text(self.model).splitlines(),
@@ -239,7 +245,7 @@ class Diagnosis:
                 + (f" (best: {best.effect}, {100 * best.explained_fraction:.1f} %)" if best else "")
             )
         for c in self.candidates:
-            if c.not_identifiable and c.explained_fraction >= MIN_FRACTION:
+            if (c.not_identifiable or c.unphysical) and not c.suggested:
                 lines.append("  " + c.text())
         for n, why in self.skipped.items():
             lines.append(f"  skipped {n}: {why}")
@@ -340,6 +346,7 @@ def diagnose(
         progress=lambda i, n: run.tick(),
     )
     _demote_below_floor(cands, summary["ratio"], sums.notes)
+    sums.notes += added_notes(model)
     cands.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
     return Diagnosis(
         model,
@@ -353,6 +360,16 @@ def diagnose(
         sums.thinned,
         verdict(summary, cands, sums.corr),
     )
+
+
+def added_notes(model: TorqueModel) -> list[str]:
+    """What ``identify --add`` recorded in the model's history for its current version that a
+    diagnosis must repeat: a force error that grew when the last effect was added."""
+    return [
+        f"model v{h['version']}: {h['warning']}"
+        for h in model.history
+        if h.get("version") == model.version and h.get("warning")
+    ]
 
 
 def _check_regimes(regimes: Sequence[str] | None) -> None:
@@ -648,3 +665,21 @@ def verdict(
         "checks": checks,
         "text": text,
     }
+
+
+def with_history_row(model: TorqueModel, entry: dict[str, Any]) -> TorqueModel:
+    """A copy of ``model`` with a diagnosis row (:meth:`Diagnosis.history_entry`) appended to its
+    history; a diagnosis of the same model version on the same recordings replaces the last
+    row instead, and the first diagnosis of a version completes the row ``identify --add``
+    wrote for it (what it added, promised and delivered are kept)."""
+    m = model.copy()
+    hist = list(m.history)
+    last = hist[-1] if hist else {}
+    if last.get("version") == entry["version"] and "torque_rms" not in last:
+        hist[-1] = {**last, **entry}
+    elif last.get("version") == entry["version"] and last.get("recordings") == entry["recordings"]:
+        hist[-1] = {**{k: v for k, v in last.items() if k not in entry}, **entry}
+    else:
+        hist.append(entry)
+    m.history = [{k: v for k, v in h.items() if v is not None} for h in hist]
+    return m

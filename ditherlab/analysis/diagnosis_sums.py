@@ -27,6 +27,7 @@ __all__ = [
     "ResidualSums",
     "Windows",
     "excess_and_floor",
+    "force_inputs",
     "nanmean",
     "noise_floor_sq",
 ]
@@ -245,6 +246,25 @@ def _regime_per_sample(reg: np.ndarray) -> np.ndarray:
     return out
 
 
+def force_inputs(model: TorqueModel, sc: Scored, keep: slice = slice(None)) -> tuple[Any, ...]:
+    """The sensorless estimate of eq. (3) on the rows ``keep`` of a scored recording with an
+    F/T sensor, and what it was computed from: ``(tau_bar (M, n) [N·m], J (M, 6, n), lo, hi,
+    sigma (M, n) [N·m], F (M, 6) [N, N·m] the estimate, Fs (M, 6) the bias-corrected
+    sensor)``."""
+    rec = sc.sig.rec
+    # the estimator is sensorless: the model's effects without the F/T columns
+    tau_bar = sc.tau - sc.sig.gravity - effects_torque(model, rec, sensor=False)
+    lo, hi, sg = model.sample_bands(sc.sig.regime, sc.sig.dq, dither=True)
+    # joints not scored (e.g. dither without extraction): left out with a huge band
+    lo = np.where(sc.use, lo, -1e9)[keep]
+    hi = np.where(sc.use, hi, 1e9)[keep]
+    sg = sg[keep]
+    tau_bar = tau_bar[keep]
+    J = (sc.sig.jac * force_gain(model)[None, None, :])[keep]
+    sol = estimate(tau_bar, J, lo, hi, sg, model.prior_mean, model.prior_sigma)
+    return tau_bar, J, lo, hi, sg, sol.F, sensor_wrench(model, rec)[keep]
+
+
 class ForceError:
     """Estimate of eq. (3) minus the (bias-corrected) sensor, per axis and regime, and the
     coverage of the set-membership interval on every ``k``-th sample of each recording (``k``
@@ -265,18 +285,8 @@ class ForceError:
         if not rec.has_wrench:
             return
         reg = sc.sig.regime
-        # the estimator is sensorless: the model's effects without the F/T columns
-        tau_bar = sc.tau - sc.sig.gravity - effects_torque(model, rec, sensor=False)
-        lo, hi, sg = model.sample_bands(reg, sc.sig.dq, dither=True)
-        # joints not scored (e.g. dither without extraction): left out with a huge band
-        lo = np.where(sc.use, lo, -1e9)[keep]
-        hi = np.where(sc.use, hi, 1e9)[keep]
-        sg = sg[keep]
-        tau_bar = tau_bar[keep]
-        J = (sc.sig.jac * force_gain(model)[None, None, :])[keep]
-        sol = estimate(tau_bar, J, lo, hi, sg, model.prior_mean, model.prior_sigma)
-        Fs = sensor_wrench(model, rec)[keep]
-        err = sol.F - Fs
+        tau_bar, J, lo, hi, sg, F, Fs = force_inputs(model, sc, keep)
+        err = F - Fs
         rs = _regime_per_sample(reg[keep])
         for code in Regime:
             m = rs == code
@@ -305,7 +315,7 @@ class ForceError:
                     model.prior_mean,
                     model.prior_sigma,
                 ),
-                F_hat=sol.F[sub],
+                F_hat=F[sub],
                 method="set_membership",
                 level=self.level,
             )

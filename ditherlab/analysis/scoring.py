@@ -34,7 +34,13 @@ import numpy as np
 from ditherlab.core.errors import ModelError
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
-from ditherlab.physics.effect_fit import Stack, not_identifiable, solve_signed, stack
+from ditherlab.physics.effect_fit import (
+    Stack,
+    not_identifiable,
+    out_of_range,
+    solve_signed,
+    stack,
+)
 from ditherlab.physics.effects import (
     EFFECTS,
     Effect,
@@ -44,6 +50,7 @@ from ditherlab.physics.effects import (
     get_effect,
     make_spec,
 )
+from ditherlab.physics.effects.ranges import OutOfRange
 from ditherlab.physics.residual import Scored, scored
 
 __all__ = [
@@ -125,6 +132,9 @@ class Candidate:
     figure: str | None = None
     #: why the evidence is not enough to fit it (the rule of ``identify --add``), or None
     not_identifiable: str | None = None
+    #: the joints whose evidence passes but whose fit lies outside a physical range
+    #: (:func:`physical_joints`): not suggested there
+    unphysical: list[OutOfRange] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         e = EFFECTS[self.effect]
@@ -153,6 +163,7 @@ class Candidate:
             ],
             "params": self.params,
             "not_identifiable": self.not_identifiable,
+            "unphysical": [u.to_dict() for u in self.unphysical],
             "figure": self.figure,
             "text": self.text(),
         }
@@ -171,10 +182,39 @@ class Candidate:
             verdict = (
                 "not identifiable on these recordings: " + self.not_identifiable.split(": ", 1)[-1]
             )
-        return (
+        text = (
             f"{self.effect} ({e.physics}; driven by {e.driven_by}) on {where}: explains "
             f"{100 * self.explained_fraction:.1f} % of the residual on held-out data ({verdict})"
         )
+        return text + unphysical_text(self.unphysical)
+
+
+def unphysical_text(unphysical: Sequence[OutOfRange]) -> str:
+    """``"; fits only with an unphysical value: k 423 on joint 6 (range 0.5..2)"`` for the
+    fits outside their physical range, '' for none."""
+    if not unphysical:
+        return ""
+    parts = [
+        f"{u.param} {u.value:.3g} on {u.where} (range {u.lo:.3g}..{u.hi:.3g}"
+        f"{'' if u.unit in ('', '-') else ' ' + u.unit})"
+        for u in unphysical
+    ]
+    return "; fits only with an unphysical value: " + ", ".join(parts)
+
+
+def physical_joints(
+    e: Effect, scs: Sequence[Scored], passed: Sequence[JointScore]
+) -> tuple[list[JointScore], list[OutOfRange]]:
+    """The joint scores whose fit lies inside every physical range of ``e`` (``Effect.bounds``,
+    :func:`~ditherlab.physics.effect_fit.out_of_range`: the rule ``identify --add`` refuses by),
+    and the values outside a range of the others: a candidate is never suggested on a joint it
+    fits only with an unphysical value. A fit the bands could take instead
+    (:func:`~ditherlab.physics.effect_fit.not_identifiable`) has arbitrary values: it is kept
+    here, and said to be not identifiable."""
+    ident = [s for s in passed if not_identifiable(e, scs, s.joint, s.fit) is None]
+    bad = out_of_range(e, scs, {-1 if s.joint is None else s.joint: s.fit for s in ident})
+    keep = [s for s in passed if (-1 if s.joint is None else s.joint) not in bad]
+    return keep, list(bad.values())
 
 
 def _tau_int(x: np.ndarray, max_lag: int = 1000) -> float:
@@ -469,7 +509,8 @@ def _evaluate(
     e = get_effect(name)
     if e.shared:
         s = _judged(e, scs, None, K, guard_s, min_fraction)
-        ok = s.passes(min_fraction)
+        kept, unphysical = physical_joints(e, scs, [s] if s.passes(min_fraction) else [])
+        ok = bool(kept)
         # the shared fit covers every joint: its own held-out baseline is the whole residual
         frac = s.fraction
         spec = make_spec(e, {-1: s.fit})
@@ -482,11 +523,12 @@ def _evaluate(
             [s],
             spec.params,
             not_identifiable=why,
+            unphysical=unphysical,
         )
     scores = [_judged(e, scs, j, K, guard_s, min_fraction) for j in range(model.n)]
     # joints by each joint's own held-out evidence; the candidate by its share of the whole
     # residual (the >= min_fraction rule holds for what is suggested, not only per joint)
-    sel = [s for s in scores if s.passes(min_fraction)]
+    sel, unphysical = physical_joints(e, scs, [s for s in scores if s.passes(min_fraction)])
     gain = sum(s.gain for s in sel) if sel else max((s.gain for s in scores), default=0.0)
     frac = gain / total_loss if total_loss > 0 else 0.0
     params: dict[str, Any] = {}
@@ -505,7 +547,9 @@ def _evaluate(
         whys = [w for w in (not_identifiable(e, scs, s.joint, s.fit) for s in sel) if w]
         why = whys[0] if whys else None
     suggested = bool(sel) and frac >= min_fraction and why is None
-    return Candidate(name, joints, frac, suggested, scores, params, not_identifiable=why)
+    return Candidate(
+        name, joints, frac, suggested, scores, params, not_identifiable=why, unphysical=unphysical
+    )
 
 
 def _applicable(name: str, scs: Sequence[Scored]) -> str | None:

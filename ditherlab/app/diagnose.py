@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ditherlab.analysis.diagnosis import Diagnosis, diagnose
+from ditherlab.analysis.diagnosis import Diagnosis, diagnose, with_history_row
 from ditherlab.analysis.rest import kept_stretches, scan_rest
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.files import all_or_nothing
@@ -94,7 +94,7 @@ def run(options: DiagnoseOptions, progress: Progress | None = None) -> Diagnosed
         d = _diagnose(o, progress)
         path: Path | None = None
         if o.history:
-            d.model = with_history_row(d.model, d.history_entry())
+            d.model = d.recorded()
             path = d.model.save(out / HISTORY_MODEL)
         write_report(d, out)
     return Diagnosed(d, out, path)
@@ -136,21 +136,3 @@ def _without_departures(
         f"not scored, as identify leaves them out"
     )
     return parts, [note]
-
-
-def with_history_row(model: TorqueModel, entry: dict[str, Any]) -> TorqueModel:
-    """A copy of ``model`` with a diagnosis row (:meth:`Diagnosis.history_entry`) appended to its
-    history; a diagnosis of the same model version on the same recordings replaces the last
-    row instead."""
-    m = model.copy()
-    hist = list(m.history)
-    if (
-        hist
-        and hist[-1].get("version") == entry["version"]
-        and hist[-1].get("recordings") == entry["recordings"]
-    ):
-        hist[-1] = entry
-    else:
-        hist.append(entry)
-    m.history = [{k: v for k, v in h.items() if v is not None} for h in hist]
-    return m

@@ -15,9 +15,11 @@ from collections.abc import Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from ditherlab.analysis.delivery import delivery, force_change, promised
 from ditherlab.analysis.identification import identify, summary
 from ditherlab.analysis.rest import (
     RestScan,
@@ -27,7 +29,7 @@ from ditherlab.analysis.rest import (
     quiet_majority,
     scan_rest,
 )
-from ditherlab.analysis.scoring import select_joints
+from ditherlab.analysis.scoring import Candidate, candidates, select_joints
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.errors import ConfigError, ModelError, RecordingError
 from ditherlab.core.files import FileKind
@@ -35,9 +37,16 @@ from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.physics.dither import has_dither
-from ditherlab.physics.effect_fit import fit_effect, not_identifiable, pool_weak_joints, pooled_note
+from ditherlab.physics.effect_fit import (
+    fit_effect,
+    not_identifiable,
+    out_of_range,
+    pool_weak_joints,
+    pooled_note,
+    recentre,
+)
 from ditherlab.physics.effects import clean_none, get_effect, make_spec, signals
-from ditherlab.physics.residual import scored
+from ditherlab.physics.residual import Scored, scored
 
 __all__ = ["MODEL_FILE", "IdentifyOptions", "Identified", "add_effect", "identify_model", "run"]
 
@@ -91,6 +100,9 @@ class Identified:
     model: TorqueModel
     path: Path
     scans: list[RestScan] = field(default_factory=list)
+    #: one line each: what the added effects did that the user must know (a force error that
+    #: grew), also in the model's history rows
+    warnings: list[str] = field(default_factory=list)
 
     def text(self) -> str:
         """The rest scans, the bands per regime and joint, and where the model went (what the
@@ -134,7 +146,9 @@ def run(options: IdentifyOptions, progress: Progress | None = None) -> Identifie
     model.source = None
     note_left_out(model, scans)
     model.save(out)
-    return Identified(model, out, scans)
+    known = len(base.history) if base is not None else 0
+    warnings = [h["warning"] for h in model.history[known:] if h.get("warning")]
+    return Identified(model, out, scans, warnings)
 
 
 def left_out(
@@ -298,7 +312,9 @@ def add_effect(
         :attr:`~ditherlab.physics.effects.Effect.on_every_joint` every joint where its design acts
         (:func:`ditherlab.analysis.scoring.acting_joints`)
     refit : re-fit the bands and noise with :func:`ditherlab.analysis.identification.identify`
-        afterwards (recordings with an F/T sensor, or without one with ``assume_no_force``)
+        afterwards (recordings with an F/T sensor, or without one with ``assume_no_force``);
+        otherwise the bands and the sliding line move by what the effect's fit moved them
+        (:func:`ditherlab.physics.effect_fit.recentre`)
     assume_no_force : the recordings have no sensor and no external force acts (as stated to
         identify): the re-fit treats the external force as zero
     executor : runs the re-fit's band fits (:func:`ditherlab.analysis.identification.identify`'s
@@ -319,13 +335,16 @@ def add_effect(
     base = model.copy()
     base.effects = [s for s in base.effects if s.name != effect]
     sc = [scored(base, r) for r in recs]
+    cand = _candidate(base, recs, effect, sc)
     if e.shared:
         fits = {-1: fit_effect(e, sc, None)}
     else:
-        if joints is None:
+        if joints is not None:
+            js = [int(j) - 1 for j in joints]
+        elif e.on_every_joint:
             js = select_joints(base, recs, effect, scored_recs=sc)
         else:
-            js = [int(j) - 1 for j in joints]
+            js = [j - 1 for j in cand.joints]
         fits = {j: fit_effect(e, sc, j) for j in js}
     # joints with too little evidence take values shared over the others (dither_extraction)
     fits, weak = pool_weak_joints(e, sc, fits) if not e.shared else (fits, {})
@@ -333,20 +352,73 @@ def add_effect(
         why = not_identifiable(e, sc, None if j == -1 else j, f)
         if why is not None:
             raise ModelError(why)
-    spec = clean_none(make_spec(e, fits))
-    why = e.outside_range(spec.params, [x.sig for x in sc]) if e.shared else None
-    if why is not None:
+    bad = out_of_range(e, sc, fits)
+    if bad:
+        why = "; ".join(b.text() for b in bad.values())
         raise ModelError(f"identify --add {effect}: {why}; the model is not written")
+    spec = clean_none(make_spec(e, fits))
     if weak:  # the model file says which joints took the shared values
         spec.params["pooled"] = [1.0 if j - 1 in weak else 0.0 for j in spec.joints]
     new = base.copy()
     new.effects.append(spec)
     new.version = model.version + 1
-    if refit:
+    fitted = new
+    if refit and _can_refit(recs, assume_no_force):
         new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor)
+    else:  # the bands keep their fit: they move by what the effect's fit moved them
+        new = recentre(new, [scored(new, r) for r in recs])
+    new.history = [*new.history, _delivered(base, (fitted, new), cand, sorted(fits), recs, sc)]
     if weak:
         new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
     return new
+
+
+def _candidate(
+    base: TorqueModel, recs: Sequence[Recording], effect: str, sc: Sequence[Scored]
+) -> Candidate:
+    """Diagnosis's evidence for ``effect`` on the model ``base`` (its joints and the held-out
+    share it promises); ModelError when the effect cannot be tried on these recordings."""
+    cands, skipped = candidates(base, recs, effects=[effect], scored_recs=sc)
+    if effect in skipped:
+        raise ModelError(skipped[effect])
+    return cands[0]
+
+
+def _delivered(
+    base: TorqueModel,
+    new: tuple[TorqueModel, TorqueModel],
+    cand: Candidate,
+    fitted: Sequence[int],
+    recs: Sequence[Recording],
+    sc: Sequence[Scored],
+) -> dict[str, Any]:
+    """The history row of an added effect: the model ``new[1]`` (as written; ``new[0]`` with the
+    bands of ``base``) delivers at least half of the held-out share ``cand`` promised on the
+    joints fitted (0-based; -1 shared: all joints), else ModelError saying why when diagnosis
+    suggests the effect (its promise), or a ``warning`` line when it does not (the user asked
+    for it; what it did is said); and where the recordings have an F/T sensor, the force error
+    before and after (a ``warning`` line when it grew beyond its sampling uncertainty)."""
+    js = list(range(base.n)) if list(fitted) == [-1] else list(fitted)
+    after = [scored(new[1], r) for r in recs]
+    scs = (sc, [scored(new[0], r) for r in recs], after)
+    d = delivery(cand.effect, promised(cand, js), js, scs)
+    if not d.ok and cand.suggested:
+        raise ModelError(f"identify --add {cand.effect}: {d.text()}; the model is not written")
+    row: dict[str, Any] = {
+        "version": new[1].version,
+        "effects": [s.name for s in new[1].effects],
+        "added": cand.effect,
+        **d.to_dict(),
+    }
+    warnings = [] if d.ok else [f"not suggested by diagnosis: {d.text()}"]
+    fc = force_change(base, new[1], sc, after)
+    if fc is not None:
+        row.update(fc.to_dict())
+        if fc.grew:
+            warnings.append(fc.text(cand.effect))
+    if warnings:
+        row["warning"] = "; ".join(warnings)
+    return row
 
 
 def _check_effect_inputs(
@@ -372,6 +444,12 @@ def _check_effect_inputs(
             )
 
 
+def _can_refit(recs: Sequence[Recording], assume_no_force: bool) -> bool:
+    """The bands can be re-identified on these recordings: all have the F/T sensor, or the user
+    stated that no force acts."""
+    return assume_no_force or all(r.has_wrench for r in recs)
+
+
 def _refit(
     recs: Sequence[Recording],
     model: TorqueModel,
@@ -380,10 +458,8 @@ def _refit(
     assume_no_force: bool = False,
     executor: Executor | None = None,
 ) -> TorqueModel:
-    """Re-fit bands and noise with the effects in place (identify), keeping version/history.
-    Without a sensor the bands are re-fitted only when the user stated that no force acts."""
-    if not assume_no_force and not all(r.has_wrench for r in recs):
-        return model
+    """Re-fit bands and noise with the effects in place (identify), keeping version/history
+    (recordings :func:`_can_refit`)."""
     out = identify(
         list(recs),
         base=model,

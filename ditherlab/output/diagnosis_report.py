@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.diagnosis import AXES, Diagnosis, nanmean
-from ditherlab.analysis.scoring import Candidate, JointScore
+from ditherlab.analysis.scoring import Candidate, JointScore, unphysical_text
 from ditherlab.core.errors import FormatError
 from ditherlab.core.files import atomic_path, atomic_write_json, atomic_write_text, plain
 from ditherlab.core.names import MOVING
@@ -22,6 +22,23 @@ from ditherlab.output.figures import legend, pyplot
 from ditherlab.physics.effects import EFFECTS, Effect, design_at, hyper_params, model_text
 
 __all__ = ["DiagnosisLike", "DiagnosisReport", "as_report", "load_report", "write_report"]
+
+
+def _added_rows(hist: list[dict[str, Any]]) -> list[str]:
+    """One line per effect ``identify --add`` added (the history rows with ``added``): the
+    held-out share promised and delivered, and the axes whose force error grew."""
+    out = []
+    for h in hist:
+        if not h.get("added"):
+            continue
+        grew = ", ".join(h.get("force_grew") or []) or "none"
+        out.append(
+            f"- v{h.get('version')}: {h['added']} on joint(s) "
+            f"{', '.join(map(str, h.get('delivery_joints', [])))}: promised "
+            f"{100 * h.get('promised', 0.0):.1f} %, delivered {100 * h.get('delivered', 0.0):.1f} "
+            f"% of the held-out residual; force error grew on: {grew}"
+        )
+    return [*out, ""] if out else []
 
 
 def _history_rows(hist: list[dict[str, Any]]) -> list[str]:
@@ -135,7 +152,7 @@ def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Pat
         name = f"evidence_{c.effect}.png"
         _evidence_figure(d, c, out / name)
         c.figure = name
-    hist = d.model.history
+    hist = [h for h in d.model.history if h.get("torque_rms")]  # the diagnosis rows
     if hist:
         _history_figure(hist, out / "history.png")
     md = [
@@ -161,6 +178,9 @@ def write_report(d: Diagnosis, out_dir: str | Path, max_figures: int = 4) -> Pat
             "![history](history.png)",
             "",
         ]
+    added = _added_rows(d.model.history)
+    if added:
+        md += ["## Effects added by identify --add", "", *added]
     for n in d.notes:
         md.append(f"- note: {n}")
     atomic_write_json(out / "report.json", d.to_dict(), indent=2)
@@ -237,6 +257,11 @@ def _candidates_section(d: Diagnosis, figs: list[Candidate]) -> list[str]:
             f"{'yes' if c.suggested else 'no'} | {bic:.1f} |"
         )
     md.append("")
+    for c in d.candidates:
+        if c.unphysical:
+            md.append(f"- {c.effect}{unphysical_text(c.unphysical)}")
+    if any(c.unphysical for c in d.candidates):
+        md.append("")
     for c in figs:
         md += [f"### {c.effect}", "", c.text(), "", f"![{c.effect}]({c.figure})", ""]
     for n, why in d.skipped.items():

@@ -19,9 +19,11 @@ from numba import njit
 from scipy.optimize import minimize_scalar
 
 from ditherlab.core.linalg import spd_solve
-from ditherlab.core.names import MOVING
+from ditherlab.core.names import MOVING, Regime
 from ditherlab.core.timeseries import tmm
-from ditherlab.physics.effects import Effect, FitResult, design_at
+from ditherlab.data.torque_model import TorqueModel
+from ditherlab.physics.effects import Effect, FitResult, design_at, make_spec
+from ditherlab.physics.effects.ranges import OutOfRange
 from ditherlab.physics.residual import Scored
 
 __all__ = [
@@ -31,6 +33,8 @@ __all__ = [
     "identifiability",
     "linear_stderr",
     "not_identifiable",
+    "out_of_range",
+    "recentre",
     "pool_weak_joints",
     "pooled_lines",
     "pooled_note",
@@ -454,6 +458,56 @@ def stack(
     return Stack(r.e, r.h, r.s, np.hstack([C_, r.N]), W, o_, r.block, k, r.joint)
 
 
+def recentre(model: TorqueModel, sc: Sequence[Scored]) -> TorqueModel:
+    """A copy of ``model`` with each joint's bands moved and its sliding line changed by what
+    :func:`fit_effect` re-fits beside an effect (the nuisance columns of :func:`stack`: one
+    intercept per regime, ``sign(dq)`` and ``dq`` while moving), fitted to the residuals ``sc``
+    of ``model`` on the recordings (scored under it, its effects in place).
+
+    An effect's fit credits it only with what the bands and the sliding line cannot take; where
+    the bands are not re-identified after adding it (no sensor and no statement that no force
+    acts), they must move by what that fit moved them, or the model applies the effect's mean
+    part on top of bands that already hold it.
+    """
+    out = model.copy()
+    for j in range(model.n):
+        r = stack_rows(sc, j)
+        if not len(r.e) or not r.N.shape[1]:
+            continue
+        free = (0,) * r.N.shape[1]
+        w, _ = solve_signed(r.e, r.h, r.s, r.N, np.zeros_like(r.N), np.zeros(len(r.e)), free)
+        codes = np.unique(np.concatenate([s.sig.regime[s.use[:, j], j] for s in sc]))
+        for c, shift in zip(codes, w, strict=False):
+            band = out.regimes.get(Regime(int(c)).label)
+            if band is not None:
+                band.tau_min[j] += shift
+                band.tau_max[j] += shift
+        _slide(out, sc, j, w[len(codes) :])
+    return out
+
+
+def _slide(model: TorqueModel, sc: Sequence[Scored], j: int, w: np.ndarray) -> None:
+    """Add the fitted ``sign(dq)`` and ``dq`` coefficients ``w`` of joint ``j`` (those of
+    :func:`stack_rows`'s sliding columns that act) to the moving band's Coulomb and viscous."""
+    band = model.regimes.get(Regime.MOVING.label)
+    if band is None or not len(w):
+        return
+    names = [n for n, on in zip(("coulomb", "viscous"), sc[0].sliding, strict=True) if on]
+    acts = []
+    for n in names:
+        col = [
+            (np.sign if n == "coulomb" else np.asarray)(
+                np.where(s.sig.regime[:, j] == MOVING, s.sig.dq[:, j], 0.0)[s.use[:, j]]
+            )
+            for s in sc
+        ]
+        acts.append(bool(np.any(np.concatenate(col) != 0)))
+    for n, v in zip([n for n, a in zip(names, acts, strict=True) if a], w, strict=False):
+        arr = getattr(band, n)
+        if arr is not None:
+            arr[j] += float(v)
+
+
 #: Smallest :func:`identifiability` for which add_effect accepts a fit.
 MIN_IDENTIFIABILITY = 0.02
 
@@ -573,6 +627,24 @@ def not_identifiable(e: Effect, sc: Sequence[Scored], j: int | None, fit: FitRes
     )
 
 
+def out_of_range(
+    e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]
+) -> dict[int, OutOfRange]:
+    """The fits of ``e`` (0-based joint -> :class:`FitResult`; -1 for a shared effect) with a
+    value outside its physical range (:meth:`Effect.outside_range` on these scored
+    recordings), by joint: the one rule behind ``identify --add`` (which refuses them) and
+    diagnosis (which does not suggest the effect there and lists them)."""
+    sigs = [s.sig for s in sc]
+    out = {}
+    for j, f in fits.items():
+        spec = make_spec(e, {j: f})
+        p = spec.params if e.shared else {k: v[0] for k, v in spec.params.items()}
+        why = e.outside_range(p, sigs, None if j < 0 else j)
+        if why is not None:
+            out[j] = why
+    return out
+
+
 #: block length for the standard errors of :func:`linear_stderr` [s]: the residual of one push
 #: (0.5-2 s) and its extraction's lag are correlated; blocks of 2 s hold one each (identify's
 #: bootstrap uses the same length)
@@ -632,23 +704,44 @@ def linear_stderr(
     return np.sqrt(var[:k])
 
 
+def _linear_ranges(e: Effect, sc: Sequence[Scored], j: int) -> list[tuple[float, float]]:
+    """The physical range of each of ``e``'s linear parameters on joint ``j`` (``e.bounds``;
+    unbounded where it declares none), in the order of ``e.linear``."""
+    sigs = [s.sig for s in sc]
+    ranges = {b.param: b.limits(sigs, j) for b in e.bounds}
+    return [ranges.get(name, (-np.inf, np.inf)) for name in e.linear]
+
+
 def _weak_reason(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> str | None:
     """Why a per-joint fit of ``e`` rests on too little evidence (``e.evidence_rules``), or
     None: a linear parameter whose standard error (:func:`linear_stderr`) exceeds its
-    ``stderr_max``, or that lies more than two standard errors outside its physical ``range``."""
+    ``stderr_max``, or that lies more than two standard errors outside its physical range
+    (``e.bounds``: the data contradict the physics there, so the joint takes the shared values;
+    a fit within two standard errors of the range is held at its edge by :func:`pool_weak_joints`)."""
     rules = e.evidence_rules or {}
     se = linear_stderr(e, sc, j, fit)
-    for i, name in enumerate(e.linear):
+    for i, (name, (lo, hi)) in enumerate(zip(e.linear, _linear_ranges(e, sc, j), strict=True)):
         v, s = float(fit.w[i]), float(se[i])
         top = rules.get("stderr_max", {}).get(name)
         if top is not None and not s <= top:
             return f"{name} {v:.3g} ± {s:.2g} (standard error above {top:g})"
-        lo, hi = rules.get("range", {}).get(name, (-np.inf, np.inf))
         if v - 2 * s > hi or v + 2 * s < lo:
             return (
-                f"{name} {v:.3g} ± {s:.2g} (outside {lo:g}..{hi:g} by more than 2 standard errors)"
+                f"{name} {v:.3g} ± {s:.2g} (outside {lo:g}..{hi:g}, its physical range, "
+                "by more than 2 standard errors)"
             )
     return None
+
+
+def _held_in_range(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> FitResult:
+    """``fit`` with each linear parameter held at the nearest edge of its physical range (the
+    bounded least-squares fit of a single linear parameter at the fit's own hyper-parameter);
+    ``fit`` itself when every value is inside."""
+    lims = np.array(_linear_ranges(e, sc, j), dtype=float).reshape(-1, 2)
+    w = np.clip(np.asarray(fit.w, dtype=float)[: len(lims)], lims[:, 0], lims[:, 1])
+    if np.array_equal(w, np.asarray(fit.w, dtype=float)[: len(lims)]):
+        return fit
+    return FitResult(np.concatenate([w, np.asarray(fit.w)[len(lims) :]]), fit.h, fit.ref, fit.loss)
 
 
 def pool_weak_joints(
@@ -657,10 +750,10 @@ def pool_weak_joints(
     """Per-joint fits where the joints with too little evidence take shared parameters.
 
     For an effect with ``evidence_rules`` (``dither_extraction``): a joint whose fit fails them
-    (:func:`_weak_reason`: its own standard error, or a value beyond the physical range) takes
-    the median of each parameter (linear ones and the searched one, e.g. the lag) over the
-    joints whose fits pass, or the effect's ``prior`` when none passes. Other effects are
-    returned unchanged.
+    (:func:`_weak_reason`: its own standard error, or a value beyond the physical range by more
+    than two standard errors) takes the median of each parameter (linear ones and the searched one, e.g. the lag) over the
+    joints whose fits pass, or the effect's ``prior`` when none passes; a passing fit just
+    outside the range is held at its edge. Other effects are returned unchanged.
 
     Parameters
     ----------
@@ -675,6 +768,7 @@ def pool_weak_joints(
     if not rules or e.shared or not fits:
         return fits, {}
     weak = {j: why for j, f in fits.items() if (why := _weak_reason(e, sc, j, f)) is not None}
+    fits = {j: f if j in weak else _held_in_range(e, sc, j, f) for j, f in fits.items()}
     if not weak:
         return fits, {}
     good = [fits[j] for j in fits if j not in weak]

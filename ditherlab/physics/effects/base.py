@@ -18,6 +18,7 @@ import numpy as np
 
 from ditherlab.core.errors import ModelError
 from ditherlab.data.torque_model import REGIMES
+from ditherlab.physics.effects.ranges import Bound, OutOfRange
 from ditherlab.physics.effects.signals import Signals
 
 __all__ = ["EFFECTS", "Design", "Effect", "design_at", "fmt"]
@@ -101,9 +102,14 @@ class Effect(abc.ABC):
     #: (:func:`ditherlab.analysis.scoring.select_joints`), not only where one recording's diagnosis
     #: evidence passed (the others would keep it in their residual: a false discovery next).
     on_every_joint: ClassVar[bool] = False
+    #: The physical range of every fitted parameter, with its source
+    #: (:class:`~ditherlab.physics.effects.ranges.Bound`): a fit outside it is never written
+    #: (:meth:`outside_range`), and diagnosis does not suggest it.
+    bounds: ClassVar[tuple[Bound, ...]] = ()
     #: Evidence rules of a per-joint fit, or None (:func:`ditherlab.physics.effect_fit.pool_weak_joints`):
-    #: ``stderr_max`` and physical ``range`` per linear parameter; a joint failing them takes
-    #: the median of the joints that pass, or the ``prior`` values when none does.
+    #: ``stderr_max`` per linear parameter (the physical range is :attr:`bounds`); a joint
+    #: failing them takes the median of the joints that pass, or the ``prior`` values when none
+    #: does.
     evidence_rules: ClassVar[dict[str, Any] | None] = None
     #: Evidence plots show the residual times sign(dq) while moving (friction that grows with a
     #: load or falls with temperature acts against the motion).
@@ -143,10 +149,20 @@ class Effect(abc.ABC):
         both diagnosis's suggestions and ``identify --add``."""
         return None
 
-    def outside_range(self, p: dict[str, Any], sigs: Sequence[Signals]) -> str | None:
-        """Why the fitted parameters ``p`` of a shared effect lie outside their physical range
-        on the robot of the recordings seen by ``sigs`` (None: inside); such a fit is never
-        written."""
+    def outside_range(
+        self, p: dict[str, Any], sigs: Sequence[Signals], j: int | None = None
+    ) -> OutOfRange | None:
+        """The first value of the fitted parameters ``p`` of joint ``j`` (0-based; None: a
+        shared effect) outside its physical range (:attr:`bounds`) on the robot and recordings
+        seen by ``sigs``, or None when all lie inside; such a fit is never written."""
+        for b in self.bounds:
+            vals = b.values(p, sigs, j)
+            if not vals:
+                continue
+            lo, hi = b.limits(sigs, j)
+            for where, v in vals:
+                if not lo <= v <= hi:
+                    return OutOfRange(self.name, b.param, where, v, lo, hi, b.unit, b.source)
         return None
 
     def check(self, sig: Signals) -> None:

@@ -10,10 +10,13 @@ pose gravity is constant and the band takes them: ``identify --add`` refuses the
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ditherlab.data.torque_model import REGIMES
 from ditherlab.physics.effects.base import Design, Effect, fmt
+from ditherlab.physics.effects.ranges import Bound
 from ditherlab.physics.effects.signals import Signals
 
 __all__ = ["DriveGain", "JointOffset"]
@@ -40,6 +43,18 @@ class DriveGain(Effect):
     driven_by = "the model's rigid torque tau_grav + J^T F (+ M ddq + C dq moving)"
     linear = ("gain_error",)
     shows_in = REGIMES
+    bounds = (
+        Bound(
+            "k",
+            "-",
+            "0.5 .. 2",
+            "a torque constant, current scale or gear ratio wrong by at most a factor 2: "
+            "datasheet tolerances are ±10 %, more is a wrong unit or ratio in the mapping",
+            0.5,
+            2.0,
+            value=lambda p, sigs: 1.0 + float(p["gain_error"]),
+        ),
+    )
 
     def design(self, sig, j, h, ref):
         return Design(sig.rigid_load[:, j : j + 1])
@@ -133,6 +148,17 @@ class JointOffset(Effect):
     shared = True
     linear = ("offset",)
     shows_in = REGIMES
+    bounds = (
+        Bound(
+            "offset",
+            "rad",
+            "-10° .. 10° per joint",
+            "an encoder zero's calibration error; a larger one is a zero convention to set in "
+            "the mapping",
+            -math.radians(10.0),
+            math.radians(10.0),
+        ),
+    )
 
     def signs(self, h):
         return ()

@@ -39,7 +39,8 @@ from ditherlab.core.names import DITHER, MOVING
 from ditherlab.core.timeseries import causal_mean
 from ditherlab.physics.dither import dither_on, dither_period, full_window, has_dither
 from ditherlab.physics.effects.base import Design, Effect, fmt
-from ditherlab.physics.effects.sensor import AttenuationLag
+from ditherlab.physics.effects.ranges import Bound
+from ditherlab.physics.effects.sensor import AttenuationLag, late_bounds
 from ditherlab.physics.effects.signals import Signals
 
 __all__ = [
@@ -94,18 +95,29 @@ class DitherExtraction(Effect):
     needs_dither = True
     on_every_joint = True  # the extraction runs on every dithering joint
     #: evidence rules of a per-joint fit (:func:`ditherlab.physics.effect_fit.pool_weak_joints`). The gain is
-    #: the part of a push the extracted signal shows: 0..1 (the servo and the centre loop take
-    #: up the rest; the paper's underestimate). A joint whose gain has a standard error above
-    #: 0.25 (a 95 % interval of more than ±0.5: it cannot tell a joint that shows half of a
-    #: push from one that shows all of it), or whose gain lies beyond that range by more than
-    #: two standard errors, has too little evidence: it takes the median gain and lag of the
+    #: the part of a push the extracted signal shows: 0..1 (:attr:`bounds`; the servo and the
+    #: centre loop take up the rest, the paper's underestimate). A joint whose gain has a
+    #: standard error above 0.25 (a 95 % interval of more than ±0.5: it cannot tell a joint that
+    #: shows half of a push from one that shows all of it), or whose gain lies outside that
+    #: range, has too little evidence: it takes the median gain and lag of the
     #: joints with good evidence, or with none the prior: the medians of the joint fits on
     #: clean dithered simulator recordings (``docs/design/physics-effect-models.md``).
     evidence_rules: ClassVar[dict[str, Any]] = {
         "stderr_max": {"gain": 0.25},
-        "range": {"gain": (0.0, 1.0)},
         "prior": {"gain": 0.84, "lag": 16},
     }
+    bounds = (
+        Bound(
+            "gain",
+            "-",
+            "0 .. 1",
+            "the extraction shows part of a push; the servo and the centre loop take the rest "
+            "(paper §VI-C)",
+            0.0,
+            1.0,
+        ),
+        *late_bounds(("lag",)),
+    )
 
     def signs(self, h):
         return (1,)

@@ -13,7 +13,17 @@ import numpy as np
 
 from ditherlab.core.errors import ModelError, where_prefix
 from ditherlab.physics.effects.base import Design, Effect, fmt
+from ditherlab.physics.effects.ranges import Bound, effort_scale, friction_scale
 from ditherlab.physics.effects.signals import Signals
+
+
+def _viscous_max(sigs: Sequence[Signals], j: int | None) -> float:
+    """[N·m·s/rad]: the viscous coefficient whose torque at the joint's fastest logged speed
+    equals its effort limit (:func:`~ditherlab.physics.effects.ranges.effort_scale`)."""
+    jj = slice(None) if j is None else slice(j, j + 1)
+    v = max(float(np.max(np.abs(s.dq[:, jj]), initial=0.0)) for s in sigs)
+    return effort_scale(sigs, j) / v if v > 0 else np.inf
+
 
 __all__ = ["LoadFriction", "Stribeck", "TemperatureFriction", "Viscous"]
 
@@ -25,6 +35,16 @@ class Viscous(Effect):
     driven_by = "dq"
     linear = ("coef",)
     shows_in = ("moving",)
+    bounds = (
+        Bound(
+            "coef",
+            "N·m·s/rad",
+            "0 .. effort limit / fastest logged speed",
+            "lubricant shear dissipates (>= 0) and cannot stall the motor at the log's speeds",
+            0.0,
+            _viscous_max,
+        ),
+    )
 
     def design(self, sig, j, h, ref):
         return Design(sig.dq[:, j : j + 1])
@@ -41,6 +61,17 @@ class Stribeck(Effect):
     linear = ("fs_minus_fc",)
     hyper = "vs"
     shows_in = ("moving",)
+    bounds = (
+        Bound(
+            "fs_minus_fc",
+            "N·m",
+            "0 .. the joint's sliding friction level",
+            "static friction lies between 1 and 2 times the Coulomb level (Armstrong-Hélouvry, "
+            "Dupont and Canudas de Wit 1994)",
+            0.0,
+            friction_scale,
+        ),
+    )
 
     def signs(self, h):
         return (1,)  # friction is *higher* near zero speed
@@ -88,6 +119,17 @@ class LoadFriction(Effect):
     linear = ("k",)
     hyper = ("output_friction", "output_growth")
     shows_in = ("moving", "still", "dither")
+    bounds = (
+        Bound(
+            "k",
+            "N·m per N·m",
+            "0 .. 0.5",
+            "a gear loses less than half of the torque it transmits (harmonic, cycloid and "
+            "planetary gears: 60-95 % efficiency)",
+            0.0,
+            0.5,
+        ),
+    )
 
     def signs(self, h):
         return (1,)  # friction grows with load
@@ -156,6 +198,28 @@ class TemperatureFriction(Effect):
     linear = ("coef",)
     hyper = "time_constant"
     shows_in = ("moving", "still", "dither")
+    bounds = (
+        Bound(
+            "coef",
+            "N·m/°C",
+            "-(sliding friction level)/20 .. 0 per °C (temperature logged)",
+            "friction falls with warming, by about half over 30-40 °C (Bittencourt and "
+            "Gunnarsson 2012)",
+            lambda sigs, j: -friction_scale(sigs, j) / 20.0,
+            0.0,
+            value=lambda p, sigs: p["coef"] if p.get("time_constant") is None else None,
+        ),
+        Bound(
+            "coef",
+            "N·m",
+            "0 .. the sliding friction level (time since start)",
+            "a cold joint's extra friction is at most its warm level (Bittencourt and "
+            "Gunnarsson 2012)",
+            0.0,
+            friction_scale,
+            value=lambda p, sigs: p["coef"] if p.get("time_constant") is not None else None,
+        ),
+    )
 
     def signs(self, h):
         # falls as the temperature rises; decays with time since start (higher when cold)

@@ -3,10 +3,35 @@ inertial parameters as identified base parameters (``dynamics``)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ditherlab.physics.effects.base import Design, Effect, fmt
+from ditherlab.physics.effects.ranges import Bound, effort_scale, payload_limit
 from ditherlab.physics.effects.signals import Signals
+
+
+def _reach(sigs: Sequence[Signals], j: int | None = None) -> float:
+    """[m]: the largest distance of the tool point from the base in the recordings."""
+    return max(
+        float(np.linalg.norm(s.rec.robot().tool_pose(s.q)[:, :3, 3], axis=1).max()) for s in sigs
+    )
+
+
+def _com_distance(p: dict, sigs: Sequence[Signals]) -> float | None:
+    """[m]: the payload's centre of mass's distance from the tool point (None: no mass)."""
+    m = float(p["mass"])
+    return float(np.linalg.norm(np.asarray(p["mass_com"], dtype=float) / m)) if m > 0 else None
+
+
+def _armature_max(sigs: Sequence[Signals], j: int | None) -> float:
+    """[kg·m²]: the reflected inertia whose torque at the joint's largest logged acceleration
+    equals its effort limit."""
+    jj = slice(None) if j is None else slice(j, j + 1)
+    a = max(float(np.max(np.abs(s.ddq[:, jj]), initial=0.0)) for s in sigs)
+    return effort_scale(sigs, j) / a if a > 0 else np.inf
+
 
 __all__ = ["Dynamics", "Inertia", "Payload"]
 
@@ -27,6 +52,27 @@ class Payload(Effect):
     shared = True
     linear = ("mass", "mc_x", "mc_y", "mc_z")
     shows_in = ("moving", "still", "dither")
+    bounds = (
+        Bound(
+            "mass",
+            "kg",
+            "0 .. the arm's rated payload",
+            "a mass is >= 0; the rated payload from the datasheet (irb140 6 kg, ur10e 12.5 kg, "
+            "panda 3 kg), for another arm the mass of its moving links (description)",
+            0.0,
+            lambda sigs, j: payload_limit(sigs)[0],
+        ),
+        Bound(
+            "centre of mass distance",
+            "m",
+            "0 .. the arm's reach",
+            "a load held at the tool lies within the arm's reach (tool point's largest "
+            "distance from the base in the recordings)",
+            0.0,
+            _reach,
+            value=_com_distance,
+        ),
+    )
 
     def signs(self, h):
         return (1, 0, 0, 0)
@@ -39,27 +85,6 @@ class Payload(Effect):
 
     def design(self, sig, j, h, ref):
         return Design(sig.torque_regressor[:, :, :4])
-
-    def outside_range(self, p, sigs):
-        """A mass below 0 [kg], or a centre of mass farther from the tool than the arm reaches
-        (the largest distance of the tool point from the base in the recordings) [m]."""
-        m = float(p["mass"])
-        if m < 0:
-            return f"payload mass {m:.3g} kg; expected a mass >= 0 kg"
-        if m == 0:
-            return None
-        com = np.asarray(p["mass_com"], dtype=float) / m
-        reach = max(
-            float(np.linalg.norm(s.rec.robot().tool_pose(s.q)[:, :3, 3], axis=1).max())
-            for s in sigs
-        )
-        if np.linalg.norm(com) > reach:
-            c = ", ".join(f"{x:.3g}" for x in com)
-            return (
-                f"payload centre of mass [{c}] m is {np.linalg.norm(com):.3g} m from the tool, "
-                f"beyond the arm's reach of {reach:.3g} m; expected a load held at the tool"
-            )
-        return None
 
     def driver(self, sig, j, p):
         w = np.array([p["mass"], *p["mass_com"]])
@@ -80,6 +105,26 @@ class Inertia(Effect):
     driven_by = "ddq, dq"
     linear = ("scale", "motor_inertia")
     shows_in = ("moving",)
+    bounds = (
+        Bound(
+            "scale",
+            "-",
+            "0.25 .. 4",
+            "a description's link inertias (CAD or datasheet) are right within a factor 4; a "
+            "wrist's small links least so",
+            0.25,
+            4.0,
+        ),
+        Bound(
+            "motor_inertia",
+            "kg·m²",
+            "0 .. effort limit / largest logged acceleration",
+            "a rotor's reflected inertia is >= 0 and its torque stays within the joint's "
+            "effort limit at the log's accelerations",
+            0.0,
+            _armature_max,
+        ),
+    )
 
     def signs(self, h):
         return (1, 1)
@@ -130,6 +175,18 @@ class Dynamics(Effect):
     shared = True
     linear = ()  # the base parameters: chosen from the data (reference), stored as `delta`
     shows_in = ("moving", "still", "dither")
+    bounds = (
+        Bound(
+            "s",
+            "-",
+            "-0.5 .. 2",
+            "the URDF's own dynamic torque is kept (s near 1) or left to a fitted inertia "
+            "(s near 0); the description's inertias are right within a factor 2",
+            -0.5,
+            2.0,
+            value=lambda p, sigs: Dynamics.urdf_scale(sigs[0], p),
+        ),
+    )
     STEP = 5
     RANK_TOL = 1e-3
 
@@ -190,12 +247,13 @@ class Dynamics(Effect):
         Y = self.regressor(sig)[:, j, self._base(sig, p)]
         return Y @ self.weights(p), f"dynamics torque joint {j + 1} [N·m]"
 
-    def urdf_scale(self, sig: Signals, p: dict) -> float:
+    @staticmethod
+    def urdf_scale(sig: Signals, p: dict) -> float:
         """``s`` [-]: the share of the URDF's dynamic torque the fit added (0 when its column is
         not in the base set)."""
         last = 11 * sig.rec.n
         cols = list(p["base_columns"])
-        return float(self.weights(p)[cols.index(last)]) if last in cols else 0.0
+        return float(p["delta"][cols.index(last)]) if last in cols else 0.0
 
     def full_correction(self, sig: Signals, p: dict) -> tuple[np.ndarray, np.ndarray]:
         """(Δπ (11 n,), corrected link masses (n,) [kg]): the smallest change of every link's

@@ -13,7 +13,46 @@ from numba import njit
 from ditherlab.core.names import WRENCH_COLUMNS
 from ditherlab.data.torque_model import REGIMES
 from ditherlab.physics.effects.base import Design, Effect, fmt
+from ditherlab.physics.effects.ranges import Bound
 from ditherlab.physics.effects.signals import Signals
+
+#: the longest delay or lag a servo or a tool mount shows a push with [s] (the searched grid's end)
+MAX_LATE_S = 0.3
+
+
+def late_bounds(names: tuple[str, ...]) -> tuple[Bound, ...]:
+    """Bounds of searched delays / lags [samples]: 0 .. :data:`MAX_LATE_S` at the log's rate."""
+    return tuple(
+        Bound(
+            name,
+            "samples",
+            f"0 .. {MAX_LATE_S:g} s",
+            "a servo's transport delay and a compliant mount's lag are below 0.3 s; a push lasts "
+            "0.5-2 s",
+            0.0,
+            lambda sigs, j: MAX_LATE_S * sigs[0].sample_rate + 1.0,
+        )
+        for name in names
+    )
+
+
+def _largest_reading(c: int):
+    """The largest |reading| [N or N·m] of F/T column ``c`` in the recordings (a function of
+    the recordings' Signals and the joint, for a Bound)."""
+
+    def f(sigs, j):
+        return max(float(np.max(np.abs(s.wrench("ft_bias")[:, c]), initial=0.0)) for s in sigs)
+
+    return f
+
+
+def _angle_deg(p, sigs) -> float:
+    return float(np.degrees(np.linalg.norm(np.asarray(p["rotation"], dtype=float))))
+
+
+def _offset_m(p, sigs) -> float:
+    return float(np.linalg.norm(np.asarray(p["offset"], dtype=float)))
+
 
 __all__ = ["AttenuationLag", "FtBias", "FtFrame"]
 
@@ -75,6 +114,17 @@ class AttenuationLag(Effect):
     kind = "external"
     shows_in = REGIMES
     pointwise = False  # a delay and a filter in time
+    bounds = (
+        Bound(
+            "gain",
+            "-",
+            "0 .. 1.1",
+            "the servo shows at most the whole push; the F/T sensor's calibration is ±10 %",
+            0.0,
+            1.1,
+        ),
+        *late_bounds(("delay", "lag")),
+    )
 
     def signs(self, h):
         return (1,)
@@ -137,6 +187,17 @@ class FtBias(Effect):
     linear = WRENCH_COLUMNS
     kind = "sensor"
     shows_in = REGIMES
+    bounds = tuple(
+        Bound(
+            c,
+            "N" if c.startswith("f") else "N·m",
+            "within ± the largest reading of the axis",
+            "a bias is part of every reading, so it cannot exceed the largest one",
+            lambda sigs, j, k=k: -_largest_reading(k)(sigs, j),
+            _largest_reading(k),
+        )
+        for k, c in enumerate(WRENCH_COLUMNS)
+    )
 
     def check(self, sig):
         sig.wrench(self.name)
@@ -186,6 +247,27 @@ class FtFrame(Effect):
     linear = ("rot_x", "rot_y", "rot_z", "offset_x", "offset_y", "offset_z")
     kind = "sensor"
     shows_in = REGIMES
+    bounds = (
+        Bound(
+            "rotation angle",
+            "°",
+            "0 .. 20°",
+            "a mounting error; the linearised fit holds within 2 % up to 20°, a larger turn is "
+            "a frame convention to set in the mapping",
+            0.0,
+            20.0,
+            value=_angle_deg,
+        ),
+        Bound(
+            "offset distance",
+            "m",
+            "0 .. 0.2 m",
+            "the sensor sits at the flange; a larger offset is another tool point (tool_offset)",
+            0.0,
+            0.2,
+            value=_offset_m,
+        ),
+    )
 
     def check(self, sig):
         sig.wrench(self.name)

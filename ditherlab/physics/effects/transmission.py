@@ -8,6 +8,10 @@ import numpy as np
 
 from ditherlab.core.timeseries import tmm
 from ditherlab.physics.effects.base import Design, Effect, fmt
+from ditherlab.physics.effects.ranges import Bound, effort_scale
+
+#: the largest ripple amplitude, as a share of the joint's effort limit [-]
+RIPPLE_SHARE = 0.1
 
 __all__ = ["PositionRipple"]
 
@@ -21,6 +25,22 @@ class PositionRipple(Effect):
     hyper = "period"
     continuous = True
     shows_in = ("moving",)
+    bounds = tuple(
+        Bound(
+            name,
+            "N·m",
+            "0 .. 10 % of the joint's effort limit",
+            "gear meshing and cogging ripple stay at a few % of a drive's rated torque "
+            "(harmonic drive and servo motor catalogues)",
+            0.0,
+            lambda sigs, j: RIPPLE_SHARE * effort_scale(sigs, j),
+            value=lambda p, sigs, a=a, b=b: math.hypot(p[a], p[b]),
+        )
+        for name, a, b in (
+            ("amplitude", "a_sin", "b_cos"),
+            ("amplitude_2", "a2_sin", "b2_cos"),
+        )
+    )
 
     def design(self, sig, j, h, ref):
         # fundamental and second harmonic (tooth meshing is rarely a pure sine)
