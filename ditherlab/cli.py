@@ -597,6 +597,9 @@ def live(
         typer.Option("--variant", help="Variant published and shown (default: dither_band)."),
     ] = None,
     level: LevelOpt = 0.95,
+    interval: Annotated[
+        str, typer.Option("--interval", help="Interval method: profile or set_membership.")
+    ] = "profile",
     components: ComponentsOpt = "all",
     variants: Annotated[
         str | None,
@@ -623,7 +626,7 @@ def live(
         domain=domain, wrench_topic=wrench_topic, dither_topic=dither_topic, timeout=timeout,
         wait=wait, duration=duration, queue=queue, variant=variant, level=level, frame=frame,
         components=components, variants=tuple(variants.split(",")) if variants else None,
-        read=_read(mapping, robot, None, None, None, None), force=force,
+        interval=interval, read=_read(mapping, robot, None, None, None, None), force=force,
     )  # fmt: skip
     _show(cmd.run(opts, echo=lambda line: typer.echo(f"live: {line}", err=True)))
 

@@ -6,7 +6,8 @@ every run and a figure (:func:`ditherlab.output.lead_figures.write_comparison`).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -92,6 +93,7 @@ def compare_laws(
     config: Any = None,
     laws: Sequence[str] = LEAD_THROUGH_LAWS,
     progress: Progress | None = None,
+    sources: Callable[[str, bool], AbstractContextManager[Any]] | None = None,
 ) -> dict[str, Any]:
     """Simulate the lead-through with each law on the same operator pushes (same seeds) and
     measure each run with :func:`~ditherlab.analysis.lead_metrics.lead_metrics`.
@@ -104,6 +106,8 @@ def compare_laws(
         ``lead_through.law`` is overridden per run
     laws : the laws compared
     progress : ``progress(done, total)`` over the runs
+    sources : ``sources(law, dither)``, a context manager giving the external estimate of one
+        run (:data:`ditherlab.sim.guidance.EstimateSource`; None: the controller's own eq. (3))
 
     Returns
     -------
@@ -126,9 +130,11 @@ def compare_laws(
     for dither in dithers:
         for seed in seeds:
             for law in laws:
-                rec = simulate(
-                    "lead-through", seed=int(seed), dither=dither, config=config, law=law
-                )
+                with sources(law, dither) if sources else nullcontext() as estimate:
+                    rec = simulate(
+                        "lead-through", seed=int(seed), dither=dither, config=config, law=law,
+                        estimate=estimate,
+                    )  # fmt: skip
                 runs.append(lead_metrics(rec))
                 if seed == seeds[0]:
                     paths[f"{law}|{dither}"] = path_trace(rec)
