@@ -1061,17 +1061,34 @@ def leadthrough(
     config: Annotated[
         Path | None, typer.Option("--config", metavar="FILE", help="Simulator TOML.")
     ] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option("--model", metavar="FILE", help="Drive by `live`'s estimate with this model."),
+    ] = None,
+    live: Annotated[
+        bool, typer.Option("--live", help="Closed loop over DDS with a `live` process (lock-step).")
+    ] = False,
+    namespace: Annotated[
+        str | None,
+        typer.Option("--namespace", metavar="NS", help="--live topics' namespace (default: own)."),
+    ] = None,
+    domain: Domain = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Compare the lead-through's two laws.
 
-    The 10 N dead zone against the confidence interval (paper §V), on the same pushes.
+    The 10 N dead zone against the confidence interval (paper §V), on the same pushes. With
+    --model --live the arm publishes its joint states over DDS and moves by the estimate of a
+    `ditherlab live` process, step by step.
     """
     from ditherlab.app import leadthrough as cmd
 
+    if live:
+        _needs_dds("leadthrough --live")
     opts = cmd.LeadthroughOptions(
-        out=out, seed=seed, repeats=repeats, dither=dither, config=config, force=force
-    )
+        out=out, seed=seed, repeats=repeats, dither=dither, config=config, force=force,
+        model=model, live=live, namespace=namespace, domain=domain,
+    )  # fmt: skip
     with _progress("leadthrough", quiet) as progress:
         _show(cmd.run(opts, progress))

@@ -20,7 +20,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.causal import CausalBlock, CausalEstimator, CausalSettings
+from ditherlab.analysis.lead_metrics import COMPARED
 from ditherlab.core.errors import ConfigError, DitherlabError
 from ditherlab.core.stamps import split_stamp, wire_time
 from ditherlab.data.torque_model import TorqueModel
@@ -36,7 +37,14 @@ from ditherlab.robot import RobotModel
 from ditherlab.sim.guidance import EstimateSource, LoggedChunk
 from ditherlab.sim.params import load_params
 
-__all__ = ["LinkSettings", "causal_source", "dds_source", "link_settings"]
+__all__ = [
+    "LinkSettings",
+    "causal_source",
+    "closed_loop_difference",
+    "closed_loop_line",
+    "dds_source",
+    "link_settings",
+]
 
 #: [s] without an estimate after the first: the estimator is taken as gone
 STEP_TIMEOUT_S = 5.0
@@ -69,16 +77,20 @@ def link_settings(model: TorqueModel, law: str, dither: bool, config: Any = None
     params = load_params(config, {"lead_through": {"law": law}})
     lt = params["lead_through"]
     sim_names = RobotModel.from_spec("irb140").joint_names
-    robot = RobotModel.from_recording_meta({"schema": 1, "robot": model.robot}, n_expected=model.n)
-    if list(robot.joint_names) != list(sim_names):
+    if not model.same_robot("irb140"):
         raise ConfigError(
-            f"--model: its robot's joints {list(robot.joint_names)[:6]} are not the simulated "
-            f"arm's {list(sim_names)}; expected a model of the simulator's IRB140"
+            f"--model: its robot {_robot_name(model.robot)!r} is not the simulated arm; "
+            "expected a model of the simulator's IRB140 (ditherlab identify on its recordings)"
         )
     interval = str(lt["interval"]) if law == "interval" else "profile"
     period = 2 * np.pi / float(params["dither"]["frequency"]) if dither else None
     variant = "dither_band" if dither else "nodither_band"
     return LinkSettings(variant, interval, float(lt["level"]), period, tuple(sim_names))
+
+
+def _robot_name(spec: Any) -> str:
+    """A model's robot, named: the built-in's name or the URDF's robot."""
+    return spec if isinstance(spec, str) else str(spec.get("name") or spec.get("urdf", "")[:40])
 
 
 def _push_of(est: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -116,7 +128,7 @@ def causal_source(model: TorqueModel, link: LinkSettings, lag: int = 0) -> Estim
 def _live_command(model: Path, link: LinkSettings, ns: str, domain: int | None) -> list[str]:
     """The ``ditherlab live`` command line of one run's estimator process."""
     cmd = [
-        sys.executable, "-m", "ditherlab", "live", "--model", str(model),
+        sys.executable, "-m", "ditherlab", "live", "--model", str(Path(model).resolve()),
         "--source", "ros2:joint_states", "--namespace", ns, "--sink", "ros2:ditherlab/wrench",
         "--variants", link.variant, "--variant", link.variant, "--components", "fxyz",
         "--interval", link.interval, "--level", repr(link.level),
@@ -278,3 +290,31 @@ def _last_line(proc: subprocess.Popen) -> str:
         return ""
     lines = [ln.strip() for ln in (err or "").splitlines() if ln.strip()]
     return lines[-1].removeprefix("error: ") if lines else ""
+
+
+def closed_loop_difference(live: Mapping[str, Any], here: Mapping[str, Any]) -> dict[str, Any]:
+    """The live runs against the same runs in one process (two :func:`compare_laws` results
+    of the same seeds, laws and dither settings): per compared metric the largest difference
+    over the runs (NaN in both counts as equal), and the largest difference of the tool's path
+    [mm] over the first seed's traces."""
+    diff: dict[str, float] = {}
+    for a, b in zip(live["runs"], here["runs"], strict=True):
+        for key, *_ in COMPARED:
+            x, y = float(a["summary"][key]), float(b["summary"][key])
+            d = 0.0 if (np.isnan(x) and np.isnan(y)) or x == y else abs(x - y)
+            diff[key] = max(diff.get(key, 0.0), d)
+    path = max(
+        float(np.max(np.abs(np.asarray(p["x"]) - np.asarray(here["paths"][k]["x"]))))
+        for k, p in live["paths"].items()
+    )
+    return {"metrics_max_abs": diff, "path_max_mm": path, "runs": len(live["runs"])}
+
+
+def closed_loop_line(loop: Mapping[str, Any]) -> str:
+    """One line: how far the live runs are from the same runs in one process."""
+    worst = max(loop["metrics_max_abs"].items(), key=lambda kv: kv[1])
+    return (
+        f"closed loop over DDS against the same estimate in one process ({loop['runs']} runs): "
+        f"tool path max |difference| {loop['path_max_mm']:.3g} mm, metrics max |difference| "
+        f"{worst[1]:.3g} ({worst[0]})"
+    )
