@@ -1084,11 +1084,13 @@ def leadthrough(
     """
     from ditherlab.app import leadthrough as cmd
 
+    dds = None
     if live:
         _needs_dds("leadthrough --live")
+        from ditherlab.app.leadthrough_dds import dds_source as dds
     opts = cmd.LeadthroughOptions(
         out=out, seed=seed, repeats=repeats, dither=dither, config=config, force=force,
         model=model, live=live, namespace=namespace, domain=domain,
     )  # fmt: skip
     with _progress("leadthrough", quiet) as progress:
-        _show(cmd.run(opts, progress))
+        _show(cmd.run(opts, progress, dds))

@@ -17,7 +17,8 @@ import pytest
 from test_causal import irb140_model
 
 from ditherlab.analysis.lead_metrics import lead_metrics, tool_path
-from ditherlab.app.leadthrough_live import causal_source, dds_source, link_settings
+from ditherlab.app.leadthrough_dds import dds_source
+from ditherlab.app.leadthrough_live import causal_source, link_settings
 from ditherlab.core.errors import ConfigError
 from ditherlab.sim import simulate
 from ditherlab.sim.guidance import LoggedChunk

@@ -23,7 +23,6 @@ from ditherlab.app.leadthrough_live import (
     causal_source,
     closed_loop_difference,
     closed_loop_line,
-    dds_source,
     link_settings,
 )
 from ditherlab.app.workflow import Progress, guard
@@ -85,7 +84,11 @@ class Compared:
         return means_table(self.result) + check + f"\nwrote {', '.join(map(str, self.files))}"
 
 
-def run(options: LeadthroughOptions, progress: Progress | None = None) -> Compared:
+def run(
+    options: LeadthroughOptions,
+    progress: Progress | None = None,
+    dds: Callable[..., AbstractContextManager[Any]] | None = None,
+) -> Compared:
     """Check the options and the output folder, compare the laws and write the comparison,
     all or nothing.
 
@@ -93,6 +96,8 @@ def run(options: LeadthroughOptions, progress: Progress | None = None) -> Compar
     ----------
     options : :class:`LeadthroughOptions`
     progress : ``progress(done, total)``, optional
+    dds : with ``live``: :func:`ditherlab.app.leadthrough_dds.dds_source` (the CLI passes it
+        once the DDS library is known to be installed)
 
     Returns
     -------
@@ -115,13 +120,17 @@ def run(options: LeadthroughOptions, progress: Progress | None = None) -> Compar
             dithers = DITHER_CHOICES[o.dither]
             result = compare_laws(seeds, dithers, config=o.config, progress=progress)
         else:
-            result = _with_model(o, model, seeds, progress)
+            result = _with_model(o, model, seeds, progress, dds)
         files = write_comparison(result, out)
     return Compared(result, files)
 
 
 def _with_model(
-    o: LeadthroughOptions, model: TorqueModel, seeds: list[int], progress: Progress | None
+    o: LeadthroughOptions,
+    model: TorqueModel,
+    seeds: list[int],
+    progress: Progress | None,
+    dds: Callable[..., AbstractContextManager[Any]] | None,
 ) -> dict[str, Any]:
     """:func:`compare_laws` driven by ``live``'s estimate with ``model``: in this process, or
     (``o.live``) over DDS and then in this process, the two compared (``closed_loop``)."""
@@ -132,13 +141,13 @@ def _with_model(
     def here(law: str, dither: bool) -> AbstractContextManager[Any]:
         return nullcontext(causal_source(model, link_settings(model, law, dither, o.config)))
 
-    if not o.live:
+    if not o.live or dds is None:
         return compare_laws(seeds, dithers, config=o.config, progress=progress, sources=here)
     ns = o.namespace or f"ditherlab_leadthrough_{os.getpid()}"
 
     def over_dds(law: str, dither: bool) -> AbstractContextManager[Any]:
         link = link_settings(model, law, dither, o.config)
-        return dds_source(o.model, link, namespace=ns, domain=o.domain)  # type: ignore[arg-type]
+        return dds(o.model, link, namespace=ns, domain=o.domain)
 
     total = len(seeds) * len(dithers) * len(LEAD_THROUGH_LAWS)
 
