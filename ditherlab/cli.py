@@ -600,6 +600,9 @@ def live(
         typer.Option("--variant", help="Variant published and shown (default: dither_band)."),
     ] = None,
     level: LevelOpt = 0.95,
+    interval: Annotated[
+        str, typer.Option("--interval", help="Interval method: profile or set_membership.")
+    ] = "profile",
     components: ComponentsOpt = "all",
     variants: Annotated[
         str | None,
@@ -626,7 +629,7 @@ def live(
         domain=domain, wrench_topic=wrench_topic, dither_topic=dither_topic, timeout=timeout,
         wait=wait, duration=duration, queue=queue, variant=variant, level=level, frame=frame,
         components=components, variants=tuple(variants.split(",")) if variants else None,
-        read=_read(mapping, robot, None, None, None, None), force=force,
+        interval=interval, read=_read(mapping, robot, None, None, None, None), force=force,
     )  # fmt: skip
     _show(cmd.run(opts, echo=lambda line: typer.echo(f"live: {line}", err=True)))
 
@@ -1061,17 +1064,36 @@ def leadthrough(
     config: Annotated[
         Path | None, typer.Option("--config", metavar="FILE", help="Simulator TOML.")
     ] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option("--model", metavar="FILE", help="Drive by `live`'s estimate with this model."),
+    ] = None,
+    live: Annotated[
+        bool, typer.Option("--live", help="Closed loop over DDS with a `live` process (lock-step).")
+    ] = False,
+    namespace: Annotated[
+        str | None,
+        typer.Option("--namespace", metavar="NS", help="--live topics' namespace (default: own)."),
+    ] = None,
+    domain: Domain = None,
     force: Force = False,
     quiet: Quiet = False,
 ) -> None:
     """Compare the lead-through's two laws.
 
-    The 10 N dead zone against the confidence interval (paper §V), on the same pushes.
+    The 10 N dead zone against the confidence interval (paper §V), on the same pushes. With
+    --model --live the arm publishes its joint states over DDS and moves by the estimate of a
+    `ditherlab live` process, step by step.
     """
     from ditherlab.app import leadthrough as cmd
 
+    dds = None
+    if live:
+        _needs_dds("leadthrough --live")
+        from ditherlab.app.leadthrough_dds import dds_source as dds
     opts = cmd.LeadthroughOptions(
-        out=out, seed=seed, repeats=repeats, dither=dither, config=config, force=force
-    )
+        out=out, seed=seed, repeats=repeats, dither=dither, config=config, force=force,
+        model=model, live=live, namespace=namespace, domain=domain,
+    )  # fmt: skip
     with _progress("leadthrough", quiet) as progress:
-        _show(cmd.run(opts, progress))
+        _show(cmd.run(opts, progress, dds))

@@ -37,6 +37,7 @@ def simulate(
     hidden: Iterable[Any] = (),
     progress: Callable[[int, int], None] | None = None,
     robot: str | Mapping[str, Any] = "irb140",
+    estimate: Callable[..., Any] | None = None,
     **options: Any,
 ) -> Recording:
     """Simulate a scenario and return its Recording (250 Hz, 6 joints of the built-in IRB140).
@@ -55,6 +56,8 @@ def simulate(
         "tool_frame", "name"}`` (:func:`ditherlab.robot.resolve_spec`), with as many joints as the
         parameters' per-joint lists (6 in ``irb140.toml``); the IRB140's drive, friction and
         servo parameters apply to it unless ``config`` sets its own
+    estimate : lead-through only: an external estimate of the push that drives the admittance
+        (:data:`ditherlab.sim.guidance.EstimateSource`; None: the controller's own eq. (3))
     options : any key of the scenario's table in ``irb140.toml`` (e.g.
         ``pushes_per_direction=10``), and ``log_temperature=False`` for ``temperature_friction``
 
@@ -74,6 +77,8 @@ def simulate(
         raise ConfigError(
             f"scenario '{scenario}' is unknown; expected one of {', '.join(SCENARIOS)}"
         )
+    if estimate is not None and scenario != "lead-through":
+        raise ConfigError(f"scenario {scenario} takes no external estimate; lead-through does")
     specs = parse_hidden(hidden)
     params = load_params(config, _overrides(scenario, options))
     if int(seed) < 0:
@@ -91,6 +96,7 @@ def simulate(
         hidden=specs,
         progress=progress,
         robot=robot,
+        **({} if estimate is None else {"estimate": estimate}),
     )
     meta = _meta(scenario, seed, dither, options, params, robot.n, sim_meta)
     if isinstance(robot_spec, Mapping):  # resolved: kept as it is (its source path too)

@@ -29,6 +29,11 @@ chooses the force ``P_cmd`` that drives it:
 
 The dither is ramped off as soon as the commanded speed exceeds ``dither_off_speed``, and back on
 after ``still_s`` without motion.
+
+An external estimate (``estimate``, an :data:`EstimateSource`) replaces eq. (3) above: at every
+update it is handed the update's samples as the robot logs them (:class:`LoggedChunk`) and
+returns the push and its interval; the law, the admittance and the dither switch are the same.
+``ditherlab leadthrough --live`` drives the arm this way by ``ditherlab live`` over DDS.
 """
 
 from __future__ import annotations
@@ -110,6 +115,30 @@ def interval_command(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(lo) | np.isnan(hi), 0.0, out)
 
 
+@dataclass(frozen=True)
+class LoggedChunk:
+    """The samples of one controller update as the robot logs them (the recording's columns).
+
+    Attributes
+    ----------
+    t : (m,) [s] ; q : (m, n) [rad] ; dq : (m, n) [rad/s] ; tau : (m, n) [N·m]
+    tau_ffw : (m, n) [N·m] the dither feedforward ; dither : (m,) bool the dither loops on
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    tau: np.ndarray
+    tau_ffw: np.ndarray
+    dither: np.ndarray
+
+
+#: An external estimate of the push: called once per controller update with its
+#: :class:`LoggedChunk`, returns the push on the tool at the chunk's last sample ``p_hat`` (3,)
+#: [N, base axes] and its interval ``p_lo``, ``p_hi`` (3,) [N] (NaN: none).
+EstimateSource = Callable[[LoggedChunk], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
 def lead_through(
     engine_for: Callable[[Any], Engine],
     params: dict[str, Any],
@@ -119,10 +148,12 @@ def lead_through(
     hidden: list[HiddenSpec],
     progress: Callable[[int, int], None] | None,
     robot: Any,
+    estimate: EstimateSource | None = None,
 ) -> tuple[RecordingArrays, dict[str, Any]]:
     """Simulate lead-through; returns (the recording's arrays, meta["sim"] part).
 
-    Same parameters as :func:`ditherlab.sim.scenarios.push_campaign`. Extra columns
+    Same parameters as :func:`ditherlab.sim.scenarios.push_campaign`; ``estimate`` an external
+    estimate of the push (module docstring; None: eq. (3) in the controller). Extra columns
     ``fhat_x, fhat_y, fhat_z`` [N] hold the push the controller estimated (on the tool); with
     ``lead_through.law = "interval"`` also ``flo_x..z, fhi_x..z`` [N], its interval.
     """
@@ -139,6 +170,8 @@ def lead_through(
     hp = build_hidden(hidden, params, tt, n, hidden_rng)
     eng = engine_for(hp)
     ctl = Admittance.start(params, eng, robot, hp.arm_push(push, dt), hp.fscale, noise_rng, dither)
+    if estimate is not None:
+        ctl.source = _LoggedSource(estimate, tt, hp.logged)
     ft_noise = wrench_noise(params, noise_rng, N)
     state = eng.initial_state(ctl.q0)
     if dither:  # the first second settles without dither
@@ -162,6 +195,31 @@ def lead_through(
         "hidden": hp.truth,
     }
     return arrays, sim_meta
+
+
+@dataclass(frozen=True)
+class _LoggedSource:
+    """An external estimate (:data:`EstimateSource`) fed from the engine's raw outputs: the
+    times ``tt`` (N,) [s] and how the robot logs its angle and torque (``logged``,
+    :meth:`ditherlab.sim.hidden.HiddenPlant.logged`)."""
+
+    estimate: EstimateSource
+    tt: np.ndarray
+    logged: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+    def __call__(self, out: np.ndarray, k0: int, k1: int) -> tuple[np.ndarray, ...]:
+        """The push (3,) [N] and its interval (3,), (3,) [N] at sample ``k1 - 1``, from the
+        logged samples ``k0 .. k1`` of ``out`` (N_OUT, N, n)."""
+        q, tau = self.logged(out[K.O_QM, k0:k1].copy(), out[K.O_TAU, k0:k1].copy())
+        chunk = LoggedChunk(
+            t=self.tt[k0:k1].copy(),
+            q=q,
+            dq=out[K.O_VM, k0:k1].copy(),
+            tau=tau,
+            tau_ffw=out[K.O_FFW, k0:k1].copy(),
+            dither=out[K.O_DITHER, k0:k1, 0] > 0.5,
+        )
+        return tuple(np.asarray(a, dtype=float).reshape(3) for a in self.estimate(chunk))
 
 
 #: [N, N, N, N·m, N·m, N·m] the controller's prior on the wrench (eq. (3)'s R_F, square roots)
@@ -189,6 +247,7 @@ class Admittance:
     v : (3,) [m/s] the commanded tool velocity, smoothed
     q_ref : (n,) [rad] the motor-angle reference where the next chunk begins
     still : [samples] how long the commanded speed has been below ``dither_off_speed``
+    source : an external estimate of the push (None: eq. (3) from the logged torques)
     """
 
     lt: dict[str, Any]
@@ -208,6 +267,7 @@ class Admittance:
     v: np.ndarray
     q_ref: np.ndarray
     still: int
+    source: _LoggedSource | None = None
 
     @classmethod
     def start(
@@ -266,11 +326,17 @@ class Admittance:
 
     def control(self, k0: int, k1: int, state: dict[str, np.ndarray], out: np.ndarray) -> None:
         """The engine's chunk callback after samples ``k0 .. k1`` (``out`` (N_OUT, N, n), the
-        run's raw outputs; ``state`` the engine's): estimate the push at the chunk's last sample,
-        command the next chunk's joint rates, switch the dither."""
+        run's raw outputs; ``state`` the engine's): estimate the push at the chunk's last sample
+        (eq. (3), or the external :attr:`source`), command the next chunk's joint rates, switch
+        the dither."""
         k = k1 - 1
-        tau_bar, half, J = self._residual(out, k)
-        v = self._tool_velocity(tau_bar, half, J, k0, k1)
+        if self.source is None:
+            tau_bar, half, J = self._residual(out, k)
+            p_hat, p_lo, p_hi = self._estimate(tau_bar, half, J)
+        else:
+            p_hat, p_lo, p_hi = self.source(out, k0, k1)
+            J = self.robot.evaluate(out[K.O_QM, k], ["jacobian"], reference=True)["jacobian"]
+        v = self._tool_velocity(p_hat, p_lo, p_hi, k0, k1)
         self._command_joints(v, J, k0, k1)
         if self.dither:
             self._switch_dither(v, k0, k1)
@@ -307,26 +373,40 @@ class Admittance:
         tau_bar = tau_bar - np.where(moving, self.eng.fc * np.sign(dq) + self.eng.fv * dq, 0.0)
         return tau_bar, np.where(moving, 0.0, half), geo["jacobian"]
 
-    def _tool_velocity(
-        self, tau_bar: np.ndarray, half: np.ndarray, J: np.ndarray, k0: int, k1: int
-    ) -> np.ndarray:
-        """The commanded tool velocity (3,) [m/s] from the push estimated by eq. (3) (recorded
-        for samples ``k0 .. k1``) through the admittance law, limited to ``max_speed`` and
-        smoothed by the impedance's first-order filter."""
+    def _estimate(
+        self, tau_bar: np.ndarray, half: np.ndarray, J: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """The push on the tool (3,) [N] estimated by eq. (3) from the residual torque
+        ``tau_bar`` (n,) [N·m], the band's half-width ``half`` (n,) [N·m] and the Jacobian ``J``
+        (1, 6, n), and with the interval law its interval (3,), (3,) [N] (else None, None)."""
         lt = self.lt
         args = (tau_bar[None], J, -half, half, self.sigma, np.zeros(6), np.array(PRIOR_SIGMA))
+        if not self.interval_law:
+            sol = estimate(*args, components=("f_x", "f_y", "f_z"))
+            return -sol.F[0, :3], None, None  # the push on the tool
+        prob = problem(*args, components=("f_x", "f_y", "f_z"))
+        sol = solve(prob)
+        lo, hi = intervals(prob, sol.F, lt["interval"], lt["level"])
+        return -sol.F[0, :3], -hi[0, :3], -lo[0, :3]  # the push and its interval
+
+    def _tool_velocity(
+        self,
+        p_hat: np.ndarray,
+        p_lo: np.ndarray | None,
+        p_hi: np.ndarray | None,
+        k0: int,
+        k1: int,
+    ) -> np.ndarray:
+        """The commanded tool velocity (3,) [m/s] from the estimated push ``p_hat`` (3,) [N]
+        (and its interval ``p_lo``, ``p_hi`` (3,) [N] for the interval law), recorded for
+        samples ``k0 .. k1``, through the admittance law, limited to ``max_speed`` and
+        smoothed by the impedance's first-order filter."""
+        lt = self.lt
         v = np.zeros(3)
         if self.interval_law:
-            prob = problem(*args, components=("f_x", "f_y", "f_z"))
-            sol = solve(prob)
-            p_hat = -sol.F[0, :3]  # the push on the tool
-            lo, hi = intervals(prob, sol.F, lt["interval"], lt["level"])
-            p_lo, p_hi = -hi[0, :3], -lo[0, :3]  # the push's interval
             self.flo[k0:k1], self.fhi[k0:k1] = p_lo, p_hi
             v = lt["admittance"] * interval_command(p_lo, p_hi)
         else:
-            sol = estimate(*args, components=("f_x", "f_y", "f_z"))
-            p_hat = -sol.F[0, :3]  # the push on the tool
             mag = vector_norm(p_hat)
             if mag > lt["dead_zone"]:
                 v = lt["admittance"] * (mag - lt["dead_zone"]) * p_hat / mag
