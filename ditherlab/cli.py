@@ -265,6 +265,7 @@ def convert(
             "output's metadata: replay and report compare the estimate with its wrench.",
         ),
     ] = None,
+    quiet: Quiet = False,
 ) -> None:
     """Convert a recording to another format.
 
@@ -280,7 +281,9 @@ def convert(
         known_load=known_load,
         **_chunk(chunk),
     )
-    _show(cmd.run(opts))
+    with _progress("convert", quiet) as progress:
+        result = cmd.run(opts, progress)
+    _show(result)
 
 
 @app.command()

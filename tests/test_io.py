@@ -849,3 +849,24 @@ def test_mapping_none_chooses_no_format(tmp_path, sample):
     p = dio.write(sample, tmp_path / "a.parquet")
     assert dio.read(p, mapping=None).equals(sample)
     assert open_source(p, mapping=None).read().equals(sample)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".mcap"])
+def test_convert_tells_progress_over_the_samples_written(tmp_path, suffix):
+    """``convert`` tells ``progress(done, total)`` after each piece, rising to the recording's
+    sample count; the file equals the one-piece write; ``-q`` prints nothing on stderr."""
+    from conftest import run_cli
+
+    from ditherlab.app import convert
+
+    src = Path(__file__).resolve().parents[1] / "recordings" / "sim-push-no-dither.parquet"
+    n = len(dio.read(src).t)
+    calls = []
+    opts = convert.ConvertOptions(src=src, dst=tmp_path / f"a{suffix}", chunk_rows=2000)
+    convert.run(opts, lambda d, tot: calls.append((d, tot)))
+    assert len(calls) > 1 and calls == [(min(k, n), n) for k in range(2000, n + 2000, 2000)]
+    whole = convert.ConvertOptions(src=src, dst=tmp_path / f"b{suffix}", chunk_rows=10**6)
+    convert.run(whole)
+    assert (tmp_path / f"a{suffix}").read_bytes() == (tmp_path / f"b{suffix}").read_bytes()
+    r = run_cli("convert", str(src), str(tmp_path / f"c{suffix}"), "-q")
+    assert r.code == 0 and r.err == "", r.err

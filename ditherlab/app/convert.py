@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ditherlab.analysis.known_load import KNOWN_LOAD, parse_known_load
-from ditherlab.app.workflow import ReadOptions, guard_recording
+from ditherlab.app.workflow import Progress, ReadOptions, guard_recording
 from ditherlab.io.stream import CHUNK_ROWS, open_source, write_stream
 
 __all__ = ["ConvertOptions", "Converted", "run"]
@@ -49,7 +49,7 @@ class Converted:
         return f"wrote {self.path}"
 
 
-def run(options: ConvertOptions) -> Converted:
+def run(options: ConvertOptions, progress: Progress | None = None) -> Converted:
     """Refuse an output that is, lies inside or holds the input (or a CSV input's sidecar, or
     the mapping file), an unwritable place, an existing output without ``force``, and a
     non-empty folder that is not a bag; then read ``src`` and write ``dst``. Parquet, CSV and
@@ -59,6 +59,7 @@ def run(options: ConvertOptions) -> Converted:
     Parameters
     ----------
     options : :class:`ConvertOptions`
+    progress : ``progress(done, total)`` over the samples written, optional
 
     Returns
     -------
@@ -70,4 +71,4 @@ def run(options: ConvertOptions) -> Converted:
     src = open_source(o.src, **o.read.kwargs())
     if load is not None:
         src.meta = {**src.meta, KNOWN_LOAD: load}
-    return Converted(write_stream(src, dst, rows=o.chunk_rows))
+    return Converted(write_stream(src, dst, rows=o.chunk_rows, progress=progress))

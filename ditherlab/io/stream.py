@@ -22,7 +22,7 @@ memory is not bounded (``ditherlab convert`` them to Parquet first).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -315,7 +315,12 @@ def open_source(path: str | Path, **options: Any) -> Source:
     return Source(path, **options)
 
 
-def write_stream(src: Source, dst: str | Path, rows: int = CHUNK_ROWS) -> Path:
+def write_stream(
+    src: Source,
+    dst: str | Path,
+    rows: int = CHUNK_ROWS,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
     """Write the recording ``src`` piece by piece (memory holds one piece) in the format of the
     suffix of ``dst``, when that format has a ``write_stream`` (Parquet, CSV, ditherlab MCAP);
     other formats, and sources read whole, are written from the whole recording
@@ -324,16 +329,35 @@ def write_stream(src: Source, dst: str | Path, rows: int = CHUNK_ROWS) -> Path:
     The file equals what :func:`ditherlab.io.write` makes of ``src.read()``: the same table and
     metadata (Parquet in row groups of :data:`ditherlab.io.parquet.ROW_GROUP` rows or fewer, CSV
     and MCAP the same bytes). Written atomically; every piece is checked against the contract
-    first.
+    first. ``progress(done, total)`` is told the samples written [-] after each piece.
     """
     p = Path(dst)
     fmt = registry.output_format(p)
     if fmt is None or fmt.write_stream is None or not src.bounded:
-        return registry.write(src.read(), p)
-    blocks = (piece.rec.data.iloc[piece.keep].reset_index(drop=True) for piece in src.pieces(rows))
+        out = registry.write(src.read(), p)
+        if progress is not None:
+            progress(src.n_rows, src.n_rows)
+        return out
+    blocks = _counted(
+        (piece.rec.data.iloc[piece.keep].reset_index(drop=True) for piece in src.pieces(rows)),
+        src.n_rows,
+        progress,
+    )
     try:
         return fmt.write_stream(blocks, src.meta, p, src.name)
     except OSError as exc:
         raise FormatError(
             f"{p}: cannot write the {fmt.name} file ({exc.strerror or exc})"
         ) from None
+
+
+def _counted(
+    blocks: Iterator[pd.DataFrame], total: int, progress: Callable[[int, int], None] | None
+) -> Iterator[pd.DataFrame]:
+    """``blocks`` as they are, telling ``progress(rows so far, total)`` after each one."""
+    done = 0
+    for b in blocks:
+        yield b
+        done += len(b)
+        if progress is not None:
+            progress(min(done, total), total)
