@@ -40,6 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import pandas as pd
 
+from ditherlab.analysis.causal_fast import FastPath, fast_params, supported
 from ditherlab.analysis.estimation import (
     ReplayHow,
     ReplayInputs,
@@ -47,7 +48,6 @@ from ditherlab.analysis.estimation import (
     parse_components,
     variant_estimate,
 )
-from ditherlab.analysis.causal_fast import FastPath, fast_params, supported
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.names import DITHER, MOVING, STILL
 from ditherlab.core.stamps import wire_time
