@@ -40,7 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import pandas as pd
 
-from ditherlab.analysis.causal_fast import FastPath, fast_params, supported
+from ditherlab.analysis.causal_fast import FastPath, as_kernel, fast_params, supported
 from ditherlab.analysis.estimation import (
     ReplayHow,
     ReplayInputs,
@@ -235,15 +235,15 @@ class CausalEstimator:
 
     def _fast_update(self, block: CausalBlock) -> dict[str, np.ndarray]:
         """:meth:`update` by the per-sample path."""
-        t = np.atleast_1d(np.asarray(block.t, dtype=float))
-        N = len(t)
+        N = np.size(block.t)
+        t = as_kernel(block.t, (N,))
 
         def arr(x: Any, width: int) -> np.ndarray | None:
-            return None if x is None else np.ascontiguousarray(x, dtype=float).reshape(N, width)
+            return None if x is None else as_kernel(x, (N, width))
 
-        on = None if block.dither is None else np.asarray(block.dither, dtype=bool).reshape(N)
+        on = None if block.dither is None else as_kernel(block.dither, (N,), np.bool_)
         q, tau, dq, ffw = (arr(x, self.n) for x in (block.q, block.tau, block.dq, block.tau_ffw))
-        rows = self.fast.run(t, q, tau, dq, on, ffw)
+        rows, act = self.fast.run(t, q, tau, dq, on, ffw)
         self.gaps = self.fast.gaps
         if self.t0 is None:
             self.t0 = float(t[0])
@@ -253,9 +253,12 @@ class CausalEstimator:
             cols.update({c: np.ascontiguousarray(w[:, k]) for k, c in enumerate(COMPONENTS)})
         if on is not None:
             cols["dither"] = on
-        cols.update(zip(self._names, rows, strict=False))
-        for v in self.settings.variants:
-            cols[f"{v}/active"] = cols[f"{v}/active"].astype(np.int64)
+        per, ext = self._names
+        it = iter(rows)
+        for (names, active), a in zip(per, act, strict=True):
+            cols.update(zip(names, it, strict=False))
+            cols[active] = a
+        cols.update(zip(ext, it, strict=False))
         self._track(t, rows[-1] != 0.0)
         return cols
 
@@ -452,18 +455,20 @@ class CausalEstimator:
         self.context = ctx
 
 
-def _row_names(variants: Sequence[str], n: int, dither: bool) -> list[str]:
-    """The estimates file's columns in the per-sample path's rows (its last row, whether a
-    joint moves, is not a column)."""
-    names = []
+def _row_names(
+    variants: Sequence[str], n: int, dither: bool
+) -> tuple[list[tuple[list[str], str]], list[str]]:
+    """The estimates file's columns of the per-sample path's outputs: per variant the names of
+    its rows (the wrench, ``_lo``, ``_hi``) and of its active joints; the extraction's rows."""
+    per = []
     for v in variants:
-        for suffix in ("", "_lo", "_hi"):
-            names += [f"{v}/{c}{suffix}" for c in COMPONENTS]
-        names.append(f"{v}/active")
+        names = [f"{v}/{c}{suffix}" for suffix in ("", "_lo", "_hi") for c in COMPONENTS]
+        per.append((names, f"{v}/active"))
+    ext = []
     if dither:
         for j in range(1, n + 1):
-            names += [f"extract/upper_{j}", f"extract/lower_{j}", f"extract/signal_{j}"]
-    return names
+            ext += [f"extract/upper_{j}", f"extract/lower_{j}", f"extract/signal_{j}"]
+    return per, ext
 
 
 def _rows(b: CausalBlock, rows: slice) -> CausalBlock:

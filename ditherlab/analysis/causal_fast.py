@@ -28,33 +28,39 @@ a recording).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from functools import partial
+from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, typeof
 
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.names import DITHER, MOVING, STILL
 from ditherlab.data.estimates import COMPONENTS
 from ditherlab.data.torque_model import TorqueModel
-from ditherlab.estimator.backends.exact import _solve_exact_kernel
+from ditherlab.estimator.backends.exact import ExactWork, _solve_exact_loop, piece_work
 from ditherlab.estimator.formulation import RIDGE, Samples, chi2_1_quantile
-from ditherlab.estimator.interval_methods.gaussian import _gaussian_kernel
+from ditherlab.estimator.interval_methods.gaussian import GaussWork, _gaussian_loop
 from ditherlab.estimator.interval_methods.profile import (
     MAX_MAGNIFICATION,
     UNOBSERVABLE,
     ProfileOptions,
     ProfileOut,
-    _profile_kernel,
+    ProfileWork,
+    _fast_loop,
     _profile_reference_kernel,
+    _profile_work,
 )
 from ditherlab.physics.dither import PEAK_FACTOR
 from ditherlab.robot import RobotModel
+from ditherlab.robot.tree import _gravity_kernel, _jacobian_kernel
+from ditherlab.robot.tree import gravity as tree_gravity
+from ditherlab.robot.tree import jacobian as tree_jacobian
 
 __all__ = ["FastBlock", "FastParams", "FastPath", "fast_params", "supported"]
 
-#: rows of a variant in the kernel's output: F (6), lo (6), hi (6), the active joints' bits (1)
-VROWS = 19
+#: rows of a variant in the kernel's output: F (6), lo (6), hi (6)
+VROWS = 18
 #: the history's rows beyond the kept past (copied to its front every that many samples)
 SPARE = 1024
 #: the dither flag's modes: none, the stream's flag, the feedforward's range
@@ -354,27 +360,66 @@ def _problem(vin, J, par, S):  # pragma: no cover - compiled
         S.p[0, r] = par.p_true[r] if par.p_true[r] > 0 else RIDGE * scale
 
 
+class Work(NamedTuple):
+    """The estimator kernels' scratch for one sample, made once per block.
+
+    Attributes
+    ----------
+    exact : :class:`~ditherlab.estimator.backends.exact.ExactWork` ; gauss : the closed form's
+        :class:`~ditherlab.estimator.interval_methods.gaussian.GaussWork` ; profile : the profile
+        intervals' :class:`~ditherlab.estimator.interval_methods.profile.ProfileWork`
+    half : (1, m) [N, N·m] half-widths ; active : (1, n) bool ; it, seg : (1,) int64 ;
+        mag : (1,) ; opts : the :class:`ProfileOptions`
+    """
+
+    exact: ExactWork
+    gauss: GaussWork
+    profile: ProfileWork
+    half: np.ndarray
+    active: np.ndarray
+    it: np.ndarray
+    seg: np.ndarray
+    mag: np.ndarray
+    opts: ProfileOptions
+
+
 @njit(cache=True)
-def _estimate(S, par, closed, F, lo, hi):  # pragma: no cover - compiled
+def _work(m, n, par):  # pragma: no cover - compiled
+    """A :class:`Work` for ``m`` components and ``n`` joints."""
+    exact = ExactWork(
+        piece_work(m, n), np.empty(m), np.empty(m), np.zeros(n, np.int8), np.zeros(n, np.int8),
+        np.zeros(n, np.int8), np.empty(m), np.empty(n), np.empty(n), np.empty(2 * n + 1),
+    )  # fmt: skip
+    gauss = GaussWork(
+        np.empty((m, m)), np.empty((m, m)), piece_work(m, n), np.empty(m), np.empty(m),
+        np.ones(n, np.int8),
+    )  # fmt: skip
+    opts = ProfileOptions(par.floats[3], par.p_true == 0.0, UNOBSERVABLE, MAX_MAGNIFICATION)
+    return Work(
+        exact, gauss, _profile_work(m, n, 4 * n + 8), np.empty((1, m)), np.zeros((1, n), np.bool_),
+        np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1), opts,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _estimate(S, ws, closed, F, lo, hi):  # pragma: no cover - compiled
     """The estimate ``F (1, m)`` [N, N·m] and profile interval ``lo, hi (1, m)`` of a
     one-sample problem ``S`` (``closed``: zero-width bands, every component with a prior: the
-    closed form); returns the active joints' bits."""
+    closed form), on the scratch ``ws`` (:class:`Work`); returns the active joints' bits."""
     n = S.w.shape[1]
-    thr = par.floats[3]
     if closed:
-        half = np.empty_like(F)
-        active = np.zeros((1, n), np.bool_)
-        _gaussian_kernel(S, thr, True, F, half, active)
+        _gaussian_loop(S, ws.opts.threshold, True, F, ws.half, ws.active, ws.gauss)
         for r in range(F.shape[1]):
-            lo[0, r] = F[0, r] - half[0, r]
-            hi[0, r] = F[0, r] + half[0, r]
+            lo[0, r] = F[0, r] - ws.half[0, r]
+            hi[0, r] = F[0, r] + ws.half[0, r]
     else:
-        _solve_exact_kernel(S, 100, False, F, np.zeros(1, np.int64))
-        opts = ProfileOptions(thr, par.p_true == 0.0, UNOBSERVABLE, MAX_MAGNIFICATION)
-        seg = np.zeros(1, np.int64)
-        _profile_kernel(S, F, opts, ProfileOut(lo, hi, seg, np.zeros(1)))
-        if seg[0] < 0:
-            _profile_reference_kernel(S, F, opts, ProfileOut(lo, hi, seg, np.zeros(1)))
+        _solve_exact_loop(S, 100, False, F, ws.it, ws.exact)
+        ws.seg[0] = 0
+        ws.mag[0] = 0.0
+        _fast_loop(S, F, ws.opts, ProfileOut(lo, hi, ws.seg, ws.mag), ws.profile)
+        if ws.seg[0] < 0:  # handed back: the reference path (as the batch intervals do)
+            ws.seg[0] = 0
+            _profile_reference_kernel(S, F, ws.opts, ProfileOut(lo, hi, ws.seg, ws.mag))
     bits = 0
     for j in range(n):
         r = S.tau_bar[0, j]
@@ -386,9 +431,9 @@ def _estimate(S, par, closed, F, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _write(par, row, k, F, lo, hi, bits, out):  # pragma: no cover - compiled
-    """A variant's rows of sample ``k`` in ``out``: the full wrench, its bounds (held
-    components at the prior mean) and the active joints' bits."""
+def _write(par, row, k, F, lo, hi, out):  # pragma: no cover - compiled
+    """A variant's rows of sample ``k`` in ``out``: the full wrench and its bounds (held
+    components at the prior mean)."""
     for c in range(6):
         out[row + c, k] = par.prior[0, c]
         out[row + 6 + c, k] = par.prior[0, c]
@@ -397,14 +442,14 @@ def _write(par, row, k, F, lo, hi, bits, out):  # pragma: no cover - compiled
         out[row + c, k] = F[0, r]
         out[row + 6 + c, k] = lo[0, r]
         out[row + 12 + c, k] = hi[0, r]
-    out[row + 18, k] = bits
 
 
 @njit(cache=True)
-def _run(hist, st, blk, par, out):  # pragma: no cover - compiled
+def _run(hist, st, blk, par, out, act):  # pragma: no cover - compiled
     """Every sample of ``blk`` (:class:`FastBlock`) in time order into the columns ``out``
     (rows: per variant :data:`VROWS`, the extraction's ``upper, lower, signal`` per joint with
-    a dither period, whether any joint moves); ``hist`` and ``st`` (next row, first row since
+    a dither period, whether any joint moves) and ``act`` (V, N) int64, the variants' active
+    joints as bits; ``hist`` and ``st`` (next row, first row since
     the last gap, gaps, any sample seen) the state. Returns :func:`_validate`'s code; nothing is
     changed unless it is 0."""
     code = _validate(hist, st, blk)
@@ -418,6 +463,7 @@ def _run(hist, st, blk, par, out):  # pragma: no cover - compiled
     )  # fmt: skip
     vin = np.empty((4, n))
     F, lo, hi = np.empty((1, m)), np.empty((1, m)), np.empty((1, m))
+    ws = _work(m, n, par)
     closed_ok = (par.p_true > 0.0).all()
     for k in range(len(blk.t)):
         i = _push(hist, st, blk, k, par)
@@ -426,8 +472,8 @@ def _run(hist, st, blk, par, out):  # pragma: no cover - compiled
             code_v = par.variants[v]
             _variant_inputs(code_v, blk.tau[k], blk.g[k], hist[i, 1 + 2 * n :], par, f, vin)
             _problem(vin, blk.J[k], par, S)
-            bits = _estimate(S, par, code_v & 2 and closed_ok, F, lo, hi)
-            _write(par, v * VROWS, k, F, lo, hi, bits, out)
+            act[v, k] = _estimate(S, ws, code_v & 2 and closed_ok, F, lo, hi)
+            _write(par, v * VROWS, k, F, lo, hi, out)
         if par.ints[2] > 0:
             for j in range(n):
                 for c in range(3):
@@ -491,6 +537,58 @@ def fast_params(
     )
 
 
+def compiled(dispatcher, *args):
+    """The compiled function of the numba ``dispatcher`` for the types of ``args`` (compiled, or
+    read from numba's cache, here). Called directly it skips numba's dispatch on the argument
+    types (about 0.4 us per array: 10-20 us per update with the arrays of a block, the
+    parameters and the robot's tree); the caller passes arrays of exactly these types (C
+    contiguous, writable, the same dtypes and dimensions)."""
+    sig = tuple(typeof(a) for a in args)
+    dispatcher.compile(sig)
+    return dispatcher.overloads[sig].entry_point
+
+
+def _kinematics(robot: RobotModel, n: int):
+    """``fill(q (N, n) [rad], g (N, n), J (N, 6, n))``: gravity [N·m] and the tool-point
+    Jacobian, by the robot's compiled tree kernels called directly when it has them
+    (:mod:`ditherlab.robot.tree`), else by its kernels (:meth:`RobotModel.evaluate`'s)."""
+    kern = robot._kernels_cache  # what RobotModel.evaluate runs, without its checks and cache
+    fg, fj = kern["gravity"][0], kern["jacobian"][0]
+    if (
+        isinstance(fg, partial) and fg.func is tree_gravity
+        and isinstance(fj, partial) and fj.func is tree_jacobian
+    ):  # fmt: skip
+        q, g, J = np.empty((1, n)), np.empty((1, n)), np.empty((1, 6, n))
+        eg = compiled(_gravity_kernel, fg.args[0], q, g)
+        ej = compiled(_jacobian_kernel, fj.args[0], q, J)
+        tg, tj = fg.args[0], fj.args[0]
+
+        def fill(q, g, J):
+            eg(tg, q, g)
+            ej(tj, q, J)
+
+        return fill
+
+    def fill_general(q, g, J):
+        with robot._lock:  # pinocchio's Data is shared scratch space
+            qs = robot.pin_configuration(q)
+            fg(qs, g)
+            fj(qs, J)
+
+    return fill_general
+
+
+def as_kernel(x: Any, shape: tuple[int, ...], dtype: type = float) -> np.ndarray:
+    """``x`` as a C-contiguous, writable array of ``dtype`` and ``shape`` (copied only when it is
+    not one already): the types :func:`compiled` functions were made for."""
+    a = np.asarray(x, dtype=dtype)
+    if a.shape != shape:
+        a = a.reshape(shape)
+    if not (a.flags.c_contiguous and a.flags.writeable):
+        a = a.copy()
+    return a
+
+
 class FastPath:
     """The per-sample path's state (module docstring): :meth:`run` takes checked samples and
     returns their estimates as rows.
@@ -513,15 +611,18 @@ class FastPath:
         self.present: tuple[bool, ...] | None = None
         V, ext = len(par.variants), 3 * self.n if par.ints[2] > 0 else 0
         self.rows = V * VROWS + ext + 1
+        self.kinematics = _kinematics(robot, self.n)
+        self._entry: dict[tuple[bool, ...], Any] = {}
 
     @property
     def gaps(self) -> int:
         """Gaps in the stream so far."""
         return int(self.st[2])
 
-    def run(self, t, q, tau, dq, on, ffw) -> np.ndarray:
+    def run(self, t, q, tau, dq, on, ffw) -> tuple[np.ndarray, np.ndarray]:
         """The estimates of new samples (``t`` (N,) [s], ``q``, ``tau``, ``dq``, ``ffw`` (N, n),
-        ``on`` (N,) bool; ``dq``, ``on``, ``ffw`` None when absent) as rows (:func:`_run`);
+        ``on`` (N,) bool; ``dq``, ``on``, ``ffw`` None when absent; C-contiguous writable float
+        arrays, as :func:`as_kernel` makes them) as rows (:func:`_run`);
         ConfigError for a time not after the last one, a value that is not finite, or a quantity
         given for some samples only."""
         present = (dq is not None, on is not None, ffw is not None)
@@ -537,21 +638,22 @@ class FastPath:
             )
         N, n = len(t), self.n
         g, J = np.empty((N, n)), np.empty((N, 6, n))
-        kern = self.robot._kernels_cache  # the compiled kernels of RobotModel.evaluate
-        with self.robot._lock:
-            qs = self.robot.pin_configuration(q)
-            kern["gravity"][0](qs, g)
-            kern["jacobian"][0](qs, J)
+        self.kinematics(q, g, J)
         none2, none1 = np.empty((0, n)), np.empty(0, np.bool_)
         blk = FastBlock(
             t, q, tau, none2 if dq is None else dq, none1 if on is None else on,
             none2 if ffw is None else ffw, g, J,
         )  # fmt: skip
         out = np.empty((self.rows, N))
-        code, k = _run(self.hist, self.st, blk, self.par, out)
+        act = np.empty((len(self.par.variants), N), np.int64)
+        run = self._entry.get(present)
+        if run is None:
+            args = (self.hist, self.st, blk, self.par, out, act)
+            run = self._entry[present] = compiled(_run, *args)
+        code, k = run(self.hist, self.st, blk, self.par, out, act)
         if code:
             self._raise(code, k, t)
-        return out
+        return out, act
 
     def _raise(self, code: int, k: int, t: np.ndarray) -> None:
         """The ConfigError of :func:`_validate`'s ``code`` at sample ``k`` of times ``t``."""
