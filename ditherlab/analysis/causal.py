@@ -249,8 +249,7 @@ class CausalEstimator:
             self.t0 = float(t[0])
         cols: dict[str, np.ndarray] = {"t": t}
         if block.wrench is not None:
-            w = arr(block.wrench, 6)
-            cols.update({c: np.ascontiguousarray(w[:, k]) for k, c in enumerate(COMPONENTS)})
+            cols.update(zip(COMPONENTS, arr(block.wrench, 6).T.copy(), strict=True))
         if on is not None:
             cols["dither"] = on
         per, ext = self._names
@@ -259,7 +258,7 @@ class CausalEstimator:
             cols.update(zip(names, it, strict=False))
             cols[active] = a
         cols.update(zip(ext, it, strict=False))
-        self._track(t, rows[-1] != 0.0)
+        self._track(t, rows[-1])
         return cols
 
     def _update(self, b: CausalBlock) -> dict[str, np.ndarray]:
@@ -428,14 +427,17 @@ class CausalEstimator:
         return cols
 
     def _track(self, t: np.ndarray, moving: np.ndarray) -> None:
-        """Extend :attr:`moving_spans` by the new rows' ``moving`` (N,) bool at ``t`` (N,) [s]."""
+        """Extend :attr:`moving_spans` by the new rows' ``moving`` (N,) (bool, or 0 and 1) at
+        ``t`` (N,) [s]."""
         if len(t) == 1:  # one sample (the live loop): its own span, or the one it continues
-            if moving[0] and self._moved and self.moving_spans:
+            now = bool(moving[0])
+            if now and self._moved and self.moving_spans:
                 self.moving_spans[-1][1] = float(t[0])
-            elif moving[0]:
+            elif now:
                 self.moving_spans.append([float(t[0]), float(t[0])])
-            self._moved = bool(moving[0])
+            self._moved = now
             return
+        moving = np.asarray(moving, dtype=bool)
         for a, b in time_spans(t, moving):
             if self._moved and a == t[0] and self.moving_spans:
                 self.moving_spans[-1][1] = b  # a motion across the blocks continues

@@ -579,14 +579,11 @@ def _kinematics(robot: RobotModel, n: int):
 
 
 def as_kernel(x: Any, shape: tuple[int, ...], dtype: type = float) -> np.ndarray:
-    """``x`` as a C-contiguous, writable array of ``dtype`` and ``shape`` (copied only when it is
-    not one already): the types :func:`compiled` functions were made for."""
-    a = np.asarray(x, dtype=dtype)
-    if a.shape != shape:
-        a = a.reshape(shape)
-    if not (a.flags.c_contiguous and a.flags.writeable):
-        a = a.copy()
-    return a
+    """``x`` as a C-contiguous array of ``dtype`` and ``shape`` (copied only when it is not one
+    already): the types :func:`compiled` functions were made for (the kernel does not write
+    to its inputs, so a read-only array serves as it is)."""
+    a = np.ascontiguousarray(x, dtype=dtype)
+    return a if a.shape == shape else a.reshape(shape)
 
 
 class FastPath:
