@@ -383,11 +383,38 @@ class ExactOut(NamedTuple):
     kkt: np.ndarray
 
 
+@njit(cache=True, inline="always", _nrt=False)
+def _prior_mean_inside(smp, k, out):
+    """Whether every joint's residual at the prior mean lies in its band: then the prior mean
+    is the minimiser (``f`` is 0 there and positive elsewhere), written with its completion
+    (``tau_f`` the residuals, nothing active, cost and kkt 0) as sample ``k`` of ``out``
+    (:class:`ExactOut`)."""
+    tb, J, a, b, w, p, fb = smp
+    m, n = J.shape
+    for j in range(n):
+        r = tb[j]
+        for i in range(m):
+            r -= J[i, j] * fb[i]
+        if r > b[j] or r < a[j]:
+            return False
+        out.tau_f[k, j] = r
+    for j in range(n):
+        out.active[k, j] = False
+    for i in range(m):
+        out.F[k, i] = 0.0 + fb[i]
+    out.it[k] = 1
+    out.cost[k] = 0.0
+    out.kkt[k] = 0.0
+    return True
+
+
 @njit(cache=True, _nrt=False)
 def _solve_complete_loop(S, p_true, max_iter, warm, out, ws, grad, mag):
     """:func:`_solve_exact_loop` and, while the sample's numbers are in the cache, its
     completion (:func:`~ditherlab.estimator.formulation.complete`) into ``out``
-    (:class:`ExactOut`); ``grad``, ``mag`` (m,) scratch."""
+    (:class:`ExactOut`); ``grad``, ``mag`` (m,) scratch. A sample whose joints all lie in their
+    bands at the prior mean (a robot at rest: most samples) is answered by
+    :func:`_prior_mean_inside` alone."""
     N, m, n = S.J.shape
     fb = S.prior_mean
     F = ws.F
@@ -398,6 +425,10 @@ def _solve_complete_loop(S, p_true, max_iter, warm, out, ws, grad, mag):
             for i in range(m):
                 F[i] = fb[i]
         smp = sample_at(S, k)
+        if _prior_mean_inside(smp, k, out):
+            for i in range(m):
+                F[i] = out.F[k, i]
+            continue
         out.it[k] = _solve_sample(smp, F, ws, max_iter)
         for i in range(m):
             out.F[k, i] = F[i]
@@ -416,10 +447,10 @@ def _solve_complete_kernel(S, p_true, max_iter, warm, out):
 
 def solve_exact(prob: Problem, max_iter: int = 100, warm: bool = True, progress=None) -> Solution:
     """The exact backend's :class:`~ditherlab.estimator.formulation.Solution` of a prepared
-    :class:`Problem`: the solve and its completion in one pass over the samples (what
-    :func:`_solve_exact` and :func:`~ditherlab.estimator.formulation.complete` give, bit for
-    bit), by chunks of :data:`~ditherlab.estimator.formulation.CHUNK` when ``progress`` is
-    given."""
+    :class:`Problem`: the solve and its completion in one pass over the samples (the ``F`` of
+    :func:`_solve_exact` with :func:`~ditherlab.estimator.formulation.complete`; a sample
+    answered by the prior mean counts one iteration), by chunks of
+    :data:`~ditherlab.estimator.formulation.CHUNK` when ``progress`` is given."""
     N, m, n = prob.N, prob.m, prob.n
     if not (N and m):
         return complete(prob, *_solve_exact(prob, max_iter, warm, progress))
