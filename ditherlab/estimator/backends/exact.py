@@ -463,8 +463,11 @@ def solve_exact(prob: Problem, max_iter: int = 100, warm: bool = True, progress=
         _solve_complete_kernel(prob.samples(sl), prob.p_true, max_iter, warm, part)
         if progress is not None:
             progress(sl.stop, N)
-    F = np.broadcast_to(prob.full_mean, (N, 6)).copy()
-    F[:, prob.free] = out.F
+    if m == 6:  # every component estimated: the kernel's F is the answer
+        F = out.F
+    else:
+        F = np.broadcast_to(prob.full_mean, (N, 6)).copy()
+        F[:, prob.free] = out.F
     return Solution(F, out.tau_f, out.active, out.cost, out.it, out.kkt)
 
 
