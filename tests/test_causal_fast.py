@@ -135,3 +135,17 @@ def test_what_the_fast_path_does_not_cover(rec):
     model.effects = [EffectSpec("temperature_friction", [1], {"coef": [-0.1], "x_ref": [30.0]})]
     assert isinstance(model.regimes["still"], Band)
     assert CausalEstimator(model, rec.meta, settings_for(rec)).fast is None
+
+
+def test_read_only_columns_and_an_empty_block():
+    """A recording read from Parquet hands read-only arrays (its own type to numba): they are
+    copied, not compiled for anew; an empty block returns empty columns and changes nothing."""
+    whole = read(REC)
+    assert not whole.q.flags.writeable
+    model = irb140_model()
+    est = CausalEstimator(model, whole.meta, settings_for(whole))
+    empty = est.update(block_of(whole, slice(0, 0)))
+    assert len(empty["dither_band/f_x"]) == 0 and est.moving_spans == []
+    got = run(est, [block_of(whole, slice(a, a + 50)) for a in range(0, 200, 50)])
+    general = CausalEstimator(model, whole.meta, settings_for(whole), fast=False)
+    assert_same(got, run(general, [block_of(whole, slice(0, 200))]))

@@ -245,7 +245,7 @@ class CausalEstimator:
         q, tau, dq, ffw = (arr(x, self.n) for x in (block.q, block.tau, block.dq, block.tau_ffw))
         rows, act = self.fast.run(t, q, tau, dq, on, ffw)
         self.gaps = self.fast.gaps
-        if self.t0 is None:
+        if self.t0 is None and N:
             self.t0 = float(t[0])
         cols: dict[str, np.ndarray] = {"t": t}
         if block.wrench is not None:
@@ -436,6 +436,8 @@ class CausalEstimator:
             elif now:
                 self.moving_spans.append([float(t[0]), float(t[0])])
             self._moved = now
+            return
+        if not len(t):
             return
         moving = np.asarray(moving, dtype=bool)
         for a, b in time_spans(t, moving):

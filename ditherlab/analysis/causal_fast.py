@@ -579,11 +579,13 @@ def _kinematics(robot: RobotModel, n: int):
 
 
 def as_kernel(x: Any, shape: tuple[int, ...], dtype: type = float) -> np.ndarray:
-    """``x`` as a C-contiguous array of ``dtype`` and ``shape`` (copied only when it is not one
-    already): the types :func:`compiled` functions were made for (the kernel does not write
-    to its inputs, so a read-only array serves as it is)."""
+    """``x`` as a C-contiguous, writable array of ``dtype`` and ``shape`` (copied only when it
+    is not one already): the types :func:`compiled` functions were made for (a read-only array,
+    an Arrow-backed column, is a type of its own to numba)."""
     a = np.ascontiguousarray(x, dtype=dtype)
-    return a if a.shape == shape else a.reshape(shape)
+    if a.shape != shape:
+        a = a.reshape(shape)
+    return a if a.flags.writeable else a.copy()
 
 
 class FastPath:
