@@ -545,7 +545,8 @@ def compiled(dispatcher, *args):
     contiguous, writable, the same dtypes and dimensions)."""
     sig = tuple(typeof(a) for a in args)
     dispatcher.compile(sig)
-    return dispatcher.overloads[sig].entry_point
+    entry = getattr(dispatcher.overloads.get(sig), "entry_point", None)
+    return dispatcher if entry is None else entry  # numba's dispatch where it has no entry
 
 
 def _kinematics(robot: RobotModel, n: int):
