@@ -40,6 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import pandas as pd
 
+from ditherlab.analysis.causal_fast import FastPath, as_kernel, fast_params, supported
 from ditherlab.analysis.estimation import (
     ReplayHow,
     ReplayInputs,
@@ -160,6 +161,8 @@ class CausalEstimator:
         robot must be the model's)
     settings : :class:`CausalSettings`
     robot : the robot already built from ``meta`` (optional)
+    fast : run the per-sample path (:mod:`ditherlab.analysis.causal_fast`) where it covers the
+        model and settings (:attr:`fast` not None); False: the general update, its reference
     """
 
     def __init__(
@@ -168,6 +171,7 @@ class CausalEstimator:
         meta: Mapping[str, Any],
         settings: CausalSettings,
         robot: RobotModel | None = None,
+        fast: bool = True,
     ) -> None:
         self.model, self.settings = model, settings
         self.meta = {"schema": SCHEMA, **dict(meta)}
@@ -188,6 +192,15 @@ class CausalEstimator:
         #: gaps in the stream so far (each starts the estimate afresh)
         self.gaps = 0
         self._moved = False
+        #: the per-sample path, None where the general update runs (:func:`supported`)
+        self.fast: FastPath | None = None
+        if fast and supported(model, settings.interval) is None:
+            par = fast_params(
+                model, settings, self.how.comps, self.gain, (MOVING_THRESHOLD, FFW_ON)
+            )
+            if len(par.free):
+                self.fast = FastPath(par, self.robot, max(GAP_MIN_S, GAP_STEPS * settings.dt))
+                self._names = _row_names(settings.variants, self.n, settings.period is not None)
 
     def update(self, block: CausalBlock) -> dict[str, np.ndarray]:
         """The estimates of new samples, as the estimates file's columns (each (N,), file order:
@@ -200,6 +213,8 @@ class CausalEstimator:
 
         Raises ConfigError when a time is not after the previous one or a value is not finite.
         """
+        if self.fast is not None:
+            return self._fast_update(block)
         b = self._checked(block)
         every = b.t if self.context is None else np.r_[self.context["t"][-1], b.t]
         gap = max(GAP_MIN_S, GAP_STEPS * self.settings.dt)
@@ -217,6 +232,34 @@ class CausalEstimator:
                 self.context = None
             parts.append(self._update(_rows(b, slice(a, e))))
         return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+    def _fast_update(self, block: CausalBlock) -> dict[str, np.ndarray]:
+        """:meth:`update` by the per-sample path."""
+        N = np.size(block.t)
+        t = as_kernel(block.t, (N,))
+
+        def arr(x: Any, width: int) -> np.ndarray | None:
+            return None if x is None else as_kernel(x, (N, width))
+
+        on = None if block.dither is None else as_kernel(block.dither, (N,), np.bool_)
+        q, tau, dq, ffw = (arr(x, self.n) for x in (block.q, block.tau, block.dq, block.tau_ffw))
+        rows, act = self.fast.run(t, q, tau, dq, on, ffw)
+        self.gaps = self.fast.gaps
+        if self.t0 is None and N:
+            self.t0 = float(t[0])
+        cols: dict[str, np.ndarray] = {"t": t}
+        if block.wrench is not None:
+            cols.update(zip(COMPONENTS, arr(block.wrench, 6).T.copy(), strict=True))
+        if on is not None:
+            cols["dither"] = on
+        per, ext = self._names
+        it = iter(rows)
+        for (names, active), a in zip(per, act, strict=True):
+            cols.update(zip(names, it, strict=False))
+            cols[active] = a
+        cols.update(zip(ext, it, strict=False))
+        self._track(t, rows[-1])
+        return cols
 
     def _update(self, b: CausalBlock) -> dict[str, np.ndarray]:
         """:meth:`update` of rows without a gap."""
@@ -384,7 +427,19 @@ class CausalEstimator:
         return cols
 
     def _track(self, t: np.ndarray, moving: np.ndarray) -> None:
-        """Extend :attr:`moving_spans` by the new rows' ``moving`` (N,) bool at ``t`` (N,) [s]."""
+        """Extend :attr:`moving_spans` by the new rows' ``moving`` (N,) (bool, or 0 and 1) at
+        ``t`` (N,) [s]."""
+        if len(t) == 1:  # one sample (the live loop): its own span, or the one it continues
+            now = bool(moving[0])
+            if now and self._moved and self.moving_spans:
+                self.moving_spans[-1][1] = float(t[0])
+            elif now:
+                self.moving_spans.append([float(t[0]), float(t[0])])
+            self._moved = now
+            return
+        if not len(t):
+            return
+        moving = np.asarray(moving, dtype=bool)
         for a, b in time_spans(t, moving):
             if self._moved and a == t[0] and self.moving_spans:
                 self.moving_spans[-1][1] = b  # a motion across the blocks continues
@@ -402,6 +457,22 @@ class CausalEstimator:
         for key in ("dq_in", "on_in", "ffw"):
             ctx.setdefault(key, None)
         self.context = ctx
+
+
+def _row_names(
+    variants: Sequence[str], n: int, dither: bool
+) -> tuple[list[tuple[list[str], str]], list[str]]:
+    """The estimates file's columns of the per-sample path's outputs: per variant the names of
+    its rows (the wrench, ``_lo``, ``_hi``) and of its active joints; the extraction's rows."""
+    per = []
+    for v in variants:
+        names = [f"{v}/{c}{suffix}" for suffix in ("", "_lo", "_hi") for c in COMPONENTS]
+        per.append((names, f"{v}/active"))
+    ext = []
+    if dither:
+        for j in range(1, n + 1):
+            ext += [f"extract/upper_{j}", f"extract/lower_{j}", f"extract/signal_{j}"]
+    return per, ext
 
 
 def _rows(b: CausalBlock, rows: slice) -> CausalBlock:

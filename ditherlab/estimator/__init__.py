@@ -62,6 +62,7 @@ from collections.abc import Callable, Sequence
 
 from ditherlab.core.errors import ConfigError
 from ditherlab.estimator.backends import _available, available_backends
+from ditherlab.estimator.backends.exact import solve_exact
 from ditherlab.estimator.backends.qp import QP_OPTIONS, qp_matrices
 from ditherlab.estimator.formulation import (
     CHUNK,
@@ -170,5 +171,7 @@ def solve(
             f"estimator: backend {backend!r} is not available; installed: "
             f"{', '.join(backends)} (the references need `pip install qpsolvers proxsuite quadprog`)"
         )
+    if backend == "exact":  # the solve and its completion in one pass
+        return solve_exact(prob, progress=progress)
     Fm, it = backends[backend](prob, progress=progress)
     return complete(prob, Fm, it)

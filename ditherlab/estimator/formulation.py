@@ -17,6 +17,7 @@ from numba import njit
 from ditherlab.core.errors import ConfigError, ModelError
 from ditherlab.core.files import atomic_path
 from ditherlab.core.names import WRENCH_COLUMNS
+from ditherlab.estimator.piecewise import sample_at
 
 #: Names of the six wrench components, in the order of ``F`` and of the rows of ``J``.
 COMPONENTS = WRENCH_COLUMNS
@@ -182,13 +183,18 @@ class Problem:
 
 
 def _per_sample(name: str, x, N: int, n: int) -> np.ndarray:
-    """Broadcast a per-joint array (n,) or (N, n) to a contiguous (N, n) float array."""
+    """A per-joint array (n,) or (N, n) as a float array of that shape (checked)."""
     a = np.asarray(x, dtype=float)
     if a.shape not in ((n,), (N, n)):
         raise ConfigError(
             f"estimator: {name} has shape {a.shape}; expected ({n},) or ({N}, {n}) to match tau_bar"
         )
-    return kernel_array(np.broadcast_to(a, (N, n)))
+    return a
+
+
+def _to_samples(x: np.ndarray, N: int) -> np.ndarray:
+    """``x`` (n,) or (N, n) broadcast to a contiguous (N, n) float array."""
+    return kernel_array(np.broadcast_to(x, (N, x.shape[-1])))
 
 
 def kernel_array(x) -> np.ndarray:
@@ -239,11 +245,15 @@ def _check_data(tau_bar, J) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_noise(tau_min, tau_max, sigma, N: int, n: int) -> tuple[np.ndarray, ...]:
-    """The bands and the noise broadcast to ``(N, n)`` [N·m]: bands not inverted nor NaN,
-    ``sigma`` positive and finite."""
+    """The bands and the noise, (n,) or (N, n) as given [N·m] (checked on the arrays given,
+    before they are broadcast to every sample): bands not inverted nor NaN, ``sigma`` positive
+    and finite."""
     a = _per_sample("tau_min", tau_min, N, n)
     b = _per_sample("tau_max", tau_max, N, n)
     s = _per_sample("sigma", sigma, N, n)
+    a, b, s = np.broadcast_arrays(a, b, s)  # views: (n,) when all three are per joint
+    if a.ndim == 1:
+        a, b, s = a[None], b[None], s[None]  # the first sample's, as every sample's
     inv = a > b
     if inv.any():
         k, j = (int(v) for v in np.argwhere(inv)[0])
@@ -324,6 +334,8 @@ def problem(
     tb, Jx = _check_data(tau_bar, J)
     N, n = tb.shape
     a, b, s = _check_noise(tau_min, tau_max, sigma, N, n)
+    # per joint or per sample as given; every sample's copies made once checked
+    a, b, w = _to_samples(a, N), _to_samples(b, N), _to_samples(1.0 / s**2, N)
     fbar, psig = _check_prior(prior_mean, prior_sigma)
     free = _component_indices(components)
     free = free[psig[free] > 0]
@@ -334,14 +346,13 @@ def problem(
         Jf = kernel_array(Jx[:, free, :])
     else:  # all six estimated: no copies of contiguous, writable inputs
         tb_red, Jf = tb, kernel_array(Jx)
-    w = 1.0 / s**2
     p, p_true = _prior_weights(psig, free, Jf, w)
     return Problem(
         tau_bar=kernel_array(tb_red),
         J=Jf,
         tau_min=a,
         tau_max=b,
-        w=np.ascontiguousarray(w),
+        w=w,
         p=np.ascontiguousarray(p),
         p_true=p_true,
         prior_mean=np.ascontiguousarray(fbar[free]),
@@ -353,43 +364,53 @@ def problem(
 # ------------------------------------------------------------------------------- completion
 
 
+@njit(cache=True, inline="always", _nrt=False)
+def _complete_sample(smp, p_true, Fk, tf, act, grad, mag):
+    """``tau_f`` into ``tf (n,)`` and ``active`` into ``act (n,)`` of the estimate ``Fk (m,)``
+    at the sample ``smp`` (:class:`~ditherlab.estimator.piecewise.Sample`); ``grad``, ``mag``
+    (m,) scratch. Returns ``(cost, kkt)`` (see :func:`complete`)."""
+    tb, J, a, b, w, p, fb = smp
+    m, n = J.shape
+    c = 0.0
+    for i in range(m):
+        dev = Fk[i] - fb[i]
+        c += p_true[i] * dev * dev
+        grad[i] = p[i] * dev
+        mag[i] = p[i] * (abs(Fk[i]) + abs(fb[i]))
+    for j in range(n):
+        r = tb[j]
+        sz = abs(tb[j])
+        for i in range(m):
+            r -= J[i, j] * Fk[i]
+            sz += abs(J[i, j] * Fk[i])
+        t = min(max(r, a[j]), b[j])
+        tf[j] = t
+        d = r - t
+        act[j] = d != 0.0
+        c += w[j] * d * d
+        sz += abs(t)
+        for i in range(m):
+            grad[i] -= J[i, j] * w[j] * d
+            mag[i] += abs(J[i, j]) * w[j] * sz
+    e = 0.0
+    for i in range(m):
+        if mag[i] > 0.0:
+            e = max(e, abs(grad[i]) / mag[i])
+    return c, e
+
+
 @njit(cache=True)
 def _complete_kernel(S, p_true, Fm, tau_f, active, cost, kkt):
     """``tau_f (N, n)``, ``active (N, n)``, ``cost (N,)`` and ``kkt (N,)`` of the estimate
     ``Fm (N, m)`` of the run ``S`` (:class:`Samples`), ``p_true (m,)`` the prior weights without
     the ridge (see :func:`complete`)."""
-    tb, J, a, b, w, p, fb = S
-    N, m, n = J.shape
+    N, m, n = S.J.shape
     grad = np.empty(m)
     mag = np.empty(m)
     for k in range(N):
-        c = 0.0
-        for i in range(m):
-            dev = Fm[k, i] - fb[i]
-            c += p_true[i] * dev * dev
-            grad[i] = p[k, i] * dev
-            mag[i] = p[k, i] * (abs(Fm[k, i]) + abs(fb[i]))
-        for j in range(n):
-            r = tb[k, j]
-            sz = abs(tb[k, j])
-            for i in range(m):
-                r -= J[k, i, j] * Fm[k, i]
-                sz += abs(J[k, i, j] * Fm[k, i])
-            tf = min(max(r, a[k, j]), b[k, j])
-            tau_f[k, j] = tf
-            d = r - tf
-            active[k, j] = d != 0.0
-            c += w[k, j] * d * d
-            sz += abs(tf)
-            for i in range(m):
-                grad[i] -= J[k, i, j] * w[k, j] * d
-                mag[i] += abs(J[k, i, j]) * w[k, j] * sz
-        cost[k] = c
-        e = 0.0
-        for i in range(m):
-            if mag[i] > 0.0:
-                e = max(e, abs(grad[i]) / mag[i])
-        kkt[k] = e
+        cost[k], kkt[k] = _complete_sample(
+            sample_at(S, k), p_true, Fm[k], tau_f[k], active[k], grad, mag
+        )
 
 
 def complete(prob: Problem, Fm: np.ndarray, iterations: np.ndarray | None = None) -> Solution:

@@ -11,7 +11,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ditherlab.estimator.formulation import Problem, _chunks
+from ditherlab.estimator.formulation import Problem, Solution, _chunks, _complete_sample, complete
 from ditherlab.estimator.piecewise import _cost, _dist, _sides, sample_at
 
 
@@ -107,6 +107,10 @@ def _newton_piece(smp, s, work, x):
             Bm[na, i] = sw * J[i, j]
         bb[na] = beta * sw
         na += 1
+    if na == 0:  # the prior alone: its mean (what the solve below gives, without R)
+        for i in range(m):
+            x[i] = 0.0 + fb[i]
+        return
     for i in range(m):
         for k in range(m):
             R[i, k] = 0.0
@@ -348,17 +352,123 @@ def _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws):
 
 
 @njit(cache=True)
+def exact_work(m, n):
+    """An :class:`ExactWork` for ``m`` components and ``n`` joints."""
+    return ExactWork(
+        piece_work(m, n), np.empty(m), np.empty(m), np.zeros(n, np.int8), np.zeros(n, np.int8),
+        np.zeros(n, np.int8), np.empty(m), np.empty(n), np.empty(n), np.empty(2 * n + 1),
+    )  # fmt: skip
+
+
+@njit(cache=True)
 def _solve_exact_kernel(S, max_iter, warm, F_out, it_out):
     """The exact solution ``F_out (N, m)`` [N, N·m] and iterations ``it_out (N,)`` of every
     sample of the run ``S`` (:class:`~ditherlab.estimator.formulation.Samples`); ``warm``: each sample
     starts from the previous one's solution (time series are smooth), else from the prior
     mean."""
     N, m, n = S.J.shape
-    ws = ExactWork(
-        piece_work(m, n), np.empty(m), np.empty(m), np.zeros(n, np.int8), np.zeros(n, np.int8),
-        np.zeros(n, np.int8), np.empty(m), np.empty(n), np.empty(n), np.empty(2 * n + 1),
+    _solve_exact_loop(S, max_iter, warm, F_out, it_out, exact_work(m, n))
+
+
+class ExactOut(NamedTuple):
+    """What :func:`_solve_complete_kernel` writes per sample: ``F (N, m)`` [N, N·m], ``it (N,)``
+    and the rest of a :class:`~ditherlab.estimator.formulation.Solution`: ``tau_f (N, n)``
+    [N·m], ``active (N, n)``, ``cost (N,)``, ``kkt (N,)``."""
+
+    F: np.ndarray
+    it: np.ndarray
+    tau_f: np.ndarray
+    active: np.ndarray
+    cost: np.ndarray
+    kkt: np.ndarray
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _prior_mean_inside(smp, k, out):
+    """Whether every joint's residual at the prior mean lies in its band: then the prior mean
+    is the minimiser (``f`` is 0 there and positive elsewhere), written with its completion
+    (``tau_f`` the residuals, nothing active, cost and kkt 0) as sample ``k`` of ``out``
+    (:class:`ExactOut`)."""
+    tb, J, a, b, w, p, fb = smp
+    m, n = J.shape
+    for j in range(n):
+        r = tb[j]
+        for i in range(m):
+            r -= J[i, j] * fb[i]
+        if r > b[j] or r < a[j]:
+            return False
+        out.tau_f[k, j] = r
+    for j in range(n):
+        out.active[k, j] = False
+    for i in range(m):
+        out.F[k, i] = 0.0 + fb[i]
+    out.it[k] = 1
+    out.cost[k] = 0.0
+    out.kkt[k] = 0.0
+    return True
+
+
+@njit(cache=True, _nrt=False)
+def _solve_complete_loop(S, p_true, max_iter, warm, out, ws, grad, mag):
+    """:func:`_solve_exact_loop` and, while the sample's numbers are in the cache, its
+    completion (:func:`~ditherlab.estimator.formulation.complete`) into ``out``
+    (:class:`ExactOut`); ``grad``, ``mag`` (m,) scratch. A sample whose joints all lie in their
+    bands at the prior mean (a robot at rest: most samples) is answered by
+    :func:`_prior_mean_inside` alone."""
+    N, m, n = S.J.shape
+    fb = S.prior_mean
+    F = ws.F
+    for i in range(m):
+        F[i] = fb[i]
+    for k in range(N):
+        if not warm:
+            for i in range(m):
+                F[i] = fb[i]
+        smp = sample_at(S, k)
+        if _prior_mean_inside(smp, k, out):
+            for i in range(m):
+                F[i] = out.F[k, i]
+            continue
+        out.it[k] = _solve_sample(smp, F, ws, max_iter)
+        for i in range(m):
+            out.F[k, i] = F[i]
+        out.cost[k], out.kkt[k] = _complete_sample(
+            smp, p_true, F, out.tau_f[k], out.active[k], grad, mag
+        )
+
+
+@njit(cache=True)
+def _solve_complete_kernel(S, p_true, max_iter, warm, out):
+    """The exact solution of every sample of the run ``S`` and its completion into ``out``
+    (:class:`ExactOut`); ``p_true (m,)`` the prior weights without the ridge."""
+    N, m, n = S.J.shape
+    _solve_complete_loop(S, p_true, max_iter, warm, out, exact_work(m, n), np.empty(m), np.empty(m))
+
+
+def solve_exact(prob: Problem, max_iter: int = 100, warm: bool = True, progress=None) -> Solution:
+    """The exact backend's :class:`~ditherlab.estimator.formulation.Solution` of a prepared
+    :class:`Problem`: the solve and its completion in one pass over the samples (the ``F`` of
+    :func:`_solve_exact` with :func:`~ditherlab.estimator.formulation.complete`; a sample
+    answered by the prior mean counts one iteration), by chunks of
+    :data:`~ditherlab.estimator.formulation.CHUNK` when ``progress`` is given."""
+    N, m, n = prob.N, prob.m, prob.n
+    if not (N and m):
+        return complete(prob, *_solve_exact(prob, max_iter, warm, progress))
+    out = ExactOut(
+        np.empty((N, m)), np.zeros(N, np.int64), np.empty((N, n)), np.empty((N, n), np.bool_),
+        np.empty(N), np.empty(N),
     )  # fmt: skip
-    _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws)
+    for sl in _chunks(N, progress):
+        part = ExactOut(*(a[sl] for a in out))
+        _solve_complete_kernel(prob.samples(sl), prob.p_true, max_iter, warm, part)
+        if progress is not None:
+            progress(sl.stop, N)
+    if m == 6:  # every component estimated: the kernel's F is the answer
+        F = out.F
+    else:
+        F = np.broadcast_to(prob.full_mean, (N, 6)).copy()
+        F[:, prob.free] = out.F
+    return Solution(F, out.tau_f, out.active, out.cost, out.it, out.kkt)
 
 
 def _solve_exact(
