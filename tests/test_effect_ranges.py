@@ -54,6 +54,10 @@ def test_payload_range_is_the_rated_payload():
     assert e.outside_range({"mass": 10.0, "mass_com": [0.0, 0.0, 0.5]}, sig) is None
     out = e.outside_range({"mass": 14.0, "mass_com": [0.0, 0.0, 0.7]}, sig)
     assert out is not None and out.param == "mass" and out.hi == 12.5
+    # a first moment without mass (the fit's mass held at its bound 0): no load makes that torque
+    out = e.outside_range({"mass": 0.0, "mass_com": [5.0, 0.0, 0.0]}, sig)
+    assert out is not None and out.value == np.inf
+    assert e.outside_range({"mass": 0.0, "mass_com": [0.0, 0.0, 0.0]}, sig) is None
 
 
 @pytest.fixture(scope="module")

@@ -123,11 +123,11 @@ class LoadFriction(Effect):
         Bound(
             "k",
             "N·m per N·m",
-            "0 .. 0.5",
-            "a gear loses less than half of the torque it transmits (harmonic, cycloid and "
-            "planetary gears: 60-95 % efficiency)",
+            "0 .. 1",
+            "a gear loses at most as much torque as it transmits: efficiency 50 % or more "
+            "(harmonic drives cold and slow 50-65 %, cycloid and planetary gears 60-95 %)",
             0.0,
-            0.5,
+            1.0,
         ),
     )
 

@@ -3,6 +3,7 @@ inertial parameters as identified base parameters (``dynamics``)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -20,9 +21,13 @@ def _reach(sigs: Sequence[Signals], j: int | None = None) -> float:
 
 
 def _com_distance(p: dict, sigs: Sequence[Signals]) -> float | None:
-    """[m]: the payload's centre of mass's distance from the tool point (None: no mass)."""
+    """[m]: the payload's centre of mass's distance from the tool point (None: no load at all;
+    infinite: a first moment without mass, a torque no load can make)."""
     m = float(p["mass"])
-    return float(np.linalg.norm(np.asarray(p["mass_com"], dtype=float) / m)) if m > 0 else None
+    mc = np.asarray(p["mass_com"], dtype=float)
+    if m <= 0:
+        return math.inf if np.any(mc != 0) else None
+    return float(np.linalg.norm(mc / m))
 
 
 def _armature_max(sigs: Sequence[Signals], j: int | None) -> float:
