@@ -30,12 +30,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-LOOPBACK = (
-    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface name='lo'/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General><Discovery><Peers>"
-    "<Peer address='127.0.0.1'/></Peers><ParticipantIndex>auto</ParticipantIndex>"
-    "<MaxAutoParticipantIndex>60</MaxAutoParticipantIndex></Discovery></Domain></CycloneDDS>"
-)
 
 
 def _timed(est, blocks, pace: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -136,8 +130,9 @@ def _compute(quick: bool) -> list[dict]:
 
 
 def _loopback(quick: bool) -> list[dict]:
-    os.environ.setdefault("CYCLONEDDS_URI", LOOPBACK)
-    from ditherlab.io.dds import Header, JointState, Reader, Time, Writer, participant
+    from ditherlab.io.dds import LOOPBACK_URI, Header, JointState, Reader, Time, Writer, participant
+
+    os.environ.setdefault("CYCLONEDDS_URI", LOOPBACK_URI)
 
     domain = 100 + os.getpid() % 100
     count = 1000 if quick else 5000

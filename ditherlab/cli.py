@@ -39,6 +39,7 @@ from ditherlab.cli_options import (
     Chunk,
     ComponentsOpt,
     Force,
+    IntervalOpt,
     JointTopicOpt,
     JsonFlag,
     LevelOpt,
@@ -472,9 +473,7 @@ def replay(
     model: ModelIn,
     out: Annotated[str, out_file("Estimates file, .parquet")],
     level: LevelOpt = 0.95,
-    interval: Annotated[
-        str, typer.Option("--interval", help="Interval method: profile or set_membership.")
-    ] = "profile",
+    interval: IntervalOpt = "profile",
     components: ComponentsOpt = "all",
     variants: Annotated[
         str | None,
@@ -603,9 +602,7 @@ def live(
         typer.Option("--variant", help="Variant published and shown (default: dither_band)."),
     ] = None,
     level: LevelOpt = 0.95,
-    interval: Annotated[
-        str, typer.Option("--interval", help="Interval method: profile or set_membership.")
-    ] = "profile",
+    interval: IntervalOpt = "profile",
     components: ComponentsOpt = "all",
     variants: Annotated[
         str | None,

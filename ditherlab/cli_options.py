@@ -18,6 +18,9 @@ import typer
 from ditherlab.core.errors import DitherlabWarning
 
 LevelOpt = Annotated[float, typer.Option("--level", help="Interval confidence level.")]
+IntervalOpt = Annotated[
+    str, typer.Option("--interval", help="Interval method: profile or set_membership.")
+]
 ComponentsOpt = Annotated[
     str,
     typer.Option("--components", help="Estimated components: all, fxyz, or a list like f_x,f_z."),

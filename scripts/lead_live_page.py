@@ -28,18 +28,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "lead-through.md"
 MARKER = "<!-- generated below by scripts/lead_live_page.py -->"
-LOOPBACK = (
-    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface name='lo'/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General><Discovery><Peers>"
-    "<Peer address='127.0.0.1'/></Peers><ParticipantIndex>auto</ParticipantIndex>"
-    "<MaxAutoParticipantIndex>60</MaxAutoParticipantIndex></Discovery></Domain></CycloneDDS>"
-)
 SEED = 1
 
 
 def _cli(*args: str) -> tuple[str, float]:
     """``ditherlab ARGS`` in its own process: stdout and the wall time [s]."""
-    env = dict(os.environ, CYCLONEDDS_URI=LOOPBACK, PYTHONPATH=str(ROOT))
+    sys.path.insert(0, str(ROOT))
+    from ditherlab.io.dds import LOOPBACK_URI
+
+    env = dict(os.environ, CYCLONEDDS_URI=LOOPBACK_URI, PYTHONPATH=str(ROOT))
     t0 = time.perf_counter()
     r = subprocess.run(
         [sys.executable, "-m", "ditherlab", *args, "-q"], env=env, capture_output=True, text=True

@@ -20,17 +20,11 @@ from ditherlab.analysis.lead_metrics import lead_metrics, tool_path
 from ditherlab.app.leadthrough_dds import dds_source
 from ditherlab.app.leadthrough_live import causal_source, link_settings
 from ditherlab.core.errors import ConfigError
+from ditherlab.io.dds import LOOPBACK_URI as LOOPBACK
 from ditherlab.sim import simulate
 from ditherlab.sim.guidance import LoggedChunk
 
 REPO = Path(__file__).resolve().parents[1]
-#: Cyclone DDS on the loopback interface alone, peers by unicast (as tests/test_live.py)
-LOOPBACK = (
-    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface name='lo'/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General><Discovery><Peers>"
-    "<Peer address='127.0.0.1'/></Peers><ParticipantIndex>auto</ParticipantIndex>"
-    "<MaxAutoParticipantIndex>60</MaxAutoParticipantIndex></Discovery></Domain></CycloneDDS>"
-)
 os.environ["CYCLONEDDS_URI"] = LOOPBACK
 #: a domain of this test run's own
 DOMAIN = 100 + (os.getpid() + 50) % 100

@@ -20,6 +20,7 @@ from test_causal import irb140_model
 
 from ditherlab.core.errors import ConfigError
 from ditherlab.io import read, write
+from ditherlab.io.dds import LOOPBACK_URI as LOOPBACK
 from ditherlab.io.dds import (
     DitherState,
     Header,
@@ -35,13 +36,6 @@ from ditherlab.io.dds import (
 from ditherlab.robot import RobotModel
 
 REPO = Path(__file__).resolve().parents[1]
-#: Cyclone DDS on the loopback interface alone, peers by unicast: no packet leaves the machine
-LOOPBACK = (
-    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface name='lo'/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General><Discovery><Peers>"
-    "<Peer address='127.0.0.1'/></Peers><ParticipantIndex>auto</ParticipantIndex>"
-    "<MaxAutoParticipantIndex>60</MaxAutoParticipantIndex></Discovery></Domain></CycloneDDS>"
-)
 os.environ["CYCLONEDDS_URI"] = LOOPBACK
 #: a domain of this test run's own (other runs on the machine use others)
 DOMAIN = 100 + os.getpid() % 100

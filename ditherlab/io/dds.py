@@ -37,6 +37,15 @@ from cyclonedds.topic import Topic
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.stamps import split_stamp
 
+#: A Cyclone DDS configuration (for ``CYCLONEDDS_URI``) on the loopback interface alone, peers by
+#: unicast: no packet leaves the machine (the tests, the bench and a one-machine demonstration)
+LOOPBACK_URI = (
+    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface name='lo'/></Interfaces>"
+    "<AllowMulticast>false</AllowMulticast></General><Discovery><Peers>"
+    "<Peer address='127.0.0.1'/></Peers><ParticipantIndex>auto</ParticipantIndex>"
+    "<MaxAutoParticipantIndex>60</MaxAutoParticipantIndex></Discovery></Domain></CycloneDDS>"
+)
+
 __all__ = [
     "DITHER_STATE_MSG",
     "QOS",
