@@ -238,3 +238,52 @@ def test_a_suggested_effect_that_does_not_deliver_is_refused(monkeypatch):
     cand.suggested = False  # not suggested: written, with the warning in its history row
     row = ident._delivered(base, (base, base), cand, [0], [rec], [scored(base, rec)])
     assert row["warning"].startswith("not suggested by diagnosis: viscous on joint(s) 1")
+
+
+def test_a_payload_without_mass_has_no_first_moment():
+    """The sign-constrained fit holds a payload's first moments at 0 with its mass: data that
+    pull the mass below 0 and a first moment away from it give all four at 0 (a first moment
+    without mass is a torque no load makes), while an untied fit keeps the first moment."""
+    from ditherlab.physics.effect_fit import solve_signed
+    from ditherlab.physics.effects.rigid import Payload
+
+    rng = np.random.default_rng(3)
+    M = 400
+    C = rng.normal(size=(M, 4))
+    e = C @ np.array([-0.5, 0.3, -0.2, 0.1]) + rng.normal(0, 0.01, M)
+    z = np.zeros(M)
+    h, s, W = z, np.ones(M), np.zeros((M, 4))
+    w, _ = solve_signed(e, h, s, C, W, z, Payload().signs(None), Payload.tied)
+    np.testing.assert_array_equal(w, 0.0)
+    w_free, _ = solve_signed(e, h, s, C, W, z, Payload().signs(None))
+    assert w_free[0] == 0 and abs(w_free[1] - 0.3) < 0.05, w_free
+
+
+def test_identify_add_and_diagnose_agree_on_what_is_suggested(monkeypatch):
+    """``identify --add`` decides whether diagnosis suggests an effect by diagnosis's own rules,
+    the below-floor one included: with that rule's share of the noise floor raised above every
+    joint's residual ratio, a planted payload that the candidates' test finds is suggested by
+    neither diagnose nor identify's candidate."""
+    from ditherlab.analysis import diagnosis
+    from ditherlab.analysis.identification import identify
+    from ditherlab.app.identify import _candidate
+    from ditherlab.data.recording import Recording, RecordingArrays
+    from ditherlab.physics.effects import signals
+    from ditherlab.physics.residual import scored
+    from tests.synthetic import moving_recording
+
+    rec, _ = moving_recording(2, duration=30.0)
+    base = identify([rec], n_boot=0, max_accel=np.inf)
+    reg = signals(rec).torque_regressor[:, :, :4]
+    tau = rec.tau + reg @ np.array([1.0, 0.0, 0.0, 0.1])
+    rec = Recording.from_arrays(
+        RecordingArrays(rec.t, rec.q, tau, dq=rec.dq, wrench=rec.wrench), rec.meta, name=rec.name
+    )
+    sc = [scored(base, rec)]
+    assert diagnosis.candidates(base, [rec], effects=["payload"])[0][0].suggested
+    assert _candidate(base, [rec], "payload", sc).suggested
+    monkeypatch.setattr(diagnosis, "FLOOR_SHARE", 1e6)
+    d = diagnosis.diagnose([rec], base, effects=["payload"])
+    assert not d.candidates[0].suggested
+    assert any("far below the noise floor" in n for n in d.notes)
+    assert not _candidate(base, [rec], "payload", sc).suggested

@@ -345,7 +345,7 @@ def diagnose(
         max_samples=max(1, sum(len(s.e) for s in sums.thinned)),
         progress=lambda i, n: run.tick(),
     )
-    _demote_below_floor(cands, summary["ratio"], sums.notes)
+    demote_below_floor(cands, summary["ratio"], sums.notes)
     sums.notes += added_notes(model)
     cands.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
     return Diagnosis(
@@ -494,7 +494,9 @@ def _nothing_scored(
     )
 
 
-def _demote_below_floor(cands: Sequence[Candidate], ratio: list[float], notes: list[str]) -> None:
+def demote_below_floor(
+    cands: Sequence[Candidate], ratio: Sequence[float], notes: list[str]
+) -> None:
     """No candidate is suggested whose joints all sit below :data:`FLOOR_SHARE` of their noise
     floor (``ratio``: residual RMS over floor per joint); a note says so.
 

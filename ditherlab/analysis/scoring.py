@@ -358,13 +358,15 @@ def _search(
             if allowed is not None and k not in allowed[gi]:
                 continue
             tr = train(st.block)
-            w, L = solve_signed(st.e[tr], st.h[tr], st.s[tr], st.C[tr], st.W[tr], st.o[tr], sg)
+            w, L = solve_signed(
+                st.e[tr], st.h[tr], st.s[tr], st.C[tr], st.W[tr], st.o[tr], sg, pb.e.tied
+            )
             if L < best_train[k]:
                 best_train[k] = L
                 test_l1[k] = _loss(st, test, w)
         if allowed is not None and K not in allowed[gi]:
             continue
-        w, L = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg)
+        w, L = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg, pb.e.tied)
         if full is None or L < full.loss:
             full = FitResult(w[: st.k], h, pb.ref, L)
             x = st.e - st.o - st.C @ w

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.delivery import delivery, force_change, promised
+from ditherlab.analysis.diagnosis import demote_below_floor
+from ditherlab.analysis.diagnosis_sums import ResidualSums
 from ditherlab.analysis.identification import identify, summary
 from ditherlab.analysis.rest import (
     RestScan,
@@ -376,11 +378,16 @@ def add_effect(
 def _candidate(
     base: TorqueModel, recs: Sequence[Recording], effect: str, sc: Sequence[Scored]
 ) -> Candidate:
-    """Diagnosis's evidence for ``effect`` on the model ``base`` (its joints and the held-out
-    share it promises); ModelError when the effect cannot be tried on these recordings."""
+    """Diagnosis's evidence for ``effect`` on the model ``base`` (its joints, the held-out
+    share it promises, and whether diagnosis suggests it: the same rules, the below-floor one
+    included); ModelError when the effect cannot be tried on these recordings."""
     cands, skipped = candidates(base, recs, effects=[effect], scored_recs=sc)
     if effect in skipped:
         raise ModelError(skipped[effect])
+    res = ResidualSums(base.n)
+    for s in sc:
+        res.add(s)
+    demote_below_floor(cands, res.result()["ratio"], [])
     return cands[0]
 
 

@@ -43,15 +43,19 @@ __all__ = [
 ]
 
 
-def solve_signed(e, h, s, C, W, o, signs: Sequence[int]) -> tuple[np.ndarray, float]:
+def solve_signed(
+    e, h, s, C, W, o, signs: Sequence[int], tied: dict[int, tuple[int, ...]] | None = None
+) -> tuple[np.ndarray, float]:
     """:func:`_solve` with sign constraints on the parameters (+1: >= 0, -1: <= 0, 0: free).
 
     A parameter whose unconstrained value has the wrong sign is held at 0 and the rest re-fitted
     (an active-set loop; the problem is convex, so this reaches the constrained optimum for the
-    one- and two-parameter effects with constraints here).
+    one- and two-parameter effects with constraints here). ``tied`` maps a parameter to those
+    held at 0 with it (:attr:`Effect.tied`: a payload's first moments vanish with its mass).
     """
     k = C.shape[1]
     sg = np.asarray(signs, dtype=float)
+    tied = tied or {}
     free = np.ones(k, dtype=bool)
     w = np.zeros(k)
     L = float(np.sum((np.maximum(np.abs(e - o) - h, 0.0) / s) ** 2))
@@ -64,6 +68,8 @@ def solve_signed(e, h, s, C, W, o, signs: Sequence[int]) -> tuple[np.ndarray, fl
         bad = free & (sg * w < 0)
         if not bad.any():
             return w, L
+        for i in np.flatnonzero(bad):
+            bad[list(tied.get(int(i), ()))] = True
         free &= ~bad
     w = np.zeros(k)
     if free.any():
@@ -580,7 +586,7 @@ def fit_effect(
         st = stack(e, sc, j, h, ref, rows=rows)
         m = train(st.block) if train is not None else slice(None)
         w, L = solve_signed(
-            st.e[m], st.h[m], st.s[m], st.C[m], st.W[m], st.o[m], st.signs(e.signs(h))
+            st.e[m], st.h[m], st.s[m], st.C[m], st.W[m], st.o[m], st.signs(e.signs(h)), e.tied
         )
         return FitResult(w[: st.k], h, ref, L)
 
@@ -674,7 +680,7 @@ def linear_stderr(
     """
     st = stack(e, sc, j, fit.h, fit.ref)
     k = st.k
-    w, _ = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, st.signs(e.signs(fit.h)))
+    w, _ = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, st.signs(e.signs(fit.h)), e.tied)
     r = st.e - st.o - st.C @ w
     sg = np.sign(r)
     ex = sg * np.maximum(np.abs(r) - st.h - st.W @ w, 0.0)  # the excess beyond the band

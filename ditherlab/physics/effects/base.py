@@ -77,6 +77,9 @@ class Effect(abc.ABC):
     shared: bool = False
     #: Linear parameter names (per joint when not shared).
     linear: tuple[str, ...] = ()
+    #: Linear parameters (by index) held at 0 together with the one that keys them when its
+    #: sign constraint holds it there (a payload's first moments vanish with its mass).
+    tied: ClassVar[dict[int, tuple[int, ...]]] = {}
     #: Name of the searched nonlinear parameter, or None; a tuple names the parts of a
     #: searched tuple (``attenuation_lag``: delay and lag).
     hyper: str | tuple[str, ...] | None = None

@@ -56,6 +56,7 @@ class Payload(Effect):
     driven_by = "q, dq, ddq (joint-torque regressor of the last link)"
     shared = True
     linear = ("mass", "mc_x", "mc_y", "mc_z")
+    tied = {0: (1, 2, 3)}  # no mass, no first moment: a torque no load can make is not fitted
     shows_in = ("moving", "still", "dither")
     bounds = (
         Bound(
