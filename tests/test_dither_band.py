@@ -158,6 +158,13 @@ def test_weak_joints_take_the_good_joints_values():
     fits[1].w = np.array([1.0 + se["many"][1]])
     out, weak = pool_weak_joints(e, sc, fits)
     assert 1 not in weak and out[1].w[0] == 1.0 and out[1].h == fits[1].h
+    # diagnosis judges the fits as identify --add writes them: neither the gain just beyond 1
+    # (held at 1) nor joint 3's 2.6 (pooled) is listed as unphysical, and no joint is dropped
+    from ditherlab.analysis.scoring import JointScore, physical_joints
+
+    js = [JointScore(j, 1.0, 0.5, 5, 5, -10.0, 100.0, fits[j]) for j in (0, 1, 2)]
+    keep, bad = physical_joints(e, sc, js)
+    assert [s.joint for s in keep] == [0, 1, 2] and bad == [], bad
 
 
 @pytest.mark.slow

@@ -38,6 +38,7 @@ from ditherlab.physics.effect_fit import (
     Stack,
     not_identifiable,
     out_of_range,
+    pool_weak_joints,
     solve_signed,
     stack,
 )
@@ -206,13 +207,17 @@ def physical_joints(
     e: Effect, scs: Sequence[Scored], passed: Sequence[JointScore]
 ) -> tuple[list[JointScore], list[OutOfRange]]:
     """The joint scores whose fit lies inside every physical range of ``e`` (``Effect.bounds``,
-    :func:`~ditherlab.physics.effect_fit.out_of_range`: the rule ``identify --add`` refuses by),
+    :func:`~ditherlab.physics.effect_fit.out_of_range`: the rule ``identify --add`` refuses by,
+    on the fits as it writes them, :func:`~ditherlab.physics.effect_fit.pool_weak_joints`),
     and the values outside a range of the others: a candidate is never suggested on a joint it
     fits only with an unphysical value. A fit the bands could take instead
     (:func:`~ditherlab.physics.effect_fit.not_identifiable`) has arbitrary values: it is kept
     here, and said to be not identifiable."""
     ident = [s for s in passed if not_identifiable(e, scs, s.joint, s.fit) is None]
-    bad = out_of_range(e, scs, {-1 if s.joint is None else s.joint: s.fit for s in ident})
+    fits = {-1 if s.joint is None else s.joint: s.fit for s in ident}
+    if not e.shared:  # as identify --add writes them: weak joints pooled, edges held
+        fits, _ = pool_weak_joints(e, scs, fits)
+    bad = out_of_range(e, scs, fits)
     keep = [s for s in passed if (-1 if s.joint is None else s.joint) not in bad]
     return keep, list(bad.values())
 
