@@ -123,7 +123,10 @@ def render(page: str, module: str, registry: dict) -> str:
         + "\n\n### Physical ranges\n\nEvery fitted parameter has a physical range: `identify "
         "--add` refuses a fit outside it (one line naming the effect, parameter, joint, value and "
         "range; nothing is written), and diagnosis does not suggest the effect on a joint it "
-        "fits only with an unphysical value, and lists that value.\n\n"
+        "fits only with an unphysical value, and lists that value. A per-joint fit just outside a "
+        "range is held at its edge, the other parameters re-fitted, where the data do not "
+        "reject the edge (a likelihood-ratio test at 5 %); only a value the data insist on is "
+        "unphysical.\n\n"
         + ranges_table(registry)
         + "\n"
     )

@@ -308,3 +308,47 @@ def test_recentring_alone_is_not_credited_to_the_effect():
     row = add_effect([rec], base, "load_friction", refit=False).history[-1]
     assert row["promised"] < 0.02, row
     assert row["delivered"] < 0.1, row
+
+
+def test_a_fit_just_outside_its_range_is_held_at_the_edge_where_the_data_allow():
+    """bounded_fit: on a moving log with link and rotor inertia, joint 6's link-inertia scale
+    and rotor inertia are told apart only together (both driven by ddq_6); the free fit puts the
+    scale outside 0.25..4, the bounded one holds it at 4 and re-fits the rotor inertia at a loss
+    the likelihood-ratio test accepts. A drive gain of 3 (outside 0.5..2) on a log that pins
+    it is not held: the data reject the edge, and out_of_range reports the free value."""
+    from test_effects import make_recording
+
+    from ditherlab.analysis.identification import identify
+    from ditherlab.data.recording import Recording, RecordingArrays
+    from ditherlab.physics.effect_fit import bounded_fit, fit_effect, out_of_range
+    from ditherlab.physics.effects import get_effect
+
+    rec = make_recording(("inertia",), seed=7, duration=8.0)
+    m = identify([rec], n_boot=0)
+    sc = [scored(m, rec)]
+    e = get_effect("inertia")
+    free = fit_effect(e, sc, 5)
+    assert free.w[0] > 4.0, free.w
+    held = bounded_fit(e, sc, 5, free)
+    assert held.w[0] == 4.0 and held.w[1] >= 0.0 and held.loss >= free.loss
+    assert not out_of_range(e, sc, {5: held})
+    # inside the range: the fit itself
+    inside = fit_effect(e, sc, 0)
+    assert bounded_fit(e, sc, 0, inside) is inside
+
+    from synthetic import moving_recording
+
+    from ditherlab.robot import RobotModel
+
+    rec, _ = moving_recording(4, duration=30.0)
+    tau = rec.tau.copy()
+    tau[:, 1] += 2.0 * RobotModel.from_spec("irb140").gravity(rec.q)[:, 1]  # k = 3 on joint 2
+    rec = Recording.from_arrays(
+        RecordingArrays(rec.t, rec.q, tau, dq=rec.dq, wrench=rec.wrench), rec.meta, name=rec.name
+    )
+    base = identify([rec], n_boot=0, max_accel=np.inf)
+    sc = [scored(base, rec)]
+    e = get_effect("drive_gain")
+    free = fit_effect(e, sc, 1)
+    assert bounded_fit(e, sc, 1, free) is free
+    assert 1 in out_of_range(e, sc, {1: free})

@@ -26,19 +26,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from ditherlab.core.errors import ModelError
+from ditherlab.core.timeseries import autocorrelation_time
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.effect_fit import (
     Stack,
     not_identifiable,
     out_of_range,
-    pool_weak_joints,
+    physical_fits,
     solve_signed,
     stack,
 )
@@ -208,36 +209,22 @@ def physical_joints(
 ) -> tuple[list[JointScore], list[OutOfRange]]:
     """The joint scores whose fit lies inside every physical range of ``e`` (``Effect.bounds``,
     :func:`~ditherlab.physics.effect_fit.out_of_range`: the rule ``identify --add`` refuses by,
-    on the fits as it writes them, :func:`~ditherlab.physics.effect_fit.pool_weak_joints`),
+    on the fits as it writes them, :func:`~ditherlab.physics.effect_fit.physical_fits`: the
+    kept scores carry those fits),
     and the values outside a range of the others: a candidate is never suggested on a joint it
     fits only with an unphysical value. A fit the bands could take instead
     (:func:`~ditherlab.physics.effect_fit.not_identifiable`) has arbitrary values: it is kept
     here, and said to be not identifiable."""
     ident = [s for s in passed if not_identifiable(e, scs, s.joint, s.fit) is None]
     fits = {-1 if s.joint is None else s.joint: s.fit for s in ident}
-    if not e.shared:  # as identify --add writes them: weak joints pooled, edges held
-        fits, _ = pool_weak_joints(e, scs, fits)
+    fits, _ = physical_fits(e, scs, fits)  # as identify --add writes them
     bad = out_of_range(e, scs, fits)
-    keep = [s for s in passed if (-1 if s.joint is None else s.joint) not in bad]
+    keep = [
+        replace(s, fit=fits.get(-1 if s.joint is None else s.joint, s.fit))
+        for s in passed
+        if (-1 if s.joint is None else s.joint) not in bad
+    ]
     return keep, list(bad.values())
-
-
-def _tau_int(x: np.ndarray, max_lag: int = 1000) -> float:
-    """Integrated autocorrelation time of a series (>= 1), summed until the ACF drops < 0.05."""
-    x = np.asarray(x, dtype=float)
-    x = x - x.mean()
-    n = len(x)
-    if n < 10 or not np.any(x):
-        return 1.0
-    f = np.fft.rfft(x, 2 * n)
-    ac = np.fft.irfft(f * np.conj(f))[: min(max_lag, n - 1) + 1]
-    ac = ac / ac[0]
-    s = 0.0
-    for k in range(1, len(ac)):
-        if ac[k] < 0.05:
-            break
-        s += ac[k]
-    return 1.0 + 2.0 * s
 
 
 def _folds(st: Stack, total: int, K: int, guard: int) -> list[tuple[np.ndarray, Callable]]:
@@ -392,7 +379,7 @@ def _joint_score(pb: _Scoring, sr: _Searched) -> JointScore:
     active = (np.abs(b0) > TIE) | (np.abs(full_resid) > TIE)
     n_act = int(active.sum())
     order = base_st.time_order()  # the autocorrelation along time, however the log was cut
-    tau = _tau_int(full_resid[order][active[order]]) if n_act > 10 else 1.0
+    tau = autocorrelation_time(full_resid[order][active[order]]) if n_act > 10 else 1.0
     n_eff = max(n_act / tau, 1.0)
     # parameters: the design's columns that act on these samples (an effect's count may follow
     # the robot, e.g. one offset per joint), plus the searched ones

@@ -43,7 +43,7 @@ from ditherlab.physics.effect_fit import (
     fit_effect,
     not_identifiable,
     out_of_range,
-    pool_weak_joints,
+    physical_fits,
     pooled_note,
     recentre,
 )
@@ -349,7 +349,8 @@ def add_effect(
             js = [j - 1 for j in cand.joints]
         fits = {j: fit_effect(e, sc, j) for j in js}
     # joints with too little evidence take values shared over the others (dither_extraction)
-    fits, weak = pool_weak_joints(e, sc, fits) if not e.shared else (fits, {})
+    # and a value just outside its range held at the edge where the data allow it
+    fits, weak = physical_fits(e, sc, fits)
     for j, f in fits.items():
         why = not_identifiable(e, sc, None if j == -1 else j, f)
         if why is not None:

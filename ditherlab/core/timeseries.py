@@ -407,3 +407,23 @@ def period_from_spectrum(seg: np.ndarray, fs: float, name: str | None = None) ->
     if fpk <= 0:
         raise ConfigError(f"{name or 'recording'}: no dither line found in the spectrum")
     return float(1.0 / fpk)
+
+
+def autocorrelation_time(x: np.ndarray, max_lag: int = 1000) -> float:
+    """Integrated autocorrelation time [samples] of a series x (N,) (>= 1): ``1 + 2 Σ ρ_k``,
+    summed until the autocorrelation ρ drops below 0.05 (at most ``max_lag`` lags). N samples
+    of the series carry about as much information as N / this many independent ones."""
+    x = np.asarray(x, dtype=float)
+    x = x - x.mean()
+    n = len(x)
+    if n < 10 or not np.any(x):
+        return 1.0
+    f = np.fft.rfft(x, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[: min(max_lag, n - 1) + 1]
+    ac = ac / ac[0]
+    s = 0.0
+    for k in range(1, len(ac)):
+        if ac[k] < 0.05:
+            break
+        s += ac[k]
+    return 1.0 + 2.0 * s

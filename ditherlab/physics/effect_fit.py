@@ -17,10 +17,11 @@ from typing import Any
 import numpy as np
 from numba import njit
 from scipy.optimize import minimize_scalar
+from scipy.stats import chi2
 
 from ditherlab.core.linalg import spd_solve
 from ditherlab.core.names import MOVING, Regime
-from ditherlab.core.timeseries import tmm
+from ditherlab.core.timeseries import autocorrelation_time, tmm
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.effects import Effect, FitResult, design_at, make_spec
 from ditherlab.physics.effects.ranges import OutOfRange
@@ -35,6 +36,7 @@ __all__ = [
     "not_identifiable",
     "out_of_range",
     "recentre",
+    "physical_fits",
     "pool_weak_joints",
     "pooled_lines",
     "pooled_note",
@@ -711,10 +713,17 @@ def linear_stderr(
 
 
 def _linear_ranges(e: Effect, sc: Sequence[Scored], j: int) -> list[tuple[float, float]]:
-    """The physical range of each of ``e``'s linear parameters on joint ``j`` (``e.bounds``;
-    unbounded where it declares none), in the order of ``e.linear``."""
+    """The physical range of each of ``e``'s linear parameters on joint ``j`` (``e.bounds``
+    that bound the parameter itself or, by :attr:`Bound.linear`, an offset of it; unbounded
+    where none does), in the order of ``e.linear``."""
     sigs = [s.sig for s in sc]
-    ranges = {b.param: b.limits(sigs, j) for b in e.bounds}
+    ranges: dict[str, tuple[float, float]] = {}
+    for b in e.bounds:
+        lo, hi = b.limits(sigs, j)
+        if b.linear is not None:
+            ranges[b.linear[0]] = (lo - b.linear[1], hi - b.linear[1])
+        elif b.value is None:
+            ranges[b.param] = (lo, hi)
     return [ranges.get(name, (-np.inf, np.inf)) for name in e.linear]
 
 
@@ -748,6 +757,76 @@ def _held_in_range(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> F
     if np.array_equal(w, np.asarray(fit.w, dtype=float)[: len(lims)]):
         return fit
     return FitResult(np.concatenate([w, np.asarray(fit.w)[len(lims) :]]), fit.h, fit.ref, fit.loss)
+
+
+#: the level of the likelihood-ratio test by which :func:`bounded_fit` holds parameters at the
+#: edge of their physical range: the edge is kept unless the data reject it at this level
+EDGE_LEVEL = 0.05
+
+
+def bounded_fit(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> FitResult:
+    """The per-joint fit of ``e`` on joint ``j`` (0-based) with its linear parameters outside
+    their physical range (:func:`_linear_ranges`) held at the nearest edge and the others
+    re-fitted (an active set: bounded least squares at the fit's own hyper-parameter), when the
+    data do not reject the held values: the likelihood-ratio statistic ``n_eff · ln(L_held /
+    L_free)`` (the band-aware losses, ``n_eff`` the samples outside the band over their
+    :func:`~ditherlab.core.timeseries.autocorrelation_time`, as diagnosis's BIC counts them)
+    is within the χ² quantile of :data:`EDGE_LEVEL` with one degree of freedom per held
+    parameter. Two parameters that the data tell apart only together (a wrist's link inertia
+    scale and its rotor inertia, both driven by ``ddq``) fit as well with one at its edge.
+
+    Returns ``fit`` itself when every value is inside, or when the held fit is rejected (the
+    data insist on an unphysical value: :func:`out_of_range` says so) or a re-fitted value
+    leaves its own range.
+    """
+    lims = np.array(_linear_ranges(e, sc, j), dtype=float).reshape(-1, 2)
+    w0 = np.asarray(fit.w, dtype=float)
+    k = len(lims)
+    if k == 0 or np.all((w0[:k] >= lims[:, 0]) & (w0[:k] <= lims[:, 1])):
+        return fit
+    st = stack(e, sc, j, fit.h, fit.ref)
+    sg = np.asarray(st.signs(e.signs(fit.h)))
+    w_free, L_free = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg, e.tied)
+    held = np.zeros(st.C.shape[1], dtype=bool)
+    v = np.zeros(st.C.shape[1])
+    w = w_free
+    for _ in range(k):
+        out = np.flatnonzero(~held[:k] & ((w[:k] < lims[:, 0]) | (w[:k] > lims[:, 1])))
+        if not len(out):
+            break
+        held[out] = True
+        v[out] = np.clip(w[out], lims[out, 0], lims[out, 1])
+        o = st.o + st.C[:, held] @ v[held]
+        h = st.h + st.W[:, held] @ v[held]
+        if np.any(h < 0):  # a held width below zero: no band-aware loss to compare
+            return fit
+        wf, L = solve_signed(st.e, h, st.s, st.C[:, ~held], st.W[:, ~held], o, sg[~held])
+        w = v.copy()
+        w[~held] = wf
+    if np.any((w[:k] < lims[:, 0] - 1e-12) | (w[:k] > lims[:, 1] + 1e-12)):
+        return fit
+    x = st.e - st.o - st.C @ w_free
+    ex = np.maximum(np.abs(x) - st.h - st.W @ w_free, 0.0) / st.s
+    act = ex > 0
+    order = st.time_order()
+    n_eff = max(act.sum() / autocorrelation_time(ex[order][act[order]]), 1.0)
+    if not (L_free > 0 and n_eff * math.log(L / L_free) <= chi2.ppf(1 - EDGE_LEVEL, held.sum())):
+        return fit
+    return FitResult(w[: st.k], fit.h, fit.ref, L)
+
+
+def physical_fits(
+    e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]
+) -> tuple[dict[int, FitResult], dict[int, str]]:
+    """The per-joint fits as ``identify --add`` writes them and diagnosis judges them: weak
+    joints pooled (:func:`pool_weak_joints`, an effect with ``evidence_rules``), else each
+    joint's :func:`bounded_fit`; the weak joints' reasons by 0-based joint. A shared fit is
+    returned unchanged."""
+    if e.shared or not fits:
+        return fits, {}
+    if e.evidence_rules:
+        return pool_weak_joints(e, sc, fits)
+    return {j: bounded_fit(e, sc, j, f) for j, f in fits.items()}, {}
 
 
 def pool_weak_joints(

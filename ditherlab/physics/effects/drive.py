@@ -53,6 +53,7 @@ class DriveGain(Effect):
             0.5,
             2.0,
             value=lambda p, sigs: 1.0 + float(p["gain_error"]),
+            linear=("gain_error", 1.0),
         ),
     )
 

@@ -56,6 +56,10 @@ class Bound:
         checked (default: ``p[param]``)
     per : what the elements of a sequence are: ``"joint"`` (joint 1, 2, ...) or ``"axis"``
         (``f_x``, ``f_y``, ...)
+    linear : ``(name, offset)`` when the checked value is ``offset`` plus the linear parameter
+        ``name`` (a drive's ``k = 1 + gain_error``): the range then bounds that parameter's fit
+        (:func:`ditherlab.physics.effect_fit.bounded_fit`). A bound without ``value`` bounds
+        its own ``param``.
     """
 
     param: str
@@ -66,6 +70,7 @@ class Bound:
     hi: Limit = math.inf
     value: Callable[[dict[str, Any], Sequence[Signals]], Any] | None = None
     per: str = "joint"
+    linear: tuple[str, float] | None = None
 
     def limits(self, sigs: Sequence[Signals], j: int | None) -> tuple[float, float]:
         """``(lo, hi)`` in :attr:`unit` on these recordings, for joint ``j`` (0-based)."""
