@@ -466,8 +466,8 @@ def _run(hist, st, rs, blk, par, out, act):  # pragma: no cover - compiled
     """Every sample of ``blk`` (:class:`FastBlock`) in time order into the columns ``out``
     (rows: per variant :data:`VROWS`, the extraction's ``upper, lower, signal`` per joint with
     a dither period, whether any joint moves) and ``act`` (V, N) int64, the variants' active
-    joints as bits; ``hist``, ``st`` (next row, first row since
-    the last gap, gaps, any sample seen) and ``rs`` (the ramp-in's) the state. Returns :func:`_validate`'s code; nothing is
+    joints as bits; ``hist``, ``st`` (next row, first row since the last gap, gaps, any sample
+    seen) and ``rs`` (the ramp-in's) the state. Returns :func:`_validate`'s code; nothing is
     changed unless it is 0."""
     code = _validate(hist, st, blk)
     if code[0] != 0:
