@@ -26,7 +26,12 @@ from ditherlab.data.estimates import COMPONENTS, Estimates
 from ditherlab.data.recording import regimes
 from ditherlab.data.torque_model import Band, TorqueModel
 from ditherlab.io import read, write
-from ditherlab.physics.dither import Extraction
+from ditherlab.physics.dither import (
+    AMPLITUDE_UP_FRACTION,
+    RAMP_MAX_S,
+    Extraction,
+    band_amplitude,
+)
 from ditherlab.physics.effects import force_gain
 
 REC = Path(__file__).resolve().parents[1] / "recordings" / "sim-push-dither.parquet"
@@ -69,7 +74,8 @@ def run_blocks(rec, model, size: int, rows: int | None = None) -> dict[str, np.n
 
 def reference(rec, model) -> dict[str, np.ndarray]:
     """Every sample's estimate from its own past, written from the definitions one sample at a
-    time: backward differences, trailing means, the dither's period means by comparison."""
+    time: backward differences, trailing means, the dither's period means by comparison, the
+    dither's ramp-in from the last switch-on (:func:`_in_ramp`)."""
     s = settings_for(rec)
     W = s.windows()
     t, dq, tau, on = wire_time(rec.t), rec.dq, rec.tau, rec.dither
@@ -77,6 +83,9 @@ def reference(rec, model) -> dict[str, np.ndarray]:
     robot, gain = rec.robot(), force_gain(model)
     how = ReplayHow(s.level, s.interval, "exact", list(COMPONENTS))
     out: dict[str, list] = {}
+    st, db = model.regimes["still"], model.regimes["dither"]
+    level = AMPLITUDE_UP_FRACTION * band_amplitude(st.tau_min, st.tau_max, db.tau_min, db.tau_max)
+    amps, valids = [], []
     for i in range(len(t)):
         moving = np.abs(dq[max(0, i - W["move"] + 1) : i + 1].mean(axis=0)) > MOVING_THRESHOLD
         reg = np.where(moving, MOVING, DITHER if on[i] else STILL).astype(np.int8)[None, :]
@@ -86,9 +95,12 @@ def reference(rec, model) -> dict[str, np.ndarray]:
         low = np.array([_mean_or(win[win[:, j] < c[j], j], c[j]) for j in range(6)])
         p = W["period"]
         valid = i >= p - 1 and bool(on[max(0, i - p + 1) : i + 1].all())
+        amps.append(0.5 * (up - low))
+        valids.append(valid)
+        ramp = _in_ramp(on[: i + 1], np.array(valids), np.array(amps), level, s.dt)
         ext = Extraction(
             up[None], low[None], (0.5 * (up + low))[None], c[None], (0.5 * (up - low))[None],
-            on[i : i + 1], np.array([valid]), s.period,
+            on[i : i + 1], np.array([valid]), s.period, ramp=ramp[None],
         )  # fmt: skip
         g, J = robot.gravity_jacobian(rec.q[i : i + 1])
         J = J * gain[None, None, :]
@@ -100,6 +112,21 @@ def reference(rec, model) -> dict[str, np.ndarray]:
             for name, M in ((v, F), (v + "_lo", lo), (v + "_hi", hi)):
                 out.setdefault(name, []).append(M[0])
     return {k: np.array(v) for k, v in out.items()}
+
+
+def _in_ramp(on, valid, amp, level, dt) -> np.ndarray:
+    """(n,) bool: the joints in the dither's ramp-in at the last of the samples so far: the
+    flag ``on`` switched on at ``r`` (off just before) less than ``RAMP_MAX_S`` ago and stayed
+    on, and no sample since ``r`` with a whole window has the joint's amplitude at ``level``."""
+    i = len(on) - 1
+    starts = [r for r in range(1, i + 1) if on[r] and not on[r - 1]]
+    if not starts or not on[starts[-1] : i + 1].all():
+        return np.zeros(len(level), bool)
+    r = starts[-1]
+    if i - r >= int(round(RAMP_MAX_S / dt)):
+        return np.zeros(len(level), bool)
+    up = (valid[r:, None] & (amp[r:] >= level[None, :])).any(axis=0)
+    return ~up & (level > 0)
 
 
 def _mean_or(x: np.ndarray, empty: float) -> float:

@@ -18,6 +18,10 @@ computes
 - the dither: on where the ``dither`` flag says so, else where the feedforward's range over the
   last period is non-zero; the extraction's period means over the last period
   (:func:`ditherlab.physics.dither.extract`, already causal: the same values as offline);
+- the dither's ramp-in per joint (:func:`ditherlab.physics.dither.ramp_in`, from the switch-on
+  of the dither until the joint's extracted amplitude is up, at most
+  :data:`~ditherlab.physics.dither.RAMP_MAX_S`), the rule's state carried from update to
+  update (afresh after a gap): the offline rule, which reads only the past;
 
 and then runs the very estimator of the offline replay on these inputs
 (:func:`ditherlab.analysis.estimation.variant_estimate`). Each value comes from its own window
@@ -70,6 +74,10 @@ from ditherlab.physics.dither import (
     extract,
     full_window,
     has_dither,
+    ramp_in,
+    ramp_level,
+    ramp_samples,
+    ramp_state,
 )
 from ditherlab.physics.effects import effects_torque, force_gain, get_effect, signals
 from ditherlab.physics.effects.extraction import extraction_gain
@@ -182,6 +190,9 @@ class CausalEstimator:
             settings.level, settings.interval, "exact", parse_components(settings.components)
         )
         self.win = settings.windows()
+        #: the dither's ramp-in: the level that ends it (n,) [N·m] or None, its longest
+        #: [samples], its state (:func:`ditherlab.physics.dither.ramp_state`)
+        self.ramp = (ramp_level(model), ramp_samples(1.0 / settings.dt), ramp_state(self.n))
         #: rows kept of the past: the longest window of any quantity, plus one
         self.keep = max(self.win.values()) + 2
         self.context: dict[str, np.ndarray] | None = None
@@ -370,15 +381,20 @@ class CausalEstimator:
 
     def _extraction(self, X: dict[str, np.ndarray], on_all: np.ndarray | None, P: int):
         """The dither extraction of the new rows (:func:`ditherlab.physics.dither.extract` over
-        the kept past and them)."""
+        the kept past and them) and their ramp-in (the rule's state carried; afresh without a
+        past)."""
         s = self.settings
         sig = extract(X["tau"], X["t"], s.period, dt=s.dt, waveform=s.waveform)
         on = np.zeros(len(X["t"]), bool) if on_all is None else on_all
         valid = full_window(on, self.win["period"])
+        level, longest, state = self.ramp
+        if P == 0:
+            state[:] = -1
+        ramp = ramp_in(on[P:], valid[P:], sig.amplitude[P:], level, longest, state)
         return Extraction(
             upper=sig.upper[P:], lower=sig.lower[P:], signal=sig.signal[P:],
             centre=sig.centre[P:], amplitude=sig.amplitude[P:], on=on[P:], valid=valid[P:],
-            period=float(s.period), waveform=s.waveform,
+            period=float(s.period), waveform=s.waveform, ramp=ramp,
         )  # fmt: skip
 
     def _inputs(self, b: CausalBlock, f: dict[str, Any]) -> ReplayInputs:

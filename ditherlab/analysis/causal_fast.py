@@ -9,7 +9,9 @@ quantities as state and computes each new sample from them:
 - a history of the raw samples and the derived velocity (:class:`FastPath` ``hist``, the kept
   rows copied to its front when it fills), each window a slice of it summed oldest first, as
   :func:`ditherlab.core.timeseries.causal_mean` and the extraction's window sums add;
-- the regime, the dither flag and the extraction from those windows;
+- the regime, the dither flag and the extraction from those windows, and the dither's ramp-in
+  per joint (:func:`ditherlab.physics.dither.ramp_step`, its state carried from sample to
+  sample, afresh after a gap);
 - per variant the bands, the reduced problem of eq. (3) for the one sample, and the estimator's
   own compiled kernels on it (the exact solver from the prior mean, the closed form of zero-width
   bands, the profile intervals and their reference fallback);
@@ -51,7 +53,7 @@ from ditherlab.estimator.interval_methods.profile import (
     _profile_reference_kernel,
     _profile_work,
 )
-from ditherlab.physics.dither import PEAK_FACTOR
+from ditherlab.physics.dither import PEAK_FACTOR, ramp_level, ramp_samples, ramp_state, ramp_step
 from ditherlab.robot import RobotModel
 from ditherlab.robot.tree import _gravity_kernel, _jacobian_kernel
 from ditherlab.robot.tree import gravity as tree_gravity
@@ -74,16 +76,17 @@ class FastParams(NamedTuple):
 
     Attributes
     ----------
-    bands : (11, n) [N·m, N·m·s/rad]: ``still`` ``tau_min, tau_max, sigma``; ``moving``
+    bands : (12, n) [N·m, N·m·s/rad]: ``still`` ``tau_min, tau_max, sigma``; ``moving``
         ``tau_min, tau_max, sigma, coulomb, viscous`` (zeros for a missing term); ``dither``
-        ``tau_min, tau_max, sigma``
+        ``tau_min, tau_max, sigma``; the amplitude that ends the dither's ramp-in
+        (:func:`ditherlab.physics.dither.ramp_level`, zeros without one)
     has : (2,) bool: the model has a ``moving`` band, a ``dither`` band
     gain : (n,) the drive gains scaling ``J^T`` rows (:func:`ditherlab.physics.effects.force_gain`)
     prior : (2, 6) [N, N·m]: ``prior_mean``, ``prior_sigma``
     free, held : the estimated and the held components (indices into 6)
     p_true : (m,) the estimated components' prior weights (0: no prior, the ridge instead)
     ints : int64 ``[move window, period window, extraction window, dither mode, square wave,
-        kept rows]`` [samples]
+        kept rows, longest ramp-in]`` [samples]
     floats : ``[period mean length [samples], peak factor, gap [s], chi2 threshold, moving
         threshold [rad/s], feedforward on [N·m]]``
     variants : (V,) int64: bit 0 a dither variant, bit 1 a no-band variant
@@ -129,12 +132,14 @@ class Feats(NamedTuple):
     reg : (n,) int8 regimes ; dqm : (n,) [rad/s] the velocity's mean over a dither period
     ext : (4, n) [N·m]: the extraction's upper and lower means, signal, amplitude
     flags : (2,) bool: the dither on, on over a whole period (the extraction valid)
+    ramp : (n,) bool: the joints in the dither's ramp-in
     """
 
     reg: np.ndarray
     dqm: np.ndarray
     ext: np.ndarray
     flags: np.ndarray
+    ramp: np.ndarray
 
 
 def supported(model: TorqueModel, interval: str) -> str | None:
@@ -239,9 +244,10 @@ def _window_mean(hist, a, i, c):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _features(hist, s0, i, par, f):  # pragma: no cover - compiled
-    """Row ``i``'s regimes, velocity mean and extraction into ``f`` (:class:`Feats`), the rows
-    since ``s0`` its past."""
+def _features(hist, s0, i, par, f, rs):  # pragma: no cover - compiled
+    """Row ``i``'s regimes, velocity mean, extraction and ramp-in into ``f`` (:class:`Feats`),
+    the rows since ``s0`` its past; ``rs`` the ramp-in's state
+    (:func:`ditherlab.physics.dither.ramp_state`)."""
     n = len(f.reg)
     wm, P = par.ints[0], par.ints[1]
     on = hist[i, 1 + 4 * n] != 0.0
@@ -257,6 +263,10 @@ def _features(hist, s0, i, par, f):  # pragma: no cover - compiled
         f.dqm[j] = _window_mean(hist, max(s0, i - P + 1), i, c)
         if par.ints[2] > 0:
             _extract(hist, s0, i, 1 + n + j, par, f.ext[:, j])
+    if par.ints[2] > 0:
+        ramp_step(on, full, f.ext[3], par.bands[11], par.ints[6], rs, f.ramp)
+    else:
+        f.ramp[:] = False
     return on
 
 
@@ -311,7 +321,7 @@ def _variant_inputs(code, tau, g, dq, par, f, out):  # pragma: no cover - compil
         if f.reg[j] == _MOVING and par.has[0]:
             sl = _sliding(B, j, dq[j])
             a, b, s = B[3, j] + sl, B[4, j] + sl, B[5, j]
-        if dith and f.reg[j] == _DITHER and f.flags[1]:
+        if dith and f.reg[j] == _DITHER and f.flags[1] and not f.ramp[j]:
             tb = f.ext[2, j] - g[j] - 0.0
             if par.has[1]:
                 a, b, s = B[8, j], B[9, j], B[10, j]
@@ -319,7 +329,14 @@ def _variant_inputs(code, tau, g, dq, par, f, out):  # pragma: no cover - compil
                 A = max(f.ext[3, j], 0.0)
                 mid = 0.5 * (a + b)
                 a, b = min(a + A, mid), max(b - A, mid)
-        if dith and par.has[0] and f.reg[j] == _MOVING and f.flags[1] and f.flags[0]:
+        if (
+            dith
+            and par.has[0]
+            and f.reg[j] == _MOVING
+            and f.flags[1]
+            and f.flags[0]
+            and not f.ramp[j]
+        ):
             sl = _sliding(B, j, f.dqm[j])
             tb = f.ext[2, j] - g[j] - 0.0
             a, b, s = B[3, j] + sl, B[4, j] + sl, B[5, j]
@@ -445,18 +462,21 @@ def _write(par, row, k, F, lo, hi, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _run(hist, st, blk, par, out, act):  # pragma: no cover - compiled
+def _run(hist, st, rs, blk, par, out, act):  # pragma: no cover - compiled
     """Every sample of ``blk`` (:class:`FastBlock`) in time order into the columns ``out``
     (rows: per variant :data:`VROWS`, the extraction's ``upper, lower, signal`` per joint with
     a dither period, whether any joint moves) and ``act`` (V, N) int64, the variants' active
-    joints as bits; ``hist`` and ``st`` (next row, first row since
-    the last gap, gaps, any sample seen) the state. Returns :func:`_validate`'s code; nothing is
+    joints as bits; ``hist``, ``st`` (next row, first row since the last gap, gaps, any sample
+    seen) and ``rs`` (the ramp-in's) the state. Returns :func:`_validate`'s code; nothing is
     changed unless it is 0."""
     code = _validate(hist, st, blk)
     if code[0] != 0:
         return code
     n, m, V = blk.q.shape[1], len(par.free), len(par.variants)
-    f = Feats(np.empty(n, np.int8), np.empty(n), np.empty((4, n)), np.zeros(2, np.bool_))
+    f = Feats(
+        np.empty(n, np.int8), np.empty(n), np.empty((4, n)), np.zeros(2, np.bool_),
+        np.zeros(n, np.bool_),
+    )  # fmt: skip
     S = Samples(
         np.empty((1, n)), np.empty((1, m, n)), np.empty((1, n)), np.empty((1, n)),
         np.empty((1, n)), np.empty((1, m)), par.prior[0][par.free].copy(),
@@ -467,7 +487,9 @@ def _run(hist, st, blk, par, out, act):  # pragma: no cover - compiled
     closed_ok = (par.p_true > 0.0).all()
     for k in range(len(blk.t)):
         i = _push(hist, st, blk, k, par)
-        _features(hist, st[1], i, par, f)
+        if i == st[1]:  # the first sample, or after a gap: no ramp-in seen
+            rs[:] = -1
+        _features(hist, st[1], i, par, f, rs)
         for v in range(V):
             code_v = par.variants[v]
             _variant_inputs(code_v, blk.tau[k], blk.g[k], hist[i, 1 + 2 * n :], par, f, vin)
@@ -503,6 +525,7 @@ def fast_params(
     if mv is not None:
         mv_rows += [zero if x is None else x for x in (mv.coulomb, mv.viscous)]
     db_rows = [zero] * 3 if db is None else [db.tau_min, db.tau_max, db.sigma]
+    level = ramp_level(model)
     psig = np.asarray(model.prior_sigma, dtype=float)
     free = np.array([i for i, c in enumerate(COMPONENTS) if c in comps and psig[i] > 0], np.int64)
     with np.errstate(divide="ignore"):
@@ -512,7 +535,17 @@ def fast_params(
     keep = max(win["move"], win["period"], W_ext, int(np.floor(L)) + 1, 2) + 2
     codes = [int(v.startswith("dither")) | 2 * int(v.endswith("noband")) for v in settings.variants]
     return FastParams(
-        bands=np.array([still.tau_min, still.tau_max, still.sigma, *mv_rows, *db_rows], float),
+        bands=np.array(
+            [
+                still.tau_min,
+                still.tau_max,
+                still.sigma,
+                *mv_rows,
+                *db_rows,
+                zero if level is None else level,
+            ],
+            float,
+        ),  # fmt: skip
         has=np.array([mv is not None, db is not None]),
         gain=np.ascontiguousarray(gain, dtype=float),
         prior=np.array([model.prior_mean, psig], float),
@@ -520,7 +553,15 @@ def fast_params(
         held=np.setdiff1d(np.arange(6), free).astype(np.int64),
         p_true=p_true,
         ints=np.array(
-            [win["move"], win["period"], W_ext, ON_NONE, settings.waveform == "square", keep],
+            [
+                win["move"],
+                win["period"],
+                W_ext,
+                ON_NONE,
+                settings.waveform == "square",
+                keep,
+                ramp_samples(1.0 / settings.dt),
+            ],
             np.int64,
         ),  # fmt: skip
         floats=np.array(
@@ -608,6 +649,8 @@ class FastPath:
         self.hist = np.zeros((2 * keep + SPARE, 2 + 4 * self.n))
         #: next row, first row since the last gap, gaps, whether any sample came
         self.st = np.zeros(4, np.int64)
+        #: the dither's ramp-in (:func:`ditherlab.physics.dither.ramp_state`)
+        self.rs = ramp_state(self.n)
         self.present: tuple[bool, ...] | None = None
         V, ext = len(par.variants), 3 * self.n if par.ints[2] > 0 else 0
         self.rows = V * VROWS + ext + 1
@@ -648,9 +691,9 @@ class FastPath:
         act = np.empty((len(self.par.variants), N), np.int64)
         run = self._entry.get(present)
         if run is None:
-            args = (self.hist, self.st, blk, self.par, out, act)
+            args = (self.hist, self.st, self.rs, blk, self.par, out, act)
             run = self._entry[present] = compiled(_run, *args)
-        code, k = run(self.hist, self.st, blk, self.par, out, act)
+        code, k = run(self.hist, self.st, self.rs, blk, self.par, out, act)
         if code:
             self._raise(code, k, t)
         return out, act

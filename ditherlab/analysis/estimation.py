@@ -15,7 +15,11 @@ Variants (each only where the recording allows it):
     ``dither`` band — identified on that same extracted signal (:mod:`ditherlab.analysis.identification`). A
     model without a ``dither`` band falls back to the paper's rule: the ``still`` band shrunk by
     the extracted dither amplitude on each side (Fig. 4). Samples without dither (before the
-    ramp, while moving, the first dither period) are treated as in ``nodither_band``.
+    dither, the first dither period) are treated as in ``nodither_band``, and so is a joint in
+    the dither's ramp-in (:func:`ditherlab.physics.dither.ramp_in`: after the dither switches
+    on, until the joint's extracted amplitude reaches the ramp-in fraction of the amplitude the
+    model's dither band was built with): its extracted signal and dither band are not yet the
+    regime's.
 ``dither_noband``
     ``dither_band`` without the uniform term, as in the paper's Fig. 6 (right column).
 
@@ -48,7 +52,15 @@ from ditherlab.estimator.interval_methods.gaussian import (
     gaussian_problem_estimate,
     gaussian_profile_intervals,
 )
-from ditherlab.physics.dither import Extraction, dithered_band, extract_dither
+from ditherlab.physics.dither import (
+    Extraction,
+    dithered_band,
+    extract_dither,
+    ramp_in,
+    ramp_level,
+    ramp_samples,
+    ramp_state,
+)
 from ditherlab.physics.dither import band_as_noise as band_variance_as_noise
 from ditherlab.physics.effects import effects_torque, force_gain
 from ditherlab.physics.effects.extraction import extraction_gain
@@ -176,18 +188,19 @@ def replay_columns(
     backend: str = "exact",
     q_tol: float = 0.0,
     progress: Callable[[int, int], None] | None = None,
+    carry: RampCarry | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """What :func:`replay` computes, as the estimates file's columns (each (N,), in file order)
     and its metadata before :func:`~ditherlab.core.files.plain` (``recording`` is ``rec.meta``
     itself): :func:`ditherlab.app.replay.replay_stream` writes the columns straight to Parquet without a DataFrame
-    and converts the metadata of its first piece only. Parameters and errors as
-    :func:`replay`."""
+    and converts the metadata of its first piece only; ``carry`` (:class:`RampCarry`) carries
+    the dither's ramp-in from its previous piece. Parameters and errors as :func:`replay`."""
     model.check_robot(rec)
     model.validate()
     comps = parse_components(components)
     variants = _check_options(rec, variants, interval, level)
     tick = Ticker(2 + 2 * len(variants), progress)
-    inp = _replay_inputs(rec, model, variants, q_tol, tick)
+    inp = _replay_inputs(rec, model, variants, q_tol, tick, carry)
     how = ReplayHow(level, interval, backend, comps)
     cols = _recording_columns(rec)
     cols.update(known_columns(rec))  # the known load's wrench, when the recording declares one
@@ -257,10 +270,16 @@ class ReplayInputs(NamedTuple):
 
 
 def _replay_inputs(
-    rec: Recording, model: TorqueModel, variants: Sequence[str], q_tol: float, tick: Ticker
+    rec: Recording,
+    model: TorqueModel,
+    variants: Sequence[str],
+    q_tol: float,
+    tick: Ticker,
+    carry: RampCarry | None = None,
 ) -> ReplayInputs:
     """The robot's quantities, the model's effects and bands per sample (one ``tick``), and the
-    dither extraction when a dither variant runs (one more)."""
+    dither extraction with its ramp-in when a dither variant runs (one more; ``carry`` the
+    ramp-in of the previous piece)."""
     robot = rec.robot()
     # one deduplication pass for both (a whole hour is too large for the robot's cache)
     g, J = robot.gravity_jacobian(rec.q, tol=q_tol)
@@ -273,6 +292,9 @@ def _replay_inputs(
     tick()
     ext = extract_dither(rec) if any(v.startswith("dither") for v in variants) else None
     w_ext = max(int(round(ext.period * rec.sample_rate)), 1) if ext is not None else 1
+    if ext is not None:
+        args = (ext.on, ext.valid, ext.amplitude, ramp_level(model), ramp_samples(rec.sample_rate))
+        ext.ramp = ramp_in(*args) if carry is None else carry.marks(*args)
     dq_mean = causal_mean(rec.dq, w_ext) if ext is not None else None
     tick()
     return ReplayInputs(g, J, eff, reg, base, ext, w_ext, dq_mean)
@@ -373,8 +395,10 @@ def variant_inputs(
     ``tau_bar = tau - gravity - effects`` with the model's per-sample bands
     (:meth:`ditherlab.data.torque_model.TorqueModel.sample_bands`); a dither variant takes the extracted
     signal and the dither band (or the still band shrunk by the dither amplitude) where a joint
-    stands still with the dither on over a whole window; a no-band variant moves the band into
-    the noise (:func:`band_as_noise`).
+    stands still with the dither on over a whole window and out of its ramp-in
+    (:attr:`ditherlab.physics.dither.Extraction.ramp`: there it keeps the raw torque and its
+    band without dither); a no-band variant moves the band into the noise
+    (:func:`band_as_noise`).
 
     Parameters
     ----------
@@ -395,7 +419,7 @@ def variant_inputs(
     tau_bar, lo, hi, sig = base
     tb, a, b, s = base
     if variant.startswith("dither") and ext is not None:
-        use = (reg == DITHER) & ext.valid[:, None]
+        use = (reg == DITHER) & ext.valid[:, None] & settled(ext)
         tb = np.where(use, ext.signal - g - eff, tau_bar)
         if "dither" in model.regimes:
             db = model.regimes["dither"]
@@ -405,7 +429,7 @@ def variant_inputs(
         else:
             a, b = dithered_band(lo, hi, ext.amplitude, on=use)
         if dq_mean is not None and "moving" in model.regimes:
-            creep = (reg == MOVING) & (ext.valid & ext.on)[:, None]
+            creep = (reg == MOVING) & (ext.valid & ext.on)[:, None] & settled(ext)
             if creep.any():
                 mb = model.regimes["moving"]
                 slide = mb.sliding(dq_mean)
@@ -418,11 +442,54 @@ def variant_inputs(
     return tb, a, b, s
 
 
+def settled(ext: Extraction) -> np.ndarray | bool:
+    """(N, n) bool: the joints out of the dither's ramp-in (:attr:`Extraction.ramp`); True
+    where none is marked."""
+    return True if ext.ramp is None else ~ext.ramp
+
+
 def reads_extraction(reg: np.ndarray, ext: Extraction) -> np.ndarray:
     """(N, n) bool: where a dither variant reads the extracted signal of a joint: the dither on
     over a whole window, the joint in the dither regime or creeping under a push (``reg``
-    (N, n) regimes)."""
-    return ((reg == DITHER) | (reg == MOVING)) & (ext.valid & ext.on)[:, None]
+    (N, n) regimes) and out of its ramp-in."""
+    return ((reg == DITHER) | (reg == MOVING)) & (ext.valid & ext.on)[:, None] & settled(ext)
+
+
+class RampCarry:
+    """The dither's ramp-in (:func:`ditherlab.physics.dither.ramp_in`) carried across the
+    overlapping pieces of a recording (:func:`ditherlab.app.replay.replay_stream`), so that a
+    ramp-in longer than a piece's context is marked as in the whole: the marks of the last
+    piece's rows from its owned ones on, and the rule's state at the end of its owned rows.
+    Call :meth:`at` before each piece, in order."""
+
+    def __init__(self) -> None:
+        self.start, self.keep = 0, slice(0, None)
+        self.done: np.ndarray | None = None  # the last piece's marks, rows from `row` on
+        self.row = 0  # the whole recording's row of done[0]
+        self.state: np.ndarray | None = None  # after the rows before `end`
+        self.end = 0
+
+    def at(self, start: int, keep: slice) -> None:
+        """The next piece: its first row ``start`` in the whole recording and its owned rows
+        ``keep`` (:class:`ditherlab.io.stream.Piece`)."""
+        self.start, self.keep = int(start), keep
+
+    def marks(self, flag, valid, amp, level, longest) -> np.ndarray:
+        """:func:`~ditherlab.physics.dither.ramp_in` of the piece (arguments as there): rows
+        before its owned ones from the last piece, the rest from the state at their start."""
+        N, n = np.shape(amp)
+        a = self.keep.start
+        b = N if self.keep.stop is None else self.keep.stop
+        out = np.zeros((N, n), dtype=bool)
+        if self.done is not None and a > 0:
+            lo = self.start - self.row  # this piece's first row in the last piece's marks
+            out[:a] = self.done[lo : lo + a]
+        st = ramp_state(n) if self.state is None or self.end != self.start + a else self.state
+        out[a:b] = ramp_in(flag[a:b], valid[a:b], amp[a:b], level, longest, st)
+        self.state, self.end = st.copy(), self.start + b
+        out[b:] = ramp_in(flag[b:], valid[b:], amp[b:], level, longest, st)
+        self.done, self.row = out[a:], self.start + a
+        return out
 
 
 def extraction_jacobian(
@@ -494,6 +561,7 @@ __all__ = [
     "extraction_lead",
     "model_effects",
     "parse_components",
+    "RampCarry",
     "replay",
     "replay_columns",
     "variant_inputs",

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.causal import CausalEstimator, block_of, settings_for
-from ditherlab.analysis.estimation import replay_columns
+from ditherlab.analysis.estimation import RampCarry, replay_columns
 from ditherlab.analysis.known_load import (
     KNOWN_PREFIX,
     ReferenceSums,
@@ -122,7 +122,9 @@ def replay_stream(
 
     Every piece is replayed with its 2 s of context on either side and keeps the rows it owns;
     the file equals ``replay(src.read(), model, **options).save(out)`` (tested on logs cut inside
-    a dither period, a push and a stick). ``moving_spans`` are joined across pieces.
+    a dither period, a push and a stick). ``moving_spans`` are joined across pieces, and the
+    dither's ramp-in, which can outlast the context, is carried from piece to piece
+    (:class:`~ditherlab.analysis.estimation.RampCarry`).
 
     Parameters
     ----------
@@ -141,8 +143,10 @@ def replay_stream(
     last = None
     tally, known = Tally(), ReferenceSums(KNOWN_PREFIX, plus_sensor=True)
     with EstimatesWriter(out) as writer:
+        carry = RampCarry()  # a dither's ramp-in can outlast a piece's context
         for piece in src.pieces(chunk_rows):
-            cols, pmeta = replay_columns(piece.rec, model, **options)
+            carry.at(piece.start, piece.keep)
+            cols, pmeta = replay_columns(piece.rec, model, carry=carry, **options)
             rows = {k: v[piece.keep] for k, v in cols.items()}
             writer.write(rows)
             tally.add(rows, pmeta["variants"])

@@ -51,7 +51,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -65,6 +65,9 @@ from ditherlab.core.timeseries import (
     runs,
 )
 from ditherlab.data.recording import Recording, meta_dither_period
+
+if TYPE_CHECKING:
+    from ditherlab.data.torque_model import TorqueModel
 
 
 @dataclass
@@ -428,6 +431,101 @@ def band_amplitude(still_min, still_max, dither_min, dither_max) -> np.ndarray:
     return np.maximum(np.maximum(c - a, b - c) - w, 0.0)
 
 
+#: The longest ramp-in [s] :func:`ramp_in` marks after the dither switches on: the paper's
+#: loops ramp up over about a second and settle within 1-2 s more (Fig. 5); a joint whose
+#: amplitude is not up 5 s after the switch dithers below the model's amplitude and is read as
+#: dithered. Shorter than diagnosis's context (``ditherlab.analysis.diagnosis.HALO_S``, 12 s),
+#: so a log read in pieces is cut where the whole is.
+RAMP_MAX_S = 5.0
+
+
+def ramp_level(model: TorqueModel) -> np.ndarray | None:
+    """(n,) [N·m] the extracted amplitude at which a joint's ramp-in ends (:func:`ramp_in`):
+    :data:`AMPLITUDE_UP_FRACTION` of the amplitude the model's dithered band was built with
+    (:func:`band_amplitude`); None when the model has no ``still`` and ``dither`` bands to read
+    it from (then no ramp-in is marked)."""
+    if "still" not in model.regimes or "dither" not in model.regimes:
+        return None
+    st, db = model.regimes["still"], model.regimes["dither"]
+    return AMPLITUDE_UP_FRACTION * band_amplitude(st.tau_min, st.tau_max, db.tau_min, db.tau_max)
+
+
+def ramp_samples(rate: float) -> int:
+    """:data:`RAMP_MAX_S` in samples at ``rate`` [Hz]."""
+    return int(round(RAMP_MAX_S * rate))
+
+
+def ramp_state(n: int) -> np.ndarray:
+    """A fresh state of :func:`ramp_in` for ``n`` joints, (1 + n,) int64: the previous sample's
+    dither flag (-1: none seen, so the first sample is no switch-on), then per joint the
+    samples since the switch-on of its ramp-in (-1: not in one)."""
+    return np.full(1 + n, -1, dtype=np.int64)
+
+
+@njit(cache=True, inline="always")
+def ramp_step(on, valid, amp, level, longest, state, out):  # pragma: no cover - compiled
+    """One sample of the ramp-in rule (:func:`ramp_in`): the dither flag ``on``, whether the
+    extraction's window is whole (``valid``), the extracted amplitudes ``amp`` (n,) [N·m]
+    against ``level`` (n,) [N·m], at most ``longest`` samples; ``state`` (:func:`ramp_state`)
+    carried from the previous sample and updated; ``out`` (n,) bool: the joints in their
+    ramp-in at this sample."""
+    rise = on and state[0] == 0
+    state[0] = 1 if on else 0
+    for j in range(len(level)):
+        s = state[1 + j]
+        if rise and level[j] > 0.0:
+            s = 0
+        elif s >= 0:
+            s += 1
+        # NaN amplitudes compare false: not up
+        if s >= 0 and (not on or s >= longest or (valid and amp[j] >= level[j])):
+            s = -1
+        state[1 + j] = s
+        out[j] = s >= 0
+
+
+@njit(cache=True)
+def _ramp_kernel(flag, valid, amp, level, longest, state, out):  # pragma: no cover - compiled
+    for i in range(len(flag)):
+        ramp_step(flag[i], valid[i], amp[i], level, longest, state, out[i])
+
+
+def ramp_in(
+    flag: np.ndarray,
+    valid: np.ndarray,
+    amp: np.ndarray,
+    level: np.ndarray | None,
+    longest: int,
+    state: np.ndarray | None = None,
+) -> np.ndarray:
+    """(N, n) bool: the dither's ramp-in, per joint, from the past alone.
+
+    After each switch-on of the dither ``flag`` (N,) (a false sample followed by a true one),
+    a joint is in its ramp-in up to the first sample, with the extraction's whole window
+    (``valid`` (N,)), at which its extracted amplitude ``amp`` (N, n) [N·m] reaches ``level``
+    (n,) [N·m] (:func:`ramp_level`), at most ``longest`` samples (:func:`ramp_samples`) and
+    while the flag stays on. While the amplitude grows the joint's dithered band is wider than
+    the working one (the static friction less a smaller amplitude) and the loops settle: its
+    extracted torque is not the dither regime's. A joint with ``level`` 0, or every joint when
+    ``level`` is None, is never in one.
+
+    The flag's switch-on, not a joint's dither regime (which a creeping joint leaves and
+    re-enters under a push while its amplitude dips); a log that starts with the dither on
+    shows no switch-on there. ``state`` (:func:`ramp_state`; a fresh one when None) carries the
+    rule across pieces of a stream and is updated in place: the pieces give the whole's marks.
+    """
+    amp = np.ascontiguousarray(amp, dtype=float)
+    out = np.zeros(amp.shape, dtype=np.bool_)
+    if level is None:
+        return out
+    st = ramp_state(amp.shape[1]) if state is None else state
+    _ramp_kernel(
+        np.ascontiguousarray(flag, dtype=np.bool_), np.ascontiguousarray(valid, dtype=np.bool_),
+        amp, np.ascontiguousarray(level, dtype=float), int(longest), st, out,
+    )  # fmt: skip
+    return out
+
+
 def dithered_band(tau_min, tau_max, amplitude, on=None) -> tuple[np.ndarray, np.ndarray]:
     """The friction band shrunk by the dither amplitude on each side (§IV-A, Fig. 4).
 
@@ -498,6 +596,9 @@ class Extraction:
     period : [s]
     waveform : str
         The recording's dither waveform (:func:`dither_waveform`).
+    ramp : (N, n) bool or None
+        The dither's ramp-in per joint (:func:`ramp_in` with a model's level), where the
+        estimator reads the raw torque and not the extraction; None: none marked.
     """
 
     upper: np.ndarray
@@ -509,6 +610,7 @@ class Extraction:
     valid: np.ndarray
     period: float
     waveform: str = "square"
+    ramp: np.ndarray | None = None
 
 
 def dither_on(rec: Recording) -> np.ndarray | None:

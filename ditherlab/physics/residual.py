@@ -21,7 +21,7 @@ from ditherlab.core.timeseries import REVERSAL_V, STICK_SETTLE_S, smooth_wrench,
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.band_fit import noise_lag
-from ditherlab.physics.dither import AMPLITUDE_UP_FRACTION, band_amplitude, extract_dither
+from ditherlab.physics.dither import extract_dither, ramp_in, ramp_level, ramp_samples
 from ditherlab.physics.effects import (
     Signals,
     check_model_effects,
@@ -104,51 +104,6 @@ def _dither_signal(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray] 
     if sig is None:
         return None
     return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool), sig.amplitude
-
-
-#: The longest ramp-in [s] :func:`_ramp_in` leaves out after the dither switches on: the
-#: paper's loops ramp up over about a second and settle within 1-2 s more (Fig. 5); a joint
-#: whose amplitude is not up 5 s after the switch dithers below the model's amplitude and is
-#: scored. Shorter than diagnosis's context (``ditherlab.analysis.diagnosis.HALO_S``, 12 s), so a log
-#: read in pieces is cut where the whole is.
-RAMP_MAX_S = 5.0
-
-
-def _ramp_in(
-    flag: np.ndarray, valid: np.ndarray, amp: np.ndarray, model: TorqueModel, rate: float
-) -> np.ndarray:
-    """(N, n) bool: the dither's ramp-in, per joint: after each switch-on of the log's dither
-    ``flag`` (N,) (a false sample followed by a true one), the samples up to the first one,
-    with the extraction's whole window (``valid`` (N,)), at which the joint's extracted
-    amplitude ``amp`` (N, n) [N·m] reaches :data:`~ditherlab.physics.dither.AMPLITUDE_UP_FRACTION` of
-    the amplitude the model's dithered band was built with
-    (:func:`~ditherlab.physics.dither.band_amplitude`), at most :data:`RAMP_MAX_S` at ``rate`` [Hz].
-    While the amplitude grows the joint's dithered band is wider than the working one (the
-    static friction less a smaller amplitude) and the loops settle: its residual is not the
-    regime's.
-
-    The flag's switch-on, not a joint's dither regime (which a creeping joint leaves and
-    re-enters under a push while its amplitude dips); a log that starts with the dither on
-    shows no switch-on there. The level is the model's, not this log's. Nothing is cut when
-    the model has no ``still`` and ``dither`` bands to read the amplitude from."""
-    out = np.zeros(amp.shape, dtype=bool)
-    rises = np.flatnonzero(~flag[:-1] & flag[1:]) + 1
-    if "still" not in model.regimes or "dither" not in model.regimes or not len(rises):
-        return out
-    st, db = model.regimes["still"], model.regimes["dither"]
-    level = AMPLITUDE_UP_FRACTION * band_amplitude(st.tau_min, st.tau_max, db.tau_min, db.tau_max)
-    longest = int(round(RAMP_MAX_S * rate))
-    for r in rises:
-        hi = min(r + longest, len(flag))
-        off = np.flatnonzero(~flag[r:hi])
-        hi = r + off[0] if len(off) else hi  # the stretch ends earlier
-        for j in range(amp.shape[1]):
-            if level[j] <= 0.0:
-                continue
-            a = np.where(valid[r:hi], np.nan_to_num(amp[r:hi, j], nan=0.0), 0.0)
-            up = np.flatnonzero(a >= level[j])
-            out[r : r + (up[0] if len(up) else hi - r), j] = True
-    return out
 
 
 @dataclass
@@ -235,7 +190,10 @@ def local(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Loc
             # the first dither period has no full window
             use &= (reg != DITHER) | ext[1][:, None]
             if rec.dither is not None:
-                ramp = _ramp_in(rec.dither, ext[1], ext[2], model, rec.sample_rate)
+                # the dither's ramp-in: the joint's residual is not yet the regime's
+                ramp = ramp_in(
+                    rec.dither, ext[1], ext[2], ramp_level(model), ramp_samples(rec.sample_rate)
+                )
                 use &= ~(ramp & (reg == DITHER))
     near = stick_transitions(reg, rec.sample_rate)
     use &= ~near
