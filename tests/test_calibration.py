@@ -39,7 +39,7 @@ def test_lead_reads_a_lagged_mean_at_its_time():
     y = AttenuationLag.delayed(sig, causal_mean(x, W), (0, lag))
     tb = np.stack([y, y], axis=1)
     reg = np.full(tb.shape, DITHER, dtype=np.int8)
-    ext = SimpleNamespace(valid=np.ones(len(t), bool), on=np.ones(len(t), bool))
+    ext = SimpleNamespace(valid=np.ones(len(t), bool), on=np.ones(len(t), bool), ramp=None)
     spec = SimpleNamespace(name="dither_extraction", joints=[1], params={"gain": 0.9, "lag": lag})
     model = SimpleNamespace(effects=[spec], n=2)
     out = extraction_lead(tb, model, reg, ext, W)
