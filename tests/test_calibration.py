@@ -57,8 +57,11 @@ def test_lead_reads_a_lagged_mean_at_its_time():
 
 
 def test_design_is_what_the_effect_predicts():
-    """On a dithered recording: gain · design + offset equals external minus J^T F, only
-    on the rows where the dither variants read the extraction; zero design without dither."""
+    """On a dithered recording: gain · design + offset equals the external torque minus what
+    a model without the effect subtracts (``J^T F`` through the dither's window in the dither
+    regime, as the extracted signal is compared with it; ``J^T F`` itself where a joint
+    creeps), only on the rows where the dither variants read the extraction; zero design
+    without dither."""
     rec, _ = push_recording(2, dither=True, magnitudes=(20.0,), axes=("x",))
     e = get_effect("dither_extraction")
     sig = signals(rec)
@@ -67,8 +70,10 @@ def test_design_is_what_the_effect_predicts():
     X = sig.jtf(sig.wrench_lp("t"))[:, 1]
     d = e.design(sig, 1, 8, {})
     pred = e.external(sig, 1, X, np.array([0.8]), 8)
-    np.testing.assert_allclose(0.8 * d.centre[:, 0] + d.offset, pred - X, atol=1e-9)
     m = extraction_mask(sig, 1)
+    base = np.where(m & (sig.regime[:, 1] == DITHER), causal_mean(X, W), X)
+    np.testing.assert_allclose(0.8 * d.centre[:, 0] + d.offset, pred - base, atol=1e-9)
+    assert (m & (sig.regime[:, 1] == DITHER)).any() and (np.abs(base - X) > 0.1).any()
     assert m.any() and not m.all()
     np.testing.assert_array_equal(pred[~m], X[~m])
     plain, _ = push_recording(2, magnitudes=(20.0,), axes=("x",))

@@ -200,9 +200,10 @@ def test_hopper_load_friction_not_suggested_is_written_with_what_it_delivers(
     hopper_model, tmp_path
 ):
     """load_friction on the hopper's knee is not suggested by diagnosis; its fit promises 16 %
-    of the held-out residual but the re-fitted bands take most of it back (5 % delivered). The
-    user asked for it: the model is written, one warning line says what it delivers, and the
-    history row keeps promise and delivery."""
+    of the held-out residual. The user asked for it: the model is written and its history row
+    keeps promise and delivery. The re-fitted moving band of the knee sits 0.045 N·m lower:
+    delivery fits the band centres on both sides as diagnosis does, so that move is neither
+    credited to nor held against the effect, and the written model delivers its promise."""
     out = tmp_path / "lf.toml"
     d = run_cli("diagnose", HOPPER, "--model", hopper_model, "-o", tmp_path / "d", "-q")
     assert d.code == 0, d.err
@@ -215,11 +216,14 @@ def test_hopper_load_friction_not_suggested_is_written_with_what_it_delivers(
         "identify", HOPPER, "--model", hopper_model, "--add", "load_friction", "-o", out, "-q"
     )
     assert r.code == 0, r.err
-    line = next(x for x in r.err.splitlines() if x.startswith("warning: not suggested"))
-    assert "was promised" in line and "re-fitted bands take back" in line, line
-    row = tomllib.loads(out.read_text())["history"][-1]
-    assert row["added"] == "load_friction" and row["delivered"] < DELIVERY_SHARE * row["promised"]
-    assert row["warning"].startswith("not suggested by diagnosis")
+    assert not [x for x in r.err.splitlines() if x.startswith("warning: not suggested")], r.err
+    m = tomllib.loads(out.read_text())
+    row = m["history"][-1]
+    assert row["added"] == "load_friction" and "warning" not in row
+    assert 0.05 < row["promised"] and row["delivered"] >= DELIVERY_SHARE * row["promised"], row
+    base = tomllib.loads(hopper_model.read_text())
+    moved = m["regimes"]["moving"]["tau_min"][1] - base["regimes"]["moving"]["tau_min"][1]
+    assert abs(moved) > 0.02, moved  # the band centre the re-fit moved
 
 
 def test_a_suggested_effect_that_does_not_deliver_is_refused(monkeypatch):
@@ -235,9 +239,9 @@ def test_a_suggested_effect_that_does_not_deliver_is_refused(monkeypatch):
     weak = Delivery("viscous", [0], 0.5, [(100.0, 99.0, 99.0)], ([2.0], [2.0]))
     monkeypatch.setattr(ident, "delivery", lambda *a, **k: weak)
     with pytest.raises(ModelError, match="was promised 50.0 %.*the model is not written"):
-        ident._delivered(base, (base, base), cand, [0], [rec], (sc, sc))
+        ident._delivered(base, (base, base), cand, [0], [rec], sc)
     cand.suggested = False  # not suggested: written, with the warning in its history row
-    row = ident._delivered(base, (base, base), cand, [0], [rec], (sc, sc))
+    row = ident._delivered(base, (base, base), cand, [0], [rec], sc)
     assert row["warning"].startswith("not suggested by diagnosis: viscous on joint(s) 1")
 
 

@@ -3,11 +3,15 @@
 ``identify --add`` fits an effect, writes it into a new model and re-fits the bands. Diagnosis
 promised a held-out share of the residual for it (:class:`~ditherlab.analysis.scoring.Candidate`,
 per joint ``JointScore.gain / loss0``). :func:`delivery` measures the same band-aware loss
-``sum((excess / sigma)²)`` per named joint under the model before and the model written, both
-with the noise of the model before (one unit for both), and the share it fell by; promise and
-delivery are averaged over the joints weighted by each joint's share of the promised gain (a
-joint promised little weighs little). An effect that delivers less than :data:`DELIVERY_SHARE`
-of its promise is not written.
+``sum((excess / sigma)²)`` per named joint, as diagnosis measures it: with each regime's band
+centre and the sliding line free (the nuisance columns of
+:func:`~ditherlab.physics.effect_fit.stack_rows`, fitted to the residual), under the model
+before and the model written, both with the noise of the model before (one unit for both), and
+the share it fell by. The band centres are free on both sides because the band fit places a
+centre by the band-plus-noise likelihood, not by this loss: a centre the two criteria place
+apart is neither the effect's gain nor its failure. Promise and delivery are averaged over the
+joints weighted by each joint's share of the promised gain (a joint promised little weighs
+little). An effect that delivers less than :data:`DELIVERY_SHARE` of its promise is not written.
 
 :func:`force_change` compares the sensorless force estimate's error (estimate minus sensor) of
 the two models per axis where the recordings have an F/T sensor: a growth beyond its sampling
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -29,6 +33,7 @@ from ditherlab.analysis.diagnosis_sums import force_inputs
 from ditherlab.analysis.scoring import Candidate
 from ditherlab.core.names import WRENCH_COLUMNS
 from ditherlab.data.torque_model import TorqueModel
+from ditherlab.physics.effect_fit import solve_signed, stack_rows
 from ditherlab.physics.residual import Scored
 
 __all__ = [
@@ -78,8 +83,9 @@ class Delivery:
     ----------
     effect, joints : the effect and its joints
     promise : held-out share of the residual diagnosis promised [-]
-    loss : per joint, band-aware loss [σ²] under the model before, the model with the effect
-        and the bands before, and the model written (bands re-fitted)
+    loss : per joint, band-aware loss [σ²] with the band centres fitted, under the model
+        before, the model with the effect and the bands before, and the model written (bands
+        re-fitted)
     rms : (before, written) residual RMS outside the band per joint [N·m]
     weights : per joint, its share of the promised gain (None: the losses are summed)
     """
@@ -137,21 +143,45 @@ class Delivery:
         }
 
 
+def _centred_loss(sc: Sequence[Scored], j: int, sigma: np.ndarray | None = None) -> float:
+    """The band-aware loss [σ²] of joint ``j`` over the rows ``sc`` use, with the regimes' band
+    centres and the sliding line fitted to it (the nuisance columns diagnosis fits beside an
+    effect); ``sigma`` (M,) [N·m] the noise per stacked row (default: each row's own)."""
+    r = stack_rows(sc, j)
+    if not len(r.e):
+        return 0.0
+    zero = np.zeros(len(r.e))
+    s = r.s if sigma is None else sigma
+    _, L = solve_signed(r.e, r.h, s, r.N, np.zeros_like(r.N), zero, (0,) * r.N.shape[1])
+    return float(L)
+
+
 def _loss_rms(
     before: Sequence[Scored], after: Sequence[Scored], j: int
 ) -> tuple[float, float, float, float]:
-    """(loss before, loss after [σ² of the model before], RMS before, RMS after [N·m]) of the
-    excess beyond the band on joint ``j`` over the rows scored under both models."""
-    sums = np.zeros(4)
+    """(loss before, loss after [σ² of the model before], RMS before, RMS after [N·m]) on joint
+    ``j`` over the rows scored under both models: the loss with the band centres fitted
+    (:func:`_centred_loss`), the RMS of the excess beyond the model's own bands."""
+    sums = np.zeros(2)
     count = 0
+    both_b, both_a = [], []
     for b, a in zip(before, after, strict=True):
         m = b.use[:, j] & a.use[:, j]
+        use = np.zeros_like(b.use)
+        use[:, j] = m
+        both_b.append(replace(b, use=use))
+        both_a.append(replace(a, use=use))
         xb, xa = b.excess()[m, j], a.excess()[m, j]
-        s = b.sigma[m, j]
-        sums += [np.sum((xb / s) ** 2), np.sum((xa / s) ** 2), np.sum(xb**2), np.sum(xa**2)]
+        sums += [np.sum(xb**2), np.sum(xa**2)]
         count += int(m.sum())
     n = max(count, 1)
-    return float(sums[0]), float(sums[1]), math.sqrt(sums[2] / n), math.sqrt(sums[3] / n)
+    sigma = stack_rows(both_b, j).s
+    return (
+        _centred_loss(both_b, j),
+        _centred_loss(both_a, j, sigma),
+        math.sqrt(sums[0] / n),
+        math.sqrt(sums[1] / n),
+    )
 
 
 def delivery(

@@ -63,7 +63,7 @@ from ditherlab.physics.effects import (
     sensor_wrench,
     signals,
 )
-from ditherlab.physics.effects.extraction import extracted_rows, logged_view
+from ditherlab.physics.effects.extraction import as_extracted, extracted_rows, logged_view
 from ditherlab.physics.residual import check_noise
 
 
@@ -553,14 +553,11 @@ class _Samples:
             if ext is not None and model is not None and model.effects
             else None
         )
-        if shown is not None and shown.any():
-            # the rest of the model through the window; the external torque through it only
-            # where the model has not already windowed it
-            assert ext is not None
-            ext_d = np.where(shown, ext, causal_mean(ext, w))
-            rho_d = sig.signal - causal_mean(model_tau - ext, w) - ext_d
+        if ext is None:
+            rho_d = sig.signal - as_extracted(model_tau, None, None, w)
         else:
-            rho_d = sig.signal - causal_mean(model_tau, w)
+            shown = shown if shown is not None and shown.any() else None
+            rho_d = sig.signal - as_extracted(model_tau - ext, ext, shown, w)
         dmask = (reg == DITHER) & sig.valid[:, None]
         for j in range(self.n):
             dk = dmask[keep, j]

@@ -366,16 +366,11 @@ def add_effect(
     new.effects.append(spec)
     new.version = model.version + 1
     fitted = new
-    before = sc
     if refit and _can_refit(recs, assume_no_force):
         new = _refit(recs, new, assume_no_force=assume_no_force, executor=executor)
     else:  # the bands keep their fit: they move by what the effect's fit moved them
         new = recentre(new, [scored(new, r) for r in recs])
-        # the delivery's baseline: the model before with its bands moved the same way (by
-        # the intercepts and sliding line fitted without the effect), so that what recentring
-        # alone lowers is not credited to the effect
-        before = [scored(recentre(base, sc), r) for r in recs]
-    row = _delivered(base, (fitted, new), cand, sorted(fits), recs, (sc, before))
+    row = _delivered(base, (fitted, new), cand, sorted(fits), recs, sc)
     new.history = [*new.history, row]
     if weak:
         new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
@@ -404,7 +399,7 @@ def _delivered(
     cand: Candidate,
     fitted: Sequence[int],
     recs: Sequence[Recording],
-    sc: tuple[Sequence[Scored], Sequence[Scored]],
+    sc: Sequence[Scored],
 ) -> dict[str, Any]:
     """The history row of an added effect: the model ``new[1]`` (as written; ``new[0]`` with the
     bands of ``base``) delivers at least half of the held-out share ``cand`` promised on the
@@ -412,12 +407,12 @@ def _delivered(
     suggests the effect (its promise), or a ``warning`` line when it does not (the user asked
     for it; what it did is said); and where the recordings have an F/T sensor, the force error
     before and after (a ``warning`` line when it grew beyond its sampling uncertainty).
-    ``sc``: the recordings scored under ``base``, and under the baseline delivery is measured
-    from (``base``, or ``base`` with its bands moved as the written model's were)."""
+    ``sc``: the recordings scored under ``base``. Delivery fits the band centres on both sides
+    (:mod:`ditherlab.analysis.delivery`): what recentring the bands alone lowers is not
+    credited to the effect."""
     js = list(range(base.n)) if list(fitted) == [-1] else list(fitted)
-    sc, before = sc
     after = [scored(new[1], r) for r in recs]
-    scs = (before, [scored(new[0], r) for r in recs], after)
+    scs = (sc, [scored(new[0], r) for r in recs], after)
     d = delivery(cand.effect, promised(cand, js), js, scs)
     if not d.ok and cand.suggested:
         raise ModelError(f"identify --add {cand.effect}: {d.text()}; the model is not written")

@@ -31,6 +31,7 @@ from ditherlab.physics.effects import (
     signals,
     widening,
 )
+from ditherlab.physics.effects.extraction import as_extracted, extracted_rows
 
 __all__ = [
     "NO_NOISE",
@@ -97,13 +98,16 @@ class Scored:
         return np.sign(x) * np.maximum(np.abs(x) - hh, 0.0)
 
 
-def _dither_signal(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The paper's extracted dither signal (N, n) [N·m], its validity (N,) and the extracted
-    amplitude (N, n) [N·m], or None."""
+def _dither_signal(
+    rec: Recording,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int] | None:
+    """The paper's extracted dither signal (N, n) [N·m], its validity (N,), the extracted
+    amplitude (N, n) [N·m] and the window [samples per period], or None."""
     sig = extract_dither(rec)
     if sig is None:
         return None
-    return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool), sig.amplitude
+    w = max(int(round(sig.period * rec.sample_rate)), 1)
+    return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool), sig.amplitude, w
 
 
 @dataclass
@@ -180,6 +184,7 @@ def local(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Loc
     tau = rec.tau.copy()
     use = np.ones(tau.shape, dtype=bool)
     no_extraction = False
+    window = 0  # samples per dither period where the dither regime reads the extraction
     if (reg == DITHER).any():
         ext = _dither_signal(rec)
         if ext is None:
@@ -187,6 +192,7 @@ def local(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Loc
             no_extraction = True
         else:
             tau = np.where(reg == DITHER, ext[0], tau)
+            window = ext[3]
             # the first dither period has no full window
             use &= (reg != DITHER) | ext[1][:, None]
             if rec.dither is not None:
@@ -201,11 +207,18 @@ def local(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Loc
     # friction passes through the static band, neither on the sliding line nor a stick
     rev = (reg == MOVING) & (np.abs(rec.dq) < REVERSAL_V) & use
     use &= ~rev
-    rho = tau - sig.gravity - effects_torque(model, rec)
+    model_tau = sig.gravity + effects_torque(model, rec)
+    ext = None
     if use_sensor and rec.has_wrench:
-        rho -= external_torque(
-            model, rec, smooth_wrench(sensor_wrench(model, rec), rec.sample_rate)
+        ext = external_torque(model, rec, smooth_wrench(sensor_wrench(model, rec), rec.sample_rate))
+    rho = tau - model_tau - (0.0 if ext is None else ext)
+    if window:
+        # the extracted signal is compared with the model torque through the same window
+        shown = extracted_rows(model.effects, sig) if ext is not None and model.effects else None
+        seen = as_extracted(
+            model_tau, ext, shown if shown is not None and shown.any() else None, window
         )
+        rho = np.where(reg == DITHER, tau - seen, rho)
     cen = np.zeros_like(rho)
     for code in Regime:
         if code.label not in model.regimes:

@@ -47,6 +47,7 @@ __all__ = [
     "DitherExtraction",
     "extracted_rows",
     "logged_view",
+    "as_extracted",
     "extraction_gain",
     "extraction_mask",
     "extraction_window",
@@ -155,7 +156,10 @@ class DitherExtraction(Effect):
             return Design(np.zeros((len(X), 1)), offset=np.zeros(len(X)))
         m = extraction_mask(sig, j)
         Y = self.filtered(sig, X, h)
-        return Design(np.where(m, Y, 0.0)[:, None], offset=np.where(m, -X, 0.0))
+        # what the model without the effect subtracts there: the external torque through the
+        # window where the dither regime reads the extraction (as_extracted), else itself
+        shown = np.where(sig.regime[:, j] == DITHER, self.filtered(sig, X, 0), X)
+        return Design(np.where(m, Y, 0.0)[:, None], offset=np.where(m, -shown, 0.0))
 
     def driver(self, sig, j, p):
         X = sig.jtf(sig.wrench_lp(self.name))[:, j]
@@ -216,6 +220,35 @@ def extracted_rows(specs: Any, sig: Signals) -> np.ndarray:
             if 1 <= jj <= sig.n:
                 out[:, jj - 1] = extraction_mask(sig, jj - 1)
     return out
+
+
+def as_extracted(
+    model_tau: np.ndarray, ext: np.ndarray | None, shown: np.ndarray | None, w: int
+) -> np.ndarray:
+    """(N, n) [N·m]: the model torque as the dither's extraction shows it, what the extracted
+    signal is compared with wherever a consumer reads it (identification's and diagnosis's
+    dither regime, the estimator's dither variants).
+
+    The extracted signal is (for the slow part of the torque) the mean of the last ``w``
+    samples, so the model torque passes through the same window: its half-period delay does
+    not count as friction, and what the model computes at the dither's own frequency (an
+    inertia times the vibration's acceleration, a drive gain times the square wave) averages
+    out as the dither does in the extraction. The external torque ``ext`` (N, n) [N·m] (None:
+    none) is windowed too except where the model's ``dither_extraction`` already shows it as
+    a one-period mean (``shown`` (N, n) bool, :func:`extracted_rows`; None: nowhere).
+
+    Parameters
+    ----------
+    model_tau : (N, n) [N·m] gravity and the model's torque effects, per sample
+    ext : (N, n) [N·m] the model's external torque, or None
+    shown : (N, n) bool, or None
+    w : samples per dither period (the extraction's window)
+    """
+    out = causal_mean(model_tau, w)
+    if ext is None:
+        return out
+    windowed = causal_mean(ext, w)
+    return out + (windowed if shown is None else np.where(shown, ext, windowed))
 
 
 def logged_view(specs: Any) -> list[Any]:
