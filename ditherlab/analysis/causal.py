@@ -17,7 +17,10 @@ computes
   still;
 - the dither: on where the ``dither`` flag says so, else where the feedforward's range over the
   last period is non-zero; the extraction's period means over the last period
-  (:func:`ditherlab.physics.dither.extract`, already causal: the same values as offline);
+  (:func:`ditherlab.physics.dither.extract`, already causal: the same values as offline), and
+  gravity plus the model's effects through the same window
+  (:func:`ditherlab.analysis.estimation.model_seen`, their values at the kept past remembered),
+  what the dither variants subtract from it;
 - the dither's ramp-in per joint (:func:`ditherlab.physics.dither.ramp_in`, from the switch-on
   of the dither until the joint's extracted amplitude is up, at most
   :data:`~ditherlab.physics.dither.RAMP_MAX_S`), the rule's state carried from update to

@@ -11,7 +11,8 @@ Variants (each only where the recording allows it):
 ``dither_band``
     Needs a ``dither`` column or ``tau_ffw``. Where a joint stands still with the dither on, the
     torque signal is first extracted (§IV-A: per dither period the means of the samples above
-    and below the period mean, averaged; :func:`extract_dither`), and the band is the model's
+    and below the period mean, averaged; :func:`extract_dither`), less gravity and the model's
+    effects through the same window (:func:`model_seen`), and the band is the model's
     ``dither`` band — identified on that same extracted signal (:mod:`ditherlab.analysis.identification`). A
     model without a ``dither`` band falls back to the paper's rule: the ``still`` band shrunk by
     the extracted dither amplitude on each side (Fig. 4). Samples without dither (before the
