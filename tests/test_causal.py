@@ -74,8 +74,9 @@ def run_blocks(rec, model, size: int, rows: int | None = None) -> dict[str, np.n
 
 def reference(rec, model) -> dict[str, np.ndarray]:
     """Every sample's estimate from its own past, written from the definitions one sample at a
-    time: backward differences, trailing means, the dither's period means by comparison, the
-    dither's ramp-in from the last switch-on (:func:`_in_ramp`)."""
+    time: backward differences, trailing means, the dither's period means by comparison,
+    gravity's mean over the last period, the dither's ramp-in from the last switch-on
+    (:func:`_in_ramp`)."""
     s = settings_for(rec)
     W = s.windows()
     t, dq, tau, on = wire_time(rec.t), rec.dq, rec.tau, rec.dither
@@ -106,7 +107,9 @@ def reference(rec, model) -> dict[str, np.ndarray]:
         J = J * gain[None, None, :]
         base = (tau[i : i + 1] - g, *model.sample_bands(reg, dq[i : i + 1]))
         dq_mean = dq[max(0, i - p + 1) : i + 1].mean(axis=0)[None]
-        inp = ReplayInputs(g, J, np.zeros_like(g), reg, base, ext, p, dq_mean)
+        # gravity as the extraction shows it: its mean over the same last period
+        seen = robot.gravity(rec.q[max(0, i - p + 1) : i + 1]).mean(axis=0)[None]
+        inp = ReplayInputs(g, J, np.zeros_like(g), reg, base, ext, p, dq_mean, seen)
         for v in s.variants:
             F, _, lo, hi = variant_estimate(v, inp, model, how, Ticker(2, None))
             for name, M in ((v, F), (v + "_lo", lo), (v + "_hi", hi)):

@@ -287,7 +287,7 @@ def test_fast_interval_kernels_match_their_references_on_replay_data(recs, model
     """On a replayed dithered recording (every variant's inputs), the fast profile kernel and the
     set-membership LPs give their references' bounds (profile: the per-segment refactorisation,
     1e-9; set membership: linprog on a subset, 1e-7)."""
-    from ditherlab.analysis.estimation import model_effects, variant_inputs
+    from ditherlab.analysis.estimation import model_effects, model_seen, variant_inputs
     from ditherlab.data.recording import regimes
     from ditherlab.estimator import estimate, problem, set_membership_reference
     from ditherlab.estimator.interval_methods.profile import _run_profile, profile_reference
@@ -302,8 +302,9 @@ def test_fast_interval_kernels_match_their_references_on_replay_data(recs, model
     reg = regimes(dith)
     base = (dith.tau - g - eff, *model.sample_bands(reg, dith.dq))
     ext = extract_dither(dith)
+    seen = model_seen(g + eff, max(int(round(ext.period * dith.sample_rate)), 1))
     for v in ("nodither_band", "dither_band", "dither_noband"):
-        tb, a, b, s = variant_inputs(v, base, model, reg, g, eff, ext)
+        tb, a, b, s = variant_inputs(v, base, model, reg, seen, ext)
         prob = problem(tb, J, a, b, s, model.prior_mean, model.prior_sigma)
         Fm = estimate(tb, J, a, b, s, model.prior_mean, model.prior_sigma).F[:, prob.free]
         lo, hi, _ = _run_profile(prob, Fm, 0.95)

@@ -17,7 +17,10 @@ computes
   still;
 - the dither: on where the ``dither`` flag says so, else where the feedforward's range over the
   last period is non-zero; the extraction's period means over the last period
-  (:func:`ditherlab.physics.dither.extract`, already causal: the same values as offline);
+  (:func:`ditherlab.physics.dither.extract`, already causal: the same values as offline), and
+  gravity plus the model's effects through the same window
+  (:func:`ditherlab.analysis.estimation.model_seen`, their values at the kept past remembered),
+  what the dither variants subtract from it;
 - the dither's ramp-in per joint (:func:`ditherlab.physics.dither.ramp_in`, from the switch-on
   of the dither until the joint's extracted amplitude is up, at most
   :data:`~ditherlab.physics.dither.RAMP_MAX_S`), the rule's state carried from update to
@@ -49,6 +52,7 @@ from ditherlab.analysis.estimation import (
     ReplayHow,
     ReplayInputs,
     available_variants,
+    model_seen,
     parse_components,
     variant_estimate,
 )
@@ -277,9 +281,9 @@ class CausalEstimator:
         X = self._joined(b)
         N = len(b.t)
         feats = self._features(X, N)
-        inp = self._inputs(b, feats)
+        inp = self._inputs(b, feats, X.get("model_past"))
         cols = self._columns(b, inp)
-        self._remember(X, feats)
+        self._remember(X, feats, inp)
         self._track(b.t, (feats["reg"] == MOVING).any(axis=1))
         return cols
 
@@ -351,7 +355,7 @@ class CausalEstimator:
                 )
             if v is not None:
                 out[k] = np.concatenate([old, v])
-        for k in ("dq", "on"):  # derived values of the past, kept
+        for k in ("dq", "on", "model"):  # derived values of the past, kept
             out[k + "_past"] = self.context[k]
         return out
 
@@ -397,15 +401,21 @@ class CausalEstimator:
             period=float(s.period), waveform=s.waveform, ramp=ramp,
         )  # fmt: skip
 
-    def _inputs(self, b: CausalBlock, f: dict[str, Any]) -> ReplayInputs:
-        """The estimator's inputs of the new rows: gravity, Jacobians, effects, bands."""
+    def _inputs(self, b: CausalBlock, f: dict[str, Any], past: np.ndarray | None) -> ReplayInputs:
+        """The estimator's inputs of the new rows: gravity, Jacobians, effects, bands, and with
+        dither gravity and the effects through the extraction's window (over ``past`` (P, n)
+        [N·m], their sum at the kept rows, and the new rows)."""
         # every pose of a live robot is new: no deduplication and no cache to grow
         g, J = self.robot.gravity_jacobian(b.q, dedup=False)
         J *= self.gain[None, None, :]
         eff = self._effects(b, f)
         base = (b.tau - g - eff, *self.model.sample_bands(f["reg"], f["dq"]))
         w = self.win["period"]
-        return ReplayInputs(g, J, eff, f["reg"], base, f["ext"], w, f["dq_mean"])
+        seen = None
+        if f["ext"] is not None:
+            m = g + eff
+            seen = model_seen(m if past is None else np.concatenate([past, m]), w)[-len(m) :]
+        return ReplayInputs(g, J, eff, f["reg"], base, f["ext"], w, f["dq_mean"], seen)
 
     def _effects(self, b: CausalBlock, f: dict[str, Any]) -> np.ndarray:
         """The model's effects (N, n) [N·m] at the new rows, driven by the causal ``dq``,
@@ -463,13 +473,15 @@ class CausalEstimator:
                 self.moving_spans.append([a, b])
         self._moved = bool(moving[-1])
 
-    def _remember(self, X: dict[str, np.ndarray], f: dict[str, Any]) -> None:
-        """Keep the last :attr:`keep` rows of the raw quantities and of ``dq`` and the dither
-        flag."""
+    def _remember(self, X: dict[str, np.ndarray], f: dict[str, Any], inp: ReplayInputs) -> None:
+        """Keep the last :attr:`keep` rows of the raw quantities, of ``dq`` and the dither flag,
+        and of gravity plus the effects (the extraction's window of them needs ``w - 1``)."""
         k = self.keep
         ctx = {key: v[-k:] for key, v in X.items() if not key.endswith("_past")}
         ctx["dq"] = f["dq_all"][-k:]
         ctx["on"] = None if f["on_all"] is None else f["on_all"][-k:]
+        m, past = inp.g + inp.eff, X.get("model_past")
+        ctx["model"] = (m if past is None else np.concatenate([past, m]))[-k:]
         for key in ("dq_in", "on_in", "ffw"):
             ctx.setdefault(key, None)
         self.context = ctx

@@ -6,10 +6,12 @@ arrays over the kept past and runs the offline replay's functions on them: obvio
 estimator, and about 2 ms of Python and numpy overhead per update. This path keeps the same
 quantities as state and computes each new sample from them:
 
-- a history of the raw samples and the derived velocity (:class:`FastPath` ``hist``, the kept
-  rows copied to its front when it fills), each window a slice of it summed oldest first, as
-  :func:`ditherlab.core.timeseries.causal_mean` and the extraction's window sums add;
-- the regime, the dither flag and the extraction from those windows, and the dither's ramp-in
+- a history of the raw samples, the derived velocity and gravity (:class:`FastPath` ``hist``,
+  the kept rows copied to its front when it fills), each window a slice of it summed oldest
+  first, as :func:`ditherlab.core.timeseries.causal_mean` and the extraction's window sums add;
+- the regime, the dither flag and the extraction from those windows, gravity's mean over the
+  last dither period (what the dither variants subtract from the extracted signal:
+  :func:`ditherlab.analysis.estimation.model_seen`), and the dither's ramp-in
   per joint (:func:`ditherlab.physics.dither.ramp_step`, its state carried from sample to
   sample, afresh after a gap);
 - per variant the bands, the reduced problem of eq. (3) for the one sample, and the estimator's
@@ -133,6 +135,7 @@ class Feats(NamedTuple):
     ext : (4, n) [N·m]: the extraction's upper and lower means, signal, amplitude
     flags : (2,) bool: the dither on, on over a whole period (the extraction valid)
     ramp : (n,) bool: the joints in the dither's ramp-in
+    gm : (n,) [N·m] gravity's mean over a dither period: gravity as the extraction shows it
     """
 
     reg: np.ndarray
@@ -140,6 +143,7 @@ class Feats(NamedTuple):
     ext: np.ndarray
     flags: np.ndarray
     ramp: np.ndarray
+    gm: np.ndarray
 
 
 def supported(model: TorqueModel, interval: str) -> str | None:
@@ -178,7 +182,8 @@ def _validate(hist, st, blk):  # pragma: no cover - compiled
 @njit(cache=True, inline="always")
 def _push(hist, st, blk, k, par):  # pragma: no cover - compiled
     """Append sample ``k`` of ``blk`` to the history (a gap starts afresh; a full history keeps
-    its last rows); returns its row. Columns: ``t``, ``q``, ``tau``, ``dq``, ``ffw``, the flag."""
+    its last rows); returns its row. Columns: ``t``, ``q``, ``tau``, ``dq``, ``ffw``, the flag,
+    gravity."""
     n = blk.q.shape[1]
     cap, keep = hist.shape[0], par.ints[5]
     if st[0] == cap:
@@ -205,6 +210,7 @@ def _push(hist, st, blk, k, par):  # pragma: no cover - compiled
             hist[i, 1 + 2 * n + j] = 0.0
         if blk.ffw.shape[0]:
             hist[i, 1 + 3 * n + j] = blk.ffw[k, j]
+        hist[i, 2 + 4 * n + j] = blk.g[k, j]
     hist[i, 1 + 4 * n] = _dither_on(hist, s0, i, blk, k, par)
     st[0] = i + 1
     st[3] = 1
@@ -245,9 +251,9 @@ def _window_mean(hist, a, i, c):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _features(hist, s0, i, par, f, rs):  # pragma: no cover - compiled
-    """Row ``i``'s regimes, velocity mean, extraction and ramp-in into ``f`` (:class:`Feats`),
-    the rows since ``s0`` its past; ``rs`` the ramp-in's state
-    (:func:`ditherlab.physics.dither.ramp_state`)."""
+    """Row ``i``'s regimes, velocity mean, extraction, gravity's mean over a dither period and
+    ramp-in into ``f`` (:class:`Feats`), the rows since ``s0`` its past; ``rs`` the ramp-in's
+    state (:func:`ditherlab.physics.dither.ramp_state`)."""
     n = len(f.reg)
     wm, P = par.ints[0], par.ints[1]
     on = hist[i, 1 + 4 * n] != 0.0
@@ -263,6 +269,7 @@ def _features(hist, s0, i, par, f, rs):  # pragma: no cover - compiled
         f.dqm[j] = _window_mean(hist, max(s0, i - P + 1), i, c)
         if par.ints[2] > 0:
             _extract(hist, s0, i, 1 + n + j, par, f.ext[:, j])
+            f.gm[j] = _window_mean(hist, max(s0, i - P + 1), i, 2 + 4 * n + j)
     if par.ints[2] > 0:
         ramp_step(on, full, f.ext[3], par.bands[11], par.ints[6], rs, f.ramp)
     else:
@@ -322,7 +329,7 @@ def _variant_inputs(code, tau, g, dq, par, f, out):  # pragma: no cover - compil
             sl = _sliding(B, j, dq[j])
             a, b, s = B[3, j] + sl, B[4, j] + sl, B[5, j]
         if dith and f.reg[j] == _DITHER and f.flags[1] and not f.ramp[j]:
-            tb = f.ext[2, j] - g[j] - 0.0
+            tb = f.ext[2, j] - f.gm[j]
             if par.has[1]:
                 a, b, s = B[8, j], B[9, j], B[10, j]
             else:
@@ -338,7 +345,7 @@ def _variant_inputs(code, tau, g, dq, par, f, out):  # pragma: no cover - compil
             and not f.ramp[j]
         ):
             sl = _sliding(B, j, f.dqm[j])
-            tb = f.ext[2, j] - g[j] - 0.0
+            tb = f.ext[2, j] - f.gm[j]
             a, b, s = B[3, j] + sl, B[4, j] + sl, B[5, j]
         if code & 2:
             ctr = 0.5 * (a + b)
@@ -475,7 +482,7 @@ def _run(hist, st, rs, blk, par, out, act):  # pragma: no cover - compiled
     n, m, V = blk.q.shape[1], len(par.free), len(par.variants)
     f = Feats(
         np.empty(n, np.int8), np.empty(n), np.empty((4, n)), np.zeros(2, np.bool_),
-        np.zeros(n, np.bool_),
+        np.zeros(n, np.bool_), np.zeros(n),
     )  # fmt: skip
     S = Samples(
         np.empty((1, n)), np.empty((1, m, n)), np.empty((1, n)), np.empty((1, n)),
@@ -646,7 +653,7 @@ class FastPath:
         self.robot = robot
         self.n = len(par.gain)
         keep = int(par.ints[5])
-        self.hist = np.zeros((2 * keep + SPARE, 2 + 4 * self.n))
+        self.hist = np.zeros((2 * keep + SPARE, 2 + 5 * self.n))
         #: next row, first row since the last gap, gaps, whether any sample came
         self.st = np.zeros(4, np.int64)
         #: the dither's ramp-in (:func:`ditherlab.physics.dither.ramp_state`)

@@ -11,7 +11,8 @@ Variants (each only where the recording allows it):
 ``dither_band``
     Needs a ``dither`` column or ``tau_ffw``. Where a joint stands still with the dither on, the
     torque signal is first extracted (§IV-A: per dither period the means of the samples above
-    and below the period mean, averaged; :func:`extract_dither`), and the band is the model's
+    and below the period mean, averaged; :func:`extract_dither`), less gravity and the model's
+    effects through the same window (:func:`model_seen`), and the band is the model's
     ``dither`` band — identified on that same extracted signal (:mod:`ditherlab.analysis.identification`). A
     model without a ``dither`` band falls back to the paper's rule: the ``still`` band shrunk by
     the extracted dither amplitude on each side (Fig. 4). Samples without dither (before the
@@ -63,7 +64,7 @@ from ditherlab.physics.dither import (
 )
 from ditherlab.physics.dither import band_as_noise as band_variance_as_noise
 from ditherlab.physics.effects import effects_torque, force_gain
-from ditherlab.physics.effects.extraction import extraction_gain
+from ditherlab.physics.effects.extraction import as_extracted, extraction_gain
 
 INTERVAL_METHODS = ("profile", "set_membership")
 #: ``--components`` shorthands.
@@ -257,6 +258,9 @@ class ReplayInputs(NamedTuple):
     ext : the dither extraction (None when no dither variant runs)
     w_ext : [samples] one dither period (1 without extraction)
     dq_mean : (N, n) [rad/s] the velocity's causal mean over it (None without extraction)
+    seen : (N, n) [N·m] gravity and the effects as the extraction shows them: their causal mean
+        over ``w_ext`` samples (:func:`~ditherlab.physics.effects.extraction.as_extracted`),
+        what a dither variant subtracts from the extracted signal (None without extraction)
     """
 
     g: np.ndarray
@@ -267,6 +271,7 @@ class ReplayInputs(NamedTuple):
     ext: Extraction | None
     w_ext: int
     dq_mean: np.ndarray | None
+    seen: np.ndarray | None
 
 
 def _replay_inputs(
@@ -296,8 +301,17 @@ def _replay_inputs(
         args = (ext.on, ext.valid, ext.amplitude, ramp_level(model), ramp_samples(rec.sample_rate))
         ext.ramp = ramp_in(*args) if carry is None else carry.marks(*args)
     dq_mean = causal_mean(rec.dq, w_ext) if ext is not None else None
+    seen = model_seen(g + eff, w_ext) if ext is not None else None
     tick()
-    return ReplayInputs(g, J, eff, reg, base, ext, w_ext, dq_mean)
+    return ReplayInputs(g, J, eff, reg, base, ext, w_ext, dq_mean, seen)
+
+
+def model_seen(model_tau: np.ndarray, w: int) -> np.ndarray:
+    """(N, n) [N·m]: gravity plus the model's effects ``model_tau`` (N, n) [N·m] as the dither's
+    extraction shows them, through the same window of ``w`` samples (one dither period):
+    :func:`~ditherlab.physics.effects.extraction.as_extracted` without an external torque (the
+    estimator's unknown). The value of a row needs the ``w - 1`` rows before it."""
+    return as_extracted(model_tau, None, None, w)
 
 
 def _columns(X: np.ndarray) -> np.ndarray:
@@ -322,7 +336,7 @@ def variant_estimate(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Variant ``v``'s estimate ``F`` (N, 6) [N, N·m], active joints (N, n) and interval
     ``lo``, ``hi`` (N, 6) (two ``tick``)."""
-    tb, a, b, s = variant_inputs(v, inp.base, model, inp.reg, inp.g, inp.eff, inp.ext, inp.dq_mean)
+    tb, a, b, s = variant_inputs(v, inp.base, model, inp.reg, inp.seen, inp.ext, inp.dq_mean)
     Jv = inp.J
     if v.startswith("dither"):
         Jv = extraction_jacobian(inp.J, model, inp.reg, inp.ext)
@@ -385,8 +399,7 @@ def variant_inputs(
     base: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     model: TorqueModel,
     reg: np.ndarray,
-    g: np.ndarray,
-    eff: np.ndarray,
+    seen: np.ndarray | None,
     ext: Extraction | None,
     dq_mean: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -394,7 +407,10 @@ def variant_inputs(
 
     ``tau_bar = tau - gravity - effects`` with the model's per-sample bands
     (:meth:`ditherlab.data.torque_model.TorqueModel.sample_bands`); a dither variant takes the extracted
-    signal and the dither band (or the still band shrunk by the dither amplitude) where a joint
+    signal less gravity and the effects through the same window (``seen``: the extracted signal
+    is a mean over the last dither period, so the model torque is compared with it as the
+    extraction shows it, its part at the dither's own frequency averaged out) and the dither
+    band (or the still band shrunk by the dither amplitude) where a joint
     stands still with the dither on over a whole window and out of its ramp-in
     (:attr:`ditherlab.physics.dither.Extraction.ramp`: there it keeps the raw torque and its
     band without dither); a no-band variant moves the band into the noise
@@ -404,7 +420,9 @@ def variant_inputs(
     ----------
     variant : one of :data:`VARIANTS`
     base : ``tau - gravity - effects`` and the model's per-sample band and noise, each (N, n)
-    reg : (N, n) regimes ; g, eff : (N, n) [N·m] gravity and the model's effects
+    reg : (N, n) regimes
+    seen : (N, n) [N·m] gravity and the model's effects through the extraction's window
+        (:func:`model_seen`; None without dither)
     ext : the recording's dither extraction (None without dither)
     dq_mean : (N, n) [rad/s] joint velocities averaged over the last dither period: with them, a
         dither variant also reads the extracted signal where a joint moves with the dither on
@@ -420,7 +438,7 @@ def variant_inputs(
     tb, a, b, s = base
     if variant.startswith("dither") and ext is not None:
         use = (reg == DITHER) & ext.valid[:, None] & settled(ext)
-        tb = np.where(use, ext.signal - g - eff, tau_bar)
+        tb = np.where(use, ext.signal - seen, tau_bar)
         if "dither" in model.regimes:
             db = model.regimes["dither"]
             a = np.where(use, db.tau_min, lo)
@@ -433,7 +451,7 @@ def variant_inputs(
             if creep.any():
                 mb = model.regimes["moving"]
                 slide = mb.sliding(dq_mean)
-                tb = np.where(creep, ext.signal - g - eff, tb)
+                tb = np.where(creep, ext.signal - seen, tb)
                 a = np.where(creep, mb.tau_min + slide, a)
                 b = np.where(creep, mb.tau_max + slide, b)
                 s = np.where(creep, mb.sigma, s)
@@ -560,6 +578,7 @@ __all__ = [
     "extraction_jacobian",
     "extraction_lead",
     "model_effects",
+    "model_seen",
     "parse_components",
     "RampCarry",
     "replay",

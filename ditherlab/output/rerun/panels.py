@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import rerun as rr
 
-from ditherlab.analysis.estimation import model_effects
+from ditherlab.analysis.estimation import model_effects, model_seen
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.names import DITHER, FORCE_AXES, STILL, VENDOR
 from ditherlab.core.timeseries import causal_mean
@@ -205,8 +205,10 @@ def log_dither(
     # Dither quantities mean something only where the dither was on over the whole window; NaN
     # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
     on = _dither_window_on(rec, window)[keep]
+    # gravity and the effects through the estimator's window (one period of samples)
+    seen = model_seen(rec.tau - tb, max(int(round(period * rec.sample_rate)), 1))[keep]
     rows = _DitherRows(
-        centre, g[keep], rec.tau[keep], tb[keep], on, ~on,
+        centre, g[keep], rec.tau[keep], seen, on, ~on,
         # the simulator states its amplitude set-points (the reference of Fig. 5) in its metadata
         ((rec.meta.get("sim") or {}).get("dither_amplitudes") or {}).get("set_point"),
         # the paper's rule (Fig. 4) for a model without a dither band
@@ -250,7 +252,8 @@ def _log_fig5_columns(log: ColumnLogger, rec: Recording, keep: slice) -> None:
 
 class _DitherRows(NamedTuple):
     """The owned rows of a piece, for every joint's dither panels: the window mean ``centre``,
-    gravity ``g``, torque ``tau`` and the estimator's torque ``tb`` (M, n) [N·m]; where the
+    gravity ``g``, torque ``tau`` and gravity plus the effects as the dither variants subtract
+    them from the extracted signal, through one dither period (``seen``) (M, n) [N·m]; where the
     dither was on over the whole window (``on``) and not (``off``) (M,); the simulator's
     amplitude set-points (n,) [N·m] or None; the still band to shrink by the paper's rule, or
     None (the model has a dither band, or no still band)."""
@@ -258,7 +261,7 @@ class _DitherRows(NamedTuple):
     centre: np.ndarray
     g: np.ndarray
     tau: np.ndarray
-    tb: np.ndarray
+    seen: np.ndarray
     on: np.ndarray
     off: np.ndarray
     setpoint: list[float] | None
@@ -321,11 +324,11 @@ def _log_fig4_joint(
     j: int,
 ) -> None:
     """Fig. 4, lower, of joint ``j`` (1-based): the extracted signal in the estimator's units
-    (gravity and effects off), and the still band shrunk by the amplitude ``amp`` (M,) [N·m]."""
-    offset = rows.tau[:, j - 1] - rows.tb[:, j - 1]  # gravity + effects [N·m]
+    (gravity and effects through the window off), and the still band shrunk by the amplitude
+    ``amp`` (M,) [N·m]."""
     log.series(
         f"joints/{j}/fig4/signal_bar",
-        np.where(rows.off, np.nan, sig["signal"] - offset),
+        np.where(rows.off, np.nan, sig["signal"] - rows.seen[:, j - 1]),
         names="extracted signal - gravity",
         colors=[[200, 0, 200]],
         widths=2.0,
