@@ -64,7 +64,9 @@ __all__ = [
     "acting_joints",
     "JointScore",
     "candidates",
+    "rescored",
     "select_joints",
+    "thinned",
 ]
 
 MIN_FRACTION = 0.05
@@ -205,26 +207,61 @@ def unphysical_text(unphysical: Sequence[OutOfRange]) -> str:
 
 
 def physical_joints(
-    e: Effect, scs: Sequence[Scored], passed: Sequence[JointScore]
+    e: Effect,
+    scs: Sequence[Scored],
+    passed: Sequence[JointScore],
+    folds: tuple[int, float] = (5, 0.25),
 ) -> tuple[list[JointScore], list[OutOfRange]]:
     """The joint scores whose fit lies inside every physical range of ``e`` (``Effect.bounds``,
     :func:`~ditherlab.physics.effect_fit.out_of_range`: the rule ``identify --add`` refuses by,
     on the fits as it writes them, :func:`~ditherlab.physics.effect_fit.physical_fits`: the
-    kept scores carry those fits),
-    and the values outside a range of the others: a candidate is never suggested on a joint it
-    fits only with an unphysical value. A fit the bands could take instead
+    kept scores carry those fits, and where a fit changed — held at a range's edge, or shared
+    over the joints — its held-out gain as written, :func:`rescored` with ``folds`` (K, guard
+    [s])), and the values outside a range of the others: a candidate is never suggested on a
+    joint it fits only with an unphysical value. A fit the bands could take instead
     (:func:`~ditherlab.physics.effect_fit.not_identifiable`) has arbitrary values: it is kept
     here, and said to be not identifiable."""
     ident = [s for s in passed if not_identifiable(e, scs, s.joint, s.fit) is None]
     fits = {-1 if s.joint is None else s.joint: s.fit for s in ident}
     fits, _ = physical_fits(e, scs, fits)  # as identify --add writes them
     bad = out_of_range(e, scs, fits)
-    keep = [
-        replace(s, fit=fits.get(-1 if s.joint is None else s.joint, s.fit))
-        for s in passed
-        if (-1 if s.joint is None else s.joint) not in bad
-    ]
+    keep = []
+    for s in passed:
+        key = -1 if s.joint is None else s.joint
+        if key in bad:
+            continue
+        fit = fits.get(key, s.fit)
+        keep.append(s if fit is s.fit else rescored(e, scs, s, fit, *folds))
     return keep, list(bad.values())
+
+
+def rescored(
+    e: Effect, scs: Sequence[Scored], s: JointScore, fit: FitResult, K: int, guard_s: float
+) -> JointScore:
+    """``s`` with the held-out loss of the effect at the fixed parameters ``fit`` (the fit as
+    ``identify --add`` writes it: held at a range's edge, or shared over the joints): per fold,
+    the nuisance columns (band centres, sliding line) fitted on the training samples beside it,
+    the loss on the test samples [σ²]; the same folds as :func:`_score`."""
+    total = sum(x.sig.length for x in scs)
+    fs = scs[0].sig.rec.sample_rate
+    guard = int(round(guard_s * fs)) if np.isfinite(fs) else 0
+    st = stack(e, scs, s.joint, fit.h, fit.ref)
+    k = st.k
+    folds = _folds(st, total, K, guard)
+    test_l0 = _baseline(st, folds)[0]
+    shift = st.o + st.C[:, :k] @ fit.w
+    h = st.h + st.W[:, :k] @ fit.w
+    Cn, Wn = st.C[:, k:], st.W[:, k:]
+    free = (0,) * Cn.shape[1]
+    test_l1 = []
+    for test, train in folds:
+        tr = train(st.block)
+        w, _ = solve_signed(st.e[tr], h[tr], st.s[tr], Cn[tr], Wn[tr], shift[tr], free)
+        x = st.e[test] - shift[test] - Cn[test] @ w
+        gap = np.maximum(np.abs(x) - h[test] - Wn[test] @ w, 0) / st.s[test]
+        test_l1.append(float(np.sum(gap**2)))
+    better = sum(1 for a, b in zip(test_l0, test_l1, strict=True) if b < a - TIE * abs(a))
+    return replace(s, loss0=sum(test_l0), loss1=sum(test_l1), folds_better=better, fit=fit)
 
 
 def _folds(st: Stack, total: int, K: int, guard: int) -> list[tuple[np.ndarray, Callable]]:
@@ -503,7 +540,9 @@ def _evaluate(
     e = get_effect(name)
     if e.shared:
         s = _judged(e, scs, None, K, guard_s, min_fraction)
-        kept, unphysical = physical_joints(e, scs, [s] if s.passes(min_fraction) else [])
+        kept, unphysical = physical_joints(
+            e, scs, [s] if s.passes(min_fraction) else [], (K, guard_s)
+        )
         ok = bool(kept)
         # the shared fit covers every joint: its own held-out baseline is the whole residual
         frac = s.fraction
@@ -522,7 +561,11 @@ def _evaluate(
     scores = [_judged(e, scs, j, K, guard_s, min_fraction) for j in range(model.n)]
     # joints by each joint's own held-out evidence; the candidate by its share of the whole
     # residual (the >= min_fraction rule holds for what is suggested, not only per joint)
-    sel, unphysical = physical_joints(e, scs, [s for s in scores if s.passes(min_fraction)])
+    sel, unphysical = physical_joints(
+        e, scs, [s for s in scores if s.passes(min_fraction)], (K, guard_s)
+    )
+    # a fit changed to what is written must still explain its share there
+    sel = [s for s in sel if s.fraction >= min_fraction and s.folds_better >= s.folds - 1]
     gain = sum(s.gain for s in sel) if sel else max((s.gain for s in scores), default=0.0)
     frac = gain / total_loss if total_loss > 0 else 0.0
     params: dict[str, Any] = {}
@@ -586,12 +629,7 @@ def candidates(
     (candidates best first — suggested ones first, by explained fraction —, skipped: name -> why)
     """
     scs = list(scored_recs) if scored_recs is not None else [scored(model, r) for r in recs]
-    # every stride-th sample: neighbours at 250 Hz carry little new information, and the folds
-    # and guards stay in the original time index
-    n_all = sum(len(s.e) for s in scs)
-    stride = max(1, -(-n_all // max_samples))
-    if stride > 1:
-        scs = [s.at(np.arange(0, len(s.e), stride)) for s in scs]
+    scs = thinned(scs, max_samples)
     have = set(model.effect_names())
     names = [n for n in (effects or EFFECTS) if n not in have]
     for n in names:
@@ -608,6 +646,17 @@ def candidates(
             progress(i + 1, len(names))
     out.sort(key=lambda c: (not c.suggested, -c.explained_fraction))
     return out, skipped
+
+
+def thinned(scs: Sequence[Scored], max_samples: int = 4000) -> list[Scored]:
+    """The scored recordings at every k-th sample, k = ceil(N / max_samples) over their N
+    samples together: neighbours at 250 Hz carry little new information, and the folds and
+    guards stay in the original time index."""
+    n_all = sum(len(s.e) for s in scs)
+    stride = max(1, -(-n_all // max_samples))
+    if stride == 1:
+        return list(scs)
+    return [s.at(np.arange(0, len(s.e), stride)) for s in scs]
 
 
 #: an effect acts on a joint where its design (at unit parameters) exceeds this many times the

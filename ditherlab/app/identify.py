@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import Executor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +31,7 @@ from ditherlab.analysis.rest import (
     quiet_majority,
     scan_rest,
 )
-from ditherlab.analysis.scoring import Candidate, candidates, select_joints
+from ditherlab.analysis.scoring import Candidate, candidates, rescored, select_joints, thinned
 from ditherlab.app.workflow import Progress, ReadOptions, guard
 from ditherlab.core.errors import ConfigError, ModelError, RecordingError
 from ditherlab.core.files import FileKind
@@ -47,7 +47,7 @@ from ditherlab.physics.effect_fit import (
     pooled_note,
     recentre,
 )
-from ditherlab.physics.effects import clean_none, get_effect, make_spec, signals
+from ditherlab.physics.effects import Effect, FitResult, clean_none, get_effect, make_spec, signals
 from ditherlab.physics.residual import Scored, scored
 
 __all__ = ["MODEL_FILE", "IdentifyOptions", "Identified", "add_effect", "identify_model", "run"]
@@ -350,7 +350,9 @@ def add_effect(
         fits = {j: fit_effect(e, sc, j) for j in js}
     # joints with too little evidence take values shared over the others (dither_extraction)
     # and a value just outside its range held at the edge where the data allow it
+    free = dict(fits)
     fits, weak = physical_fits(e, sc, fits)
+    cand = _promise_as_written(e, cand, sc, {j: f for j, f in fits.items() if f is not free[j]})
     for j, f in fits.items():
         why = not_identifiable(e, sc, None if j == -1 else j, f)
         if why is not None:
@@ -391,6 +393,25 @@ def _candidate(
         res.add(s)
     demote_below_floor(cands, res.result()["ratio"], [])
     return cands[0]
+
+
+def _promise_as_written(
+    e: Effect, cand: Candidate, sc: Sequence[Scored], changed: dict[int, FitResult]
+) -> Candidate:
+    """``cand`` with the held-out gain of each joint whose fit ``identify --add`` changes before
+    writing it (0-based joint -> the fit written: held at a range's edge, or shared over the
+    joints) measured for that fit (:func:`~ditherlab.analysis.scoring.rescored`, on the samples
+    and folds diagnosis scores): the promise of what is written, not of a value outside its
+    range."""
+    by = {s.joint: s for s in cand.scores}
+    todo = {j: f for j, f in changed.items() if j in by}
+    if not todo:
+        return cand
+    th = thinned(sc)
+    scores = [
+        rescored(e, th, s, todo[s.joint], 5, 0.25) if s.joint in todo else s for s in cand.scores
+    ]
+    return replace(cand, scores=scores)
 
 
 def _delivered(

@@ -836,9 +836,10 @@ def pool_weak_joints(
 
     For an effect with ``evidence_rules`` (``dither_extraction``): a joint whose fit fails them
     (:func:`_weak_reason`: its own standard error, or a value beyond the physical range by more
-    than two standard errors) takes the median of each parameter (linear ones and the searched one, e.g. the lag) over the
-    joints whose fits pass, or the effect's ``prior`` when none passes; a passing fit just
-    outside the range is held at its edge. Other effects are returned unchanged.
+    than two standard errors) takes the median of each parameter (linear ones and the searched
+    one, e.g. the lag, then its nearest value on the effect's grid) over the joints whose fits
+    pass, or the effect's ``prior`` when none passes; a passing fit just outside the range is
+    held at its edge. Other effects are returned unchanged.
 
     Parameters
     ----------
@@ -871,8 +872,20 @@ def pool_weak_joints(
         h = prior.get(e.hyper) if isinstance(e.hyper, str) else None
     out = dict(fits)
     for j in weak:
-        out[j] = FitResult(np.array(w, dtype=float), h, fits[j].ref, math.nan)
+        out[j] = FitResult(np.array(w, dtype=float), _on_grid(e, sc, j, h), fits[j].ref, math.nan)
     return out, weak
+
+
+def _on_grid(e: Effect, sc: Sequence[Scored], j: int, h: Any) -> Any:
+    """The value of ``e``'s searched parameter nearest to ``h`` among those its grid searches on
+    joint ``j``: a median or a prior between two grid values is not one the design was
+    computed at (diagnosis computes a filter's design on each piece of a long log only there)."""
+    if h is None:
+        return h
+    grid = e.grid([s.sig for s in sc], j)
+    if h in grid or not all(isinstance(x, int | float | np.number) for x in grid):
+        return h
+    return min(grid, key=lambda x: abs(float(x) - float(h)))
 
 
 def pooled_lines(model: Any) -> list[str]:
