@@ -15,6 +15,7 @@ evidence (docs/design/extraction-underestimates.md).
 from __future__ import annotations
 
 import tomllib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -160,11 +161,29 @@ def test_weak_joints_take_the_good_joints_values():
     assert 1 not in weak and out[1].w[0] == 1.0 and out[1].h == fits[1].h
     # diagnosis judges the fits as identify --add writes them: neither the gain just beyond 1
     # (held at 1) nor joint 3's 2.6 (pooled) is listed as unphysical, and no joint is dropped
-    from ditherlab.analysis.scoring import JointScore, physical_joints
+    from ditherlab.analysis.scoring import JointScore, physical_joints, rescored
 
     js = [JointScore(j, 1.0, 0.5, 5, 5, -10.0, 100.0, fits[j]) for j in (0, 1, 2)]
     keep, bad = physical_joints(e, sc, js)
     assert [s.joint for s in keep] == [0, 1, 2] and bad == [], bad
+    # a joint whose fit is changed (held at 1, or shared) is judged by the gain of the fit
+    # written, re-measured on the same folds; an unchanged one keeps its own score
+    assert keep[0] is js[0] and keep[2].fit.w[0] == pytest.approx(np.median(held))
+    for j in (1, 2):
+        again = rescored(e, sc, js[j], keep[j].fit, 5, 0.25)
+        assert keep[j].loss1 == pytest.approx(again.loss1) and keep[j].loss0 > 1.0
+        assert keep[j].gain != pytest.approx(0.5)
+    # a gain of 0 says the extraction shows none of the push: far worse than the shared value
+    zero = rescored(e, sc, js[2], replace(keep[2].fit, w=np.zeros(1)), 5, 0.25)
+    assert zero.loss0 == pytest.approx(keep[2].loss0) and zero.gain < keep[2].gain
+    # a shared lag is one the effect's grid searches (the nearest to the median): a median
+    # between grid values is not a lag whose design diagnosis computed on a log's pieces
+    grid = e.grid([s.sig for s in sc], 2)
+    fits[0].h, fits[1].h = grid[-3], grid[-2]
+    fits[2].w = np.array([2.6])
+    out, weak = pool_weak_joints(e, sc, fits)
+    mid = 0.5 * (grid[-3] + grid[-2])
+    assert out[2].h in grid and out[2].h in (grid[-3], grid[-2]) and mid not in grid
 
 
 @pytest.mark.slow
