@@ -572,14 +572,8 @@ def fast_params(
     gains (n,) and ``thresholds``: the mean velocity above which a joint moves [rad/s], the
     feedforward range above which the dither is on [N·m]."""
     MOVING_THRESHOLD, FFW_ON = thresholds
-    n, win, per = model.n, settings.windows(), settings.period
-    zero = np.zeros(n)
-    still, mv, db = (model.regimes.get(k) for k in ("still", "moving", "dither"))
-    mv_rows = [zero] * 5 if mv is None else [mv.tau_min, mv.tau_max, mv.sigma]
-    if mv is not None:
-        mv_rows += [zero if x is None else x for x in (mv.coulomb, mv.viscous)]
-    db_rows = [zero] * 3 if db is None else [db.tau_min, db.tau_max, db.sigma]
-    level = ramp_level(model)
+    win, per = settings.windows(), settings.period
+    mv, db = model.regimes.get("moving"), model.regimes.get("dither")
     psig = np.asarray(model.prior_sigma, dtype=float)
     free = np.array([i for i, c in enumerate(COMPONENTS) if c in comps and psig[i] > 0], np.int64)
     with np.errstate(divide="ignore"):
@@ -590,17 +584,7 @@ def fast_params(
     codes = [int(v.startswith("dither")) | 2 * int(v.endswith("noband")) for v in settings.variants]
     lead, k = _lead_params(model, win["period"] if per is not None else 0)
     return FastParams(
-        bands=np.array(
-            [
-                still.tau_min,
-                still.tau_max,
-                still.sigma,
-                *mv_rows,
-                *db_rows,
-                zero if level is None else level,
-            ],
-            float,
-        ),  # fmt: skip
+        bands=_band_rows(model),
         has=np.array([mv is not None, db is not None]),
         gain=np.ascontiguousarray(gain, dtype=float),
         prior=np.array([model.prior_mean, psig], float),
@@ -633,6 +617,19 @@ def fast_params(
         variants=np.array(codes, np.int64),
         lead=lead,
     )
+
+
+def _band_rows(model: TorqueModel) -> np.ndarray:
+    """:attr:`FastParams.bands` (12, n) of a model."""
+    zero = np.zeros(model.n)
+    still, mv, db = (model.regimes.get(k) for k in ("still", "moving", "dither"))
+    mv_rows = [zero] * 5 if mv is None else [mv.tau_min, mv.tau_max, mv.sigma]
+    if mv is not None:
+        mv_rows += [zero if x is None else x for x in (mv.coulomb, mv.viscous)]
+    db_rows = [zero] * 3 if db is None else [db.tau_min, db.tau_max, db.sigma]
+    level = ramp_level(model)
+    rows = [still.tau_min, still.tau_max, still.sigma, *mv_rows, *db_rows]
+    return np.array([*rows, zero if level is None else level], float)
 
 
 def _lead_params(model: TorqueModel, window: int) -> tuple[np.ndarray, int]:
