@@ -24,7 +24,7 @@ from ditherlab.core.stamps import wire_time
 from ditherlab.core.ticker import Ticker
 from ditherlab.data.estimates import COMPONENTS, Estimates
 from ditherlab.data.recording import regimes
-from ditherlab.data.torque_model import Band, TorqueModel
+from ditherlab.data.torque_model import Band, EffectSpec, TorqueModel
 from ditherlab.io import read, write
 from ditherlab.physics.dither import (
     AMPLITUDE_UP_FRACTION,
@@ -228,3 +228,81 @@ def test_a_gap_starts_afresh(rec, model):
     after = fresh.update(block_of(gapped, slice(200, 400)))
     for k, v in after.items():
         np.testing.assert_array_equal(whole[k][200:], v, err_msg=k)
+
+
+def extraction_model() -> TorqueModel:
+    """:func:`irb140_model` with a ``dither_extraction`` on joints 1-5 (gains and lags in the
+    effect's ranges, of the size the demo identifies)."""
+    model = irb140_model()
+    model.effects = [
+        EffectSpec(
+            "dither_extraction",
+            [1, 2, 3, 4, 5],
+            {"gain": [0.84, 0.9, 0.8, 0.7, 0.84], "lag": [16, 10, 0, 5, 16]},
+        )
+    ]
+    return model
+
+
+def test_extraction_lead_across_blocks_equals_the_whole_stream(monkeypatch):
+    """With ``dither_extraction`` the general update's dither variants read the extraction's
+    lead over the kept past: fed in blocks of 50 (more than the lead's span of half a period),
+    the torque they read equals :func:`extraction_lead` of the whole stream's inputs bit for
+    bit, the lead moves it on the dithered rows, and one sample at a time gives the same
+    estimate bit for bit."""
+    import ditherlab.analysis.estimation as estimation
+
+    whole = read(REC)
+    part = whole.with_data(whole.data.iloc[1000:1400].reset_index(drop=True))
+    model, s = extraction_model(), settings_for(part)
+    calls, lead = [], estimation.extraction_lead
+
+    def spy(tb, model, reg, ext, w, past=None):
+        out = lead(tb, model, reg, ext, w, past)
+        calls.append((tb, reg, ext, w, out))
+        return out
+
+    monkeypatch.setattr(estimation, "extraction_lead", spy)
+    est = CausalEstimator(model, part.meta, s, fast=False)
+    blocks = [est.update(block_of(part, slice(a, a + 50))) for a in range(0, len(part), 50)]
+    mine = calls[:: sum(v.startswith("dither") for v in s.variants)]  # dither_band's
+    cat = {f: np.concatenate([getattr(c[2], f) for c in mine]) for f in EXT_ROWS}
+    ext = Extraction(**cat, period=s.period, waveform=s.waveform)
+    tb, reg = (np.concatenate([c[i] for c in mine]) for i in (0, 1))
+    want = lead(tb, model, reg, ext, mine[0][3])
+    got = np.concatenate([c[4] for c in mine])
+    np.testing.assert_array_equal(got, want)
+    assert (np.abs(got - tb).max(axis=1) > 0.05).sum() > 50
+    monkeypatch.setattr(estimation, "extraction_lead", lead)
+    one = CausalEstimator(model, part.meta, s, fast=False)
+    each = [one.update(block_of(part, slice(i, i + 1))) for i in range(200)]
+    for k in blocks[0]:
+        a = np.concatenate([b[k] for b in blocks])[:200]
+        np.testing.assert_array_equal(np.concatenate([e[k] for e in each]), a, err_msg=k)
+
+
+#: the extraction's per-row fields (:class:`Extraction`)
+EXT_ROWS = ("upper", "lower", "signal", "centre", "amplitude", "on", "valid", "ramp")
+
+
+@pytest.mark.parametrize("fast", [False, True])
+def test_extraction_lead_starts_afresh_after_a_gap(fast):
+    """With ``dither_extraction``, after a 5 s gap the estimate equals a fresh estimator's on
+    the samples after it (the lead reads no row before the gap), in the general update and the
+    per-sample path, and the effect moves the dither variants' estimate there."""
+    whole = read(REC)
+    data = whole.data.iloc[1000:1400].copy()
+    data.loc[data.index[200:], "t"] += 5.0
+    gapped = whole.with_data(data.reset_index(drop=True))
+    model, s = extraction_model(), settings_for(gapped)
+    est = CausalEstimator(model, gapped.meta, s, fast=fast)
+    assert (est.fast is not None) == fast
+    out = est.update(block_of(gapped))
+    assert est.gaps == 1
+    after = CausalEstimator(model, gapped.meta, s, fast=fast).update(
+        block_of(gapped, slice(200, 400))
+    )
+    for k, v in after.items():
+        np.testing.assert_array_equal(out[k][200:], v, err_msg=k)
+    plain = CausalEstimator(irb140_model(), gapped.meta, s, fast=fast).update(block_of(gapped))
+    assert np.abs(plain["dither_band/f_x"] - out["dither_band/f_x"])[200:].max() > 0.5

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_causal import irb140_model
+from test_causal import extraction_model, irb140_model
 
 from ditherlab.analysis.causal import CausalBlock, CausalEstimator, block_of, settings_for
 from ditherlab.core.errors import ConfigError
@@ -63,6 +63,19 @@ def test_fast_equals_general_every_variant(rec):
     assert ef.moving_spans == eg.moving_spans and len(ef.moving_spans) > 0
     # the variants differ from each other: the comparison is not of constants
     assert np.abs(f["dither_band/f_x"] - f["nodither_noband/f_x"]).max() > 0.1
+
+
+def test_fast_equals_general_with_dither_extraction(rec):
+    """A model with ``dither_extraction`` (the demo's kind) stays on the per-sample path: the
+    extraction's gain on the Jacobian and its lead over the kept rows (across the history's
+    move to its front) give the general update's every column, and the effect moves the
+    dither variants' estimate while the no-dither variants stay as they are bit for bit."""
+    model = extraction_model()
+    f, g, _, _ = both(rec, model, settings_for(rec))
+    assert_same(f, g)
+    plain, _, _, _ = both(rec, irb140_model(), settings_for(rec), size=700)
+    assert np.abs(f["dither_band/f_x"] - plain["dither_band/f_x"]).max() > 1.0
+    np.testing.assert_array_equal(f["nodither_band/f_y"], plain["nodither_band/f_y"])
 
 
 def test_fast_equals_general_feedforward_sine_held_components(rec):
@@ -127,13 +140,16 @@ def test_a_gap_and_bad_samples(rec):
 
 
 def test_what_the_fast_path_does_not_cover(rec):
-    """Set-membership intervals and a model with effects take the general update."""
+    """Set-membership intervals and a model with an effect other than ``dither_extraction``
+    take the general update."""
     model = irb140_model()
     assert (
         CausalEstimator(model, rec.meta, settings_for(rec, interval="set_membership")).fast is None
     )
     model.effects = [EffectSpec("temperature_friction", [1], {"coef": [-0.1], "x_ref": [30.0]})]
     assert isinstance(model.regimes["still"], Band)
+    assert CausalEstimator(model, rec.meta, settings_for(rec)).fast is None
+    model.effects += extraction_model().effects  # with another effect: the general update
     assert CausalEstimator(model, rec.meta, settings_for(rec)).fast is None
 
 

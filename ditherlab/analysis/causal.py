@@ -32,10 +32,15 @@ of past samples (no running sums), so the result of a sample does not depend on 
 was cut into blocks: ``replay --causal`` (blocks of a file) and ``live`` (whatever arrived) give
 the same floats for the same samples.
 
-Model effects are applied per sample (their ``ddq`` and regime the causal ones above); a torque
-effect that is a filter in time (:attr:`ditherlab.physics.effects.base.Effect.pointwise` False)
-and the dither extraction's lag (``dither_extraction``, whose lead reads the torque of half a
-period before) have no causal form here and are refused.
+Model effects are applied per sample (their ``ddq`` and regime the causal ones above). The
+dither extraction's effect (``dither_extraction``) is causal as the offline replay applies it:
+its gain scales the Jacobian's rows where a dither variant reads the extraction
+(:func:`~ditherlab.analysis.estimation.extraction_jacobian`, per sample), and its lead
+(:func:`~ditherlab.analysis.estimation.extraction_lead`) reads the variant's torque of half a
+period before, kept per variant across updates
+(:class:`~ditherlab.analysis.estimation.LeadCarry`, afresh after a gap). A torque effect that is
+a filter in time (:attr:`ditherlab.physics.effects.base.Effect.pointwise` False) has no causal
+form here and is refused.
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ import pandas as pd
 
 from ditherlab.analysis.causal_fast import FastPath, as_kernel, fast_params, supported
 from ditherlab.analysis.estimation import (
+    LeadCarry,
     ReplayHow,
     ReplayInputs,
     available_variants,
@@ -84,7 +90,6 @@ from ditherlab.physics.dither import (
     ramp_state,
 )
 from ditherlab.physics.effects import effects_torque, force_gain, get_effect, signals
-from ditherlab.physics.effects.extraction import extraction_gain
 from ditherlab.robot import RobotModel
 
 __all__ = [
@@ -200,8 +205,13 @@ class CausalEstimator:
         #: rows kept of the past: the longest window of any quantity, plus one
         self.keep = max(self.win.values()) + 2
         self.context: dict[str, np.ndarray] | None = None
+        #: the rows of the past the extraction's lead reads (afresh with the context)
+        self.lead = LeadCarry()
         self.t0: float | None = None
         self.gain = force_gain(model)
+        #: the model with its torque effects alone (what :meth:`_effects` evaluates; the
+        #: external ones act on ``J^T F`` in the estimator), None without any
+        self.torque_model = _torque_effects(model)
         #: ``[[t_start, t_end], ...]`` [s]: where any joint moved (causal regimes), so far
         self.moving_spans: list[list[float]] = []
         #: gaps in the stream so far (each starts the estimate afresh)
@@ -278,6 +288,8 @@ class CausalEstimator:
 
     def _update(self, b: CausalBlock) -> dict[str, np.ndarray]:
         """:meth:`update` of rows without a gap."""
+        if self.context is None:
+            self.lead.clear()
         X = self._joined(b)
         N = len(b.t)
         feats = self._features(X, N)
@@ -420,7 +432,7 @@ class CausalEstimator:
     def _effects(self, b: CausalBlock, f: dict[str, Any]) -> np.ndarray:
         """The model's effects (N, n) [N·m] at the new rows, driven by the causal ``dq``,
         ``ddq`` and regimes (a recording of these rows whose derived quantities are set)."""
-        if not self.model.effects:
+        if self.torque_model is None:
             return np.zeros((len(b.t), self.n))
         arrays = RecordingArrays(t=b.t, q=b.q, tau=b.tau, dq=f["dq"], tau_ffw=b.tau_ffw)
         tb = TimeBase(float(self.t0), self.settings.dt, True, self.settings.period)
@@ -428,7 +440,7 @@ class CausalEstimator:
         rec.share_robot(self.robot)
         rec.__dict__["ddq"] = f["ddq"]  # the causal one (a cached property of the recording)
         signals(rec)._shared["regime"] = f["reg"]
-        return effects_torque(self.model, rec, sensor=False)
+        return effects_torque(self.torque_model, rec, sensor=False)
 
     def _columns(self, b: CausalBlock, inp: ReplayInputs) -> dict[str, np.ndarray]:
         """The estimates file's columns of the new rows."""
@@ -440,7 +452,7 @@ class CausalEstimator:
         bits = (1 << np.arange(self.n)).astype(np.int64)
         tick = Ticker(2 * len(self.settings.variants), None)
         for v in self.settings.variants:
-            F, active, lo, hi = variant_estimate(v, inp, self.model, self.how, tick)
+            F, active, lo, hi = variant_estimate(v, inp, self.model, self.how, tick, self.lead)
             for suffix, M in (("", F), ("_lo", lo), ("_hi", hi)):
                 for k, c in enumerate(COMPONENTS):
                     cols[f"{v}/{c}{suffix}"] = np.ascontiguousarray(M[:, k])
@@ -524,13 +536,25 @@ def _check(model: TorqueModel, s: CausalSettings) -> None:
             raise ConfigError(f"variant {v} needs the dither period; none is known")
     for spec in model.effects:
         e = get_effect(spec.name)
-        # the dither extraction's lead reads the torque half a period back (extraction_lead)
-        lead = extraction_gain([spec], model.n) is not None
-        if (e.kind == "torque" and not e.pointwise) or lead:
+        if e.kind == "torque" and not e.pointwise:
             raise ConfigError(
                 f"the model's effect {spec.name} is a filter in time, which the causal estimate "
                 "does not apply; expected a model of pointwise effects (identify without it)"
             )
+
+
+def _torque_effects(model: TorqueModel) -> TorqueModel | None:
+    """``model`` with only its torque effects (an external effect such as ``dither_extraction``
+    is applied by the estimator, and may check for a sensor a live stream lacks), None when it
+    has none."""
+    torque = [s for s in model.effects if get_effect(s.name).kind == "torque"]
+    if not torque:
+        return None
+    if len(torque) == len(model.effects):
+        return model
+    out = model.copy()
+    out.effects = torque
+    return out
 
 
 def _backward(t: np.ndarray, x: np.ndarray, P: int, k: int) -> np.ndarray:

@@ -14,6 +14,9 @@ quantities as state and computes each new sample from them:
   :func:`ditherlab.analysis.estimation.model_seen`), and the dither's ramp-in
   per joint (:func:`ditherlab.physics.dither.ramp_step`, its state carried from sample to
   sample, afresh after a gap);
+- per dither variant the model's ``dither_extraction``: the Jacobian's rows scaled by its gain
+  where the variant reads the extraction, and its lead (the variant's torque of ``k`` samples
+  before kept in the history, :func:`ditherlab.analysis.estimation.extraction_lead`);
 - per variant the bands, the reduced problem of eq. (3) for the one sample, and the estimator's
   own compiled kernels on it (the exact solver from the prior mean, the closed form of zero-width
   bands, the profile intervals and their reference fallback);
@@ -24,9 +27,9 @@ is cut into blocks (``replay --causal`` and ``live`` both run this path and agre
 ``tests/test_causal_fast.py`` compares it with the general update.
 
 It covers the models and settings the live loop runs: profile intervals and a model without
-effects. :func:`supported` says why not otherwise; the estimator then takes the general update
-(set-membership intervals solve linear programs per component and side; an effect is evaluated on
-a recording).
+effects or with ``dither_extraction`` alone (the demo's). :func:`supported` says why not
+otherwise; the estimator then takes the general update (set-membership intervals solve linear
+programs per component and side; a torque effect is evaluated on a recording).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit, typeof
 
+from ditherlab.analysis.estimation import lead_span
 from ditherlab.core.errors import ConfigError
 from ditherlab.core.names import DITHER, MOVING, STILL
 from ditherlab.data.estimates import COMPONENTS
@@ -56,6 +60,7 @@ from ditherlab.estimator.interval_methods.profile import (
     _profile_work,
 )
 from ditherlab.physics.dither import PEAK_FACTOR, ramp_level, ramp_samples, ramp_state, ramp_step
+from ditherlab.physics.effects.extraction import DitherExtraction, extraction_gain
 from ditherlab.robot import RobotModel
 from ditherlab.robot.tree import _gravity_kernel, _jacobian_kernel
 from ditherlab.robot.tree import gravity as tree_gravity
@@ -88,10 +93,14 @@ class FastParams(NamedTuple):
     free, held : the estimated and the held components (indices into 6)
     p_true : (m,) the estimated components' prior weights (0: no prior, the ridge instead)
     ints : int64 ``[move window, period window, extraction window, dither mode, square wave,
-        kept rows, longest ramp-in]`` [samples]
+        kept rows, longest ramp-in, the extraction lead's span k (0: no lead)]`` [samples]
     floats : ``[period mean length [samples], peak factor, gap [s], chi2 threshold, moving
         threshold [rad/s], feedforward on [N·m]]``
     variants : (V,) int64: bit 0 a dither variant, bit 1 a no-band variant
+    lead : (3, n): the model's ``dither_extraction`` per joint: its gain [-] (1 on joints it
+        does not name; :func:`ditherlab.analysis.estimation.extraction_jacobian`), the lead's
+        ``d_j / k`` [-] and 1.0 on the joints it names
+        (:func:`ditherlab.analysis.estimation.extraction_lead`; zeros without the effect)
     """
 
     bands: np.ndarray
@@ -104,6 +113,7 @@ class FastParams(NamedTuple):
     ints: np.ndarray
     floats: np.ndarray
     variants: np.ndarray
+    lead: np.ndarray
 
 
 class FastBlock(NamedTuple):
@@ -147,11 +157,12 @@ class Feats(NamedTuple):
 
 
 def supported(model: TorqueModel, interval: str) -> str | None:
-    """Why the per-sample path cannot run a model and interval method (None when it can)."""
+    """Why the per-sample path cannot run a model and interval method (None when it can): it
+    runs profile intervals and a model without effects or with ``dither_extraction`` alone."""
     if interval != "profile":
         return f"{interval} intervals"
-    if model.effects:
-        return "a model with effects"
+    if any(spec.name != DitherExtraction.name for spec in model.effects):
+        return "a model with effects other than dither_extraction"
     return None
 
 
@@ -354,18 +365,50 @@ def _variant_inputs(code, tau, g, dq, par, f, out):  # pragma: no cover - compil
         out[0, j], out[1, j], out[2, j], out[3, j] = tb, a, b, s
 
 
+@njit(cache=True, inline="always")
+def _reads(hist, i, par, f):  # pragma: no cover - compiled
+    """Where a dither variant reads the extraction at row ``i``, per joint, into the history's
+    use columns (:func:`ditherlab.analysis.estimation.reads_extraction`: the dither on over a
+    whole window, the joint in the dither regime or moving, out of its ramp-in)."""
+    n, V = len(f.reg), len(par.variants)
+    c0 = 2 + 5 * n + V * n
+    for j in range(n):
+        r = f.reg[j] == _DITHER or f.reg[j] == _MOVING
+        use = r and f.flags[1] and f.flags[0] and not f.ramp[j]
+        hist[i, c0 + j] = 1.0 if use else 0.0
+
+
+@njit(cache=True, inline="always")
+def _lead(hist, s0, i, v, par, vin, sc):  # pragma: no cover - compiled
+    """Dither variant ``v``'s torque ``vin[0]`` (n,) [N·m] at row ``i`` kept in the history,
+    then moved forward by the extraction's delay where row ``i`` and the row ``k`` before it
+    (since ``s0``) read the extraction, and the Jacobian's scale ``sc`` (n,) set to the
+    extraction's gain where row ``i`` reads it
+    (:func:`ditherlab.analysis.estimation.extraction_lead`, ``extraction_jacobian``)."""
+    n, V, k = vin.shape[1], len(par.variants), par.ints[7]
+    cv, cu = 2 + 5 * n + v * n, 2 + 5 * n + V * n
+    for j in range(n):
+        tb = vin[0, j]
+        hist[i, cv + j] = tb
+        use = hist[i, cu + j] != 0.0
+        sc[j] = par.lead[0, j] if use else 1.0
+        if k > 0 and par.lead[2, j] != 0.0 and use and i - k >= s0 and hist[i - k, cu + j] != 0.0:
+            vin[0, j] = tb + (tb - hist[i - k, cv + j]) * par.lead[1, j]
+
+
 @njit(cache=True)
-def _problem(vin, J, par, S):  # pragma: no cover - compiled
+def _problem(vin, J, sc, par, S):  # pragma: no cover - compiled
     """Eq. (3) of one sample reduced to the estimated components into ``S`` (a one-sample
     :class:`~ditherlab.estimator.formulation.Samples`), as
     :func:`ditherlab.estimator.problem` reduces it; ``vin`` (4, n) the variant's inputs,
-    ``J`` (6, n) the Jacobian."""
+    ``J`` (6, n) the Jacobian, ``sc`` (n,) its rows' scale beyond the drive gains (the
+    extraction's gain, :func:`_lead`)."""
     n = vin.shape[1]
     fb = par.prior[0]
     for j in range(n):
         held = 0.0
         for h in par.held:
-            held += J[h, j] * par.gain[j] * fb[h]
+            held += J[h, j] * par.gain[j] * sc[j] * fb[h]
         S.tau_bar[0, j] = vin[0, j] - held if len(par.held) else vin[0, j]
         S.tau_min[0, j] = vin[1, j]
         S.tau_max[0, j] = vin[2, j]
@@ -374,7 +417,7 @@ def _problem(vin, J, par, S):  # pragma: no cover - compiled
     for r, i in enumerate(par.free):
         row = 0.0
         for j in range(n):
-            S.J[0, r, j] = J[i, j] * par.gain[j]
+            S.J[0, r, j] = J[i, j] * par.gain[j] * sc[j]
             row += S.J[0, r, j] ** 2 * S.w[0, j]
         info += row
     m = len(par.free)
@@ -488,7 +531,7 @@ def _run(hist, st, rs, blk, par, out, act):  # pragma: no cover - compiled
         np.empty((1, n)), np.empty((1, m, n)), np.empty((1, n)), np.empty((1, n)),
         np.empty((1, n)), np.empty((1, m)), par.prior[0][par.free].copy(),
     )  # fmt: skip
-    vin = np.empty((4, n))
+    vin, sc, ones = np.empty((4, n)), np.ones(n), np.ones(n)
     F, lo, hi = np.empty((1, m)), np.empty((1, m)), np.empty((1, m))
     ws = _work(m, n, par)
     closed_ok = (par.p_true > 0.0).all()
@@ -497,10 +540,14 @@ def _run(hist, st, rs, blk, par, out, act):  # pragma: no cover - compiled
         if i == st[1]:  # the first sample, or after a gap: no ramp-in seen
             rs[:] = -1
         _features(hist, st[1], i, par, f, rs)
+        _reads(hist, i, par, f)
         for v in range(V):
             code_v = par.variants[v]
             _variant_inputs(code_v, blk.tau[k], blk.g[k], hist[i, 1 + 2 * n :], par, f, vin)
-            _problem(vin, blk.J[k], par, S)
+            dith = code_v & 1 and par.ints[2] > 0
+            if dith:
+                _lead(hist, st[1], i, v, par, vin, sc)
+            _problem(vin, blk.J[k], sc if dith else ones, par, S)
             act[v, k] = _estimate(S, ws, code_v & 2 and closed_ok, F, lo, hi)
             _write(par, v * VROWS, k, F, lo, hi, out)
         if par.ints[2] > 0:
@@ -525,14 +572,8 @@ def fast_params(
     gains (n,) and ``thresholds``: the mean velocity above which a joint moves [rad/s], the
     feedforward range above which the dither is on [N·m]."""
     MOVING_THRESHOLD, FFW_ON = thresholds
-    n, win, per = model.n, settings.windows(), settings.period
-    zero = np.zeros(n)
-    still, mv, db = (model.regimes.get(k) for k in ("still", "moving", "dither"))
-    mv_rows = [zero] * 5 if mv is None else [mv.tau_min, mv.tau_max, mv.sigma]
-    if mv is not None:
-        mv_rows += [zero if x is None else x for x in (mv.coulomb, mv.viscous)]
-    db_rows = [zero] * 3 if db is None else [db.tau_min, db.tau_max, db.sigma]
-    level = ramp_level(model)
+    win, per = settings.windows(), settings.period
+    mv, db = model.regimes.get("moving"), model.regimes.get("dither")
     psig = np.asarray(model.prior_sigma, dtype=float)
     free = np.array([i for i, c in enumerate(COMPONENTS) if c in comps and psig[i] > 0], np.int64)
     with np.errstate(divide="ignore"):
@@ -541,18 +582,9 @@ def fast_params(
     L = 1.0 if per is None else max(1.0, per / settings.dt)
     keep = max(win["move"], win["period"], W_ext, int(np.floor(L)) + 1, 2) + 2
     codes = [int(v.startswith("dither")) | 2 * int(v.endswith("noband")) for v in settings.variants]
+    lead, k = _lead_params(model, win["period"] if per is not None else 0)
     return FastParams(
-        bands=np.array(
-            [
-                still.tau_min,
-                still.tau_max,
-                still.sigma,
-                *mv_rows,
-                *db_rows,
-                zero if level is None else level,
-            ],
-            float,
-        ),  # fmt: skip
+        bands=_band_rows(model),
         has=np.array([mv is not None, db is not None]),
         gain=np.ascontiguousarray(gain, dtype=float),
         prior=np.array([model.prior_mean, psig], float),
@@ -568,6 +600,7 @@ def fast_params(
                 settings.waveform == "square",
                 keep,
                 ramp_samples(1.0 / settings.dt),
+                k,
             ],
             np.int64,
         ),  # fmt: skip
@@ -582,7 +615,43 @@ def fast_params(
             ]
         ),  # fmt: skip
         variants=np.array(codes, np.int64),
+        lead=lead,
     )
+
+
+def _band_rows(model: TorqueModel) -> np.ndarray:
+    """:attr:`FastParams.bands` (12, n) of a model."""
+    zero = np.zeros(model.n)
+    still, mv, db = (model.regimes.get(k) for k in ("still", "moving", "dither"))
+    mv_rows = [zero] * 5 if mv is None else [mv.tau_min, mv.tau_max, mv.sigma]
+    if mv is not None:
+        mv_rows += [zero if x is None else x for x in (mv.coulomb, mv.viscous)]
+    db_rows = [zero] * 3 if db is None else [db.tau_min, db.tau_max, db.sigma]
+    level = ramp_level(model)
+    rows = [still.tau_min, still.tau_max, still.sigma, *mv_rows, *db_rows]
+    return np.array([*rows, zero if level is None else level], float)
+
+
+def _lead_params(model: TorqueModel, window: int) -> tuple[np.ndarray, int]:
+    """:attr:`FastParams.lead` (3, n) of a model and the lead's span ``k`` [samples] (0
+    without ``dither_extraction`` or without dither: ``window`` 0), as
+    :func:`ditherlab.analysis.estimation.extraction_lead` computes them for a dither period of
+    ``window`` samples."""
+    n = model.n
+    gain = extraction_gain(model.effects, n)
+    lags = extraction_gain(model.effects, n, "lag")
+    out = np.zeros((3, n))
+    out[0] = 1.0 if gain is None else gain
+    if lags is None or window == 0:
+        return out, 0
+    k = lead_span(window)
+    for spec in model.effects:
+        if spec.name == DitherExtraction.name:
+            for jj in spec.joints:
+                out[2, jj - 1] = 1.0
+    for j in np.flatnonzero(out[2]):
+        out[1, j] = ((window - 1) / 2 + lags[j]) / k
+    return out, k
 
 
 def compiled(dispatcher, *args):
@@ -653,7 +722,10 @@ class FastPath:
         self.robot = robot
         self.n = len(par.gain)
         keep = int(par.ints[5])
-        self.hist = np.zeros((2 * keep + SPARE, 2 + 5 * self.n))
+        V = len(par.variants)
+        #: columns: t, q, tau, dq, ffw, the flag, gravity, per variant its torque, where the
+        #: extraction is read (:func:`_push`, :func:`_lead`)
+        self.hist = np.zeros((2 * keep + SPARE, 2 + 5 * self.n + (V + 1) * self.n))
         #: next row, first row since the last gap, gaps, whether any sample came
         self.st = np.zeros(4, np.int64)
         #: the dither's ramp-in (:func:`ditherlab.physics.dither.ramp_state`)

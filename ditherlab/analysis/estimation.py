@@ -332,15 +332,23 @@ def _recording_columns(rec: Recording) -> dict[str, np.ndarray]:
 
 
 def variant_estimate(
-    v: str, inp: ReplayInputs, model: TorqueModel, how: ReplayHow, tick: Ticker
+    v: str,
+    inp: ReplayInputs,
+    model: TorqueModel,
+    how: ReplayHow,
+    tick: Ticker,
+    lead: LeadCarry | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Variant ``v``'s estimate ``F`` (N, 6) [N, N·m], active joints (N, n) and interval
-    ``lo``, ``hi`` (N, 6) (two ``tick``)."""
+    ``lo``, ``hi`` (N, 6) (two ``tick``); ``lead`` the rows of the past the extraction's lead
+    reads when ``inp`` are new rows of a stream (:class:`LeadCarry`; None: ``inp`` is the
+    whole of it)."""
     tb, a, b, s = variant_inputs(v, inp.base, model, inp.reg, inp.seen, inp.ext, inp.dq_mean)
     Jv = inp.J
     if v.startswith("dither"):
         Jv = extraction_jacobian(inp.J, model, inp.reg, inp.ext)
-        tb = extraction_lead(tb, model, inp.reg, inp.ext, inp.w_ext)
+        past = None if lead is None else lead.swap(v, tb, inp.reg, inp.ext, inp.w_ext)
+        tb = extraction_lead(tb, model, inp.reg, inp.ext, inp.w_ext, past)
     # one validated problem for the estimate and its intervals
     prob = problem(tb, Jv, a, b, s, model.prior_mean, model.prior_sigma, how.comps)
     closed = how.interval == "profile" and v.endswith("noband")  # zero-width bands
@@ -527,7 +535,12 @@ def extraction_jacobian(
 
 
 def extraction_lead(
-    tb: np.ndarray, model: TorqueModel, reg: np.ndarray, ext: Extraction | None, window: int
+    tb: np.ndarray,
+    model: TorqueModel,
+    reg: np.ndarray,
+    ext: Extraction | None,
+    window: int,
+    past: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """The torque a dither variant reads, moved forward by the extraction's delay on the
     joints the model's ``dither_extraction`` names, where the dither is on over whole windows.
@@ -543,6 +556,9 @@ def extraction_lead(
     ----------
     tb : (N, n) [N·m] the variant's torque ``tau_bar`` ; reg : (N, n) regimes
     ext : the recording's extraction ; window : samples per dither period
+    past : the rows of the same stream just before ``tb`` (a causal estimate's kept past,
+        :class:`LeadCarry`): their ``tb`` (P, n) [N·m] and where they read the extraction
+        (:func:`reads_extraction`, (P, n) bool); None: ``tb`` starts the stream
 
     Returns
     -------
@@ -554,19 +570,59 @@ def extraction_lead(
     named = sorted(
         {jj - 1 for s in model.effects if s.name == "dither_extraction" for jj in s.joints}
     )
-    k = max((window - 1) // 2, 1)
-    if len(tb) <= k:
-        return tb
+    k = lead_span(window)
     use = reads_extraction(reg, ext)
+    P, y = 0, tb
+    if past is not None and len(past[0]):
+        P, y, use = len(past[0]), np.concatenate([past[0], tb]), np.concatenate([past[1], use])
+    if len(y) <= k:
+        return tb
     use[k:] &= use[:-k]  # the older sample also read through a whole window
     use[:k] = False
     out = tb.copy()
     for j in named:
         d = (window - 1) / 2 + lags[j]
-        step = np.zeros(len(tb))
-        step[k:] = (tb[k:, j] - tb[:-k, j]) * (d / k)
-        out[:, j] = np.where(use[:, j], tb[:, j] + step, tb[:, j])
+        step = np.zeros(len(y))
+        step[k:] = (y[k:, j] - y[:-k, j]) * (d / k)
+        out[:, j] = np.where(use[P:, j], tb[:, j] + step[P:], tb[:, j])
     return out
+
+
+def lead_span(window: int) -> int:
+    """[samples] the span ``k`` of the extraction lead's difference: half a dither period of
+    ``window`` samples, at least 1 (:func:`extraction_lead`)."""
+    return max((window - 1) // 2, 1)
+
+
+class LeadCarry:
+    """The rows of the past the extraction's lead (:func:`extraction_lead`) reads, carried
+    across the updates of a causal estimate (:mod:`ditherlab.analysis.causal`): per dither
+    variant the last :func:`lead_span` rows of its torque before the lead and where they read
+    the extraction. :meth:`clear` starts afresh (a gap in the stream)."""
+
+    def __init__(self) -> None:
+        self.rows: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def clear(self) -> None:
+        """Forget the past: the next rows start the stream."""
+        self.rows.clear()
+
+    def swap(
+        self, v: str, tb: np.ndarray, reg: np.ndarray, ext: Extraction | None, window: int
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Variant ``v``'s kept rows before the new ones (``past`` of :func:`extraction_lead`;
+        None at the start), and keep the last rows of them and the new ones: ``tb`` (N, n)
+        [N·m] the variant's torque, ``reg`` (N, n) regimes, ``ext`` the extraction of the new
+        rows, ``window`` samples per dither period."""
+        past = self.rows.get(v)
+        if ext is None:
+            return past
+        k = lead_span(window)
+        use = reads_extraction(reg, ext)
+        if past is not None:
+            tb, use = np.concatenate([past[0], tb]), np.concatenate([past[1], use])
+        self.rows[v] = (tb[-k:].copy(), use[-k:].copy())
+        return past
 
 
 __all__ = [
@@ -577,6 +633,8 @@ __all__ = [
     "band_as_noise",
     "extraction_jacobian",
     "extraction_lead",
+    "lead_span",
+    "LeadCarry",
     "model_effects",
     "model_seen",
     "parse_components",
