@@ -255,10 +255,11 @@ def test_warm_start_does_not_change_the_answer():
 
 
 def test_previous_piece_start_gives_the_same_answer():
-    """A solved sample starts on the previous sample's final piece, kept when its minimiser lies
-    on it and dropped for the sides at F when not: on a time series with a push (where the kept
-    piece is mostly the answer: under 1.6 iterations a sample, 2.4 from the sides at F alone) and
-    on independent problems (where it mostly misses) the answer is the independent start's."""
+    """A solved sample starts on the previous sample's final piece (after a sample answered by
+    its first piece), kept when its minimiser lies on it and dropped for the sides at F when not:
+    on a time series with a push (where the kept piece is mostly the answer: under 1.6 iterations
+    a sample, 2.4 from the sides at F alone) and on independent problems (where it mostly misses)
+    the answer is the independent start's."""
     series, _ = smooth_series(3, N=1000)
     iid, _ = random_problem(seed=18, N=300)
     for args in (series, iid):

@@ -306,7 +306,9 @@ def _solve_sample(smp, F, ws, max_iter, keep_sides):
     when it lies on that piece), with the line search when a step does not lower ``f``. The
     first piece is the joints' sides at ``F``, or with ``keep_sides`` the sides ``ws.s`` holds
     (the previous sample's final piece: at a joint held on its band edge the side at the
-    previous ``F`` is the noise's sign, the previous piece is the likely answer). A kept piece
+    previous ``F`` is the noise's sign, the previous piece is the likely answer; the loops keep
+    it after a sample whose first piece was its answer, so that a series of unrelated samples
+    does not pay a missed guess at each). A kept piece
     whose minimiser lies on it is the answer (``f`` is convex); one whose minimiser does not is
     dropped for the sides at ``F``, from which the iteration goes on as without it (its step
     from ``F`` is a descent direction only on ``F``'s own piece). Returns the iterations."""
@@ -362,7 +364,8 @@ def _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws):
         if not warm:
             for i in range(m):
                 F[i] = fb[i]
-        it_out[k] = _solve_sample(sample_at(S, k), F, ws, max_iter, warm and k > 0)
+        keep = warm and k > 0 and it_out[k - 1] == 1  # the previous piece was right at once
+        it_out[k] = _solve_sample(sample_at(S, k), F, ws, max_iter, keep)
         for i in range(m):
             F_out[k, i] = F[i]
 
@@ -447,7 +450,8 @@ def _solve_complete_loop(S, p_true, max_iter, warm, out, ws, grad, mag):
                 F[i] = out.F[k, i]
             solved = False
             continue
-        out.it[k] = _solve_sample(smp, F, ws, max_iter, warm and solved)
+        keep = warm and solved and out.it[k - 1] == 1  # the previous piece was right at once
+        out.it[k] = _solve_sample(smp, F, ws, max_iter, keep)
         solved = True
         for i in range(m):
             out.F[k, i] = F[i]
