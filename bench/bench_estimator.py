@@ -6,8 +6,9 @@ band and drifting, and pushes (half-sine, 1-2 s, up to 60 N in random directions
 so that a realistic mix of joints is inside / outside the band. The reference loops (quadprog,
 proxsuite through qpsolvers, per sample) run on a subset in the same process and are scaled to
 samples per second; quadprog's ``solve_qp`` called directly on QPs built beforehand is compared
-with the exact backend in CPU time (best of three each: on a shared machine a short run's wall
-time is the other jobs').
+with the exact backend in CPU time (timed in alternation, best of five each: on a shared machine
+a short run's wall time is the other jobs'), and with its own cost on a one-variable
+unconstrained QP (the cost of a call).
 """
 
 from __future__ import annotations
@@ -87,10 +88,13 @@ def _proxsuite_textbook_deviation(args: dict, F_exact: np.ndarray, rows) -> floa
     return worst
 
 
-def _quadprog_direct(args: dict, F_exact: np.ndarray, rows) -> tuple[float, float]:
+def _quadprog_direct(args: dict, F_exact: np.ndarray, rows, exact_fn, N: int) -> tuple[float, ...]:
     """quadprog's ``solve_qp`` called directly on the scaled QP of each sample
-    (:func:`ditherlab.estimator.qp_matrices`, built beforehand and not timed): samples/s of CPU
-    time, and the largest |F| deviation from the exact backend [N, N·m]."""
+    (:func:`ditherlab.estimator.qp_matrices`, built beforehand and not timed) and ``exact_fn``
+    (``N`` samples), timed in alternation, five rounds, the best CPU time of each (on a shared
+    machine a short run's time is the other jobs'; alternating puts both under the same load).
+    Returns quadprog's samples/s, ``exact_fn``'s samples/s, and the largest |F| deviation of
+    quadprog from the exact backend [N, N·m]."""
     import quadprog
 
     from ditherlab import estimator as E
@@ -101,14 +105,26 @@ def _quadprog_direct(args: dict, F_exact: np.ndarray, rows) -> tuple[float, floa
         P, q, G, h, A, b, c = E.qp_matrices(prob, k)
         C = np.vstack([A, -G]).T.copy()
         qps.append((P, -q, C, np.concatenate([b, -h]), len(b), c))
-    best = np.inf
-    for _ in range(3):  # CPU time, best of three: a short run on a shared machine
+    best_q = best_e = np.inf
+    for _ in range(5):
         t0 = time.thread_time()
         xs = [quadprog.solve_qp(P, a, C, bb, meq)[0] for P, a, C, bb, meq, _ in qps]
-        best = min(best, time.thread_time() - t0)
-    rate = prob.N / best
+        best_q = min(best_q, time.thread_time() - t0)
+        t0 = time.thread_time()
+        exact_fn()
+        best_e = min(best_e, time.thread_time() - t0)
     F = np.array([prob.prior_mean + qp[5] * x[: prob.m] for qp, x in zip(qps, xs, strict=True)])
-    return rate, float(np.abs(F - F_exact[rows][:, prob.free]).max())
+    dev = float(np.abs(F - F_exact[rows][:, prob.free]).max())
+    return prob.N / best_q, N / best_e, dev
+
+
+def _quadprog_call_cost(M: int) -> float:
+    """quadprog's ``solve_qp`` on the one-variable unconstrained QP ``min x^2 / 2``, ``M`` calls:
+    samples/s of CPU time, best of five (what a call costs whatever the QP)."""
+    import quadprog
+
+    P, a = np.eye(1), np.zeros(1)
+    return _cpu_rate(lambda: [quadprog.solve_qp(P, a) for _ in range(M)], M, repeat=5)
 
 
 def _cpu_rate(fn, N: int, repeat: int = 3) -> float:
@@ -119,6 +135,29 @@ def _cpu_rate(fn, N: int, repeat: int = 3) -> float:
         fn()
         best = min(best, time.thread_time() - t0)
     return N / best
+
+
+def _cpu_split(args: dict, prob, qrate: float) -> list[dict]:
+    """``estimate`` taken apart, CPU time, best of three each: ``problem()`` (validation,
+    weights, broadcasting), the solve with its completion, and one numpy pass over the inputs
+    ``tau_bar`` and ``J`` (what reading them once costs: the memory floor of any solver that
+    reads them), each as samples/s and as a multiple of quadprog's rate ``qrate``."""
+    from ditherlab import estimator as E
+    from ditherlab.estimator.backends.exact import solve_exact
+
+    N = prob.N
+    parts = (
+        ("problem() alone (validation, weights, broadcasting)", lambda: E.problem(**args)),
+        ("solve and completion alone", lambda: solve_exact(prob)),
+        ("one pass over tau_bar and J (numpy sum: the memory floor)",
+         lambda: (args["tau_bar"].sum(), args["J"].sum())),
+    )  # fmt: skip
+    rows = []
+    for name, fn in parts:
+        r = _cpu_rate(fn, N)
+        rows.append(dict(name=f"  {name}, CPU time", value=r, unit="samples/s", reference=qrate,
+                         ratio=r / qrate))  # fmt: skip
+    return rows
 
 
 def _rate(fn, N: int, repeat: int = 3) -> tuple[float, object]:
@@ -215,8 +254,9 @@ def run(quick: bool = False) -> list[dict]:
         rows.append(dict(name=f"  max |F_exact - F_proxsuite| unscaled (F, tau_f), default eps, {M} samples",
                          value=dev, unit="N"))  # fmt: skip
     M = 2000 if not quick else 500
-    qrate, qdev = _quadprog_direct(args, sol.F, slice(0, N, N // M))
-    crate = _cpu_rate(lambda: E.estimate(**args), N)
+    qrate, crate, qdev = _quadprog_direct(
+        args, sol.F, slice(0, N, N // M), lambda: E.estimate(**args), N
+    )
     rows.append(dict(name="estimate exact, CPU time", value=crate, unit="samples/s",
                      reference=qrate, ratio=crate / qrate,
                      target=">= 100x quadprog.solve_qp called directly (CPU time)"))  # fmt: skip
@@ -224,6 +264,9 @@ def run(quick: bool = False) -> list[dict]:
                      value=qrate, unit="samples/s"))  # fmt: skip
     rows.append(dict(name=f"  max |F_exact - F_quadprog direct| on {M} samples", value=qdev,
                      unit="N"))  # fmt: skip
+    rows.append(dict(name="  quadprog.solve_qp on a 1-variable unconstrained QP (a call), CPU time",
+                     value=_quadprog_call_cost(M), unit="samples/s"))  # fmt: skip
+    rows.extend(_cpu_split(args, prob, qrate))
     if best_ref:
         rows[0]["reference"] = best_ref
         rows[0]["ratio"] = rate / best_ref

@@ -152,6 +152,12 @@ def _newton_piece(smp, s, work, x):
         x[i] += fb[i]
 
 
+#: :func:`_newton_piece` inlined into the Newton loop of :func:`_solve_sample`: the same code,
+#: without the call that passes every array of the sample and of the scratch (a sizeable part of
+#: the piece's time on these small problems).
+_newton_piece_inline = njit(cache=True, inline="always", _nrt=False)(_newton_piece.py_func)
+
+
 @njit(cache=True, inline="always", _nrt=False)
 def _sort_small(x, n):
     """``x[:n]`` sorted in place (insertion sort: a handful of breakpoints, no allocation)."""
@@ -294,13 +300,21 @@ def _descend(smp, F, fcur, ws):
 
 
 @njit(cache=True, inline="always", _nrt=False)
-def _solve_sample(smp, F, ws, max_iter):
+def _solve_sample(smp, F, ws, max_iter, keep_sides):
     """The minimiser of ``f`` at the sample ``smp`` into ``F (m,)`` (which holds the start):
     Newton steps from piece to piece, each to the minimiser of the current piece (the answer
-    when it lies on that piece), with the line search when a step does not lower ``f``. Returns
-    the iterations."""
+    when it lies on that piece), with the line search when a step does not lower ``f``. The
+    first piece is the joints' sides at ``F``, or with ``keep_sides`` the sides ``ws.s`` holds
+    (the previous sample's final piece: at a joint held on its band edge the side at the
+    previous ``F`` is the noise's sign, the previous piece is the likely answer; the loops keep
+    it after a sample whose first piece was its answer, so that a series of unrelated samples
+    does not pay a missed guess at each). A kept piece
+    whose minimiser lies on it is the answer (``f`` is convex); one whose minimiser does not is
+    dropped for the sides at ``F``, from which the iteration goes on as without it (its step
+    from ``F`` is a descent direction only on ``F``'s own piece). Returns the iterations."""
     m = len(F)
-    _sides(smp, F, ws.s)
+    if not keep_sides:
+        _sides(smp, F, ws.s)
     # the cost at F, computed when first needed (most samples stop at the first piece)
     fcur = 0.0
     have_fcur = False
@@ -308,7 +322,7 @@ def _solve_sample(smp, F, ws, max_iter):
     n_amb_tries = 0
     while it < max_iter:
         it += 1
-        _newton_piece(smp, ws.s, ws.piece, ws.x)
+        _newton_piece_inline(smp, ws.s, ws.piece, ws.x)
         _sides(smp, ws.x, ws.sn)
         if _same_piece(smp, ws.s, ws.sn):
             improved = False
@@ -324,6 +338,10 @@ def _solve_sample(smp, F, ws, max_iter):
             for i in range(m):
                 F[i] = ws.x[i]
             break
+        if keep_sides:  # the kept piece missed: the sides at F from here on
+            keep_sides = False
+            _sides(smp, F, ws.s)
+            continue
         if not have_fcur:
             fcur = _cost(smp, F)
             have_fcur = True
@@ -346,7 +364,8 @@ def _solve_exact_loop(S, max_iter, warm, F_out, it_out, ws):
         if not warm:
             for i in range(m):
                 F[i] = fb[i]
-        it_out[k] = _solve_sample(sample_at(S, k), F, ws, max_iter)
+        keep = warm and k > 0 and it_out[k - 1] == 1  # the previous piece was right at once
+        it_out[k] = _solve_sample(sample_at(S, k), F, ws, max_iter, keep)
         for i in range(m):
             F_out[k, i] = F[i]
 
@@ -420,6 +439,7 @@ def _solve_complete_loop(S, p_true, max_iter, warm, out, ws, grad, mag):
     F = ws.F
     for i in range(m):
         F[i] = fb[i]
+    solved = False  # whether ws.s holds the previous sample's final piece
     for k in range(N):
         if not warm:
             for i in range(m):
@@ -428,8 +448,11 @@ def _solve_complete_loop(S, p_true, max_iter, warm, out, ws, grad, mag):
         if _prior_mean_inside(smp, k, out):
             for i in range(m):
                 F[i] = out.F[k, i]
+            solved = False
             continue
-        out.it[k] = _solve_sample(smp, F, ws, max_iter)
+        keep = warm and solved and out.it[k - 1] == 1  # the previous piece was right at once
+        out.it[k] = _solve_sample(smp, F, ws, max_iter, keep)
+        solved = True
         for i in range(m):
             out.F[k, i] = F[i]
         out.cost[k], out.kkt[k] = _complete_sample(
