@@ -61,6 +61,7 @@ from ditherlab.physics.dither import (
     ramp_level,
     ramp_samples,
     ramp_state,
+    window_samples,
 )
 from ditherlab.physics.dither import band_as_noise as band_variance_as_noise
 from ditherlab.physics.effects import effects_torque, force_gain
@@ -296,7 +297,7 @@ def _replay_inputs(
     base = (rec.tau - g - eff, *model.sample_bands(reg, rec.dq))
     tick()
     ext = extract_dither(rec) if any(v.startswith("dither") for v in variants) else None
-    w_ext = max(int(round(ext.period * rec.sample_rate)), 1) if ext is not None else 1
+    w_ext = window_samples(ext.period, rec.sample_rate) if ext is not None else 1
     if ext is not None:
         args = (ext.on, ext.valid, ext.amplitude, ramp_level(model), ramp_samples(rec.sample_rate))
         ext.ramp = ramp_in(*args) if carry is None else carry.marks(*args)

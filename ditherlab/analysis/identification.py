@@ -54,7 +54,7 @@ from ditherlab.physics.band_fit import (
     fit_sliding,
     noise_lag,
 )
-from ditherlab.physics.dither import extract_dither
+from ditherlab.physics.dither import extract_dither, window_samples
 from ditherlab.physics.effect_fit import pooled_lines
 from ditherlab.physics.effects import (
     effects_torque,
@@ -547,17 +547,14 @@ class _Samples:
         if sig is None:
             return None
         model_tau = rec.tau - rho
-        w = max(int(round(sig.period * rec.sample_rate)), 1)
+        w = window_samples(sig.period, rec.sample_rate)
         shown = (
             extracted_rows(model.effects, signals(rec))
             if ext is not None and model is not None and model.effects
             else None
         )
-        if ext is None:
-            rho_d = sig.signal - as_extracted(model_tau, None, None, w)
-        else:
-            shown = shown if shown is not None and shown.any() else None
-            rho_d = sig.signal - as_extracted(model_tau - ext, ext, shown, w)
+        rest = model_tau if ext is None else model_tau - ext
+        rho_d = sig.signal - as_extracted(rest, ext, shown, w)
         dmask = (reg == DITHER) & sig.valid[:, None]
         for j in range(self.n):
             dk = dmask[keep, j]

@@ -195,6 +195,12 @@ def dither_waveform(meta: Mapping[str, Any]) -> str:
     return "square"
 
 
+def window_samples(period: float, sample_rate: float) -> int:
+    """Samples in one dither period ``period`` [s] at ``sample_rate`` [Hz] (at least 1): the
+    window of the extraction's means, and of everything compared with the extracted signal."""
+    return max(int(round(period * sample_rate)), 1)
+
+
 def full_window(on: np.ndarray, window: int) -> np.ndarray:
     """Where ``on`` held for each of the last ``window`` samples, the current one included.
 
@@ -693,7 +699,7 @@ def extract_dither(rec: Recording, tau: np.ndarray | None = None) -> Extraction 
     waveform = dither_waveform(rec.meta)
     x = rec.tau if tau is None else tau
     sig = extract(x, rec.t, period, dt=rec.dt if len(rec) > 1 else None, waveform=waveform)
-    w = max(int(round(period * rec.sample_rate)), 1)
+    w = window_samples(period, rec.sample_rate)
     valid = full_window(on, w)  # the dither was on for the whole window (t - period, t]
     return Extraction(
         upper=np.asarray(sig.upper),

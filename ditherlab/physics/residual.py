@@ -21,7 +21,13 @@ from ditherlab.core.timeseries import REVERSAL_V, STICK_SETTLE_S, smooth_wrench,
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.band_fit import noise_lag
-from ditherlab.physics.dither import extract_dither, ramp_in, ramp_level, ramp_samples
+from ditherlab.physics.dither import (
+    extract_dither,
+    ramp_in,
+    ramp_level,
+    ramp_samples,
+    window_samples,
+)
 from ditherlab.physics.effects import (
     Signals,
     check_model_effects,
@@ -106,7 +112,7 @@ def _dither_signal(
     sig = extract_dither(rec)
     if sig is None:
         return None
-    w = max(int(round(sig.period * rec.sample_rate)), 1)
+    w = window_samples(sig.period, rec.sample_rate)
     return np.asarray(sig.signal, dtype=float), np.asarray(sig.valid, dtype=bool), sig.amplitude, w
 
 
@@ -215,9 +221,7 @@ def local(model: TorqueModel, rec: Recording, *, use_sensor: bool = True) -> Loc
     if window:
         # the extracted signal is compared with the model torque through the same window
         shown = extracted_rows(model.effects, sig) if ext is not None and model.effects else None
-        seen = as_extracted(
-            model_tau, ext, shown if shown is not None and shown.any() else None, window
-        )
+        seen = as_extracted(model_tau, ext, shown, window)
         rho = np.where(reg == DITHER, tau - seen, rho)
     cen = np.zeros_like(rho)
     for code in Regime:

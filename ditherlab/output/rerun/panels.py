@@ -27,6 +27,7 @@ from ditherlab.physics.dither import (
     extract_dither,
     full_window,
     has_dither,
+    window_samples,
 )
 from ditherlab.physics.effects import effects_torque, external_torque, sensor_wrench, signals
 
@@ -206,7 +207,7 @@ def log_dither(
     # elsewhere (runs of NaN thin to their two ends, so the off stretches cost two rows each).
     on = _dither_window_on(rec, window)[keep]
     # gravity and the effects through the estimator's window (one period of samples)
-    seen = model_seen(rec.tau - tb, max(int(round(period * rec.sample_rate)), 1))[keep]
+    seen = model_seen(rec.tau - tb, window_samples(period, rec.sample_rate))[keep]
     rows = _DitherRows(
         centre, g[keep], rec.tau[keep], seen, on, ~on,
         # the simulator states its amplitude set-points (the reference of Fig. 5) in its metadata
