@@ -96,15 +96,22 @@ def table(registry: dict) -> str:
 def ranges_table(registry: dict) -> str:
     """The Markdown table of every effect's physical ranges (``Effect.bounds``) and sources."""
     rows = [
-        "| effect | parameter | unit | physical range | source |",
-        "|---|---|---|---|---|",
+        "| effect | parameter | unit | physical range | nominal | source |",
+        "|---|---|---|---|---|---|",
     ]
     for name, e in registry.items():
         for b in e.bounds:
             rows.append(
                 "| "
                 + " | ".join(
-                    (f"`{name}`", f"`{b.param}`", cell(b.unit), cell(b.text), cell(b.source))
+                    (
+                        f"`{name}`",
+                        f"`{b.param}`",
+                        cell(b.unit),
+                        cell(b.text),
+                        "" if b.nominal is None else f"{b.nominal:g}",
+                        cell(b.source),
+                    )
                 )
                 + " |"
             )
@@ -126,7 +133,9 @@ def render(page: str, module: str, registry: dict) -> str:
         "fits only with an unphysical value, and lists that value. A per-joint fit just outside a "
         "range is held at its edge, the other parameters re-fitted, where the data do not "
         "reject the edge (a likelihood-ratio test at 5 %); only a value the data insist on is "
-        "unphysical.\n\n"
+        "unphysical. A parameter with a nominal value (the robot description's own) that the "
+        "data cannot move — its term, across the whole range, stays below three noise sigmas on "
+        "every scored sample — is held at that value.\n\n"
         + ranges_table(registry)
         + "\n"
     )

@@ -315,16 +315,28 @@ def test_recentring_alone_is_not_credited_to_the_effect():
 
 
 def test_a_fit_just_outside_its_range_is_held_at_the_edge_where_the_data_allow():
-    """bounded_fit: on a moving log with link and rotor inertia, joint 6's link-inertia scale
-    and rotor inertia are told apart only together (both driven by ddq_6); the free fit puts the
-    scale outside 0.25..4, the bounded one holds it at 4 and re-fits the rotor inertia at a loss
-    the likelihood-ratio test accepts. A drive gain of 3 (outside 0.5..2) on a log that pins
-    it is not held: the data reject the edge, and out_of_range reports the free value."""
+    """bounded_fit on a moving log with link and rotor inertia (the true scale 1 on every
+    joint):
+
+    - joint 6's link-inertia scale cannot be determined: its term, across 0.25..4, stays below
+      3 noise sigmas (0.02 sigma at scale 1) while the rotor's reaches 23. The free fit puts it
+      at 5.8; it is held at its nominal 1 and the rotor inertia re-fitted.
+    - joint 4 with 3.2 more of its own dynamic torque logged (a scale of 4.2, its term reaching
+      0.9 sigma at scale 1): the free fit 4.04 is held at the edge 4, at a loss the
+      likelihood-ratio test accepts; with 3.6 more (4.44) the data reject the edge and the free
+      fit is returned, which out_of_range reports.
+    - A drive gain of 3 (outside 0.5..2) on a log that pins it is not held either."""
     from test_effects import make_recording
 
     from ditherlab.analysis.identification import identify
     from ditherlab.data.recording import Recording, RecordingArrays
-    from ditherlab.physics.effect_fit import bounded_fit, fit_effect, out_of_range
+    from ditherlab.physics.effect_fit import (
+        bounded_fit,
+        fit_effect,
+        out_of_range,
+        stack,
+        undetermined,
+    )
     from ditherlab.physics.effects import get_effect
 
     rec = make_recording(("inertia",), seed=7, duration=8.0)
@@ -333,12 +345,33 @@ def test_a_fit_just_outside_its_range_is_held_at_the_edge_where_the_data_allow()
     e = get_effect("inertia")
     free = fit_effect(e, sc, 5)
     assert free.w[0] > 4.0, free.w
+    lims = np.array([[0.25, 4.0], [0.0, np.inf]])
+    assert list(undetermined(e, stack(e, sc, 5, free.h, free.ref), lims)) == [True, False]
     held = bounded_fit(e, sc, 5, free)
-    assert held.w[0] == 4.0 and held.w[1] >= 0.0 and held.loss >= free.loss
+    assert held.w[0] == 1.0 and held.w[1] >= 0.0 and held.loss >= free.loss
+    assert abs(held.w[1] - 0.0406) < 0.01, held.w  # the simulator's wrist rotor, 0.04 kg·m²
     assert not out_of_range(e, sc, {5: held})
-    # inside the range: the fit itself
+    # inside the range and determined: the fit itself
     inside = fit_effect(e, sc, 0)
     assert bounded_fit(e, sc, 0, inside) is inside
+
+    dyn = sc[0].sig.dynamic_torque
+    for extra, edge in ((3.2, True), (3.6, False)):
+        tau = rec.tau.copy()
+        tau[:, 3] += extra * dyn[:, 3]
+        r2 = Recording.from_arrays(
+            RecordingArrays(rec.t, rec.q, tau, dq=rec.dq, wrench=rec.wrench), rec.meta
+        )
+        sc2 = [scored(identify([r2], n_boot=0), r2)]
+        free = fit_effect(e, sc2, 3)
+        assert free.w[0] > 4.0, free.w
+        held = bounded_fit(e, sc2, 3, free)
+        if edge:
+            assert held.w[0] == 4.0 and held.loss >= free.loss and not out_of_range(
+                e, sc2, {3: held}
+            ), held.w
+        else:
+            assert held is free and 3 in out_of_range(e, sc2, {3: free})
 
     from synthetic import moving_recording
 

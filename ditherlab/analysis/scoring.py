@@ -30,12 +30,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2
 
 from ditherlab.core.errors import ModelError
 from ditherlab.core.timeseries import autocorrelation_time
 from ditherlab.data.recording import Recording
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.effect_fit import (
+    ACTS_SNR,
     Stack,
     not_identifiable,
     out_of_range,
@@ -71,6 +73,10 @@ __all__ = [
 
 MIN_FRACTION = 0.05
 BIC_THRESHOLD = -10.0
+#: the family-wise error rate of one diagnosis: a joint is named only when its likelihood-ratio
+#: test rejects "no effect" at this level divided by the number of tests (Bonferroni over every
+#: effect of the library on every joint, :attr:`JointScore.tests`)
+FAMILY_LEVEL = 0.01
 #: an effect's held-out gain must be at least this times its best surrogate's
 SURROGATE_RATIO = 2.0
 #: surrogates per candidate joint (lags of the design, each fitted like the effect)
@@ -93,6 +99,12 @@ class JointScore:
     fit: FitResult
     #: held-out gain of the best surrogate (None: not computed, the other criteria failed)
     surrogate: float | None = None
+    #: the parameters the BIC and the likelihood-ratio test count (linear columns that act,
+    #: plus the searched ones)
+    k: int = 1
+    #: the tests of one diagnosis the family-wise level is divided by (every effect of the
+    #: library on every joint)
+    tests: int = 1
 
     @property
     def gain(self) -> float:
@@ -101,6 +113,16 @@ class JointScore:
     @property
     def fraction(self) -> float:
         return self.gain / self.loss0 if self.loss0 > 0 else 0.0
+
+    @property
+    def p_value(self) -> float:
+        """The likelihood-ratio test's p-value of "the effect is absent": the statistic
+        ``n_eff · ln(L0 / L1)`` (the band-aware losses of the fits without and with the effect,
+        ``n_eff`` the effective samples outside the band) against χ² with :attr:`k` degrees of
+        freedom (Wilks). The BIC difference holds the same statistic:
+        ``ΔBIC = k · ln(n_eff) - statistic``."""
+        lr = self.k * math.log(max(self.n_eff, 2.0)) - self.delta_bic
+        return float(chi2.sf(max(lr, 0.0), self.k))
 
     @property
     def surrogate_fraction(self) -> float | None:
@@ -115,11 +137,13 @@ class JointScore:
         )
 
     def evidence(self, min_fraction: float) -> bool:
-        """The held-out, fold and BIC criteria (the surrogates are tested only after these)."""
+        """The held-out, fold, BIC and family-wise criteria (the surrogates are tested only
+        after these)."""
         return (
             self.fraction >= min_fraction
             and self.folds_better >= self.folds - 1
             and self.delta_bic <= BIC_THRESHOLD
+            and self.p_value <= FAMILY_LEVEL / self.tests
         )
 
 
@@ -157,6 +181,8 @@ class Candidate:
                     "folds": s.folds,
                     "delta_bic": round(float(s.delta_bic), 3),
                     "n_eff": round(float(s.n_eff), 1),
+                    "p_value": float(f"{s.p_value:.3g}"),
+                    "p_family": float(f"{min(1.0, s.p_value * s.tests):.3g}"),
                     "surrogate_fraction": (
                         None
                         if s.surrogate_fraction is None
@@ -430,7 +456,10 @@ def _joint_score(pb: _Scoring, sr: _Searched) -> JointScore:
     # a fold counts as better only beyond rounding: an effect that changes nothing on a fold
     # (equal losses, summed in another order when the log is read in pieces) is not better there
     better = sum(1 for a, b in zip(test_l0, sr.test_l1, strict=True) if b < a - TIE * abs(a))
-    return JointScore(pb.j, sum(test_l0), sum(sr.test_l1), better, pb.K, dbic, n_eff, full)
+    tests = len(EFFECTS) * pb.scs[0].sig.n
+    return JointScore(
+        pb.j, sum(test_l0), sum(sr.test_l1), better, pb.K, dbic, n_eff, full, k=k_par, tests=tests
+    )
 
 
 def _judged(
@@ -657,11 +686,6 @@ def thinned(scs: Sequence[Scored], max_samples: int = 4000) -> list[Scored]:
     if stride == 1:
         return list(scs)
     return [s.at(np.arange(0, len(s.e), stride)) for s in scs]
-
-
-#: an effect acts on a joint where its design (at unit parameters) exceeds this many times the
-#: joint's noise on some scored sample (:func:`acting_joints`)
-ACTS_SNR = 3.0
 
 
 def acting_joints(e: Effect, scs: Sequence[Scored]) -> list[int]:

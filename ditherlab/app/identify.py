@@ -41,6 +41,7 @@ from ditherlab.io.stream import CHUNK_ROWS, Source, open_source
 from ditherlab.physics.dither import has_dither
 from ditherlab.physics.effect_fit import (
     fit_effect,
+    held_lines,
     not_identifiable,
     out_of_range,
     physical_fits,
@@ -338,6 +339,7 @@ def add_effect(
     base.effects = [s for s in base.effects if s.name != effect]
     sc = [scored(base, r) for r in recs]
     cand = _candidate(base, recs, effect, sc)
+    every = not e.shared and joints is None and e.on_every_joint
     if e.shared:
         fits = {-1: fit_effect(e, sc, None)}
     else:
@@ -348,10 +350,15 @@ def add_effect(
         else:
             js = [j - 1 for j in cand.joints]
         fits = {j: fit_effect(e, sc, j) for j in js}
-    # joints with too little evidence take values shared over the others (dither_extraction)
-    # and a value just outside its range held at the edge where the data allow it
+    # joints with too little evidence take values shared over the others (dither_extraction),
+    # a parameter the data cannot move is held at its nominal value (inertia's scale on a
+    # wrist's last link) and a value just outside its range held at the edge where the data
+    # allow it
     free = dict(fits)
     fits, weak = physical_fits(e, sc, fits)
+    held = held_lines(e, sc, free, fits, weak)
+    left = _left_out(e, sc, fits) if every and len(fits) > 1 else {}
+    fits = {j: f for j, f in fits.items() if j not in left}
     cand = _promise_as_written(e, cand, sc, {j: f for j, f in fits.items() if f is not free[j]})
     for j, f in fits.items():
         why = not_identifiable(e, sc, None if j == -1 else j, f)
@@ -373,10 +380,33 @@ def add_effect(
     else:  # the bands keep their fit: they move by what the effect's fit moved them
         new = recentre(new, [scored(new, r) for r in recs])
     row = _delivered(base, (fitted, new), cand, sorted(fits), recs, sc)
+    told = held + [f"{effect} not fitted on joint {j + 1}: {why}" for j, why in left.items()]
+    if told:
+        row["warning"] = "; ".join(x for x in (row.get("warning"), *told) if x)
     new.history = [*new.history, row]
-    if weak:
-        new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak)) if x)
+    new.notes = "; ".join(x for x in (new.notes, pooled_note(e, fits, weak), *told) if x)
     return new
+
+
+def _left_out(e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]) -> dict[int, str]:
+    """The joints (0-based -> why, one phrase) an effect fitted on every joint where it acts
+    (:attr:`~ditherlab.physics.effects.Effect.on_every_joint`, no joints given) leaves out: its
+    fit there cannot be told apart from the bands, or lies outside a physical range. Every
+    joint left out is an error (:class:`ModelError`): nothing is written."""
+    bad = out_of_range(e, sc, fits)
+    left = {}
+    for j, f in fits.items():
+        why = not_identifiable(e, sc, j, f)
+        if why is not None:
+            left[j] = why.split(": ", 1)[-1]
+        elif j in bad:
+            left[j] = bad[j].text()
+    if len(left) == len(fits):
+        j = min(left)
+        raise ModelError(
+            f"identify --add {e.name}: joint {j + 1}: {left[j]}; the model is not written"
+        )
+    return left
 
 
 def _candidate(

@@ -28,9 +28,11 @@ from ditherlab.physics.effects.ranges import OutOfRange
 from ditherlab.physics.residual import Scored
 
 __all__ = [
+    "ACTS_SNR",
     "MIN_IDENTIFIABILITY",
     "Stack",
     "fit_effect",
+    "held_lines",
     "identifiability",
     "linear_stderr",
     "not_identifiable",
@@ -42,6 +44,7 @@ __all__ = [
     "pooled_note",
     "solve_signed",
     "stack",
+    "undetermined",
 ]
 
 
@@ -763,55 +766,120 @@ def _held_in_range(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> F
 #: edge of their physical range: the edge is kept unless the data reject it at this level
 EDGE_LEVEL = 0.05
 
+#: noise sigmas a term must reach on at least one scored sample to act there: a joint an
+#: effect's design acts on (:func:`ditherlab.analysis.scoring.acting_joints`), a linear
+#: parameter the data can move across its physical range (:func:`undetermined`)
+ACTS_SNR = 3.0
+
+
+def _linear_nominals(e: Effect) -> list[float | None]:
+    """The declared nominal value of each of ``e``'s linear parameters (``Bound.nominal`` of
+    the bound on the parameter itself), None where none is declared, in the order of
+    ``e.linear``."""
+    nom = {b.param: b.nominal for b in e.bounds if b.value is None and b.linear is None}
+    return [nom.get(name) for name in e.linear]
+
+
+def undetermined(e: Effect, st: Any, lims: np.ndarray) -> np.ndarray:
+    """(k,) bool: the linear parameters of ``e`` with a declared nominal
+    (:attr:`~ditherlab.physics.effects.ranges.Bound.nominal`) whose term, moved across the whole
+    physical range ``lims`` (k, 2), changes the torque by less than :data:`ACTS_SNR` noise
+    sigmas on every row of the stack ``st``: the data cannot determine them (a wrist's last
+    link, whose own dynamic torque stays at 0.01-0.03 sigma while its rotor's reaches 30-60), so
+    any value fits whatever else the residual holds."""
+    nom = _linear_nominals(e)
+    out = np.zeros(st.k, dtype=bool)
+    for i in range(st.k):
+        width = float(lims[i, 1] - lims[i, 0])
+        if nom[i] is None or not np.isfinite(width) or not len(st.s):
+            continue
+        col = (np.abs(st.C[:, i]) + np.abs(st.W[:, i])) / st.s
+        out[i] = float(np.max(col)) * width < ACTS_SNR
+    return out
+
+
+def _solve_held(
+    st: Any, sg: np.ndarray, held: np.ndarray, v: np.ndarray
+) -> tuple[np.ndarray, float] | None:
+    """The band-aware least-squares fit of the stack ``st`` with the columns ``held`` at the
+    values ``v`` and the others free: (every column's value, loss); None when a held width
+    falls below zero (no band-aware loss to compare)."""
+    o = st.o + st.C[:, held] @ v[held]
+    h = st.h + st.W[:, held] @ v[held]
+    if np.any(h < 0):
+        return None
+    wf, L = solve_signed(st.e, h, st.s, st.C[:, ~held], st.W[:, ~held], o, sg[~held])
+    w = v.copy()
+    w[~held] = wf
+    return w, L
+
 
 def bounded_fit(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> FitResult:
-    """The per-joint fit of ``e`` on joint ``j`` (0-based) with its linear parameters outside
-    their physical range (:func:`_linear_ranges`) held at the nearest edge and the others
-    re-fitted (an active set: bounded least squares at the fit's own hyper-parameter), when the
-    data do not reject the held values: the likelihood-ratio statistic ``n_eff · ln(L_held /
-    L_free)`` (the band-aware losses, ``n_eff`` the samples outside the band over their
-    :func:`~ditherlab.core.timeseries.autocorrelation_time`, as diagnosis's BIC counts them)
-    is within the χ² quantile of :data:`EDGE_LEVEL` with one degree of freedom per held
-    parameter. Two parameters that the data tell apart only together (a wrist's link inertia
-    scale and its rotor inertia, both driven by ``ddq``) fit as well with one at its edge.
+    """The per-joint fit of ``e`` on joint ``j`` (0-based) as it can be written, at the fit's own
+    hyper-parameter:
 
-    Returns ``fit`` itself when every value is inside, or when the held fit is rejected (the
-    data insist on an unphysical value: :func:`out_of_range` says so) or a re-fitted value
-    leaves its own range.
+    1. a linear parameter the data cannot determine (:func:`undetermined`) is held at its
+       declared nominal value and the others re-fitted;
+    2. a linear parameter still outside its physical range (:func:`_linear_ranges`) is held at
+       the nearest edge and the others re-fitted (an active set: bounded least squares), when
+       the data do not reject the held values: the likelihood-ratio statistic ``n_eff ·
+       ln(L_held / L)`` against the fit of step 1 (the band-aware losses, ``n_eff`` the samples
+       outside the band over their :func:`~ditherlab.core.timeseries.autocorrelation_time`, as
+       diagnosis's BIC counts them) is within the χ² quantile of :data:`EDGE_LEVEL` with one
+       degree of freedom per parameter held at an edge. Two parameters that the data tell apart
+       only together (a wrist's link inertia scale and its rotor inertia, both driven by
+       ``ddq``) fit as well with one at its edge.
+
+    Returns ``fit`` itself when nothing is held; the fit of step 1 when the edges of step 2 are
+    rejected (the data insist on an unphysical value: :func:`out_of_range` says so) or a
+    re-fitted value leaves its own range.
     """
     lims = np.array(_linear_ranges(e, sc, j), dtype=float).reshape(-1, 2)
     w0 = np.asarray(fit.w, dtype=float)
     k = len(lims)
-    if k == 0 or np.all((w0[:k] >= lims[:, 0]) & (w0[:k] <= lims[:, 1])):
+    if k == 0:
         return fit
     st = stack(e, sc, j, fit.h, fit.ref)
+    fixed = undetermined(e, st, lims)
+    inside = np.all((w0[:k] >= lims[:, 0]) & (w0[:k] <= lims[:, 1]))
+    if inside and not fixed.any():
+        return fit
     sg = np.asarray(st.signs(e.signs(fit.h)))
-    w_free, L_free = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg, e.tied)
     held = np.zeros(st.C.shape[1], dtype=bool)
     v = np.zeros(st.C.shape[1])
-    w = w_free
+    if fixed.any():
+        held[:k] = fixed
+        v[:k][fixed] = [_linear_nominals(e)[i] for i in np.flatnonzero(fixed)]
+        got = _solve_held(st, sg, held, v)
+        if got is None:
+            return fit
+        w_base, L_base = got
+    else:
+        w_base, L_base = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg, e.tied)
+    base = FitResult(w_base[: st.k], fit.h, fit.ref, L_base) if fixed.any() else fit
+    w, L = w_base, L_base
+    edge = np.zeros_like(held)
     for _ in range(k):
         out = np.flatnonzero(~held[:k] & ((w[:k] < lims[:, 0]) | (w[:k] > lims[:, 1])))
         if not len(out):
             break
-        held[out] = True
+        held[out] = edge[out] = True
         v[out] = np.clip(w[out], lims[out, 0], lims[out, 1])
-        o = st.o + st.C[:, held] @ v[held]
-        h = st.h + st.W[:, held] @ v[held]
-        if np.any(h < 0):  # a held width below zero: no band-aware loss to compare
-            return fit
-        wf, L = solve_signed(st.e, h, st.s, st.C[:, ~held], st.W[:, ~held], o, sg[~held])
-        w = v.copy()
-        w[~held] = wf
+        got = _solve_held(st, sg, held, v)
+        if got is None:
+            return base
+        w, L = got
+    if not edge.any():
+        return base
     if np.any((w[:k] < lims[:, 0] - 1e-12) | (w[:k] > lims[:, 1] + 1e-12)):
-        return fit
-    x = st.e - st.o - st.C @ w_free
-    ex = np.maximum(np.abs(x) - st.h - st.W @ w_free, 0.0) / st.s
+        return base
+    x = st.e - st.o - st.C @ w_base
+    ex = np.maximum(np.abs(x) - st.h - st.W @ w_base, 0.0) / st.s
     act = ex > 0
     order = st.time_order()
     n_eff = max(act.sum() / autocorrelation_time(ex[order][act[order]]), 1.0)
-    if not (L_free > 0 and n_eff * math.log(L / L_free) <= chi2.ppf(1 - EDGE_LEVEL, held.sum())):
-        return fit
+    if not (L_base > 0 and n_eff * math.log(L / L_base) <= chi2.ppf(1 - EDGE_LEVEL, edge.sum())):
+        return base
     return FitResult(w[: st.k], fit.h, fit.ref, L)
 
 
@@ -827,6 +895,39 @@ def physical_fits(
     if e.evidence_rules:
         return pool_weak_joints(e, sc, fits)
     return {j: bounded_fit(e, sc, j, f) for j, f in fits.items()}, {}
+
+
+def held_lines(
+    e: Effect,
+    sc: Sequence[Scored],
+    free: dict[int, FitResult],
+    fits: dict[int, FitResult],
+    weak: dict[int, str],
+) -> list[str]:
+    """One phrase per linear parameter :func:`bounded_fit` held (the free fits ``free``
+    against the written ``fits``, 0-based joint -> fit; the ``weak`` joints' shared values are
+    said by :func:`pooled_note`): ``"inertia joint 6: scale held at 1, its nominal (fitted
+    53.9; the data cannot determine it)"``, ``"... held at 4, the edge of its range 0.25..4
+    (fitted 4.3)"``."""
+    nominals = _linear_nominals(e)
+    out = []
+    for j, f in sorted(fits.items()):
+        if j < 0 or j in weak or j not in free or f is free[j]:
+            continue
+        lims = _linear_ranges(e, sc, j)
+        for i, name in enumerate(e.linear):
+            a, b = float(free[j].w[i]), float(f.w[i])
+            if a == b:
+                continue
+            lo, hi = lims[i]
+            if nominals[i] is not None and b == nominals[i]:
+                how = f"its nominal (fitted {a:.3g}; the data cannot determine it)"
+            elif b in (lo, hi):
+                how = f"the edge of its range {lo:g}..{hi:g} (fitted {a:.3g})"
+            else:  # re-fitted beside a held one
+                continue
+            out.append(f"{e.name} joint {j + 1}: {name} held at {b:.3g}, {how}")
+    return out
 
 
 def pool_weak_joints(

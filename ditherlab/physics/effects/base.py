@@ -99,11 +99,13 @@ class Effect(abc.ABC):
     #: The effect acts only where the dither is on: adding it needs at least one dithered
     #: recording (else one clear error rather than "cannot be told apart from the bands").
     needs_dither: ClassVar[bool] = False
-    #: The effect belongs to the measurement pipeline, not to one joint's mechanics (the
-    #: dither's extraction): it acts on every joint where its design is above the noise, so
-    #: ``identify --add`` without joints fits it on all of them
-    #: (:func:`ditherlab.analysis.scoring.select_joints`), not only where one recording's diagnosis
-    #: evidence passed (the others would keep it in their residual: a false discovery next).
+    #: Every joint has the effect (the dither's extraction, a part of the measurement pipeline;
+    #: a rotor's and the links' inertia, a part of every arm): it acts on every joint where its
+    #: design is above the noise, so ``identify --add`` without joints fits it on all of them
+    #: (:func:`ditherlab.analysis.scoring.select_joints`), not only where one recording's
+    #: diagnosis evidence passed (the others would keep it in their residual: a false discovery
+    #: next), and leaves out, with one line each, the joints where its fit cannot be told apart
+    #: from the bands or lies outside a physical range.
     on_every_joint: ClassVar[bool] = False
     #: The physical range of every fitted parameter, with its source
     #: (:class:`~ditherlab.physics.effects.ranges.Bound`): a fit outside it is never written

@@ -60,6 +60,10 @@ class Bound:
         ``name`` (a drive's ``k = 1 + gain_error``): the range then bounds that parameter's fit
         (:func:`ditherlab.physics.effect_fit.bounded_fit`). A bound without ``value`` bounds
         its own ``param``.
+    nominal : the value the robot's description gives the parameter (an inertia scale of 1),
+        or None: a linear parameter the data cannot move (its term, across the whole range,
+        stays below :data:`~ditherlab.physics.effect_fit.ACTS_SNR` noise sigmas) is held there
+        (:func:`ditherlab.physics.effect_fit.bounded_fit`)
     """
 
     param: str
@@ -71,6 +75,7 @@ class Bound:
     value: Callable[[dict[str, Any], Sequence[Signals]], Any] | None = None
     per: str = "joint"
     linear: tuple[str, float] | None = None
+    nominal: float | None = None
 
     def limits(self, sigs: Sequence[Signals], j: int | None) -> tuple[float, float]:
         """``(lo, hi)`` in :attr:`unit` on these recordings, for joint ``j`` (0-based)."""

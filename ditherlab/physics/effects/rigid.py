@@ -111,6 +111,7 @@ class Inertia(Effect):
     driven_by = "ddq, dq"
     linear = ("scale", "motor_inertia")
     shows_in = ("moving",)
+    on_every_joint = True  # every joint has a rotor and moves links
     bounds = (
         Bound(
             "scale",
@@ -120,6 +121,7 @@ class Inertia(Effect):
             "wrist's small links least so",
             0.25,
             4.0,
+            nominal=1.0,
         ),
         Bound(
             "motor_inertia",
