@@ -135,9 +135,7 @@ def render(page: str, module: str, registry: dict) -> str:
         "reject the edge (a likelihood-ratio test at 5 %); only a value the data insist on is "
         "unphysical. A parameter with a nominal value (the robot description's own) that the "
         "data cannot move — its term, across the whole range, stays below three noise sigmas on "
-        "every scored sample — is held at that value.\n\n"
-        + ranges_table(registry)
-        + "\n"
+        "every scored sample — is held at that value.\n\n" + ranges_table(registry) + "\n"
     )
     return head + MARKER + body
 

@@ -367,8 +367,8 @@ def test_a_fit_just_outside_its_range_is_held_at_the_edge_where_the_data_allow()
         assert free.w[0] > 4.0, free.w
         held = bounded_fit(e, sc2, 3, free)
         if edge:
-            assert held.w[0] == 4.0 and held.loss >= free.loss and not out_of_range(
-                e, sc2, {3: held}
+            assert (
+                held.w[0] == 4.0 and held.loss >= free.loss and not out_of_range(e, sc2, {3: held})
             ), held.w
         else:
             assert held is free and 3 in out_of_range(e, sc2, {3: free})
