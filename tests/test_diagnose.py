@@ -127,6 +127,32 @@ def test_noise_floor_formula():
     assert noise_floor_sq(s, np.array([h]), np.array([False]))[0] == pytest.approx(mc, rel=0.02)
 
 
+def test_family_wise_level():
+    """A joint's evidence needs its likelihood-ratio test to reject at 1 % over every effect of
+    the library on every joint (Bonferroni), beside ΔBIC <= -10: with two parameters, ΔBIC
+    -10.5 on 20 effective samples is a statistic of 16.5 (p 2.6e-4, 0.022 over 84 tests: not
+    named); on 200 it is 21.1 (p 2.6e-5, 0.0022: named). The p-value is χ² with k degrees of
+    freedom of the statistic the BIC holds."""
+    from scipy.stats import chi2
+
+    from ditherlab.analysis.scoring import FAMILY_LEVEL, Candidate, JointScore
+    from ditherlab.physics.effects import FitResult
+
+    fit = FitResult(np.zeros(2), None, None, 0.0)
+    tests = 14 * 6
+
+    def score(n_eff):
+        return JointScore(0, 100.0, 60.0, 5, 5, -10.5, n_eff, fit, k=2, tests=tests)
+
+    few, many = score(20.0), score(200.0)
+    assert few.p_value == pytest.approx(chi2.sf(2 * np.log(20.0) + 10.5, 2))
+    assert few.p_value * tests > FAMILY_LEVEL and not few.evidence(0.05)
+    assert many.p_value * tests < FAMILY_LEVEL and many.evidence(0.05)
+    row = Candidate("viscous", [1], 0.4, True, scores=[many]).to_dict()["per_joint"][0]
+    assert row["p_value"] == pytest.approx(many.p_value, rel=1e-2)
+    assert row["p_family"] == pytest.approx(many.p_value * tests, rel=1e-2)
+
+
 def _windows_by_scanning(model, sc, width=1.0):
     """The obviously right worst windows: every window's samples found by comparing all times."""
     from ditherlab.analysis.diagnosis_sums import excess_and_floor, nanmean
