@@ -389,3 +389,47 @@ def test_a_fit_just_outside_its_range_is_held_at_the_edge_where_the_data_allow()
     free = fit_effect(e, sc, 1)
     assert bounded_fit(e, sc, 1, free) is free
     assert 1 in out_of_range(e, sc, {1: free})
+
+
+def test_inertia_leaves_out_an_unphysical_joint_and_refuses_when_all_are():
+    """``identify --add inertia`` without joints fits every joint the log moves: a joint whose
+    fit the data pin outside its range (joint 2 logging 9 more times its own dynamic torque: a
+    scale of 10) is left out with one warning line, the others written; with every joint so
+    (a rotor beyond the effort limit), the add is refused with one line naming the joint, value
+    and range, nothing written."""
+    from test_effects import make_recording
+
+    from ditherlab.app.identify import add_effect
+    from ditherlab.data.recording import Recording, RecordingArrays
+    from ditherlab.physics.effects.rigid import _armature_max
+
+    rec = make_recording(("inertia",), seed=7, duration=8.0)
+    dyn = scored(identify_model([rec], n_boot=0), rec).sig.dynamic_torque
+
+    def logging(extra):
+        tau = rec.tau + dyn * extra
+        return Recording.from_arrays(
+            RecordingArrays(rec.t, rec.q, tau, dq=rec.dq, wrench=rec.wrench), rec.meta
+        )
+
+    one = logging(np.array([0.0, 9.0, 0.0, 0.0, 0.0, 0.0]))
+    m = add_effect([one], identify_model([one], n_boot=0), "inertia", refit=False)
+    spec = next(s for s in m.effects if s.name == "inertia")
+    assert 2 not in spec.joints and {1, 3} <= set(spec.joints), spec.joints
+    warn = m.history[-1]["warning"]
+    assert "on joint 2 lies outside its physical range 0.25..4" in warn, warn
+    assert "not fitted there" in warn, warn
+    # every joint: a rotor whose torque at the log's largest acceleration is twice the joint's
+    # effort limit (the wrists' scales, which the data cannot move, are held at 1)
+    sig = scored(identify_model([rec], n_boot=0), rec).sig
+    top = np.array([2.0 * _armature_max([sig], j) for j in range(6)])
+    every = Recording.from_arrays(
+        RecordingArrays(rec.t, rec.q, rec.tau + top * sig.ddq, dq=rec.dq, wrench=rec.wrench),
+        rec.meta,
+    )
+    with pytest.raises(
+        ModelError,
+        match=r"identify --add inertia: inertia motor_inertia .* on joint \d lies outside its "
+        r"physical range 0\.\..*the model is not written",
+    ):
+        add_effect([every], identify_model([every], n_boot=0), "inertia", refit=False)

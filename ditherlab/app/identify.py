@@ -380,7 +380,7 @@ def add_effect(
     else:  # the bands keep their fit: they move by what the effect's fit moved them
         new = recentre(new, [scored(new, r) for r in recs])
     row = _delivered(base, (fitted, new), cand, sorted(fits), recs, sc)
-    told = held + [f"{effect} not fitted on joint {j + 1}: {why}" for j, why in left.items()]
+    told = held + [f"{why}: not fitted there" for why in left.values()]
     if told:
         row["warning"] = "; ".join(x for x in (row.get("warning"), *told) if x)
     new.history = [*new.history, row]
@@ -389,23 +389,21 @@ def add_effect(
 
 
 def _left_out(e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]) -> dict[int, str]:
-    """The joints (0-based -> why, one phrase) an effect fitted on every joint where it acts
-    (:attr:`~ditherlab.physics.effects.Effect.on_every_joint`, no joints given) leaves out: its
-    fit there cannot be told apart from the bands, or lies outside a physical range. Every
-    joint left out is an error (:class:`ModelError`): nothing is written."""
+    """The joints (0-based -> why, one sentence naming the joint) an effect fitted on every
+    joint where it acts (:attr:`~ditherlab.physics.effects.Effect.on_every_joint`, no joints
+    given) leaves out: its fit there cannot be told apart from the bands, or lies outside a
+    physical range. Every joint left out is an error (:class:`ModelError`): nothing is
+    written."""
     bad = out_of_range(e, sc, fits)
     left = {}
     for j, f in fits.items():
         why = not_identifiable(e, sc, j, f)
         if why is not None:
-            left[j] = why.split(": ", 1)[-1]
+            left[j] = why
         elif j in bad:
             left[j] = bad[j].text()
     if len(left) == len(fits):
-        j = min(left)
-        raise ModelError(
-            f"identify --add {e.name}: joint {j + 1}: {left[j]}; the model is not written"
-        )
+        raise ModelError(f"identify --add {e.name}: {left[min(left)]}; the model is not written")
     return left
 
 
