@@ -244,7 +244,9 @@ def recordings_section(rows: list[dict[str, str]]) -> list[str]:
     return out
 
 
-def page(fd: list[dict[str, str]], power: list[dict[str, str]], fig_name: str) -> str:
+def page(
+    fd: list[dict[str, str]], power: list[dict[str, str]], fig_name: str, code: str | None = None
+) -> str:
     n_fd = defaultdict(int)
     for r in fd:
         n_fd[r["plant"]] += 1
@@ -261,7 +263,8 @@ def page(fd: list[dict[str, str]], power: list[dict[str, str]], fig_name: str) -
         "`diagnose --json`). The decision rule is described in [diagnosis](diagnosis.md) "
         '("What a suggestion means").',
         "",
-        f"**This run:** clean recordings: {sizes}; power draws: {dsizes}.",
+        f"**This run:** {f'ditherlab at {code}; ' if code else ''}clean recordings: {sizes}; "
+        f"power draws: {dsizes}.",
         "",
         "## False discoveries on clean recordings",
         "",
@@ -310,11 +313,12 @@ def main() -> None:
     ap.add_argument("--fd", type=Path, nargs="+", required=True, help="folders with study.csv")
     ap.add_argument("--power", type=Path, nargs="+", required=True, help="folders with power.csv")
     ap.add_argument("--out", type=Path, default=PAGE)
+    ap.add_argument("--code", help="the ditherlab the runs were made with (a version or commit)")
     a = ap.parse_args()
     fd, power = read_rows(a.fd, "study.csv"), read_rows(a.power, "power.csv")
     fig = a.out.with_name(a.out.stem + "-power.png")
     figure(power, fig)
-    a.out.write_text(page(fd, power, fig.name))
+    a.out.write_text(page(fd, power, fig.name, a.code))
     print(f"wrote {a.out} and {fig}")
 
 
