@@ -29,7 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.bench_power import BINS, rates  # noqa: E402
+from bench.bench_power import ABSORBED, BINS, rates  # noqa: E402
 
 PAGE = ROOT / "docs" / "diagnosis-study.md"
 FIGURE = ROOT / "docs" / "diagnosis-study-power.png"
@@ -119,10 +119,13 @@ def power_section(rows: list[dict[str, str]]) -> list[str]:
     for plant in sorted({r["plant"] for r in rows}):
         n = len({r["id"] for r in rows if r["plant"] == plant})
         for col, text in (("floors", "what the effect adds"), ("excess_floors", "residual growth")):
-            big = [r for r in _joint_rows(rows, plant) if float(r.get(col) or 0) >= 2.0]
+            big = [r for r in _joint_rows(rows, plant) if float(r.get(col) or 0) >= 2.0
+                   and r["effect"] not in ABSORBED]  # fmt: skip
             found = sum(r["found"] == "True" for r in big)
             first = sum(r["found_first"] == "True" for r in big)
             out.append(f"| {PLANT_TEXT[plant]} | {n} | {text} | {len(big)} | {found} | {first} |")
+    out += ["", "The second table leaves out " + ", ".join(f"`{e}`" for e in ABSORBED)
+            + " (its rows stay in the first): " + "; ".join(ABSORBED.values()) + "."]  # fmt: skip
     return out
 
 
@@ -145,6 +148,8 @@ def failures(rows: list[dict[str, str]]) -> list[str]:
         if float(r["floors"]) < 2.0 or r["found_first"] == "True":
             continue
         why = "not suggested on this joint" if r["found"] != "True" else f"{r['first']} first"
+        if r["effect"] in ABSORBED:
+            why += f" ({ABSORBED[r['effect']]})"
         at = (
             f"@{r['planted_joints']}"
             if r["plant"] == "lugre" and r["planted_joints"] != "arm"
