@@ -132,8 +132,9 @@ def render(page: str, module: str, registry: dict) -> str:
         "range; nothing is written), and diagnosis does not suggest the effect on a joint it "
         "fits only with an unphysical value, and lists that value. A per-joint fit just outside a "
         "range is held at its edge, the other parameters re-fitted, where the data do not "
-        "reject the edge (a likelihood-ratio test at 5 %); only a value the data insist on is "
-        "unphysical. A parameter with a nominal value (the robot description's own) that the "
+        "reject the edge (a likelihood-ratio test at 5 %); a shared fit whose range bounds several "
+        "parameters together (a rotation's angle) is moved to the edge along its own direction "
+        "under the same test; only a value the data insist on is unphysical. A parameter with a nominal value (the robot description's own) that the "
         "data cannot move — its term, across the whole range, stays below three noise sigmas on "
         "every scored sample — is held at that value.\n\n" + ranges_table(registry) + "\n"
     )

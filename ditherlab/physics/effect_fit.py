@@ -39,6 +39,7 @@ __all__ = [
     "out_of_range",
     "recentre",
     "physical_fits",
+    "shared_in_range",
     "pool_weak_joints",
     "pooled_lines",
     "pooled_note",
@@ -873,14 +874,56 @@ def bounded_fit(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> FitR
         return base
     if np.any((w[:k] < lims[:, 0] - 1e-12) | (w[:k] > lims[:, 1] + 1e-12)):
         return base
-    x = st.e - st.o - st.C @ w_base
-    ex = np.maximum(np.abs(x) - st.h - st.W @ w_base, 0.0) / st.s
+    if not _edge_accepted(st, w_base, L_base, L, int(edge.sum())):
+        return base
+    return FitResult(w[: st.k], fit.h, fit.ref, L)
+
+
+def _edge_accepted(st: Any, w_free: np.ndarray, L_free: float, L_held: float, df: int) -> bool:
+    """Whether the data accept a fit held at the edge of a range (loss ``L_held``) against the
+    free one (``w_free``, ``L_free``): the likelihood-ratio statistic ``n_eff · ln(L_held /
+    L_free)`` within the χ² quantile of :data:`EDGE_LEVEL` with ``df`` degrees of freedom,
+    ``n_eff`` the free fit's samples outside the band over their autocorrelation time."""
+    x = st.e - st.o - st.C @ w_free
+    ex = np.maximum(np.abs(x) - st.h - st.W @ w_free, 0.0) / st.s
     act = ex > 0
     order = st.time_order()
     n_eff = max(act.sum() / autocorrelation_time(ex[order][act[order]]), 1.0)
-    if not (L_base > 0 and n_eff * math.log(L / L_base) <= chi2.ppf(1 - EDGE_LEVEL, edge.sum())):
-        return base
-    return FitResult(w[: st.k], fit.h, fit.ref, L)
+    return L_free > 0 and n_eff * math.log(L_held / L_free) <= chi2.ppf(1 - EDGE_LEVEL, df)
+
+
+def shared_in_range(e: Effect, sc: Sequence[Scored], fit: FitResult) -> FitResult:
+    """A shared fit of ``e`` outside a range that is a function of several parameters (a
+    sensor's rotation angle) moved to the nearest point inside (:meth:`Effect.to_range`), the
+    bands' centres and sliding line re-fitted beside it, when the data do not reject it
+    (:func:`_edge_accepted`, one degree of freedom per range left); ``fit`` itself otherwise,
+    which :func:`out_of_range` then reports."""
+    bad = out_of_range(e, sc, {-1: fit})
+    w = e.to_range(np.asarray(fit.w, dtype=float)) if bad else None
+    if w is None:
+        return fit
+    st = stack(e, sc, None, fit.h, fit.ref)
+    sg = np.asarray(st.signs(e.signs(fit.h)))
+    w_free, L_free = solve_signed(st.e, st.h, st.s, st.C, st.W, st.o, sg, e.tied)
+    held = np.zeros(st.C.shape[1], dtype=bool)
+    held[: st.k] = True
+    v = np.zeros(st.C.shape[1])
+    v[: st.k] = w
+    got = _solve_held(st, sg, held, v)
+    if got is None:
+        return fit
+    sigs = [x.sig for x in sc]
+    p = make_spec(e, {-1: fit}).params
+    df = 0
+    for b in e.bounds:
+        lo, hi = b.limits(sigs, None)
+        df += any(not lo <= v <= hi for _, v in b.values(p, sigs, None))
+    held_fit = FitResult(w, fit.h, fit.ref, got[1])
+    if out_of_range(e, sc, {-1: held_fit}) or not _edge_accepted(
+        st, w_free, L_free, got[1], max(df, 1)
+    ):
+        return fit
+    return held_fit
 
 
 def physical_fits(
@@ -888,10 +931,12 @@ def physical_fits(
 ) -> tuple[dict[int, FitResult], dict[int, str]]:
     """The per-joint fits as ``identify --add`` writes them and diagnosis judges them: weak
     joints pooled (:func:`pool_weak_joints`, an effect with ``evidence_rules``), else each
-    joint's :func:`bounded_fit`; the weak joints' reasons by 0-based joint. A shared fit is
-    returned unchanged."""
-    if e.shared or not fits:
+    joint's :func:`bounded_fit`, a shared fit :func:`shared_in_range`; the weak joints' reasons
+    by 0-based joint."""
+    if not fits:
         return fits, {}
+    if e.shared:
+        return {j: shared_in_range(e, sc, f) for j, f in fits.items()}, {}
     if e.evidence_rules:
         return pool_weak_joints(e, sc, fits)
     return {j: bounded_fit(e, sc, j, f) for j, f in fits.items()}, {}
@@ -911,8 +956,21 @@ def held_lines(
     (fitted 4.3)"``."""
     nominals = _linear_nominals(e)
     out = []
+    sigs = [x.sig for x in sc]
     for j, f in sorted(fits.items()):
-        if j < 0 or j in weak or j not in free or f is free[j]:
+        if j in weak or j not in free or f is free[j]:
+            continue
+        if j < 0:  # a shared fit moved into a range of several parameters (shared_in_range)
+            was, now = make_spec(e, {-1: free[j]}).params, make_spec(e, {-1: f}).params
+            for b in e.bounds:
+                a = dict(b.values(was, sigs, None))
+                for where, v in b.values(now, sigs, None):
+                    if a.get(where) is not None and a[where] != v:
+                        lo, hi = b.limits(sigs, None)
+                        out.append(
+                            f"{e.name}: {b.param} held at {v:.3g} {b.unit}, the edge of its range "
+                            f"{lo:g}..{hi:g} (fitted {a[where]:.3g})"
+                        )
             continue
         lims = _linear_ranges(e, sc, j)
         for i, name in enumerate(e.linear):

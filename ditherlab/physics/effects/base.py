@@ -201,6 +201,14 @@ class Effect(abc.ABC):
         return self.name
 
     # -- parameters <-> the model file (override when the file names differ from `linear`)
+    def to_range(self, w: np.ndarray) -> np.ndarray | None:
+        """The linear parameters (k,) of a shared fit ``w`` moved to the nearest point inside
+        every physical range whose value is a function of several of them (a rotation's angle,
+        an offset's distance), or None where the effect has no such range
+        (:func:`ditherlab.physics.effect_fit.physical_fits` holds a shared fit there when the
+        data do not reject it)."""
+        return None
+
     def weights(self, p: dict[str, Any]) -> np.ndarray:
         """The linear parameters (k,) from the parameters ``p`` of one joint (or shared)."""
         return np.array([p[c] for c in self.linear], dtype=float)

@@ -278,6 +278,18 @@ class FtFrame(Effect):
     def linear_params(self, w):
         return {"rotation": [float(x) for x in w[:3]], "offset": [float(x) for x in w[3:]]}
 
+    def to_range(self, w):
+        """The rotation shortened to the largest angle and the offset to the largest distance
+        of their ranges, each along its own direction."""
+        out = np.array(w, dtype=float)
+        for part, b in ((slice(0, 3), self.bounds[0]), (slice(3, 6), self.bounds[1])):
+            v = out[part]
+            top = float(b.hi) if b.param != "rotation angle" else math.radians(float(b.hi))
+            size = float(np.linalg.norm(v))
+            if size > top:
+                out[part] = v * (top / size)
+        return out
+
     @staticmethod
     def _columns(sig: Signals, F: np.ndarray) -> np.ndarray:
         """(N, 6, 6): the wrench change per unit parameter, ``F - F_log`` linearised."""
