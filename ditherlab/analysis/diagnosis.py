@@ -344,6 +344,7 @@ def diagnose(
         scored_recs=sums.thinned,
         max_samples=max(1, sum(len(s.e) for s in sums.thinned)),
         progress=lambda i, n: run.tick(),
+        quiet=quiet_joints(summary["ratio"]),
     )
     demote_below_floor(cands, summary["ratio"], sums.notes)
     sums.notes += added_notes(model)
@@ -494,16 +495,35 @@ def _nothing_scored(
     )
 
 
+def quiet_joints(ratio: Sequence[float]) -> list[int]:
+    """1-based joints whose residual RMS sits below :data:`FLOOR_SHARE` of their noise floor
+    (``ratio`` per joint): no per-joint effect is named there (:func:`candidates`' ``quiet``),
+    whatever the other joints do."""
+    return [j + 1 for j, r in enumerate(ratio) if not r > FLOOR_SHARE]
+
+
 def demote_below_floor(
     cands: Sequence[Candidate], ratio: Sequence[float], notes: list[str]
 ) -> None:
     """No candidate is suggested whose joints all sit below :data:`FLOOR_SHARE` of their noise
-    floor (``ratio``: residual RMS over floor per joint); a note says so.
+    floor (``ratio``: residual RMS over floor per joint); a note says so, and one for the
+    joints such a joint's evidence passed on but a per-joint effect does not name
+    (:func:`quiet_joints`).
 
     Nothing is left to explain where the residual is far below the noise floor: a share of what
     is noise already is not evidence of an effect (a standing UR10e: viscous "explained" 6.6 %
     of joint 1's residual at 0.34x its floor). Right models of moving logs sit at 0.83-0.87x,
     and a real 5 degree F/T mount rotation at 0.84-0.97x: hence half the floor."""
+    quiet = set(quiet_joints(ratio))
+    for c in cands:
+        left = [s.joint + 1 for s in c.scores if s.joint is not None and s.joint + 1 in quiet
+                and s.passes(MIN_FRACTION)]  # fmt: skip
+        if left and c.suggested:
+            notes.append(
+                f"{c.effect} also passes on joint(s) {', '.join(map(str, left))}, whose residual "
+                f"is far below the noise floor ({', '.join(f'{ratio[j - 1]:.2f}x' for j in left)}"
+                "): not named there"
+            )
     for c in cands:
         low = [j for j in c.joints if not ratio[j - 1] > FLOOR_SHARE]
         if c.suggested and low == c.joints:

@@ -565,6 +565,7 @@ def _evaluate(
     guard_s: float,
     min_fraction: float,
     total_loss: float,
+    quiet: Sequence[int] = (),
 ) -> Candidate:
     e = get_effect(name)
     if e.shared:
@@ -589,10 +590,10 @@ def _evaluate(
         )
     scores = [_judged(e, scs, j, K, guard_s, min_fraction) for j in range(model.n)]
     # joints by each joint's own held-out evidence; the candidate by its share of the whole
-    # residual (the >= min_fraction rule holds for what is suggested, not only per joint)
-    sel, unphysical = physical_joints(
-        e, scs, [s for s in scores if s.passes(min_fraction)], (K, guard_s)
-    )
+    # residual (the >= min_fraction rule holds for what is suggested, not only per joint); a
+    # joint whose residual is far below its noise floor is never named
+    passed = [s for s in scores if s.passes(min_fraction) and s.joint + 1 not in quiet]
+    sel, unphysical = physical_joints(e, scs, passed, (K, guard_s))
     # a fit changed to what is written must still explain its share there
     sel = [s for s in sel if s.fraction >= min_fraction and s.folds_better >= s.folds - 1]
     gain = sum(s.gain for s in sel) if sel else max((s.gain for s in scores), default=0.0)
@@ -640,6 +641,7 @@ def candidates(
     scored_recs: Sequence[Scored] | None = None,
     max_samples: int = 4000,
     progress: Callable[[int, int], None] | None = None,
+    quiet: Sequence[int] = (),
 ) -> tuple[list[Candidate], dict[str, str]]:
     """Fit and score every library effect not yet in the model; best first.
 
@@ -652,6 +654,8 @@ def candidates(
     guard : [s] removed from the training side of every fold boundary
     min_fraction : smallest held-out explained fraction that may be suggested
     max_samples : longer recordings are scored on every k-th sample (k = ceil(N / max_samples))
+    quiet : 1-based joints whose residual is far below their noise floor: a per-joint effect is
+        never named there (a share of what is noise already is no evidence of an effect)
 
     Returns
     -------
@@ -670,7 +674,7 @@ def candidates(
         if why is not None:
             skipped[n] = why
         else:
-            out.append(_evaluate(model, scs, n, folds, guard, min_fraction, total))
+            out.append(_evaluate(model, scs, n, folds, guard, min_fraction, total, quiet))
         if progress is not None:
             progress(i + 1, len(names))
     out.sort(key=lambda c: (not c.suggested, -c.explained_fraction))

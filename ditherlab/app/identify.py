@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ditherlab.analysis.delivery import delivery, force_change, promised
-from ditherlab.analysis.diagnosis import demote_below_floor
+from ditherlab.analysis.diagnosis import demote_below_floor, quiet_joints
 from ditherlab.analysis.diagnosis_sums import ResidualSums
 from ditherlab.analysis.identification import identify, summary
 from ditherlab.analysis.rest import (
@@ -413,13 +413,16 @@ def _candidate(
     """Diagnosis's evidence for ``effect`` on the model ``base`` (its joints, the held-out
     share it promises, and whether diagnosis suggests it: the same rules, the below-floor one
     included); ModelError when the effect cannot be tried on these recordings."""
-    cands, skipped = candidates(base, recs, effects=[effect], scored_recs=sc)
-    if effect in skipped:
-        raise ModelError(skipped[effect])
     res = ResidualSums(base.n)
     for s in sc:
         res.add(s)
-    demote_below_floor(cands, res.result()["ratio"], [])
+    ratio = res.result()["ratio"]
+    cands, skipped = candidates(
+        base, recs, effects=[effect], scored_recs=sc, quiet=quiet_joints(ratio)
+    )
+    if effect in skipped:
+        raise ModelError(skipped[effect])
+    demote_below_floor(cands, ratio, [])
     return cands[0]
 
 
