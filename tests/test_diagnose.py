@@ -93,6 +93,22 @@ def test_error_falls_to_noise_floor_after_adding(loops, name):
     assert np.all(r1 <= 1.25 * floor), (r1, floor)
 
 
+def test_a_joint_far_below_its_floor_is_never_named(loops):
+    """A per-joint effect is not named on a joint whose residual sits below half its noise
+    floor, whatever the other joints do: the planted Stribeck friction, scored again with its
+    first joint declared quiet, is named on the others only; with every joint quiet, nothing."""
+    from ditherlab.analysis.scoring import candidates
+
+    rec, m, d, _ = loops["stribeck"]
+    joints = d.suggested[0].joints
+    assert len(joints) >= 2, joints
+    sc = [scored(m, rec)]
+    (c,), _ = candidates(m, [rec], effects=["stribeck"], scored_recs=sc, quiet=joints[:1])
+    assert c.suggested and c.joints == joints[1:], (c.joints, joints)
+    (c,), _ = candidates(m, [rec], effects=["stribeck"], scored_recs=sc, quiet=range(1, 7))
+    assert not c.suggested, c.joints
+
+
 @pytest.mark.parametrize("seed", [11, 12, 13])
 def test_no_false_discovery_on_clean_data(seed):
     """A recording without hidden effects gives no suggested candidate and a residual at the floor."""
