@@ -49,6 +49,7 @@ from ditherlab.physics.effect_fit import (
     recentre,
 )
 from ditherlab.physics.effects import Effect, FitResult, clean_none, get_effect, make_spec, signals
+from ditherlab.physics.effects.ranges import OutOfRange
 from ditherlab.physics.residual import Scored, scored
 
 __all__ = ["MODEL_FILE", "IdentifyOptions", "Identified", "add_effect", "identify_model", "run"]
@@ -357,17 +358,17 @@ def add_effect(
     free = dict(fits)
     fits, weak = physical_fits(e, sc, fits)
     held = held_lines(e, sc, free, fits, weak)
-    left = _left_out(e, sc, fits) if every and len(fits) > 1 else {}
-    fits = {j: f for j, f in fits.items() if j not in left}
-    cand = _promise_as_written(e, cand, sc, {j: f for j, f in fits.items() if f is not free[j]})
-    for j, f in fits.items():
-        why = not_identifiable(e, sc, None if j == -1 else j, f)
-        if why is not None:
-            raise ModelError(why)
-    bad = out_of_range(e, sc, fits)
-    if bad:
+    unfit, bad = _unwritable(e, sc, fits)
+    left: dict[int, str] = {}
+    if every and len(unfit) + len(bad) < len(fits):  # leave those joints out, say why
+        left = {**{j: b.text() for j, b in bad.items()}, **unfit}
+        fits = {j: f for j, f in fits.items() if j not in left}
+    elif unfit:
+        raise ModelError(unfit[min(unfit)])
+    elif bad:
         why = "; ".join(b.text() for b in bad.values())
         raise ModelError(f"identify --add {effect}: {why}; the model is not written")
+    cand = _promise_as_written(e, cand, sc, {j: f for j, f in fits.items() if f is not free[j]})
     spec = clean_none(make_spec(e, fits))
     if weak:  # the model file says which joints took the shared values
         spec.params["pooled"] = [1.0 if j - 1 in weak else 0.0 for j in spec.joints]
@@ -388,23 +389,19 @@ def add_effect(
     return new
 
 
-def _left_out(e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]) -> dict[int, str]:
-    """The joints (0-based -> why, one sentence naming the joint) an effect fitted on every
-    joint where it acts (:attr:`~ditherlab.physics.effects.Effect.on_every_joint`, no joints
-    given) leaves out: its fit there cannot be told apart from the bands, or lies outside a
-    physical range. Every joint left out is an error (:class:`ModelError`): nothing is
-    written."""
-    bad = out_of_range(e, sc, fits)
-    left = {}
-    for j, f in fits.items():
-        why = not_identifiable(e, sc, j, f)
-        if why is not None:
-            left[j] = why
-        elif j in bad:
-            left[j] = bad[j].text()
-    if len(left) == len(fits):
-        raise ModelError(f"identify --add {e.name}: {left[min(left)]}; the model is not written")
-    return left
+def _unwritable(
+    e: Effect, sc: Sequence[Scored], fits: dict[int, FitResult]
+) -> tuple[dict[int, str], dict[int, OutOfRange]]:
+    """The fits ``identify --add`` cannot write, by joint (0-based; -1 shared): those the bands
+    could take instead (:func:`not_identifiable`, its sentence) and, among the others, those
+    outside a physical range (:func:`out_of_range`). An effect fitted on every joint where it
+    acts (:attr:`~ditherlab.physics.effects.Effect.on_every_joint`, no joints given) leaves
+    such joints out; any other add is refused."""
+    unfit = {
+        j: w for j, f in fits.items() if (w := not_identifiable(e, sc, None if j < 0 else j, f))
+    }
+    bad = out_of_range(e, sc, {j: f for j, f in fits.items() if j not in unfit})
+    return unfit, bad
 
 
 def _candidate(

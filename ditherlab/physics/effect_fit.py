@@ -917,7 +917,7 @@ def shared_in_range(e: Effect, sc: Sequence[Scored], fit: FitResult) -> FitResul
     df = 0
     for b in e.bounds:
         lo, hi = b.limits(sigs, None)
-        df += any(not lo <= v <= hi for _, v in b.values(p, sigs, None))
+        df += any(not lo <= x <= hi for _, x in b.values(p, sigs, None))
     held_fit = FitResult(w, fit.h, fit.ref, got[1])
     if out_of_range(e, sc, {-1: held_fit}) or not _edge_accepted(
         st, w_free, L_free, got[1], max(df, 1)

@@ -282,12 +282,11 @@ class FtFrame(Effect):
         """The rotation shortened to the largest angle and the offset to the largest distance
         of their ranges, each along its own direction."""
         out = np.array(w, dtype=float)
-        for part, b in ((slice(0, 3), self.bounds[0]), (slice(3, 6), self.bounds[1])):
-            v = out[part]
-            top = float(b.hi) if b.param != "rotation angle" else math.radians(float(b.hi))
-            size = float(np.linalg.norm(v))
+        angle, distance = self.bounds  # [°] of the rotation vector's norm [rad]; [m]
+        for part, top in ((slice(0, 3), math.radians(angle.hi)), (slice(3, 6), distance.hi)):
+            size = float(np.linalg.norm(out[part]))
             if size > top:
-                out[part] = v * (top / size)
+                out[part] *= top / size
         return out
 
     @staticmethod
