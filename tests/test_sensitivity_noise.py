@@ -247,7 +247,10 @@ def test_sweep_prediction_given_the_measured_noise_level(tmp_path):
     carries the noise level measured at rest per condition, the predicted one, and both
     predictions; the threshold rises with the noise level, so the prediction given the measured
     level is above (below, equal to) the model's where the measured level is above (below,
-    within 0.05 N of) the predicted. The table shows both, labelled."""
+    within 0.05 N of) the predicted, or equal where the rise falls between two of the campaign's
+    forces (the report's logistic fit is over them; 4 pushes per axis and sign leave gaps of a
+    few newtons), and above on some axis of a condition whose measured level is above. The
+    table shows both, labelled."""
     out = tmp_path / "sw"
     r = run_cli(
         "sweep", "--grid", "pose.q0=-0.4:0.35:-0.6:0.5:1.1:0.4", "--grid",
@@ -257,6 +260,7 @@ def test_sweep_prediction_given_the_measured_noise_level(tmp_path):
     assert r.code == 0, r.err
     row = pd.read_parquet(out / "sweep.parquet").iloc[0]
     for c in ("", "nodither_"):
+        rose = []
         for a in "xyz":
             meas, pred = row[f"{c}noise_{a}"], row[f"pred_{c}noise_{a}"]
             assert meas >= 1.0 and pred >= 1.0  # the report's floor, both
@@ -265,8 +269,10 @@ def test_sweep_prediction_given_the_measured_noise_level(tmp_path):
             if abs(meas - pred) <= 0.05:
                 assert f_meas == pytest.approx(f_model, abs=0.3), (c, a)
             elif meas > pred:
-                assert f_meas > f_model, (c, a, meas, pred, f_meas, f_model)
+                assert f_meas >= f_model, (c, a, meas, pred, f_meas, f_model)
+                rose.append(f_meas > f_model)
             else:
-                assert f_meas < f_model, (c, a, meas, pred, f_meas, f_model)
+                assert f_meas <= f_model, (c, a, meas, pred, f_meas, f_model)
+        assert not rose or any(rose), c
     assert "(predicted: model; model + measured noise level)" in r.out
     assert "noise level x / y / z [N] (predicted)" in r.out

@@ -47,6 +47,8 @@ from ditherlab.data.recording import Recording, regimes
 from ditherlab.data.torque_model import PAPER_PRIOR_SIGMA, Band, TorqueModel
 from ditherlab.io.stream import CHUNK_ROWS, Source, pieces_of
 from ditherlab.physics.band_fit import (
+    HELD_LEVEL,
+    HELD_WINDOW_S,
     BandFit,
     band_noise_logpdf,
     fit_band,
@@ -254,6 +256,7 @@ def identify(
         )
     _check_fitted_noise(first, fits)
     out_regimes, borrowed = _regimes_of(fits, first.n, base)
+    held = {"still": _held_widened(out_regimes, fits, STILL)}
     capped = _cap_moving(out_regimes, fits)
     widened = _coulomb_floor(out_regimes, fits)
     amp = None
@@ -261,7 +264,7 @@ def identify(
         out_regimes["dither"], amp = _shrunk_dither_band(
             out_regimes["still"], out_regimes["dither"], amps, centres
         )
-    notes = _notes([r.name for r in recs], o, amp, bool(amps), capped, widened)
+    notes = _notes([r.name for r in recs], o, amp, bool(amps), capped, widened, held)
     notes += _coverage_notes(samples.all_moving, max_accel, borrowed)
     return _model_of(first, base, out_regimes, notes)
 
@@ -421,6 +424,11 @@ class _Samples:
         self.n = n
         self.store = spill
         self.lags: dict[int, int] = {STILL: 1, MOVING: 1, DITHER: 1, ALL_MOVING: 1}
+        #: [samples] the window of the held-level test of the still regime (HELD_WINDOW_S);
+        #: 0: not tested. Not the dither regime: under dither a joint pushed past its shrunk
+        #: band creeps (too slowly to count as moving) at its sliding friction, which lies
+        #: outside that band, so its levels are not held ones
+        self.holds: dict[int, int] = {STILL: 1, DITHER: 0}
         #: joints whose moving regime was fitted on all moving samples (too few slow ones)
         self.all_moving: list[int] = []
         self.label_offset = 0
@@ -496,6 +504,8 @@ class _Samples:
         ]
         for code in (STILL, MOVING, ALL_MOVING):  # the raw torque's noise, NOISE_LAG_S apart
             self.lags[code] = max(self.lags[code], noise_lag(rec.sample_rate))
+        hold = max(int(round(HELD_WINDOW_S * rec.sample_rate)), 1)
+        self.holds[STILL] = max(self.holds[STILL], hold)
         dith = (
             self._dither_source(rec, rho, ext, model, reg, keep) if (reg == DITHER).any() else None
         )
@@ -581,7 +591,7 @@ class _Samples:
         if code == MOVING:
             dq, slide = self.store.load(("dq", *key)), self.store.load(("slide", *key))
             return x, labels, self.lags[code], n_boot, jseed, dq, slide
-        return x, labels, self.lags[code], n_boot, jseed
+        return x, labels, self.lags[code], n_boot, jseed, None, None, self.holds[code]
 
     def count(self, key: tuple[int, int]) -> int:
         """Samples of one (regime, joint)."""
@@ -614,10 +624,11 @@ def _notes(
     dithered: bool,
     capped: list[int],
     widened: list[int],
+    held: dict[str, list[int]] | None = None,
 ) -> str:
     """The model file's ``notes``: what it was identified from (the recordings ``names``, the
     options ``o``) and every rule applied (the dither band's ``amp``, ``capped`` moving bands,
-    ``widened`` still bands)."""
+    ``widened`` still bands, bands widened to their ``held`` levels by regime name)."""
     if amp is not None:
         dither_note = (
             "; dither band = still band shrunk by the measured dither amplitude "
@@ -648,7 +659,51 @@ def _notes(
             if widened
             else ""
         )
+        + "".join(
+            f"; {name} band widened to the levels the friction held for "
+            f"{HELD_WINDOW_S:g} s (a one-sided test of each window's mean against its noise, "
+            f"family-wise {HELD_LEVEL:g}) on joint(s) {', '.join(str(j + 1) for j in js)}"
+            for name, js in (held or {}).items()
+            if js
+        )
     )
+
+
+def _held_widened(regs: dict[str, Band], fits: dict, code: int) -> list[int]:
+    """Widen a band at rest to contain every level its friction held (``held_min``,
+    ``held_max`` of :func:`~ditherlab.physics.band_fit.fit_regime`).
+
+    At rest the friction holds whatever a push leaves on the joint, anywhere in its band, so a
+    window whose mean lies beyond an edge by more than the test's margin proves the band short
+    there. The band-plus-noise likelihood misses such levels when they are rare: it pays for
+    width with every sample, and a few held pushes beyond the bulk read as noise (a plant with
+    presliding friction held 2.87 N·m for seconds on a joint whose fitted edge was 1.98, 9.8
+    noise sigmas of a 0.1 s mean beyond it). The widened edge's standard error is the noise
+    sigma of a window's mean. Returns the joints (0-based) widened.
+    """
+    band = regs.get(code.label)
+    if band is None:
+        return []
+    out = []
+    for j in range(len(band.sigma)):
+        f = fits.get((code, j))
+        if f is None or "held_min" not in f:
+            continue
+        (lo, se_lo), (hi, se_hi) = f["held_min"], f["held_max"]
+        wide = False
+        if lo < band.tau_min[j]:
+            band.tau_min[j] = lo
+            if "tau_min" in band.stderr:
+                band.stderr["tau_min"][j] = se_lo
+            wide = True
+        if hi > band.tau_max[j]:
+            band.tau_max[j] = hi
+            if "tau_max" in band.stderr:
+                band.stderr["tau_max"][j] = se_hi
+            wide = True
+        if wide:
+            out.append(j)
+    return out
 
 
 def _cap_moving(regs: dict[str, Band], fits: dict) -> list[int]:

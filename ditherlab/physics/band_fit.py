@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 from scipy import optimize
-from scipy.special import expit, log_ndtr
+from scipy.special import expit, log_ndtr, ndtri
 
 from ditherlab.core.errors import RecordingError
 
@@ -42,6 +42,9 @@ __all__ = [
     "fit_band",
     "NOISE_LAG_S",
     "fit_sliding",
+    "HELD_LEVEL",
+    "HELD_WINDOW_S",
+    "held_levels",
     "noise_lag",
     "sigma_from_differences",
 ]
@@ -670,6 +673,83 @@ def fit_sliding(
     return fc, fv, fit, se_c, se_v
 
 
+#: [s] the window over which a level counts as held by friction: long against the torque
+#: noise's correlation (a few ms), short against a push (the paper's last 1-3 s)
+HELD_WINDOW_S = 0.1
+#: family-wise level of the held-level test of one band edge over all its windows
+HELD_LEVEL = 0.01
+
+
+@dataclass(frozen=True)
+class HeldLevels:
+    """The extreme levels a residual at rest held over a window, less the test's margin.
+
+    Attributes
+    ----------
+    lo, hi : [N·m] the lowest window mean plus ``z·sigma``, the highest minus it: a band edge
+        inside ``[lo, hi]`` is rejected by that window at the family-wise level
+    sigma : [N·m] the noise standard deviation of one window's mean
+    z : the one-sided quantile used (Bonferroni over ``2·windows`` tests)
+    windows : how many windows were tested
+    """
+
+    lo: float
+    hi: float
+    sigma: float
+    z: float
+    windows: int
+
+
+def held_levels(
+    x: np.ndarray, labels: np.ndarray, window: int, level: float = HELD_LEVEL
+) -> HeldLevels | None:
+    """The levels a friction residual at rest held for ``window`` samples, tested against noise.
+
+    At rest the friction holds whatever torque the pushes leave on the joint, anywhere in its
+    static band; so the band must contain every level the residual held for a while. The mean
+    of each whole window of ``window`` consecutive samples inside one label (a contiguous run)
+    is compared with a band edge by a one-sided test against the noise of a mean: its sigma from
+    second differences of consecutive window means (a push's ramp, linear over three windows,
+    cancels), Bonferroni over both edges of every window at family-wise ``level``. Assumes the
+    noise decorrelates within a window.
+
+    Parameters
+    ----------
+    x : (M,) [N·m] residual of one joint at rest, in time order
+    labels : (M,) contiguous-run labels (a window never spans two)
+    window : [samples] ; level : family-wise error rate of the two edges' tests
+
+    Returns
+    -------
+    HeldLevels, or None with fewer than 20 windows (too few to know the noise of a mean)
+    """
+    x = np.asarray(x, dtype=float).reshape(-1)
+    labels = np.asarray(labels).reshape(-1)
+    window = max(int(window), 1)
+    starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
+    ends = np.r_[starts[1:], len(x)]
+    cs = np.r_[0.0, np.cumsum(x)]
+    means, runs = [], []
+    for k, (s0, e0) in enumerate(zip(starts, ends, strict=True)):
+        nw = (e0 - s0) // window
+        if nw:
+            w0 = s0 + window * np.arange(nw + 1)
+            means.append(np.diff(cs[w0]) / window)
+            runs.append(np.full(nw, k))
+    if not means or sum(len(m) for m in means) < 20:
+        return None
+    m, r = np.concatenate(means), np.concatenate(runs)
+    same = (r[2:] == r[1:-1]) & (r[1:-1] == r[:-2])
+    d2 = (m[2:] - 2.0 * m[1:-1] + m[:-2])[same]
+    if len(d2) < 10:
+        return None
+    sig = float(np.median(np.abs(d2 - np.median(d2)))) / 0.6745 / np.sqrt(6.0)
+    if not sig > 0:
+        return None
+    z = float(-ndtri(level / (2 * len(m))))
+    return HeldLevels(float(m.min() + z * sig), float(m.max() - z * sig), sig, z, len(m))
+
+
 def fit_regime(
     x: np.ndarray,
     labels: np.ndarray,
@@ -678,11 +758,15 @@ def fit_regime(
     seed: int,
     dq: np.ndarray | None = None,
     slide: np.ndarray | None = None,
+    hold: int = 0,
 ) -> dict[str, tuple[float, float]]:
     """(value, standard error) per parameter of one joint-regime of identify: :func:`fit_band`
     of its residual ``x`` (M,) [N·m], or with the velocity ``dq`` (M,) [rad/s] (a moving
     regime) :func:`fit_sliding` (``slide``: its ``band_rows``); ``labels`` (M,) the bootstrap
-    blocks. A pure function of its arguments: another process gives the same numbers."""
+    blocks (contiguous runs). A regime at rest with ``hold`` > 0 [samples] also gives
+    ``held_min`` and ``held_max``: :func:`held_levels` over windows of ``hold`` samples, each
+    with the noise sigma of a window's mean as its standard error (absent when too few windows).
+    A pure function of its arguments: another process gives the same numbers."""
     bl = np.unique(labels, return_inverse=True)[1]
     f: dict[str, tuple[float, float]] = {}
     if dq is not None:
@@ -692,6 +776,9 @@ def fit_regime(
         f["coulomb"], f["viscous"] = (fc, se_c), (fv, se_v)
     else:
         fit = fit_band(x, lag=lag, blocks=bl, n_boot=n_boot, seed=seed)
+        held = held_levels(x, bl, hold) if hold > 0 else None
+        if held is not None:
+            f["held_min"], f["held_max"] = (held.lo, held.sigma), (held.hi, held.sigma)
     f["tau_min"], f["tau_max"] = (fit.a, fit.se_a), (fit.b, fit.se_b)
     f["sigma"] = (fit.sigma, fit.se_sigma)
     return f
