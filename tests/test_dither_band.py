@@ -242,3 +242,20 @@ def test_identify_says_which_joints_took_shared_values(tmp_path):
     assert 0.6 < p["gain"][k] < 1.0
     assert "dither_extraction on joint(s) 4: too little evidence" in m["notes"]
     assert "outside 0..1" in m["notes"]
+
+
+def test_held_levels_widen_the_still_band_only_with_a_sensor(pose_c):
+    """The undithered campaign at pose C: identified with its sensor, the still band is widened
+    to the levels the friction held (the notes name joint 5 among them); identified as if it had
+    no sensor (``assume_no_force``), a level held at rest may be an unmeasured push, and no band
+    is widened so."""
+    (plain, _), _ = pose_c
+    rec = read(plain)
+    seen = identify([rec], n_boot=0)
+    bare = rec.with_data(rec.data.drop(columns=["f_x", "f_y", "f_z", "m_x", "m_y", "m_z"]))
+    blind = identify([bare], n_boot=0, assume_no_force=True)
+    line = next(
+        p for p in seen.notes.split("; ") if p.startswith("still band widened to the levels")
+    )
+    assert "5" in line.split("joint(s) ")[1].split(", ")
+    assert "widened to the levels" not in blind.notes

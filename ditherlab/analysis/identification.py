@@ -256,7 +256,9 @@ def identify(
         )
     _check_fitted_noise(first, fits)
     out_regimes, borrowed = _regimes_of(fits, first.n, base)
-    held = {"still": _held_widened(out_regimes, fits, STILL)}
+    # the held levels are friction only where the external torque is measured: without a
+    # sensor a push the rest scan missed would be read as static friction
+    held = {} if assume_no_force else {"still": _held_widened(out_regimes, fits, STILL)}
     capped = _cap_moving(out_regimes, fits)
     widened = _coulomb_floor(out_regimes, fits)
     amp = None

@@ -35,6 +35,10 @@ from ditherlab.core.errors import RecordingError
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 N_BINS = 4096
 
+#: the fewest bootstrap blocks a fit's standard errors are computed from: with fewer, how much
+#: the fit varies cannot be said (NaN)
+MIN_BLOCKS = 5
+
 __all__ = [
     "BandFit",
     "band_noise_logpdf",
@@ -43,6 +47,7 @@ __all__ = [
     "NOISE_LAG_S",
     "fit_sliding",
     "HELD_LEVEL",
+    "MIN_BLOCKS",
     "HELD_WINDOW_S",
     "held_levels",
     "noise_lag",
@@ -607,7 +612,7 @@ def _bootstrap_se(
             prob.edges,
         )[:3]
     with np.errstate(invalid="ignore"):
-        sd = reps.std(axis=0, ddof=1) if (n_boot > 1 and nb >= 5) else np.full(3, np.nan)
+        sd = reps.std(axis=0, ddof=1) if (n_boot > 1 and nb >= MIN_BLOCKS) else np.full(3, np.nan)
     return float(sd[0]), float(sd[1]), float(sd[2])
 
 
@@ -668,7 +673,7 @@ def fit_sliding(
             pick = rng.integers(0, len(labels), len(labels))
             rows = np.concatenate([members[k] for k in pick])
             reps[r] = ls(rows)[:2]
-        if len(labels) >= 5:
+        if len(labels) >= MIN_BLOCKS:
             se_c, se_v = (float(v) for v in reps.std(axis=0, ddof=1))
     return fc, fv, fit, se_c, se_v
 
