@@ -8,7 +8,10 @@ is modelled as a uniform band ``[a, b]`` plus Gaussian noise ``N(0, sigma^2)`` (
 whose density is ``[Phi((x - a)/sigma) - Phi((x - b)/sigma)] / (b - a)``, and fitted by maximum
 likelihood. Regimes (:func:`ditherlab.data.recording.regimes`):
 
-- ``still``: the joint stands still without dither; ``rho`` from the raw torque.
+- ``still``: the joint stands still without dither; ``rho`` from the raw torque. With a sensor,
+  the band is widened to every level the friction held for 0.1 s
+  (:func:`ditherlab.physics.band_fit.held_levels`: a level held without a slip is inside the
+  static band, however rarely it was held).
 - ``dither``: the joint stands still while the dither is on. ``rho`` is taken from the **extracted**
   torque signal (paper §IV-A: per dither period, the mean of the upper and lower means; see
   :func:`ditherlab.physics.dither.extract_dither`), not from the raw square wave: the fitted band is then
