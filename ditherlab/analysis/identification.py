@@ -247,6 +247,7 @@ def identify(
     tick = Ticker(sum(_piece_count(r, chunk_rows) for r in recs), progress)
     with Spill(spill_bytes) as store:
         samples = _Samples(store)
+        samples.hold = 0 if assume_no_force else 1  # the held-level test needs a sensor
         first = _gather(recs, base, o, samples, chunk_rows, tick)
         store.flush()  # a long log's last held samples join the rest on disk before fitting
         fits = _fit_all(samples, first.n, o, executor, tick)
@@ -259,9 +260,7 @@ def identify(
         )
     _check_fitted_noise(first, fits)
     out_regimes, borrowed = _regimes_of(fits, first.n, base)
-    # the held levels are friction only where the external torque is measured: without a
-    # sensor a push the rest scan missed would be read as static friction
-    held = {} if assume_no_force else {"still": _held_widened(out_regimes, fits, STILL)}
+    held = _held_widened(out_regimes.get("still"), fits)
     capped = _cap_moving(out_regimes, fits)
     widened = _coulomb_floor(out_regimes, fits)
     amp = None
@@ -429,11 +428,12 @@ class _Samples:
         self.n = n
         self.store = spill
         self.lags: dict[int, int] = {STILL: 1, MOVING: 1, DITHER: 1, ALL_MOVING: 1}
-        #: [samples] the window of the held-level test of the still regime (HELD_WINDOW_S);
-        #: 0: not tested. Not the dither regime: under dither a joint pushed past its shrunk
-        #: band creeps (too slowly to count as moving) at its sliding friction, which lies
-        #: outside that band, so its levels are not held ones
-        self.holds: dict[int, int] = {STILL: 1, DITHER: 0}
+        #: [samples] the window of the still regime's held-level test (HELD_WINDOW_S at the
+        #: fastest rate); 0: not tested (set by identify without a sensor: a push the rest
+        #: scan missed would be read as static friction). Not the dither regime: under dither
+        #: a joint pushed past its shrunk band creeps (too slowly to count as moving) at its
+        #: sliding friction, which lies outside that band, so its levels are not held ones
+        self.hold = 1
         #: joints whose moving regime was fitted on all moving samples (too few slow ones)
         self.all_moving: list[int] = []
         self.label_offset = 0
@@ -509,8 +509,8 @@ class _Samples:
         ]
         for code in (STILL, MOVING, ALL_MOVING):  # the raw torque's noise, NOISE_LAG_S apart
             self.lags[code] = max(self.lags[code], noise_lag(rec.sample_rate))
-        hold = max(int(round(HELD_WINDOW_S * rec.sample_rate)), 1)
-        self.holds[STILL] = max(self.holds[STILL], hold)
+        if self.hold:
+            self.hold = max(self.hold, int(round(HELD_WINDOW_S * rec.sample_rate)))
         dith = (
             self._dither_source(rec, rho, ext, model, reg, keep) if (reg == DITHER).any() else None
         )
@@ -596,7 +596,8 @@ class _Samples:
         if code == MOVING:
             dq, slide = self.store.load(("dq", *key)), self.store.load(("slide", *key))
             return x, labels, self.lags[code], n_boot, jseed, dq, slide
-        return x, labels, self.lags[code], n_boot, jseed, None, None, self.holds[code]
+        hold = self.hold if code == STILL else 0
+        return x, labels, self.lags[code], n_boot, jseed, None, None, hold
 
     def count(self, key: tuple[int, int]) -> int:
         """Samples of one (regime, joint)."""
@@ -629,11 +630,11 @@ def _notes(
     dithered: bool,
     capped: list[int],
     widened: list[int],
-    held: dict[str, list[int]] | None = None,
+    held: list[int] = (),
 ) -> str:
     """The model file's ``notes``: what it was identified from (the recordings ``names``, the
     options ``o``) and every rule applied (the dither band's ``amp``, ``capped`` moving bands,
-    ``widened`` still bands, bands widened to their ``held`` levels by regime name)."""
+    ``widened`` still bands, still bands widened to their ``held`` levels)."""
     if amp is not None:
         dither_note = (
             "; dither band = still band shrunk by the measured dither amplitude "
@@ -664,19 +665,20 @@ def _notes(
             if widened
             else ""
         )
-        + "".join(
-            f"; {name} band widened to the levels the friction held for "
-            f"{HELD_WINDOW_S:g} s (a one-sided test of each window's mean against its noise, "
-            f"family-wise {HELD_LEVEL:g}) on joint(s) {', '.join(str(j + 1) for j in js)}"
-            for name, js in (held or {}).items()
-            if js
+        + (
+            f"; still band widened to the levels the friction held for {HELD_WINDOW_S:g} s (a "
+            f"one-sided test of each window's mean against its noise, family-wise "
+            f"{HELD_LEVEL:g}) on joint(s) {', '.join(str(j + 1) for j in held)}"
+            if held
+            else ""
         )
     )
 
 
-def _held_widened(regs: dict[str, Band], fits: dict, code: int) -> list[int]:
-    """Widen a band at rest to contain every level its friction held (``held_min``,
-    ``held_max`` of :func:`~ditherlab.physics.band_fit.fit_regime`).
+def _held_widened(band: Band | None, fits: dict) -> list[int]:
+    """Widen the still ``band`` (in place) to contain every level its friction held
+    (``held_min``, ``held_max`` of :func:`~ditherlab.physics.band_fit.fit_regime`, present where
+    the test ran).
 
     At rest the friction holds whatever a push leaves on the joint, anywhere in its band, so a
     window whose mean lies beyond an edge by more than the test's margin proves the band short
@@ -686,12 +688,11 @@ def _held_widened(regs: dict[str, Band], fits: dict, code: int) -> list[int]:
     noise sigmas of a 0.1 s mean beyond it). The widened edge's standard error is the noise
     sigma of a window's mean. Returns the joints (0-based) widened.
     """
-    band = regs.get(code.label)
     if band is None:
         return []
     out = []
     for j in range(len(band.sigma)):
-        f = fits.get((code, j))
+        f = fits.get((STILL, j))
         if f is None or "held_min" not in f:
             continue
         (lo, se_lo), (hi, se_hi) = f["held_min"], f["held_max"]

@@ -37,7 +37,7 @@ N_BINS = 4096
 
 #: the fewest bootstrap blocks a fit's standard errors are computed from: with fewer, how much
 #: the fit varies cannot be said (NaN)
-MIN_BLOCKS = 5
+MIN_BOOT_BLOCKS = 5
 
 __all__ = [
     "BandFit",
@@ -47,7 +47,7 @@ __all__ = [
     "NOISE_LAG_S",
     "fit_sliding",
     "HELD_LEVEL",
-    "MIN_BLOCKS",
+    "MIN_BOOT_BLOCKS",
     "HELD_WINDOW_S",
     "held_levels",
     "noise_lag",
@@ -190,6 +190,12 @@ def noise_lag(rate: float) -> int:
     return max(1, int(round(NOISE_LAG_S * rate)))
 
 
+def _robust_sd(d: np.ndarray) -> float:
+    """The standard deviation of a normal sample from its median absolute deviation (MAD /
+    0.6745): the few large values (a push's step in a difference) do not move it."""
+    return float(np.median(np.abs(d - np.median(d)))) / 0.6745
+
+
 def sigma_from_differences(x: np.ndarray, lag: int = 1, blocks: np.ndarray | None = None) -> float:
     """Noise level from lagged differences: ``MAD(x[k + lag] - x[k]) / 0.6745 / sqrt(2)``.
 
@@ -219,7 +225,7 @@ def sigma_from_differences(x: np.ndarray, lag: int = 1, blocks: np.ndarray | Non
         d = d[b[lag:] == b[:-lag]]
     if len(d) == 0:
         return float(max(np.std(x), 1e-9))
-    mad = float(np.median(np.abs(d - np.median(d)))) / 0.6745 / np.sqrt(2.0)
+    mad = _robust_sd(d) / np.sqrt(2.0)
     if mad <= 0:
         mad = float(np.std(d)) / np.sqrt(2.0)
     return max(mad, 1e-9)
@@ -612,7 +618,11 @@ def _bootstrap_se(
             prob.edges,
         )[:3]
     with np.errstate(invalid="ignore"):
-        sd = reps.std(axis=0, ddof=1) if (n_boot > 1 and nb >= MIN_BLOCKS) else np.full(3, np.nan)
+        sd = (
+            reps.std(axis=0, ddof=1)
+            if (n_boot > 1 and nb >= MIN_BOOT_BLOCKS)
+            else np.full(3, np.nan)
+        )
     return float(sd[0]), float(sd[1]), float(sd[2])
 
 
@@ -673,7 +683,7 @@ def fit_sliding(
             pick = rng.integers(0, len(labels), len(labels))
             rows = np.concatenate([members[k] for k in pick])
             reps[r] = ls(rows)[:2]
-        if len(labels) >= MIN_BLOCKS:
+        if len(labels) >= MIN_BOOT_BLOCKS:
             se_c, se_v = (float(v) for v in reps.std(axis=0, ddof=1))
     return fc, fv, fit, se_c, se_v
 
@@ -748,7 +758,7 @@ def held_levels(
     d2 = (m[2:] - 2.0 * m[1:-1] + m[:-2])[same]
     if len(d2) < 10:
         return None
-    sig = float(np.median(np.abs(d2 - np.median(d2)))) / 0.6745 / np.sqrt(6.0)
+    sig = _robust_sd(d2) / np.sqrt(6.0)
     if not sig > 0:
         return None
     z = float(-ndtri(level / (2 * len(m))))
