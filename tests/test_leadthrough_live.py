@@ -104,9 +104,20 @@ def test_one_update_late_changes_the_path_a_little():
     assert 0.01 * span < d < 0.25 * span
 
 
-def _children(pid: int) -> list[int]:
+def _estimators(pid: int) -> list[int]:
+    """The children of ``pid`` that run ``ditherlab live`` (not a helper an import starts and
+    ends, such as ``ldconfig -p`` from ``ctypes.util.find_library``)."""
     path = Path(f"/proc/{pid}/task/{pid}/children")
-    return [int(c) for c in path.read_text().split()] if path.exists() else []
+    kids = [int(c) for c in path.read_text().split()] if path.exists() else []
+    found = []
+    for kid in kids:
+        try:
+            argv = Path(f"/proc/{kid}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"ditherlab" in argv and b"live" in argv:
+            found.append(kid)
+    return found
 
 
 def test_the_estimator_dying_is_one_line(model_file, tmp_path):
@@ -122,7 +133,7 @@ def test_the_estimator_dying_is_one_line(model_file, tmp_path):
     end = time.monotonic() + 60
     kids: list[int] = []
     while not kids and time.monotonic() < end and p.poll() is None:
-        kids = _children(p.pid)
+        kids = _estimators(p.pid)
         time.sleep(0.05)
     assert kids, "no estimator process started"
     time.sleep(4.0)  # running: subscribed and estimating
