@@ -43,14 +43,23 @@ DOMAIN = 100 + os.getpid() % 100
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    """A 1.2 s piece of the simulated dithered push campaign (motion, dither on, a push) and
-    the round-valued IRB140 model."""
+    """A 1.2 s piece of the simulated dithered push campaign (motion, dither on, a push), a
+    12 s piece from the same start, and the round-valued IRB140 model."""
     d = tmp_path_factory.mktemp("live")
     whole = read(REPO / "recordings" / "sim-push-dither.parquet")
     rec = whole.with_data(whole.data.iloc[900:1200].reset_index(drop=True))
     write(rec, d / "rec.parquet")
+    # 12 s: still playing when a Ctrl-C sent 0.4 s in arrives on a loaded machine
+    long = whole.with_data(whole.data.iloc[900:3900].reset_index(drop=True))
+    write(long, d / "long.parquet")
     irb140_model().save(d / "model.toml")
-    return {"rec": d / "rec.parquet", "model": d / "model.toml", "n": len(rec)}
+    return {
+        "rec": d / "rec.parquet",
+        "model": d / "model.toml",
+        "n": len(rec),
+        "long": d / "long.parquet",
+        "n_long": len(long),
+    }
 
 
 def _env() -> dict[str, str]:
@@ -249,7 +258,7 @@ def test_ctrl_c_closes_the_file(files, tmp_path):
     out, rc = tmp_path / "int.parquet", tmp_path / "rc.parquet"
     cmd = [
         sys.executable, "-m", "ditherlab", "live", "--model", str(files["model"]),
-        "--source", f"file:{files['rec']}", "--sink", f"parquet:{out}",
+        "--source", f"file:{files['long']}", "--sink", f"parquet:{out}",
     ]  # fmt: skip
     p = subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert "live: estimating" in p.stderr.readline()
@@ -259,11 +268,11 @@ def test_ctrl_c_closes_the_file(files, tmp_path):
     assert p.returncode == 0, stderr
     assert "stopped: interrupted (Ctrl-C)" in stdout and "Traceback" not in stderr
     got = _columns(out)
-    assert 0 < len(got["t"]) < files["n"]
+    assert 0 < len(got["t"]) < files["n_long"]
     from conftest import run_cli
 
     assert (
-        run_cli("replay", files["rec"], "--model", files["model"], "-o", rc, "--causal").code == 0
+        run_cli("replay", files["long"], "--model", files["model"], "-o", rc, "--causal").code == 0
     )
     want = _columns(rc)
     for k in got:
