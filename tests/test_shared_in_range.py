@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import tomllib
+from pathlib import Path
 
 import pytest
 from conftest import run_cli
@@ -52,3 +53,23 @@ def test_a_sensor_turned_to_the_edge_is_held_there_and_beyond_it_refused(tmp_pat
             assert r.code == 2 and not out.exists(), r.err
             line = r.err.strip()
             assert "\n" not in line and "rotation angle" in line and "0..20" in line, line
+
+
+def test_each_axis_of_a_sensor_bias_is_clipped_to_its_own_range():
+    """A shared fit whose parameters are each bounded on their own (``ft_bias``, ``ft_drift``:
+    within ± the largest reading of the axis) is moved to the nearest point inside by clipping
+    each axis; the axes inside are kept, and an effect without such ranges has no such point."""
+    import numpy as np
+
+    from ditherlab import read
+    from ditherlab.physics.effect_fit import _clipped
+    from ditherlab.physics.effects import EFFECTS, Signals
+
+    sig = [Signals(read(Path(__file__).parents[1] / "recordings" / "sim-push-dither.parquet"))]
+    top = np.abs(sig[0].wrench("test")).max(axis=0)
+    w = top * [0.5, -2.0, 0.1, 1.5, 0.0, -0.2]
+    for name in ("ft_bias", "ft_drift"):
+        got = _clipped(EFFECTS[name], sig, w)
+        want = top * [0.5, -1.0, 0.1, 1.0, 0.0, -0.2]
+        np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert _clipped(EFFECTS["ft_frame"], sig, w) is None  # its ranges are of several parameters

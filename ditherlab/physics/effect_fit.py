@@ -23,7 +23,7 @@ from ditherlab.core.linalg import spd_solve
 from ditherlab.core.names import MOVING, Regime
 from ditherlab.core.timeseries import autocorrelation_time, tmm
 from ditherlab.data.torque_model import TorqueModel
-from ditherlab.physics.effects import Effect, FitResult, design_at, make_spec
+from ditherlab.physics.effects import Effect, FitResult, Signals, design_at, make_spec
 from ditherlab.physics.effects.ranges import OutOfRange
 from ditherlab.physics.residual import Scored
 
@@ -893,13 +893,19 @@ def _edge_accepted(st: Any, w_free: np.ndarray, L_free: float, L_held: float, df
 
 
 def shared_in_range(e: Effect, sc: Sequence[Scored], fit: FitResult) -> FitResult:
-    """A shared fit of ``e`` outside a range that is a function of several parameters (a
-    sensor's rotation angle) moved to the nearest point inside (:meth:`Effect.to_range`), the
-    bands' centres and sliding line re-fitted beside it, when the data do not reject it
+    """A shared fit of ``e`` outside a range moved to the nearest point inside, the bands'
+    centres and sliding line re-fitted beside it, when the data do not reject it
     (:func:`_edge_accepted`, one degree of freedom per range left); ``fit`` itself otherwise,
-    which :func:`out_of_range` then reports."""
+    which :func:`out_of_range` then reports. The nearest point: :meth:`Effect.to_range` for a
+    range that is a function of several parameters (a sensor's rotation angle), else each
+    linear parameter clipped to its own range (:func:`_clipped`: a sensor bias's axes)."""
     bad = out_of_range(e, sc, {-1: fit})
-    w = e.to_range(np.asarray(fit.w, dtype=float)) if bad else None
+    sigs = [x.sig for x in sc]
+    w = None
+    if bad:
+        w0 = np.asarray(fit.w, dtype=float)
+        w = e.to_range(w0)
+        w = _clipped(e, sigs, w0) if w is None else w
     if w is None:
         return fit
     st = stack(e, sc, None, fit.h, fit.ref)
@@ -912,7 +918,6 @@ def shared_in_range(e: Effect, sc: Sequence[Scored], fit: FitResult) -> FitResul
     got = _solve_held(st, sg, held, v)
     if got is None:
         return fit
-    sigs = [x.sig for x in sc]
     p = make_spec(e, {-1: fit}).params
     df = 0
     for b in e.bounds:
@@ -924,6 +929,23 @@ def shared_in_range(e: Effect, sc: Sequence[Scored], fit: FitResult) -> FitResul
     ):
         return fit
     return held_fit
+
+
+def _clipped(e: Effect, sigs: Sequence[Signals], w: np.ndarray) -> np.ndarray | None:
+    """The shared fit's linear parameters ``w`` (k,) each clipped to the range of its own
+    :class:`~ditherlab.physics.effects.ranges.Bound` (one that bounds the parameter itself) on
+    the recordings ``sigs``; None when no linear parameter has one."""
+    lims = {
+        b.param: b.limits(sigs, None) for b in e.bounds if b.value is None and b.param in e.linear
+    }
+    if not lims:
+        return None
+    out = np.array(w, dtype=float)
+    for i, name in enumerate(e.linear):
+        if name in lims:
+            lo, hi = lims[name]
+            out[i] = min(max(out[i], lo), hi)
+    return out
 
 
 def physical_fits(
