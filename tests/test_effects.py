@@ -40,8 +40,8 @@ NAMES = (
     "attenuation_lag ft_bias inertia"
 ).split()
 #: effects for real robots, each tested in its own file (test_effects_real.py,
-#: test_effects_frame_dynamics.py), tried after the first nine
-LATER = {"drive_gain", "joint_offset", "ft_frame", "dynamics"}
+#: test_effects_frame_dynamics.py, test_effect_ft_drift.py), tried after the first nine
+LATER = {"drive_gain", "joint_offset", "ft_frame", "dynamics", "ft_drift"}
 
 
 def make_recording(

@@ -202,7 +202,7 @@ def test_each_planted_effect_acts_on_its_joints_with_its_recorded_size(base, nam
     diff = np.sqrt(np.mean((rec.tau - base.tau) ** 2, axis=0))
     assert np.allclose(truth["tau_rms"], diff, rtol=1e-12, atol=1e-12)
     noise = np.asarray(rec.meta["sim"]["noise_std"])
-    if name in ("ft_bias", "ft_frame"):
+    if name in ("ft_bias", "ft_drift", "ft_frame"):
         assert np.all(diff == 0)
         w = np.sqrt(np.mean((rec.wrench - base.wrench) ** 2, axis=0))
         assert np.allclose(truth["wrench_rms"], w) and np.max(w) > 0.1

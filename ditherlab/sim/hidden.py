@@ -17,6 +17,7 @@ The truth of every injected effect goes into ``meta["sim"]["hidden"]``.
 | ``attenuation_lag`` | [-] share | a compliant support carries ``SIZE`` of the push; the rest reaches the arm through a tool mount with a first-order lag ``time_constant``; the F/T sensor sees the whole push |
 | ``stribeck`` | [-] | slipping friction ``Fc (1 + SIZE exp(-(v/vs)^2))`` |
 | ``ft_bias`` | [N] | the F/T sensor's force channels carry a constant offset of this magnitude, direction drawn from the seed |
+| ``ft_drift`` | [N] | the F/T sensor warms up: its force channels' offset grows as ``SIZE (1 - exp(-t/time_constant))`` from the first sample, direction drawn from the seed |
 | ``dynamics`` | [-] | link ``link``'s mass is ``(1 + SIZE)`` times the URDF's (its rotational inertia too) and its centre of mass shifted by ``com_shift`` (link frame): the plant's dynamics differ from the model the controller and diagnosis use |
 | ``ft_frame`` | [deg] | the F/T sensor is mounted turned by SIZE degrees about an axis of the tool frame drawn from the seed; its reading, in its own axes, is logged as if in the tool's axes (the arm feels the true push) |
 """
@@ -43,6 +44,7 @@ EFFECTS: dict[str, str] = {
     "attenuation_lag": "share",
     "stribeck": "share of Fc",
     "ft_bias": "N",
+    "ft_drift": "N",
     "ft_frame": "deg",
     "dynamics": "share of the link's mass",
 }
@@ -121,6 +123,7 @@ class HiddenPlant:
     arm_share: float = 1.0  # share of the push reaching the arm
     lag: float = 0.0  # [s] first-order lag of that share
     ft_bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    ft_warm: np.ndarray | None = None  # (N, 6) [N, N·m] the F/T sensor's warm-up offset
     ft_mount: np.ndarray | None = None  # (3, 3) the F/T sensor's axes in tool axes
     link_change: dict[str, Any] | None = None  # a link's inertial parameters changed
     tau_scale: np.ndarray | None = None  # (n,) logged / true torque of each drive
@@ -167,7 +170,8 @@ class HiddenPlant:
         """The F/T columns (N, 6), base axes, for the wrench (N, 6) the robot exerts at the tool
         point: the sensor reads it in its own axes (turned by ``ft_mount`` in the tool frame,
         the tool's axes from the plant's link angles ``q_link`` (N, n)), the log turns that
-        reading back with the tool's axes; then ``ft_bias`` is added. Noise not included."""
+        reading back with the tool's axes; then ``ft_bias`` and the warm-up ``ft_warm`` are
+        added. Noise not included."""
         out = np.array(wrench, dtype=float)
         if self.ft_mount is not None:
             tool_axes = robot.tool_pose(q_link)[:, :3, :3]  # in base axes
@@ -176,7 +180,8 @@ class HiddenPlant:
                 # sensor components, then taken as the tool's
                 reading = _fixed_sum(np.swapaxes(sensor_axes, 1, 2) * out[:, None, a])
                 out[:, a] = _fixed_sum(tool_axes * reading[:, None, :])
-        return out + self.ft_bias
+        out = out + self.ft_bias
+        return out if self.ft_warm is None else out + self.ft_warm
 
 
 def _fixed_sum(x: np.ndarray) -> np.ndarray:
@@ -290,6 +295,16 @@ def _ft_bias(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, An
     return {"bias": [float(v) for v in hp.ft_bias]}
 
 
+def _ft_drift(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
+    d = run.rng.normal(size=3)
+    d /= vector_norm(d)
+    T = float(cfg["time_constant"])
+    warm = size * (1.0 - np.exp(-(run.t - run.t[0]) / T))
+    hp.ft_warm = np.zeros((len(run.t), 6))
+    hp.ft_warm[:, :3] = warm[:, None] * d
+    return {"direction": [float(v) for v in d], "time_constant": T}
+
+
 def _ft_frame(hp: HiddenPlant, size: float, cfg: dict, run: _Run) -> dict[str, Any]:
     axis = run.rng.normal(size=3)
     axis /= vector_norm(axis)
@@ -318,6 +333,7 @@ _PLANT_TERMS: dict[str, Callable[[HiddenPlant, float, dict, _Run], dict[str, Any
     "attenuation_lag": _attenuation_lag,
     "stribeck": _stribeck,
     "ft_bias": _ft_bias,
+    "ft_drift": _ft_drift,
     "ft_frame": _ft_frame,
     "dynamics": _dynamics,
 }

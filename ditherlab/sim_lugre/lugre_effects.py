@@ -1,7 +1,7 @@
 """Effects planted in the LuGre plant, each as its physical cause in the plant's own terms.
 
 ``--hidden NAME[:SIZE][@J1,J2,...]``: the joints (1-based) of a per-joint effect (default joints
-2 and 3); a shared effect (payload, attenuation_lag, ft_bias, ft_frame) takes no joints. What
+2 and 3); a shared effect (payload, attenuation_lag, ft_bias, ft_drift, ft_frame) takes no joints. What
 each plants, and the unit of SIZE:
 
 | name | SIZE | the physical cause planted |
@@ -14,6 +14,7 @@ each plants, and the unit of SIZE:
 | ``payload`` | kg | a point mass on the flange, its centre drawn in the tool frame (x, y ±3 cm, z 2..10 cm), absent from the controller's model |
 | ``attenuation_lag`` | share | a compliant support carries SIZE of each push; the rest reaches the arm through a tool mount with a first-order lag of 0.05..0.2 s; the F/T sensor sees the whole push |
 | ``ft_bias`` | N | a constant force offset of the F/T sensor, direction drawn |
+| ``ft_drift`` | N | the F/T sensor switched on as the log starts: a further warm-up of its force channels towards an offset of SIZE (direction drawn), time constant 60..600 s |
 | ``inertia`` | kg m² | a heavier rotor (motor and brake): reflected inertia added, absent from the servo's tuning |
 | ``drive_gain`` | logged / true | the drive's current-to-torque constant is off: the logged torque is SIZE times the delivered one |
 | ``ft_frame`` | deg | the F/T sensor mounted turned by SIZE about a drawn axis of the tool frame |
@@ -48,6 +49,7 @@ EFFECTS: dict[str, tuple[str, float]] = {
     "payload": ("kg", 2.0),
     "attenuation_lag": ("share", 0.3),
     "ft_bias": ("N", 3.0),
+    "ft_drift": ("N", 3.0),
     "inertia": ("kg m²", 1.0),
     "drive_gain": ("logged / true torque", 1.1),
     "ft_frame": ("deg", 5.0),
@@ -56,7 +58,7 @@ EFFECTS: dict[str, tuple[str, float]] = {
     "dither_extraction": ("share of the dither lost", 0.5),
 }
 #: effects of the whole arm or sensor: no @JOINTS
-SHARED = {"payload", "attenuation_lag", "ft_bias", "ft_frame"}
+SHARED = {"payload", "attenuation_lag", "ft_bias", "ft_drift", "ft_frame"}
 DEFAULT_JOINTS = (2, 3)
 #: upper bounds of SIZE where a larger value is not the effect any more
 MAX_SIZE = {"joint_offset": 0.1, "attenuation_lag": 1.0, "dither_extraction": 1.0}
@@ -156,6 +158,8 @@ class Planted:
     arm_share: float = 1.0
     lag: float = 0.0
     ft_bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    ft_warm: np.ndarray = field(default_factory=lambda: np.zeros(6))  # [N] planted warm-up offset
+    ft_warm_time: float = 1.0  # [s] its time constant
     ft_mount: np.ndarray | None = None
     truth: list[dict[str, Any]] = field(default_factory=list)
 
@@ -220,6 +224,13 @@ def _ft_bias(p: Planted, s: PlantSpec, rng: np.random.Generator) -> dict[str, An
     return {"bias": p.ft_bias.tolist()}
 
 
+def _ft_drift(p: Planted, s: PlantSpec, rng: np.random.Generator) -> dict[str, Any]:
+    d = rng.normal(size=3)
+    p.ft_warm = np.concatenate([s.size * d / np.sqrt(d @ d), np.zeros(3)])
+    p.ft_warm_time = float(rng.uniform(60.0, 600.0))
+    return {"offset": p.ft_warm.tolist(), "time_constant": p.ft_warm_time}
+
+
 def _ft_frame(p: Planted, s: PlantSpec, rng: np.random.Generator) -> dict[str, Any]:
     axis = rng.normal(size=3)
     axis /= np.sqrt(axis @ axis)
@@ -258,6 +269,7 @@ _TERMS: dict[str, Callable[[Planted, PlantSpec, np.random.Generator], dict[str, 
     "payload": _payload,
     "attenuation_lag": _attenuation,
     "ft_bias": _ft_bias,
+    "ft_drift": _ft_drift,
     "inertia": _per_joint,
     "drive_gain": _per_joint,
     "ft_frame": _ft_frame,

@@ -8,8 +8,8 @@
 - ``t``: the nominal sample times plus a time-stamp jitter (the samples are taken on time; the
   stamps are not) [s].
 - ``f_x .. m_z``: the F/T sensor: the wrench through a mounting rotation (``ft_frame``), a
-  first-order low-pass, a bias (``ft_bias`` planted, a random walk and a warm-up drift) and
-  white noise [N, N·m], in base axes at the tool point.
+  first-order low-pass, a bias (``ft_bias`` planted, a random walk, the sensor's own warm-up
+  and a planted one, ``ft_drift``) and white noise [N, N·m], in base axes at the tool point.
 - ``temp_j``: the joints' temperatures [°C] (with ``temperature_friction`` planted), quantised
   to 0.1 °C.
 """
@@ -93,7 +93,8 @@ def logged_wrench(run: TrueRun, p: LugreParams, planted: Planted, t: np.ndarray,
     warm_dir = rng.normal(size=6)
     warm = ft["warmup"] * (1 - np.exp(-(t - t[0]) / ft["warmup_time"]))[:, None] * warm_dir
     noise = rng.standard_normal((len(t), 6)) * ft["force_noise"]
-    return w + planted.ft_bias + (walk + warm + noise) * scale
+    planted_warm = -np.expm1(-(t - t[0]) / planted.ft_warm_time)[:, None] * planted.ft_warm
+    return w + planted.ft_bias + planted_warm + (walk + warm + noise) * scale
 
 
 def temperatures(t: np.ndarray, planted: Planted) -> np.ndarray:

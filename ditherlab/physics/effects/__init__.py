@@ -28,6 +28,9 @@ effect                   torque on joint j (the fitted parameters in bold)     d
                          servo shows **g** · lag_L(mean_W(J^T F)): the          period W
                          extraction's underestimate and lag (L fitted)
 ``ft_bias``              the sensor reads F + **b**: the true wrench is F - b    F/T columns
+``ft_drift``             the sensor reads F + **d** x(t), a warm-up x(t) = (1 -   F/T columns, t
+                         exp(-t/**T**)) / (1 - exp(-S/T)) from the first sample
+                         (**d**: the drift over the S seconds fitted on)
 ``inertia``              **s** · (M(q) ddq + C(q, dq) dq)_j + **Jm** · ddq_j     ddq, dq
 ``drive_gain``           the log reads **k** · tau: (**k** - 1) · (tau_grav +     tau_grav + J^T F
                          J^T F + M ddq + C dq)_j                               (+ M ddq +
@@ -45,7 +48,8 @@ Friction-type effects act as a sliding torque only in the ``moving`` regime; whi
 sticks, friction is whatever lies in the band, so there they can only change the band's width.
 Parameters in bold are fitted by least squares on the model's residual (:mod:`ditherlab.physics.effect_fit`;
 nonlinear ones — vs, T, P, d — by a search over a grid), per joint, except ``payload``,
-``ft_bias`` and ``joint_offset`` whose parameters are shared by all joints.
+``ft_bias``, ``ft_drift``, ``ft_frame`` and ``joint_offset`` whose parameters are shared by all
+joints.
 
 The package, bottom up: ``signals`` (the arrays of a recording effects are driven by, with or
 without the F/T sensor), ``base`` (the :class:`Effect` interface), one module per family
@@ -81,7 +85,7 @@ from ditherlab.physics.effects.library import (
     spec_params,
 )
 from ditherlab.physics.effects.rigid import Dynamics, Inertia, Payload
-from ditherlab.physics.effects.sensor import AttenuationLag, FtBias, FtFrame
+from ditherlab.physics.effects.sensor import AttenuationLag, FtBias, FtDrift, FtFrame
 from ditherlab.physics.effects.signals import Signals, release, signals
 from ditherlab.physics.effects.transmission import PositionRipple
 
@@ -95,6 +99,7 @@ __all__ = [
     "Effect",
     "FitResult",
     "FtBias",
+    "FtDrift",
     "FtFrame",
     "Inertia",
     "JointOffset",

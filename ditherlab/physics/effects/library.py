@@ -47,7 +47,7 @@ def get_effect(name: str) -> Effect:
 
 
 #: data-derived reference values stored with an effect's parameters
-REF_KEYS = ("load_ref", "friction_level", "x_ref", "base_columns")
+REF_KEYS = ("load_ref", "friction_level", "x_ref", "base_columns", "span")
 
 
 def spec_params(e: Effect, j: int, spec: EffectSpec) -> tuple[np.ndarray, Any, dict]:
@@ -74,7 +74,8 @@ def spec_params(e: Effect, j: int, spec: EffectSpec) -> tuple[np.ndarray, Any, d
 def _spec_params(e: Effect, j: int, spec: EffectSpec) -> tuple[np.ndarray, Any, dict]:
     p = spec.params
     if e.shared:
-        return e.weights(p), None, {key: p[key] for key in REF_KEYS if key in p}
+        h0: Any = p.get(e.hyper) if isinstance(e.hyper, str) else None
+        return e.weights(p), h0, {key: p[key] for key in REF_KEYS if key in p}
     k = spec.joints.index(j + 1)
 
     def at(v: Any) -> Any:
@@ -122,7 +123,8 @@ def make_spec(e: Effect, fits: dict[int, FitResult]) -> EffectSpec:
     """An EffectSpec from per-joint fits (0-based joint -> FitResult), lists per joint."""
     if e.shared:
         ref = {key: v for key, v in fits[-1].ref.items() if key in REF_KEYS}
-        return EffectSpec(e.name, [], {**e.linear_params(fits[-1].w), **ref})
+        hyper = hyper_params(e, fits[-1].h)
+        return EffectSpec(e.name, [], {**e.linear_params(fits[-1].w), **hyper, **ref})
     joints = sorted(fits)
     params = {c: [float(fits[j].w[i]) for j in joints] for i, c in enumerate(e.linear)}
     if e.hyper:

@@ -1,5 +1,5 @@
 """Effects of how the external wrench is seen: the servo's attenuation and lag of ``J^T F``,
-and the reference F/T sensor's bias and mounting frame.
+and the reference F/T sensor's bias, the bias's drift and the sensor's mounting frame.
 """
 
 from __future__ import annotations
@@ -54,7 +54,19 @@ def _offset_m(p, sigs) -> float:
     return float(np.linalg.norm(np.asarray(p["offset"], dtype=float)))
 
 
-__all__ = ["AttenuationLag", "FtBias", "FtFrame"]
+#: the time constants of a sensor's warm-up [s] (``ft_drift``)
+WARM_UP_S = (5.0, 3600.0)
+
+
+def _less(ext: str, term: str) -> str:
+    """The external torque's text ``ext`` (``J^T F``, ``J^T (F - a)``, ``J^T ft_frame·F``, ...)
+    with ``term`` taken from the wrench: ``J^T (F - term)``, ``J^T (F - a - term)``, ..."""
+    if ext.endswith(")"):
+        return f"{ext[:-1]} - {term})"
+    return f"{ext[:-1]}(F - {term})" if ext.endswith("F") else f"{ext} - J^T {term}"
+
+
+__all__ = ["AttenuationLag", "FtBias", "FtDrift", "FtFrame"]
 
 
 @njit(cache=True)
@@ -214,11 +226,101 @@ class FtBias(Effect):
         return F - self.weights(p)
 
     def sensor_text(self, ext):
-        return "J^T (F - ft_bias)"
+        return _less(ext, "ft_bias")
 
     def term(self, p, j):
         b = ", ".join(fmt(p[c]) for c in self.linear)
         return f"ft_bias([{b}])"
+
+
+class FtDrift(Effect):
+    """The reference F/T sensor's bias drifts as it warms up: it reads ``F + d x(t)``, ``t``
+    the time since the recording's first sample, ``x(t) = (1 - exp(-t/T)) / (1 - exp(-S/T))``
+    a warm-up of time constant ``T`` [s] scaled to 1 at ``t = S`` (``span``: the longest
+    recording's length when fitted) and ``d`` (6,) the drift over those ``S`` seconds [N, N·m].
+
+    A strain-gauge sensor's zero moves as its electronics and the gauges' bond warm up after
+    power-on (a first-order approach to the warm offset), and with the room's temperature. The
+    parameters are the drift reached within the recording, not the offset when warm: that one is
+    not determined when ``T`` is much longer than the recording (the drift is then a straight
+    line, ``x(t) = t / S``, the grid's longest ``T``). A constant part of the bias is
+    :class:`FtBias`; the two add. The true wrench is ``F - d x(t)``; the torque of the fit is
+    ``-J^T d x(t)``, linear in ``d`` at each ``T`` of the grid. It is identifiable when the
+    pose or the recording's length lets ``J^T x(t)`` differ from the bands' constant.
+    """
+
+    name = "ft_drift"
+    order = 12
+    physics = "the reference F/T sensor's bias drifts as it warms up"
+    driven_by = "J^T (1 - exp(-t/T)): a first-order warm-up from the first sample, T searched"
+    shared = True
+    linear = WRENCH_COLUMNS
+    hyper = "time_constant"
+    kind = "sensor"
+    shows_in = REGIMES
+    bounds = tuple(
+        Bound(
+            c,
+            "N" if c.startswith("f") else "N·m",
+            "within ± the largest reading of the axis",
+            "the drift is part of every reading, so within the recording it cannot exceed the "
+            "largest one",
+            lambda sigs, j, k=k: -_largest_reading(k)(sigs, j),
+            _largest_reading(k),
+        )
+        for k, c in enumerate(WRENCH_COLUMNS)
+    ) + (
+        Bound(
+            "time_constant",
+            "s",
+            f"{WARM_UP_S[0]:g} .. {WARM_UP_S[1]:g} s",
+            "a strain-gauge sensor's electronics and bond warm up over minutes to an hour after "
+            "power-on; a faster change is not a warm-up",
+            WARM_UP_S[0],
+            WARM_UP_S[1],
+        ),
+    )
+
+    def check(self, sig):
+        sig.wrench(self.name)
+
+    def grid(self, sig, j):
+        """Five time constants from an eighth of the recording's span to eight times it, each
+        within :data:`WARM_UP_S`."""
+        S = self.reference(sig, j)["span"]
+        T = np.clip(np.geomspace(S / 8.0, 8.0 * S, 5), *WARM_UP_S)
+        return [float(v) for v in np.unique(T)]
+
+    def reference(self, sig, j):
+        return {"span": float(max(s.length - 1 for s in sig) / sig[0].sample_rate) or 1.0}
+
+    @staticmethod
+    def shape(ts: np.ndarray, T: float, span: float) -> np.ndarray:
+        """``x(t)`` (N,) [-] at the times since the first sample ``ts`` (N,) [s]."""
+        return -np.expm1(-ts / T) / -math.expm1(-span / T)
+
+    def design(self, sig, j, h, ref):
+        sig.wrench(self.name)
+        x = self.shape(sig.ts, float(h), float(ref["span"]))
+        return Design(-sig.jac.transpose(0, 2, 1) * x[:, None, None])
+
+    def _drift(self, sig: Signals, p: dict[str, Any]) -> np.ndarray:
+        """(N, 6) [N, N·m] the drift at the samples of ``sig``."""
+        x = self.shape(sig.ts, float(p["time_constant"]), float(p["span"]))
+        return x[:, None] * self.weights(p)
+
+    def driver(self, sig, j, p):
+        return -sig.jtf(self._drift(sig, p))[:, j], f"-(J^T drift)_{j + 1} [N·m]"
+
+    def correct_wrench(self, F, p, sig):
+        return F - self._drift(sig, p)
+
+    def sensor_text(self, ext):
+        return _less(ext, "ft_drift(t)")
+
+    def term(self, p, j):
+        d = ", ".join(fmt(p[c]) for c in self.linear)
+        return f"ft_drift([{d}] over {fmt(p['span'])} s, time constant {fmt(p['time_constant'])} s)"
 
 
 class FtFrame(Effect):
