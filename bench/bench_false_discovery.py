@@ -15,8 +15,8 @@ families:
 | ``standing-no-sensor`` | ``push-campaign`` with the F/T columns removed: pushes nobody measured, ``identify --assume-no-force`` |
 
 Every recording then goes through ``identify --add inertia`` (the simulated arm always has link
-and motor inertia, which the base model lacks), on a dithered log with the F/T sensor also
-``--add dither_extraction`` (the dither's extraction shows a push late and in part, 0.8-0.9 of
+and motor inertia, which the base model lacks, :func:`known_effects`), on a dithered log with
+the F/T sensor also ``--add dither_extraction`` (the dither's extraction shows a push late and in part, 0.8-0.9 of
 it: a part of the method, not of a hidden plant; left out, diagnose finds it on 7 of the 14
 standing logs), each where the log can identify it (else the other, else ``identify``
 alone), and ``diagnose --json``. A **false discovery** is a recording on which diagnose
@@ -35,8 +35,9 @@ own families:
 | ``standing-no-sensor`` | ``standing``: pushes by hand and no F/T columns, ``identify --assume-no-force`` |
 
 The LuGre plant's friction law has a Stribeck curve in every joint (its static level is
-1.1-1.7 times its Coulomb level), which the base model lacks as it lacks inertia: its recordings'
-models add ``stribeck`` beside ``inertia``. The LuGre plant logs ``temp_j`` only with ``temperature_friction`` planted, and then its friction
+1.1-1.7 times its Coulomb level), and its F/T sensor warms up from the first sample (0.2-1.5 N
+over 60-600 s), which the base model lacks as it lacks inertia: its recordings' models add
+``stribeck`` beside ``inertia``, and ``ft_drift`` where the log has the sensor. The LuGre plant logs ``temp_j`` only with ``temperature_friction`` planted, and then its friction
 does fall with the temperature, so it has no family of inert logged temperatures.
 
 ``make bench`` runs 50 recordings on the built-in plant and 16 on the LuGre plant (``quick``: one
@@ -205,6 +206,23 @@ def _toml(cfg: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def known_effects(plant: str, sensor: bool) -> list[str]:
+    """What ``plant`` always has and the base model lacks, which a recording's model adds
+    before diagnosis: ``inertia`` (every arm has link and motor inertia); on the LuGre plant
+    ``stribeck`` (its friction law's static level Fs is 1.1-1.7 times its Coulomb level Fc) and,
+    where the log has the F/T sensor, ``ft_drift`` (its sensor warms up from the first sample:
+    0.2-1.5 N over 60-600 s, ``ditherlab/sim_lugre/lugre_params.py``)."""
+    if plant != "lugre":
+        return ["inertia"]
+    return ["inertia", "stribeck"] + (["ft_drift"] if sensor else [])
+
+
+def add_sets(known: list[str]) -> list[list[str]]:
+    """The sets of ``known`` effects to try adding, the largest first: each is added where the
+    log can identify it (``identify --add`` refuses the others)."""
+    return [list(c) for k in range(len(known), -1, -1) for c in combinations(known, k)]
+
+
 def _cli(*args: Any) -> subprocess.CompletedProcess:
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     return subprocess.run(
@@ -245,15 +263,10 @@ def one(s: dict[str, Any], work: Path) -> dict[str, Any]:
         _drop_sensor(rec)
     extra = ["--assume-no-force"] if s["no_sensor"] else []
     model = d / "model.toml"
-    # what the plant always has and the base model lacks: inertia, and on a dithered log with
-    # measured pushes the dither's extraction (a part of the method, docs/method.md "Where the
-    # estimator reads the extraction"); each added where the log can identify it, the largest
-    # set first. The LuGre plant's friction always has a Stribeck curve (its static level Fs is
-    # 1.1-1.7 times its Coulomb level Fc), which the base model lacks: its model adds it too.
-    known = ["inertia"] + (["stribeck"] if s.get("plant") == "lugre" else [])
-    known += ["dither_extraction"] if s["dither"] and not s["no_sensor"] else []
-    sets = [list(c) for k in range(len(known), -1, -1) for c in combinations(known, k)]
-    for adds in sets:
+    sensor = not s["no_sensor"]
+    known = known_effects(s.get("plant", "band"), sensor)
+    known += ["dither_extraction"] if s["dither"] and sensor else []
+    for adds in add_sets(known):
         flags = [a for e in adds for a in ("--add", e)]
         r = _cli("identify", rec, *flags, "--bootstrap", "0", "-o", model, "-q", *extra)
         if r.returncode == 0:

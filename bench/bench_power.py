@@ -2,17 +2,18 @@
 in noise floors, on the built-in plant and the LuGre plant, through the CLI.
 
 Draws come in groups of one seed and one arm (the same plant draw): the clean recording is
-simulated and identified once (``identify --add inertia``, on the LuGre plant ``--add inertia
---add stribeck``, as the false-discovery study does, :mod:`bench.bench_false_discovery`), then each effect of the group is planted with a drawn size
-on drawn joints in the same seed's recording and ``diagnose --json`` runs on it with the clean
-model. Every setting comes from the master seed (``--seed``).
+simulated and identified once with what the plant always has
+(:func:`bench.bench_false_discovery.known_effects`: ``--add inertia``, on the LuGre plant also
+``--add stribeck --add ft_drift``, as the false-discovery study does), then each effect of the
+group is planted with a drawn size on drawn joints in the same seed's recording and
+``diagnose --json`` runs on it with the clean model. Every setting comes from the master seed (``--seed``).
 
 The **size** of an effect on a joint is the RMS of what it adds to the model's residual, divided
 by the joint's noise floor. What it adds: the planted recording's logged torque minus the clean
 one's (the same seed: the same noise draw), minus ``J(q)^T`` times the change of the F/T reading
-(an effect of the sensor, ``ft_bias`` or ``ft_frame``, changes the reading, not the torque). The
-floor: on the LuGre plant the recording's ``meta["sim"]["noise_std"]``; on the built-in plant
-the noise floor ``diagnose`` reports for the joint (``residual.noise_floor`` of its JSON). On the
+(an effect of the sensor, ``ft_bias``, ``ft_drift`` or ``ft_frame``, changes the reading, not the
+torque). The floor: on the LuGre plant the recording's ``meta["sim"]["noise_std"]``; on the
+built-in plant the noise floor ``diagnose`` reports for the joint (``residual.noise_floor`` of its JSON). On the
 LuGre plant the row also holds the metadata's own ``tau_rms / noise_std`` (``meta_floors``: the
 logged torque only), and on both what ``diagnose`` sees (``excess_floors``: the growth of the
 joint's residual RMS from the clean recording's report to the planted one's, over the floor;
@@ -22,8 +23,8 @@ Per draw and joint where the effect adds at least a quarter of a floor, a row: t
 the effect is **suggested on that joint** (``found``), whether it is the **first** suggestion
 (ranked by the share of the residual explained), the joint's p-value, and what else was
 suggested. The effects the clean model already holds are not planted: ``inertia`` (both plants'
-arms have motor inertia), ``stribeck`` on the LuGre plant (its friction law has the curve), and
-``dither_extraction`` (the draws do not dither: the clean model would hold it).
+arms have motor inertia), ``stribeck`` and ``ft_drift`` on the LuGre plant (its friction law
+has the curve, its sensor warms up), and ``dither_extraction`` (the draws do not dither: the clean model would hold it).
 
 ``python -m bench.bench_power --plant lugre --n N --jobs 2 --out DIR`` writes ``DIR/power.csv``;
 ``make bench`` runs one group per plant (``quick``: three effects per plant).
@@ -45,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.bench_false_discovery import _cli
+from bench.bench_false_discovery import _cli, add_sets, known_effects
 
 #: the master seed of the study's draws (not tuned: the first value tried)
 MASTER_SEED = 20261129
@@ -60,6 +61,7 @@ BAND_EFFECTS: dict[str, tuple[float, bool]] = {
     "attenuation_lag": (0.3, False),
     "stribeck": (0.4, False),
     "ft_bias": (3.0, False),
+    "ft_drift": (5.0, False),
     "ft_frame": (5.0, False),
     "dynamics": (0.3, True),
 }
@@ -100,8 +102,9 @@ def effects_of(plant: str) -> dict[str, tuple[float, bool]]:
 #: seed 96339, ``--calibrate``, each effect alone, ``dynamics`` on link 5, the sensor effects and
 #: ``joint_offset`` on joints 2 and 3 simulated alone; LuGre plant: seed 81991, every effect planted
 #: at its default in one recording, each one's ``tau_rms / noise_std`` from the metadata, the two
-#: sensor effects alone). A draw's size is scaled from it so that the largest joint's size is
-#: log-uniform over :data:`FLOOR_RANGE`.
+#: sensor effects alone; ``ft_drift`` on the built-in plant's seed, scaled from ``ft_bias`` by the
+#: ratio of their largest joints' :func:`residual_rms`, 0.69). A draw's size is scaled from it
+#: so that the largest joint's size is log-uniform over :data:`FLOOR_RANGE`.
 FLOORS_AT_DEFAULT: dict[str, dict[str, float]] = {
     "band": {
         "load_friction": 44.1,
@@ -113,6 +116,7 @@ FLOORS_AT_DEFAULT: dict[str, dict[str, float]] = {
         "attenuation_lag": 10.2,
         "stribeck": 21.3,
         "ft_bias": 5.04,
+        "ft_drift": 3.48,
         "ft_frame": 0.62,
         "dynamics": 33.1,
     },
@@ -224,9 +228,9 @@ class Clean:
         err = _simulate(d, folder / "clean.parquet", hidden=False)
         if err:
             return err
-        known = ["--add", "inertia"] + (["--add", "stribeck"] if d["plant"] == "lugre" else [])
-        for adds in (known, known[:2], []):
-            r = _cli("identify", folder / "clean.parquet", *adds, "--bootstrap", "0",
+        for adds in add_sets(known_effects(d["plant"], sensor=True)):
+            flags = [a for e in adds for a in ("--add", e)]
+            r = _cli("identify", folder / "clean.parquet", *flags, "--bootstrap", "0",
                      "-o", folder / "model.toml", "-q", "--force")  # fmt: skip
             if r.returncode == 0:
                 break

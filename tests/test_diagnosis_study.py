@@ -51,8 +51,11 @@ def test_power_plan_plants_only_what_the_plant_can_and_the_model_lacks():
     assert set(bp.effects_of("band")) <= set(BAND)
     assert set(bp.effects_of("lugre")) <= set(LUGRE)
     # what the clean model identifies is never planted
-    assert "inertia" not in bp.effects_of("band") and "inertia" not in bp.effects_of("lugre")
-    assert "stribeck" not in bp.effects_of("lugre")
+    for plant in ("band", "lugre"):
+        known = fdr.known_effects(plant, sensor=True)
+        assert "inertia" in known and not set(known) & set(bp.effects_of(plant))
+    assert {"stribeck", "ft_drift"} <= set(fdr.known_effects("lugre", sensor=True))
+    assert "ft_drift" not in fdr.known_effects("lugre", sensor=False)
     for plant in ("band", "lugre"):
         for d in bp.plan(plant, 60, "irb140"):
             assert d["size"] > 0
