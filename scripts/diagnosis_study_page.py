@@ -221,6 +221,8 @@ def _needs(e) -> str:
         needs.append(f"motion over at least {e.MIN_PERIODS:g} of its periods")
     if e.name == "temperature_friction":
         needs.append("a warm-up (logged `temp_j`, or the time from a cold start)")
+    if e.name == "ft_drift":
+        needs.append("the sensor logged from power-on, over a varying pose")
     return "; ".join(needs) or "varying pose or load"
 
 
@@ -294,7 +296,9 @@ def page(
         "",
         "The clean models hold what each plant always has and the base model lacks: `inertia` "
         "(both), and on the LuGre plant `stribeck` (its friction law has a static level 1.1-1.7 "
-        "times the Coulomb level); these are not planted. The LuGre plant has no family of "
+        "times the Coulomb level) and, where the log has the F/T sensor, `ft_drift` (its sensor "
+        "warms up from the first sample); these are not planted there. The LuGre plant has no "
+        "family of "
         "logged but inert temperatures (it logs `temp_j` only with a warming friction planted).",
         "",
         *power_section(power),
