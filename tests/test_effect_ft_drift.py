@@ -87,7 +87,7 @@ def test_ranked_first_and_the_residual_falls(loop):
 
 def test_the_fitted_drift_is_the_plant_s(loop):
     """The force drift over the recording is the planted one within 15 % of its size (measured
-    on seed 3: 1.97 N planted, 7 % off), and the model's sensor reading minus it is the clean
+    on seed 3: 1.97 N planted, 7.5 % off), and the model's sensor reading minus it is the clean
     reading within a fifth of the drift."""
     rec, m2 = loop["rec"], loop["m2"]
     spec = next(s for s in m2.effects if s.name == "ft_drift")
