@@ -734,18 +734,21 @@ def _linear_ranges(e: Effect, sc: Sequence[Scored], j: int) -> list[tuple[float,
 def _weak_reason(e: Effect, sc: Sequence[Scored], j: int, fit: FitResult) -> str | None:
     """Why a per-joint fit of ``e`` rests on too little evidence (``e.evidence_rules``), or
     None: a linear parameter whose standard error (:func:`linear_stderr`) exceeds its
-    ``stderr_max``. A precise fit outside its physical range is not weak: the data put it
-    beyond an edge, and :func:`pool_weak_joints` holds it at that edge (the least-squares fit
-    within the range), as :func:`bounded_fit` does for other effects; the other joints' values,
-    which may differ from the edge by more than the whole range, are for a joint the data
-    cannot place."""
+    ``stderr_max``, or that lies more than two standard errors outside its physical range
+    (``e.bounds``: the data contradict the physics there, so the joint takes the shared values;
+    a fit within two standard errors of the range is held at its edge by :func:`pool_weak_joints`)."""
     rules = e.evidence_rules or {}
     se = linear_stderr(e, sc, j, fit)
-    for i, name in enumerate(e.linear):
+    for i, (name, (lo, hi)) in enumerate(zip(e.linear, _linear_ranges(e, sc, j), strict=True)):
         v, s = float(fit.w[i]), float(se[i])
         top = rules.get("stderr_max", {}).get(name)
         if top is not None and not s <= top:
             return f"{name} {v:.3g} ± {s:.2g} (standard error above {top:g})"
+        if v - 2 * s > hi or v + 2 * s < lo:
+            return (
+                f"{name} {v:.3g} ± {s:.2g} (outside {lo:g}..{hi:g}, its physical range, "
+                "by more than 2 standard errors)"
+            )
     return None
 
 
@@ -1013,10 +1016,11 @@ def pool_weak_joints(
     """Per-joint fits where the joints with too little evidence take shared parameters.
 
     For an effect with ``evidence_rules`` (``dither_extraction``): a joint whose fit fails them
-    (:func:`_weak_reason`: its own standard error) takes the median of each parameter (linear
-    ones and the searched one, e.g. the lag, then its nearest value on the effect's grid) over
-    the joints whose fits pass, or the effect's ``prior`` when none passes; a passing fit outside
-    the range is held at its edge. Other effects are returned unchanged.
+    (:func:`_weak_reason`: its own standard error, or a value beyond the physical range by more
+    than two standard errors) takes the median of each parameter (linear ones and the searched
+    one, e.g. the lag, then its nearest value on the effect's grid) over the joints whose fits
+    pass, or the effect's ``prior`` when none passes; a passing fit just outside the range is
+    held at its edge. Other effects are returned unchanged.
 
     Parameters
     ----------

@@ -99,11 +99,10 @@ class DitherExtraction(Effect):
     #: the part of a push the extracted signal shows: 0..1 (:attr:`bounds`; the servo and the
     #: centre loop take up the rest, the paper's underestimate). A joint whose gain has a
     #: standard error above 0.25 (a 95 % interval of more than ±0.5: it cannot tell a joint that
-    #: shows half of a push from one that shows all of it) has too little evidence: it takes
-    #: the median gain and lag of the joints with good evidence, or with none the prior: the
-    #: medians of the joint fits on clean dithered simulator recordings
-    #: (``docs/design/physics-effect-models.md``). A precise gain outside 0..1 is held at the
-    #: nearest edge.
+    #: shows half of a push from one that shows all of it), or whose gain lies outside that
+    #: range, has too little evidence: it takes the median gain and lag of the
+    #: joints with good evidence, or with none the prior: the medians of the joint fits on
+    #: clean dithered simulator recordings (``docs/design/physics-effect-models.md``).
     evidence_rules: ClassVar[dict[str, Any]] = {
         "stderr_max": {"gain": 0.25},
         "prior": {"gain": 0.84, "lag": 16},
