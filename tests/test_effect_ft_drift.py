@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 import pytest
+from test_effects_frame_dynamics import _add, _sim
 
 from ditherlab.analysis.diagnosis import diagnose, residual_summary
 from ditherlab.analysis.identification import identify
-from ditherlab.app.identify import add_effect
 from ditherlab.data.torque_model import TorqueModel
 from ditherlab.physics.effects import (
     EFFECTS,
@@ -26,21 +26,6 @@ from ditherlab.physics.effects import (
     spec_params,
 )
 from ditherlab.physics.residual import scored
-from ditherlab.sim import simulate
-
-OPTS = {"blocks": 2, "pushes_per_block": 3}
-SEED = 3
-
-
-def _sim(hidden=()):
-    return simulate("excitation", seed=SEED, dither=False, hidden=list(hidden), **OPTS)
-
-
-def _add(m, rec, name, joints=None):
-    m2 = add_effect([rec], m, name, joints=joints, refit=False)
-    out = identify([rec], base=m2, n_boot=0)
-    out.effects = list(m2.effects)
-    return out
 
 
 def _truth(rec) -> np.ndarray:

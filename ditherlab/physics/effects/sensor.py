@@ -46,6 +46,22 @@ def _largest_reading(c: int):
     return f
 
 
+def _within_readings(source: str) -> tuple[Bound, ...]:
+    """One Bound per F/T column (``f_x`` .. ``m_z``): within ± the largest reading of the axis
+    in the recordings, for the reason ``source``."""
+    return tuple(
+        Bound(
+            c,
+            "N" if c.startswith("f") else "N·m",
+            "within ± the largest reading of the axis",
+            source,
+            lambda sigs, j, k=k: -_largest_reading(k)(sigs, j),
+            _largest_reading(k),
+        )
+        for k, c in enumerate(WRENCH_COLUMNS)
+    )
+
+
 def _angle_deg(p, sigs) -> float:
     return float(np.degrees(np.linalg.norm(np.asarray(p["rotation"], dtype=float))))
 
@@ -199,16 +215,8 @@ class FtBias(Effect):
     linear = WRENCH_COLUMNS
     kind = "sensor"
     shows_in = REGIMES
-    bounds = tuple(
-        Bound(
-            c,
-            "N" if c.startswith("f") else "N·m",
-            "within ± the largest reading of the axis",
-            "a bias is part of every reading, so it cannot exceed the largest one",
-            lambda sigs, j, k=k: -_largest_reading(k)(sigs, j),
-            _largest_reading(k),
-        )
-        for k, c in enumerate(WRENCH_COLUMNS)
+    bounds = _within_readings(
+        "a bias is part of every reading, so it cannot exceed the largest one"
     )
 
     def check(self, sig):
@@ -258,17 +266,9 @@ class FtDrift(Effect):
     hyper = "time_constant"
     kind = "sensor"
     shows_in = REGIMES
-    bounds = tuple(
-        Bound(
-            c,
-            "N" if c.startswith("f") else "N·m",
-            "within ± the largest reading of the axis",
-            "the drift is part of every reading, so within the recording it cannot exceed the "
-            "largest one",
-            lambda sigs, j, k=k: -_largest_reading(k)(sigs, j),
-            _largest_reading(k),
-        )
-        for k, c in enumerate(WRENCH_COLUMNS)
+    bounds = _within_readings(
+        "the drift is part of every reading, so within the recording it cannot exceed the "
+        "largest one"
     ) + (
         Bound(
             "time_constant",
